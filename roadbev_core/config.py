@@ -1,0 +1,346 @@
+"""The one source of truth for the BEV grid and the camera rig.
+
+Every part of the project (labels, backends, models, node, evaluation, synthetic data) reads the
+grid from a :class:`GridSpec` and the rig from a :class:`StereoCamera`; nothing else hard-codes a
+range, a resolution or an intrinsic. Defaults follow ``shared/design/contract.md`` (the paper's
+reference code).
+
+Grid layout (contract, grid_map's own order): ``[row, col]`` with row 0 the farthest row and
+col 0 the leftmost column (largest y). Row ``i`` is centred at ``x_max - (i + 0.5) * res``,
+column ``j`` at ``y_max - (j + 0.5) * res``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+__all__ = ["ConfigError", "GridSpec", "StereoCamera", "GRID_PRESETS", "grid_preset"]
+
+_EPS = 1e-6
+
+
+class ConfigError(ValueError):
+    """A grid, rig or model configuration that cannot work, with the reason."""
+
+
+def _whole_count(span: float, step: float, what: str) -> int:
+    """Number of cells of size ``step`` in ``span``, which must be a whole number."""
+    if not math.isfinite(span) or not math.isfinite(step):
+        raise ConfigError(f"{what}: range and step must be finite (span={span}, step={step})")
+    if step <= 0:
+        raise ConfigError(f"{what}: resolution must be positive, got {step}")
+    if span <= 0:
+        raise ConfigError(f"{what}: empty or inverted range (span {span:.6g} m)")
+    count = span / step
+    if abs(count - round(count)) > 1e-4:
+        raise ConfigError(
+            f"{what}: range of {span:.6g} m is not a whole number of {step:.6g} m cells "
+            f"({count:.4f})"
+        )
+    return int(round(count))
+
+
+@dataclass(frozen=True)
+class GridSpec:
+    """The BEV grid in the road frame (x forward, y left, z up; metres).
+
+    Attributes:
+        x_min, x_max: longitudinal extent (distance ahead of the camera).
+        y_min, y_max: lateral extent (y left positive).
+        resolution: horizontal cell size (square cells).
+        z_min, z_max: vertical range of the voxels of interest (elevation range).
+        z_resolution: vertical voxel size.
+        class_resolution: elevation bin size for the classification output.
+        base_height: height of the camera's optical centre above the road reference plane.
+    """
+
+    x_min: float = 2.16
+    x_max: float = 7.08
+    y_min: float = -0.92
+    y_max: float = 1.00
+    resolution: float = 0.03
+    z_min: float = -0.20
+    z_max: float = 0.20
+    z_resolution: float = 0.01
+    class_resolution: float = 0.005
+    base_height: float = 1.10
+
+    def __post_init__(self) -> None:
+        for name in self.__dataclass_fields__:
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ConfigError(f"GridSpec.{name} must be a finite number, got {value!r}")
+        _whole_count(self.x_max - self.x_min, self.resolution, "longitudinal x")
+        _whole_count(self.y_max - self.y_min, self.resolution, "lateral y")
+        _whole_count(self.z_max - self.z_min, self.z_resolution, "vertical z")
+        _whole_count(self.z_max - self.z_min, self.class_resolution, "elevation classes")
+        if self.x_min <= 0:
+            raise ConfigError(f"x_min must be ahead of the camera (> 0), got {self.x_min}")
+        if self.base_height <= 0:
+            raise ConfigError(f"base_height must be positive, got {self.base_height}")
+        if self.z_max >= self.base_height:
+            raise ConfigError(
+                f"z_max ({self.z_max} m) must lie below the camera (base_height {self.base_height} m)"
+            )
+
+    # --- sizes -------------------------------------------------------------------------------
+    @property
+    def n_rows(self) -> int:
+        """Rows along x (164 by default)."""
+        return int(round((self.x_max - self.x_min) / self.resolution))
+
+    @property
+    def n_cols(self) -> int:
+        """Columns along y (64 by default)."""
+        return int(round((self.y_max - self.y_min) / self.resolution))
+
+    @property
+    def n_z(self) -> int:
+        """Vertical voxels (40 by default)."""
+        return int(round((self.z_max - self.z_min) / self.z_resolution))
+
+    @property
+    def n_classes(self) -> int:
+        """Elevation classes (80 by default)."""
+        return int(round((self.z_max - self.z_min) / self.class_resolution))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(n_rows, n_cols)``."""
+        return (self.n_rows, self.n_cols)
+
+    @property
+    def length_x(self) -> float:
+        return self.n_rows * self.resolution
+
+    @property
+    def length_y(self) -> float:
+        return self.n_cols * self.resolution
+
+    @property
+    def centre(self) -> tuple[float, float]:
+        """Grid centre ``(x, y)`` in the road frame (GridMap ``info.pose``)."""
+        return (0.5 * (self.x_min + self.x_max), 0.5 * (self.y_min + self.y_max))
+
+    # --- coordinates ---------------------------------------------------------------------------
+    def x_centres(self) -> np.ndarray:
+        """[n_rows] x of each row's centre, far to near."""
+        return self.x_max - (np.arange(self.n_rows) + 0.5) * self.resolution
+
+    def y_centres(self) -> np.ndarray:
+        """[n_cols] y of each column's centre, left to right."""
+        return self.y_max - (np.arange(self.n_cols) + 0.5) * self.resolution
+
+    def z_centres(self) -> np.ndarray:
+        """[n_z] z of each voxel layer's centre, bottom to top."""
+        return self.z_min + (np.arange(self.n_z) + 0.5) * self.z_resolution
+
+    def class_centres(self) -> np.ndarray:
+        """[n_classes] elevation of each class bin's centre (the soft-argmin values e_c)."""
+        return self.z_min + (np.arange(self.n_classes) + 0.5) * self.class_resolution
+
+    def cell_index(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Row, column and inside-mask of road-frame points.
+
+        Args:
+            x, y: [N] coordinates in the road frame.
+
+        Returns:
+            rows [N] int64, cols [N] int64, inside [N] bool (rows/cols are only valid where inside).
+        """
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        rows = np.floor((self.x_max - x) / self.resolution).astype(np.int64)
+        cols = np.floor((self.y_max - y) / self.resolution).astype(np.int64)
+        inside = (rows >= 0) & (rows < self.n_rows) & (cols >= 0) & (cols < self.n_cols)
+        return rows, cols, inside
+
+    def band_of_rows(self, n_bands: int = 15) -> np.ndarray:
+        """[n_rows] distance band index of each row, 0 = nearest band (the paper's Fig. 9)."""
+        near_first = np.arange(self.n_rows)[::-1]  # row index counted from the near end
+        return (near_first * n_bands // self.n_rows).astype(np.int64)
+
+    def scaled(self, factor: int) -> GridSpec:
+        """A grid with cells ``factor`` times larger horizontally (same extent)."""
+        if factor < 1:
+            raise ConfigError(f"scale factor must be >= 1, got {factor}")
+        return replace(self, resolution=self.resolution * factor)
+
+    def with_overrides(self, **overrides: Any) -> GridSpec:
+        """A copy with some fields replaced (validated)."""
+        unknown = set(overrides) - set(self.__dataclass_fields__)
+        if unknown:
+            raise ConfigError(f"unknown grid parameter(s): {', '.join(sorted(unknown))}")
+        return replace(self, **{k: float(v) for k, v in overrides.items()})
+
+    def to_dict(self) -> dict[str, float]:
+        return {name: float(getattr(self, name)) for name in self.__dataclass_fields__}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> GridSpec:
+        return cls().with_overrides(**data)
+
+
+GRID_PRESETS: dict[str, GridSpec] = {
+    # The paper's grid (164 x 64 cells of 3 cm, 40 voxels of 1 cm, 80 classes of 0.5 cm).
+    "paper": GridSpec(),
+    # Same window, 6 cm cells (82 x 32): the CPU models' internal grid before upsampling.
+    "half": GridSpec(resolution=0.06),
+}
+
+
+def grid_preset(name: str) -> GridSpec:
+    """A named grid preset (``paper``, ``half``)."""
+    try:
+        return GRID_PRESETS[name]
+    except KeyError:
+        raise ConfigError(f"unknown grid preset {name!r}; choose from {sorted(GRID_PRESETS)}") from None
+
+
+@dataclass(frozen=True)
+class StereoCamera:
+    """A rectified stereo pair (left camera is the reference; pinhole, no distortion).
+
+    Pixel convention (contract): the centre of pixel column i, row j is at (u, v) = (i, j).
+
+    Attributes:
+        fx, fy, cx, cy: intrinsics of the rectified left image (pixels).
+        baseline: distance between the optical centres (metres, > 0; 0 for a mono camera).
+        width, height: image size (pixels).
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    baseline: float
+    width: int
+    height: int
+    extra: dict[str, Any] = field(default_factory=dict, compare=False, hash=False, repr=False)
+
+    def __post_init__(self) -> None:
+        for name in ("fx", "fy", "cx", "cy", "baseline"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ConfigError(f"camera {name} must be a finite number, got {value!r}")
+        if self.fx <= 0 or self.fy <= 0:
+            raise ConfigError(f"camera focal lengths must be positive (fx={self.fx}, fy={self.fy})")
+        if self.baseline < 0:
+            raise ConfigError(f"stereo baseline must be >= 0 m, got {self.baseline}")
+        if int(self.width) <= 0 or int(self.height) <= 0:
+            raise ConfigError(f"image size must be positive, got {self.width}x{self.height}")
+
+    @property
+    def K(self) -> np.ndarray:
+        """[3, 3] intrinsic matrix."""
+        return np.array(
+            [[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]], dtype=np.float64
+        )
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """``(width, height)``."""
+        return (int(self.width), int(self.height))
+
+    def scaled(self, factor: float) -> StereoCamera:
+        """The same rig for images resized by ``factor`` (pixel centres stay at integers)."""
+        if factor <= 0:
+            raise ConfigError(f"scale factor must be positive, got {factor}")
+        # With centres at integer coordinates, u' = (u + 0.5) * s - 0.5.
+        return replace(
+            self,
+            fx=self.fx * factor,
+            fy=self.fy * factor,
+            cx=(self.cx + 0.5) * factor - 0.5,
+            cy=(self.cy + 0.5) * factor - 0.5,
+            width=int(round(self.width * factor)),
+            height=int(round(self.height * factor)),
+        )
+
+    def resized(self, width: int, height: int) -> StereoCamera:
+        """The same rig for images resized to ``width`` x ``height`` (anisotropic allowed)."""
+        sx, sy = width / self.width, height / self.height
+        return replace(
+            self,
+            fx=self.fx * sx,
+            fy=self.fy * sy,
+            cx=(self.cx + 0.5) * sx - 0.5,
+            cy=(self.cy + 0.5) * sy - 0.5,
+            width=int(width),
+            height=int(height),
+        )
+
+    def cropped(self, left: int, top: int, width: int, height: int) -> StereoCamera:
+        """The rig for the window ``[top:top+height, left:left+width]`` of the image."""
+        if left < 0 or top < 0 or left + width > self.width or top + height > self.height:
+            raise ConfigError(
+                f"crop {width}x{height}+{left}+{top} does not fit a {self.width}x{self.height} image"
+            )
+        return replace(self, cx=self.cx - left, cy=self.cy - top, width=int(width), height=int(height))
+
+    def to_dict(self) -> dict[str, float]:
+        return {
+            "fx": float(self.fx),
+            "fy": float(self.fy),
+            "cx": float(self.cx),
+            "cy": float(self.cy),
+            "baseline": float(self.baseline),
+            "width": int(self.width),
+            "height": int(self.height),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> StereoCamera:
+        try:
+            return cls(
+                fx=float(data["fx"]),
+                fy=float(data["fy"]),
+                cx=float(data["cx"]),
+                cy=float(data["cy"]),
+                baseline=float(data.get("baseline", 0.0)),
+                width=int(data["width"]),
+                height=int(data["height"]),
+            )
+        except KeyError as exc:
+            raise ConfigError(f"camera description lacks {exc.args[0]!r}") from None
+
+    @classmethod
+    def from_K(cls, K: np.ndarray, baseline: float, width: int, height: int) -> StereoCamera:
+        K = np.asarray(K, dtype=np.float64).reshape(3, 3)
+        return cls(
+            fx=float(K[0, 0]),
+            fy=float(K[1, 1]),
+            cx=float(K[0, 2]),
+            cy=float(K[1, 2]),
+            baseline=float(baseline),
+            width=int(width),
+            height=int(height),
+        )
+
+    @classmethod
+    def rsrd_half(cls) -> StereoCamera:
+        """The real RSRD half-resolution rig (calib_20230317_half.pkl), cropped to 960 x 528.
+
+        The paper crops the 960 x 540 images to 960 x 528. We keep rows 0..527 (drop the bottom
+        12, the bonnet edge): over all 1,581 real RSRD attitudes the default grid projects into
+        rows 4.2..524.3 of the uncropped image, so dropping the top rows instead would cut the
+        far field at the steepest pitches (tests/roadbev_core/test_geometry.py checks this).
+        """
+        full = cls(
+            fx=1004.7787,
+            fy=1004.7787,
+            cx=498.2207,
+            cy=259.5176,
+            baseline=0.118809,
+            width=960,
+            height=540,
+        )
+        return full.cropped(0, RSRD_CROP_TOP, 960, 528)
+
+
+# Rows removed from the top of RSRD half-resolution images (960x540 -> 960x528 drops the bottom).
+RSRD_CROP_TOP = 0

@@ -1,0 +1,88 @@
+"""What flows through the pipeline: a :class:`Frame` in, an :class:`Estimate` out."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.geometry import Attitude
+
+__all__ = ["Estimate", "Frame", "FrameError"]
+
+
+class FrameError(ValueError):
+    """A frame whose images or calibration cannot be processed."""
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One synchronised camera set with its calibration and attitude.
+
+    Attributes:
+        left: [H, W, 3] uint8 RGB (or [H, W] uint8 grey) rectified left image.
+        right: the rectified right image, same size and type, or None for mono.
+        camera: the rig; its width/height must match the images.
+        attitude: camera roll/pitch at the image stamp.
+        stamp_ns: the left image's stamp (nanoseconds).
+    """
+
+    left: np.ndarray
+    right: np.ndarray | None
+    camera: StereoCamera
+    attitude: Attitude
+    stamp_ns: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("left", "right"):
+            img = getattr(self, name)
+            if img is None:
+                continue
+            if not isinstance(img, np.ndarray) or img.ndim not in (2, 3) or img.size == 0:
+                raise FrameError(f"{name} image must be a non-empty [H,W] or [H,W,3] array")
+            if img.ndim == 3 and img.shape[2] != 3:
+                raise FrameError(f"{name} image must have 3 channels (RGB), got {img.shape[2]}")
+            h, w = img.shape[:2]
+            if (w, h) != self.camera.size:
+                raise FrameError(
+                    f"{name} image is {w}x{h} but the camera calibration says "
+                    f"{self.camera.width}x{self.camera.height}"
+                )
+        if self.right is not None and self.right.shape != self.left.shape:
+            raise FrameError(f"left {self.left.shape} and right {self.right.shape} images differ")
+
+    @property
+    def is_stereo(self) -> bool:
+        return self.right is not None
+
+
+@dataclass
+class Estimate:
+    """A backend's answer for one frame, on the grid it was asked for.
+
+    Attributes:
+        elevation: [n_rows, n_cols] float32 metres (road frame z), NaN = no estimate.
+        uncertainty: [n_rows, n_cols] float32 1-sigma metres, NaN where elevation is NaN.
+        timings_ms: wall time per stage (``projection``, ``cost``, ``network``, ``post``...).
+    """
+
+    elevation: np.ndarray
+    uncertainty: np.ndarray
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.elevation.ndim != 2 or self.elevation.shape != self.uncertainty.shape:
+            raise ValueError(
+                f"elevation {self.elevation.shape} and uncertainty {self.uncertainty.shape} "
+                "must be equal 2-D grids"
+            )
+
+    def check_grid(self, grid: GridSpec) -> None:
+        if self.elevation.shape != grid.shape:
+            raise ValueError(f"estimate is {self.elevation.shape}, grid is {grid.shape}")
+
+    @property
+    def coverage(self) -> float:
+        """Share of cells with an estimate (0..1)."""
+        return float(np.isfinite(self.elevation).mean())

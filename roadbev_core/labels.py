@@ -1,0 +1,112 @@
+"""Ground-truth elevation labels from point clouds, and elevation <-> class bins.
+
+The paper (section 3): points in the road frame are grouped into the 3 x 3 cm cells of the grid;
+a cell's label is the mean z of its points; the mask marks cells with at least one point.
+Vectorized with ``np.bincount`` (about 100x+ faster than a per-point loop, see
+``benchmarks/bench_labels.py``).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from roadbev_core.config import GridSpec
+from roadbev_core.geometry import Attitude, camera_to_road
+
+__all__ = [
+    "ElevationLabel",
+    "class_to_elevation",
+    "elevation_map",
+    "elevation_map_from_camera",
+    "elevation_to_class",
+    "one_hot",
+    "two_hot",
+]
+
+
+class ElevationLabel(NamedTuple):
+    """A label map: elevation [n_rows, n_cols] float32 (NaN outside the mask), mask bool, count."""
+
+    elevation: np.ndarray
+    mask: np.ndarray
+    count: np.ndarray
+
+
+def elevation_map(points_road: np.ndarray, grid: GridSpec, *, clip_z: bool = False) -> ElevationLabel:
+    """Mean elevation of the road-frame points in each grid cell.
+
+    Args:
+        points_road: [N, 3] (x, y, z) in the road frame; extra columns are ignored.
+        grid: the BEV grid.
+        clip_z: drop points outside ``[z_min, z_max]`` before averaging.
+
+    Returns:
+        ElevationLabel with elevation NaN where no point fell.
+    """
+    pts = np.asarray(points_road, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] < 3:
+        raise ValueError(f"points must be [N, 3], got {pts.shape}")
+    finite = np.all(np.isfinite(pts[:, :3]), axis=1)
+    pts = pts[finite]
+    rows, cols, inside = grid.cell_index(pts[:, 0], pts[:, 1])
+    if clip_z:
+        inside &= (pts[:, 2] >= grid.z_min) & (pts[:, 2] <= grid.z_max)
+    flat = rows[inside] * grid.n_cols + cols[inside]  # [M]
+    n_cells = grid.n_rows * grid.n_cols
+    count = np.bincount(flat, minlength=n_cells)
+    total = np.bincount(flat, weights=pts[inside, 2], minlength=n_cells)
+    mask = count > 0
+    elevation = np.full(n_cells, np.nan, dtype=np.float64)
+    elevation[mask] = total[mask] / count[mask]
+    shape = grid.shape
+    return ElevationLabel(
+        elevation=elevation.reshape(shape).astype(np.float32),
+        mask=mask.reshape(shape),
+        count=count.reshape(shape).astype(np.int32),
+    )
+
+
+def elevation_map_from_camera(
+    points_cam: np.ndarray, attitude: Attitude, grid: GridSpec, *, clip_z: bool = False
+) -> ElevationLabel:
+    """:func:`elevation_map` for points [N, 3] in the left camera's optical frame."""
+    road = camera_to_road(np.asarray(points_cam, dtype=np.float64)[:, :3], attitude, grid.base_height)
+    return elevation_map(road, grid, clip_z=clip_z)
+
+
+def elevation_to_class(elevation: np.ndarray, grid: GridSpec) -> np.ndarray:
+    """Class index [...] (int64) of the bin holding each elevation, clipped to the range."""
+    idx = np.floor((np.asarray(elevation, dtype=np.float64) - grid.z_min) / grid.class_resolution)
+    return np.clip(np.nan_to_num(idx, nan=0.0), 0, grid.n_classes - 1).astype(np.int64)
+
+
+def class_to_elevation(index: np.ndarray, grid: GridSpec) -> np.ndarray:
+    """Elevation [...] of class-bin centres."""
+    return grid.class_centres()[np.asarray(index, dtype=np.int64)]
+
+
+def one_hot(elevation: np.ndarray, grid: GridSpec) -> np.ndarray:
+    """[n_classes, ...] float32 one-hot label of the bin holding each elevation (paper eq. 3)."""
+    idx = elevation_to_class(elevation, grid)
+    out = np.zeros((grid.n_classes, *idx.shape), dtype=np.float32)
+    np.put_along_axis(out, idx[None], 1.0, axis=0)
+    return out
+
+
+def two_hot(elevation: np.ndarray, grid: GridSpec) -> np.ndarray:
+    """[n_classes, ...] float32 soft label split between the two nearest bin centres.
+
+    Its expectation over the bin centres equals the elevation exactly (inside the range), so
+    soft-argmin trained on it has no quantisation floor.
+    """
+    centres = grid.class_centres()
+    e = np.clip(np.nan_to_num(np.asarray(elevation, dtype=np.float64)), centres[0], centres[-1])
+    pos = (e - centres[0]) / grid.class_resolution  # fractional bin index
+    lo = np.clip(np.floor(pos).astype(np.int64), 0, grid.n_classes - 2)
+    w_hi = (pos - lo).astype(np.float32)
+    out = np.zeros((grid.n_classes, *e.shape), dtype=np.float32)
+    np.put_along_axis(out, lo[None], (1.0 - w_hi)[None], axis=0)
+    np.put_along_axis(out, (lo + 1)[None], w_hi[None], axis=0)
+    return out

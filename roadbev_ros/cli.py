@@ -1,0 +1,81 @@
+"""The ``roadbev`` entry point: one command, sub-commands per job (contract, "Command line").
+
+Each sub-command lives in ``roadbev_ros/commands/<name>.py`` with ``HELP`` (one line),
+``add_arguments(parser)`` and ``run(args) -> int``; modules are imported only when their command
+runs, so ``roadbev --help`` stays fast and ``roadbev eval --backend bm`` never imports rclpy.
+Bad input ends with a non-zero exit and a one-line reason, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+__all__ = ["COMMANDS", "main"]
+
+# name -> one-line help (the module docstring says more)
+COMMANDS: dict[str, str] = {
+    "demo": "the main job: synthetic drive -> node over ROS 2 -> recorded outputs -> report",
+    "synth": "write a synthetic evaluation/training bag (MCAP)",
+    "eval": "run a backend over every frame of a bag (no DDS) and report the metrics",
+    "replay": "publish a bag's topics over ROS 2 with their original timing",
+    "record": "record topics to an MCAP bag",
+    "node": "run the RoadBEV node",
+    "train": "train RoadBEV-mono / RoadBEV-stereo",
+    "export": "export a checkpoint for deployment",
+    "figures": "render the geometry and label figures (voxel columns, GT elevation map)",
+}
+
+
+class CommandError(Exception):
+    """A command refused its input; the message is the one-line reason shown to the user."""
+
+
+def _load(name: str):  # type: ignore[no-untyped-def]
+    return importlib.import_module(f"roadbev_ros.commands.{name.replace('-', '_')}")
+
+
+def _build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="roadbev", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    # Only the chosen command's module is imported: the others show their one-line help.
+    chosen = next((a for a in argv if not a.startswith("-")), None)
+    for name, help_text in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        if name == chosen:
+            try:
+                module = _load(name)
+            except ModuleNotFoundError as exc:
+                if exc.name and exc.name.startswith("roadbev_ros.commands"):
+                    p.set_defaults(_missing=f"'{name}' is not available in this build")
+                    continue
+                raise
+            module.add_arguments(p)
+            p.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args_list = list(sys.argv[1:] if argv is None else argv)
+    parser = _build_parser(args_list)
+    args = parser.parse_args(args_list)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    if getattr(args, "_missing", None):
+        print(f"roadbev {args.command}: {args._missing}", file=sys.stderr)
+        return 2
+    try:
+        return int(args._run(args) or 0)
+    except KeyboardInterrupt:
+        print(f"roadbev {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except (CommandError, ValueError, OSError, RuntimeError) as exc:
+        print(f"roadbev {args.command}: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

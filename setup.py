@@ -1,0 +1,47 @@
+"""RoadBEV-ROS: road surface elevation in bird's-eye view from stereo cameras, for ROS 2 Jazzy.
+
+An ament_python-compatible package: ``colcon build`` installs it into a ROS 2 workspace, and
+``pip install -e .`` into a plain virtual environment (see the README).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from setuptools import find_packages, setup
+
+PACKAGE = "roadbev_ros"
+ROOT = Path(__file__).resolve().parent
+
+
+def _data_files() -> list[tuple[str, list[str]]]:
+    files = [
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+    ]
+    for folder in ("launch", "config"):
+        paths = sorted(str(p.relative_to(ROOT)) for p in (ROOT / folder).glob("*") if p.is_file())
+        if paths:
+            files.append((f"share/{PACKAGE}/{folder}", paths))
+    return files
+
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    description="RoadBEV road surface elevation maps from stereo cameras and an IMU, for ROS 2",
+    license="MIT",
+    python_requires=">=3.10",
+    packages=find_packages(include=["roadbev_core*", "msg_bridge*", "roadbev_ros*"]),
+    package_data={"roadbev_core": ["data/*"], "roadbev_ros": ["data/*"]},
+    data_files=_data_files(),
+    install_requires=["numpy", "torch", "opencv-python-headless", "mcap", "rosbags", "pyyaml"],
+    tests_require=["pytest"],
+    zip_safe=False,
+    entry_points={
+        "console_scripts": [
+            "roadbev = roadbev_ros.cli:main",
+            "roadbev_node = roadbev_ros.node:main",
+        ],
+    },
+)
