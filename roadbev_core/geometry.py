@@ -224,8 +224,8 @@ class ProjectedVoxels(NamedTuple):
     Attributes:
         u, v: [n_z, n_rows, n_cols] continuous feature-map coordinates (cell centres at
             integers), for bilinear sampling.
-        iu, iv: [n_z, n_rows, n_cols] integer indices (floor of the pixel coordinate at the
-            feature stride, as the paper's reference code), clipped into the map.
+        iu, iv: [n_z, n_rows, n_cols] integer indices of the feature cell holding the projection
+            (nearest-neighbour lookup, the paper's integer indexing), clipped into the map.
         inside: [n_z, n_rows, n_cols] bool, the voxel is in front of the camera and inside the map.
         width, height: the feature map's size.
     """
@@ -261,8 +261,9 @@ def project_voxels(
     height = -(-camera.height // stride)
     fu = (u - (stride - 1) / 2.0) / stride
     fv = (v - (stride - 1) / 2.0) / stride
-    iu = np.floor(u / stride)
-    iv = np.floor(v / stride)
+    # Cell i covers pixel centres s*i .. s*i + s - 1, i.e. u in [s*i - 0.5, s*i + s - 0.5).
+    iu = np.floor((u + 0.5) / stride)
+    iv = np.floor((v + 0.5) / stride)
     inside = (depth > 0) & (u >= -0.5) & (u <= camera.width - 0.5) & (v >= -0.5) & (v <= camera.height - 0.5)
     inside &= np.isfinite(u) & np.isfinite(v)
     iu = np.clip(np.nan_to_num(iu), 0, width - 1).astype(np.int64)

@@ -1,0 +1,220 @@
+"""Training and evaluation data for the RoadBEV networks.
+
+Every source yields ``(Frame, truth)`` pairs, truth an elevation map [n_rows, n_cols] float32
+metres on the source's grid (NaN = no label):
+
+* :class:`SyntheticSet`: random synthetic scenes (``roadbev_core.synth.make_sample``), rendered
+  once per seed and cached to disk as ``.npz`` (rendering costs up to ~1 s a frame);
+* :class:`BagSet`: the frames of an MCAP evaluation bag (contract, ``msg_bridge.evalbag``);
+* :class:`roadbev_core.rsrd.RsrdSet`: the real RSRD layout.
+
+:class:`ModelInputs` turns any of them into tensors at a model's input size and :func:`collate`
+batches them (cameras and attitudes stay Python objects: each sample has its own attitude).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.frame import Frame
+from roadbev_core.geometry import Attitude
+from roadbev_core.models.presets import ModelConfig
+from roadbev_core.models.roadbev import prepare_image
+
+__all__ = [
+    "TEST_SEED_START",
+    "BagSet",
+    "DatasetError",
+    "FrameSource",
+    "ModelInputs",
+    "SyntheticSet",
+    "collate",
+]
+
+TEST_SEED_START = 100_000  # synthetic test scenes use seeds >= this; training seeds stay below
+
+
+class DatasetError(ValueError):
+    """A data source that cannot be read or does not fit the model's grid."""
+
+
+class FrameSource(Protocol):
+    """What the training and evaluation code needs from a data source."""
+
+    grid: GridSpec
+
+    def __len__(self) -> int: ...
+
+    def __getitem__(self, index: int) -> tuple[Frame, np.ndarray]: ...
+
+
+def _cache_folder(root: Path, camera: StereoCamera, grid: GridSpec) -> Path:
+    """A sub-folder per (camera, grid): a cache never mixes scenes of different rigs or grids."""
+    key = json.dumps({"camera": camera.to_dict(), "grid": grid.to_dict()}, sort_keys=True)
+    return root / f"synth-{hashlib.sha1(key.encode()).hexdigest()[:10]}"
+
+
+class SyntheticSet:
+    """Random synthetic scenes, one per seed, cached as ``<cache>/synth-<hash>/<seed>.npz``.
+
+    Args:
+        cache_dir: where rendered scenes are kept (created).
+        seeds: scene seeds (training below :data:`TEST_SEED_START`, test at or above it).
+        camera, grid: the rig and the label grid (defaults: ``StereoCamera.rsrd_half()``, ``GridSpec()``).
+        progress: show a progress bar while rendering missing scenes.
+    """
+
+    def __init__(
+        self,
+        cache_dir: str | Path,
+        seeds: Iterable[int],
+        *,
+        camera: StereoCamera | None = None,
+        grid: GridSpec | None = None,
+        progress: bool = False,
+    ) -> None:
+        self.seeds = [int(s) for s in seeds]
+        if not self.seeds:
+            raise DatasetError("a synthetic set needs at least one seed")
+        self.camera = camera or StereoCamera.rsrd_half()
+        self.grid = grid or GridSpec()
+        self.folder = _cache_folder(Path(cache_dir), self.camera, self.grid)
+        self.render_missing(progress=progress)
+
+    def path(self, seed: int) -> Path:
+        return self.folder / f"{seed}.npz"
+
+    def render_missing(self, *, progress: bool = False) -> int:
+        """Render and cache every seed not on disk yet; returns how many were rendered."""
+        missing = [s for s in self.seeds if not self.path(s).exists()]
+        if not missing:
+            return 0
+        from roadbev_core.synth import (
+            make_sample,  # imported lazily: rendering is optional
+        )
+
+        self.folder.mkdir(parents=True, exist_ok=True)
+        bar = _progress(missing, "rendering scenes", progress)
+        for seed in bar:
+            sample = make_sample(seed, camera=self.camera, grid=self.grid)
+            frame = sample.frame
+            tmp = self.path(seed).with_suffix(".tmp.npz")
+            np.savez_compressed(
+                tmp,
+                left=frame.left,
+                right=frame.right if frame.right is not None else np.zeros((0,), np.uint8),
+                attitude=np.array([frame.attitude.roll, frame.attitude.pitch]),
+                truth=sample.truth.elevation.astype(np.float32),
+            )
+            os.replace(tmp, self.path(seed))  # atomic: a killed run never leaves half a file
+        return len(missing)
+
+    def __len__(self) -> int:
+        return len(self.seeds)
+
+    def __getitem__(self, index: int) -> tuple[Frame, np.ndarray]:
+        seed = self.seeds[index]
+        try:
+            with np.load(self.path(seed)) as data:
+                left, right = data["left"], data["right"]
+                roll, pitch = (float(v) for v in data["attitude"])
+                truth = data["truth"]
+        except (OSError, KeyError, ValueError) as exc:
+            raise DatasetError(f"cached scene {self.path(seed)} is unreadable ({exc}); delete it") from exc
+        frame = Frame(left=left, right=right if right.size else None, camera=self.camera,
+                      attitude=Attitude(roll, pitch), stamp_ns=seed)
+        return frame, truth
+
+
+class BagSet:
+    """The labelled frames of an evaluation bag (rosbag2 MCAP, contract), held in memory."""
+
+    def __init__(self, path: str | Path, params: dict[str, Any] | None = None) -> None:
+        from msg_bridge.evalbag import (
+            read_eval_bag,  # optional dependency on the bag reader
+        )
+
+        bag = read_eval_bag(path, params)
+        self.grid: GridSpec = bag.grid
+        self.samples = [(s.frame, s.truth) for s in bag if s.truth is not None]
+        if not self.samples:
+            raise DatasetError(f"bag {path} has no frames with /ground_truth/elevation")
+
+    def __len__(self) -> int:
+        return len(self.samples)
+
+    def __getitem__(self, index: int) -> tuple[Frame, np.ndarray]:
+        return self.samples[index]
+
+
+class ModelInputs(Dataset):
+    """Tensors for a model from a frame source; prepared images are kept in memory if asked.
+
+    Items are dicts: ``left``/``right`` uint8 [3, h, w] (right absent for mono), ``elevation``
+    float32 [n_rows, n_cols] (NaN = no label), ``camera``, ``attitude``.
+    """
+
+    def __init__(self, source: FrameSource, config: ModelConfig, grid: GridSpec, *, keep_in_memory: bool = True) -> None:
+        if source.grid.shape != grid.shape:
+            raise DatasetError(f"data labels are on a {source.grid.shape} grid, the model's is {grid.shape}")
+        self.source = source
+        self.config = config
+        self.keep = keep_in_memory
+        self._memo: dict[int, dict[str, Any]] = {}
+
+    def __len__(self) -> int:
+        return len(self.source)
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        if index in self._memo:
+            return self._memo[index]
+        frame, truth = self.source[index]
+        item: dict[str, Any] = {
+            "left": torch.from_numpy(prepare_image(frame.left, self.config)),
+            "elevation": torch.from_numpy(np.asarray(truth, dtype=np.float32)),
+            "camera": frame.camera,
+            "attitude": frame.attitude,
+        }
+        if self.config.kind == "stereo":
+            if frame.right is None:
+                raise DatasetError("RoadBEV-stereo needs stereo frames; this source has no right images")
+            item["right"] = torch.from_numpy(prepare_image(frame.right, self.config))
+        if self.keep:
+            self._memo[index] = item
+        return item
+
+
+def collate(items: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Stack tensors; keep cameras and attitudes as lists."""
+    batch: dict[str, Any] = {"camera": [i["camera"] for i in items], "attitude": [i["attitude"] for i in items]}
+    for key in ("left", "right", "elevation"):
+        if key in items[0]:
+            batch[key] = torch.stack([i[key] for i in items])
+    return batch
+
+
+def _progress(items: Sequence[Any], desc: str, enabled: bool) -> Iterable[Any]:
+    if not enabled:
+        return items
+    from tqdm import tqdm
+
+    return tqdm(items, desc=desc, unit="frame")
+
+
+def as_samples(source: FrameSource) -> Iterable[tuple[Frame, np.ndarray]]:
+    """Iterate a source's ``(frame, truth)`` pairs (what ``evaluation.evaluate`` takes)."""
+    for i in range(len(source)):
+        yield source[i]
+
+
+ProgressFactory = Callable[[Sequence[Any], str], Iterable[Any]]

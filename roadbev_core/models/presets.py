@@ -1,0 +1,119 @@
+"""Model configurations: the paper's settings, a CPU ``lite`` model and a ``tiny`` one for tests.
+
+A :class:`ModelConfig` is a frozen dataclass stored in every checkpoint (``to_dict``), so a
+checkpoint rebuilds exactly the network it was trained as. The *output* grid is always the
+:class:`~roadbev_core.config.GridSpec` the model is built for; a model may run its voxels on a
+coarser internal grid (``grid_factor`` horizontally, ``z_factor`` vertically) and upsample its
+logits to the output grid.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, replace
+from typing import Any
+
+from roadbev_core.config import ConfigError, GridSpec
+
+__all__ = ["KINDS", "PRESETS", "ModelConfig", "model_config"]
+
+KINDS = ("stereo", "mono")
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Everything that defines a RoadBEV network (not its weights).
+
+    Attributes:
+        kind: ``stereo`` (left x right voxel volume, 3D head) or ``mono`` (BEV reshape, 2D head).
+        backbone: EfficientNet variant ``b0`` .. ``b7``.
+        input_width, input_height: the size images are resized to before the backbone.
+        channels: C, the fused feature-pyramid channels (and the 3D head width for stereo).
+        feature_stride: stride of the fused feature map (paper: 2 for stereo, 4 for mono).
+        sampling: ``bilinear`` (sub-pixel grid_sample) or ``integer`` (the paper's indexing).
+        grid_factor: internal voxel cells are this many output cells wide (1 = the output grid).
+        z_factor: internal voxels are this many ``z_resolution`` steps tall.
+        head_width: width of the mono 2D head (ignored by stereo).
+        volume: stereo cost volume, ``product`` (paper eq. 2) or ``difference`` (ablation).
+        label: training target, ``one_hot`` (paper eq. 3) or ``two_hot`` (no quantisation floor).
+    """
+
+    kind: str = "stereo"
+    backbone: str = "b0"
+    input_width: int = 480
+    input_height: int = 264
+    channels: int = 16
+    feature_stride: int = 2
+    sampling: str = "bilinear"
+    grid_factor: int = 2
+    z_factor: int = 1
+    head_width: int = 64
+    volume: str = "product"
+    label: str = "two_hot"
+
+    def __post_init__(self) -> None:
+        checks = {
+            "kind": (self.kind, KINDS),
+            "backbone": (self.backbone, tuple(f"b{i}" for i in range(8))),
+            "sampling": (self.sampling, ("bilinear", "integer")),
+            "volume": (self.volume, ("product", "difference")),
+            "label": (self.label, ("one_hot", "two_hot")),
+        }
+        for name, (value, allowed) in checks.items():
+            if value not in allowed:
+                raise ConfigError(f"model {name} must be one of {', '.join(allowed)}, got {value!r}")
+        if self.feature_stride not in (1, 2, 4, 8, 16):
+            raise ConfigError(f"feature_stride must be a power of two <= 16, got {self.feature_stride}")
+        for name in ("input_width", "input_height", "channels", "grid_factor", "z_factor", "head_width"):
+            if int(getattr(self, name)) < 1:
+                raise ConfigError(f"model {name} must be >= 1, got {getattr(self, name)}")
+
+    def internal_grid(self, grid: GridSpec) -> GridSpec:
+        """The voxel grid the network runs on for output ``grid`` (same extent, coarser cells)."""
+        return replace(
+            grid.scaled(self.grid_factor), z_resolution=grid.z_resolution * self.z_factor
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> ModelConfig:
+        unknown = set(data) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ConfigError(f"unknown model setting(s): {', '.join(sorted(unknown))}")
+        return cls(**data)
+
+
+# name -> settings shared by both kinds; the feature stride differs per kind (paper: 1/2 stereo,
+# 1/4 mono) and is filled in by model_config().
+PRESETS: dict[str, dict[str, Any]] = {
+    # The paper: EfficientNet-B6, C = 64, 960x528, integer indexing, full 164x64x40 voxels,
+    # one-hot targets. For GPUs; on this CPU it serves shape checks only.
+    "paper": {
+        "backbone": "b6", "input_width": 960, "input_height": 528, "channels": 64, "sampling": "integer",
+        "grid_factor": 1, "z_factor": 1, "head_width": 256, "label": "one_hot",
+    },
+    # CPU model (shared/design/cpu-sizing.md): B0 on 480x264, C = 16, bilinear sampling,
+    # 40 x 82 x 32 internal voxels, upsampled to the output grid.
+    "lite": {
+        "backbone": "b0", "input_width": 480, "input_height": 264, "channels": 16, "sampling": "bilinear",
+        "grid_factor": 2, "z_factor": 1, "head_width": 64, "label": "two_hot",
+    },
+    # Tests: 224x128 input, C = 8, 10 x 41 x 16 internal voxels; a training step well under 1 s.
+    "tiny": {
+        "backbone": "b0", "input_width": 224, "input_height": 128, "channels": 8, "sampling": "bilinear",
+        "grid_factor": 4, "z_factor": 4, "head_width": 32, "label": "two_hot",
+    },
+}
+
+_STRIDE = {"stereo": 2, "mono": 4}
+
+
+def model_config(preset: str, kind: str, **overrides: Any) -> ModelConfig:
+    """The configuration of preset ``preset`` for ``kind``, with optional field overrides."""
+    if preset not in PRESETS:
+        raise ConfigError(f"unknown model preset {preset!r}; choose from {', '.join(PRESETS)}")
+    if kind not in KINDS:
+        raise ConfigError(f"unknown model kind {kind!r}; choose from {', '.join(KINDS)}")
+    settings = {**PRESETS[preset], "kind": kind, "feature_stride": _STRIDE[kind], **overrides}
+    return ModelConfig.from_dict(settings)

@@ -1,0 +1,152 @@
+"""RoadBEV-mono and RoadBEV-stereo (paper section 4) as one module with a ``kind`` switch.
+
+backbone (shared by both eyes) -> pyramid fusion (C channels at 1/4 mono, 1/2 stereo) -> voxel
+query on the internal grid -> head -> class logits [B, Nc, n_rows, n_cols] on the output grid.
+
+* mono: voxel features [B, C, Nz, Ny, Nx] reshaped to BEV [B, C*Nz, Ny, Nx], a 2-D head to Nc
+  logits per cell.
+* stereo: left x right voxel features (point-wise product, paper eq. 2; difference as the
+  ablation) kept 4-D, a 3-D head down to one channel, the proposal axis interpolated Nz -> Nc.
+
+Coarser internal grids (``ModelConfig.grid_factor`` / ``z_factor``) are upsampled to the output
+grid, so callers always see the :class:`GridSpec` they asked for.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.geometry import Attitude
+from roadbev_core.models.efficientnet import EfficientNetFeatures
+from roadbev_core.models.fpn import PyramidFusion
+from roadbev_core.models.heads import MonoHead, StereoHead
+from roadbev_core.models.loss import soft_argmin
+from roadbev_core.models.presets import ModelConfig
+from roadbev_core.models.voxel_query import batch_lookup, query_voxels
+
+__all__ = ["ModelInputError", "Prediction", "RoadBEV", "prepare_image"]
+
+_MEAN = (0.485, 0.456, 0.406)  # ImageNet statistics (pretrained backbones expect them)
+_STD = (0.229, 0.224, 0.225)
+
+
+class ModelInputError(ValueError):
+    """Images or calibration that do not fit the model (size, missing right image)."""
+
+
+class Prediction(NamedTuple):
+    """elevation, uncertainty [B, R, C] metres; observed [B, R, C] bool (voxels seen by the camera)."""
+
+    elevation: torch.Tensor
+    uncertainty: torch.Tensor
+    observed: torch.Tensor
+
+
+def prepare_image(image: np.ndarray, config: ModelConfig) -> np.ndarray:
+    """RGB (or grey) uint8 [H, W(, 3)] -> uint8 [3, h, w] at the model's input size (area resize)."""
+    if image.ndim == 2:
+        image = np.repeat(image[:, :, None], 3, axis=2)
+    size = (config.input_width, config.input_height)
+    if image.shape[1::-1] != size:
+        image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+    return np.ascontiguousarray(image.transpose(2, 0, 1))
+
+
+class RoadBEV(nn.Module):
+    """The RoadBEV network for one output grid."""
+
+    def __init__(self, config: ModelConfig, grid: GridSpec) -> None:
+        super().__init__()
+        self.config = config
+        self.grid = grid
+        self.inner = config.internal_grid(grid)
+        self.backbone = EfficientNetFeatures(config.backbone)
+        self.fusion = PyramidFusion(self.backbone.out_channels, self.backbone.strides,
+                                    config.channels, config.feature_stride)
+        if config.kind == "stereo":
+            self.head: nn.Module = StereoHead(config.channels)
+        else:
+            self.head = MonoHead(config.channels * self.inner.n_z, config.head_width, grid.n_classes)
+        self.register_buffer("centres", torch.tensor(grid.class_centres(), dtype=torch.float32), persistent=False)
+        self.register_buffer("mean", torch.tensor(_MEAN).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("std", torch.tensor(_STD).view(1, 3, 1, 1), persistent=False)
+
+    @property
+    def is_stereo(self) -> bool:
+        return self.config.kind == "stereo"
+
+    def _lookups(self, cameras: list[StereoCamera], attitudes: list[Attitude], right: bool):  # type: ignore[no-untyped-def]
+        cfg = self.config
+        cams = [c.resized(cfg.input_width, cfg.input_height) for c in cameras]
+        lookup = batch_lookup(self.inner, cams, attitudes, cfg.feature_stride, right, cfg.sampling)
+        device = self.centres.device
+        return type(lookup)(lookup.coords.to(device), lookup.mask.to(device))
+
+    def forward(
+        self,
+        left: torch.Tensor,
+        right: torch.Tensor | None,
+        cameras: list[StereoCamera],
+        attitudes: list[Attitude],
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Class logits of a batch.
+
+        Args:
+            left, right: [B, 3, h, w] uint8 (or float in [0, 1]) at the model's input size;
+                ``right`` is required for stereo and ignored for mono.
+            cameras: B rigs of the ORIGINAL images (rescaled to the input size here).
+            attitudes: B camera attitudes.
+
+        Returns:
+            logits [B, Nc, n_rows, n_cols] on the output grid, observed [B, n_rows, n_cols] bool.
+        """
+        cfg = self.config
+        b = left.shape[0]
+        if left.shape[1:] != (3, cfg.input_height, cfg.input_width):
+            raise ModelInputError(
+                f"images must be [B, 3, {cfg.input_height}, {cfg.input_width}], got {tuple(left.shape)}"
+            )
+        if len(cameras) != b or len(attitudes) != b:
+            raise ModelInputError(f"need {b} cameras and attitudes, got {len(cameras)} and {len(attitudes)}")
+        if self.is_stereo and (right is None or right.shape != left.shape):
+            raise ModelInputError("RoadBEV-stereo needs a right image of the left image's shape")
+        images = torch.cat([left, right]) if self.is_stereo else left  # [B or 2B, 3, h, w]
+        x = images.float() / 255.0 if images.dtype == torch.uint8 else images.float()
+        fused = self.fusion(self.backbone((x - self.mean) / self.std), x.shape[-2:])  # [., C, h/s, w/s]
+        look_l = self._lookups(cameras, attitudes, right=False)
+        vox_l = query_voxels(fused[:b], look_l, cfg.sampling)  # [B, C, Nz, Ny, Nx]
+        grid = self.grid
+        if self.is_stereo:
+            look_r = self._lookups(cameras, attitudes, right=True)
+            vox_r = query_voxels(fused[b:], look_r, cfg.sampling)
+            volume = vox_l * vox_r if cfg.volume == "product" else vox_l - vox_r
+            score = self.head(volume)  # [B, Nz, Ny, Nx]
+            logits = F.interpolate(score[:, None], size=(grid.n_classes, grid.n_rows, grid.n_cols),
+                                   mode="trilinear", align_corners=False)[:, 0]
+            seen = (look_l.mask & look_r.mask).any(dim=1)  # [B, Ny, Nx]
+        else:
+            logits = self.head(vox_l.flatten(1, 2))  # [B, Nc, Ny, Nx]
+            if logits.shape[-2:] != grid.shape:
+                logits = F.interpolate(logits, size=grid.shape, mode="bilinear", align_corners=False)
+            seen = look_l.mask.any(dim=1)
+        observed = F.interpolate(seen[:, None].float(), size=grid.shape, mode="nearest")[:, 0] > 0.5
+        return logits, observed
+
+    def predict(
+        self,
+        left: torch.Tensor,
+        right: torch.Tensor | None,
+        cameras: list[StereoCamera],
+        attitudes: list[Attitude],
+    ) -> Prediction:
+        """Soft-argmin elevation and the bin distribution's standard deviation."""
+        logits, observed = self(left, right, cameras, attitudes)
+        elevation, uncertainty = soft_argmin(logits, self.centres)
+        return Prediction(elevation, uncertainty, observed)

@@ -1,0 +1,129 @@
+"""The Fast DDS profile that lets large images through, and the environment that selects it.
+
+Fast DDS' default shared-memory transport has 512 KB segments and loses most 960x540 images
+(``shared/design/ros2-on-pypi.md``); ``config/fastdds.xml`` gives it a 64 MB segment plus UDPv4.
+Fast DDS reads the profile named by ``FASTRTPS_DEFAULT_PROFILES_FILE`` (``FASTDDS_...`` in newer
+releases) when the first participant is created, so :func:`use_profile` must run before
+``rclpy.init``; node, replay, record and the tests all call it. A profile the user already chose
+in the environment is respected.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import sys
+from collections.abc import Mapping, MutableMapping
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "PROFILE_ENV_VARS",
+    "DdsError",
+    "child_env",
+    "init_ros",
+    "message_class",
+    "profile_path",
+    "use_profile",
+]
+
+PROFILE_ENV_VARS: tuple[str, ...] = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
+PROFILE_NAME = "fastdds.xml"
+
+
+class DdsError(RuntimeError):
+    """The shipped DDS profile cannot be found."""
+
+
+def _candidates() -> list[Path]:
+    here = Path(__file__).resolve().parent
+    paths = [here.parent / "config" / PROFILE_NAME]  # source tree / editable install
+    paths.append(Path(sys.prefix) / "share" / "roadbev_ros" / "config" / PROFILE_NAME)
+    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
+        if prefix:
+            paths.append(Path(prefix) / "share" / "roadbev_ros" / "config" / PROFILE_NAME)
+    return paths
+
+
+def profile_path() -> Path:
+    """The shipped ``fastdds.xml`` (source tree, venv prefix or an ament prefix).
+
+    Raises:
+        DdsError: not found anywhere.
+    """
+    for path in _candidates():
+        if path.is_file():
+            return path
+    raise DdsError(f"{PROFILE_NAME} not found (looked in {', '.join(str(p) for p in _candidates())})")
+
+
+def _uses_fastdds(env: Mapping[str, str]) -> bool:
+    return env.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp").startswith("rmw_fastrtps")
+
+
+def use_profile(env: MutableMapping[str, str] | None = None) -> Path | None:
+    """Point Fast DDS at the shipped profile unless the environment already names one.
+
+    Args:
+        env: the environment to change (``os.environ`` when None).
+
+    Returns:
+        The profile now in effect (the user's or ours), or None when another RMW is selected.
+    """
+    env = os.environ if env is None else env
+    if not _uses_fastdds(env):
+        return None
+    for var in PROFILE_ENV_VARS:
+        if env.get(var):
+            chosen = Path(env[var])
+            break
+    else:
+        chosen = profile_path()
+    for var in PROFILE_ENV_VARS:
+        env.setdefault(var, str(chosen))
+    return chosen
+
+
+def child_env(extra: Mapping[str, str] | None = None) -> dict[str, str]:
+    """A copy of ``os.environ`` for a ROS subprocess, with the profile and ``extra`` applied."""
+    env = dict(os.environ)
+    env.update(extra or {})
+    use_profile(env)
+    return env
+
+
+def message_class(msgtype: str) -> Any:
+    """The rclpy message class of a ROS type name (``sensor_msgs/msg/Image`` or ``sensor_msgs/Image``).
+
+    Raises:
+        DdsError: the type's Python package is not installed (e.g. interfaces not built).
+    """
+    parts = msgtype.split("/")
+    if len(parts) == 2:
+        parts = [parts[0], "msg", parts[1]]
+    if len(parts) != 3 or not all(parts):
+        raise DdsError(f"not a ROS message type name: {msgtype!r}")
+    package, kind, name = parts
+    try:
+        module = importlib.import_module(f"{package}.{kind}")
+        return getattr(module, name)
+    except (ImportError, AttributeError):
+        raise DdsError(f"message type {msgtype} is not available in this environment") from None
+
+
+def init_ros(args: list[str] | None = None, *, handle_signals: bool = True) -> Any:
+    """Apply the DDS profile, then ``rclpy.init``; returns the rclpy module.
+
+    Args:
+        args: command-line arguments for rclpy (``--ros-args ...``); None = no arguments.
+        handle_signals: keep rclpy's own SIGINT/SIGTERM handling (False for tools that must run
+            their own shutdown, like the recorder closing its file).
+    """
+    use_profile()
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    options = SignalHandlerOptions.ALL if handle_signals else SignalHandlerOptions.NO
+    if not rclpy.ok():
+        rclpy.init(args=args, signal_handler_options=options)
+    return rclpy

@@ -1,0 +1,262 @@
+"""Publish a bag's messages over ROS 2 with their original timing, as raw CDR bytes.
+
+The bag's serialised messages go to ``publisher.publish(bytes)`` unchanged (no deserialising and
+re-serialising), paced by their log times: message ``k`` is published at
+``start + (t_k - t_0) / rate`` on the monotonic clock, so timing errors do not accumulate; the
+lateness of every publication is measured and returned. ``restamp`` rewrites the header stamp in
+the raw bytes (the 8 bytes after the CDR encapsulation header, for types whose first field is a
+``std_msgs/Header``) to the wall-clock time of publication, mapping equal stamps to equal stamps,
+so a node's end-to-end latency (now minus header stamp) can be measured from a recorded bag.
+"""
+
+from __future__ import annotations
+
+import struct
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from roadbev_ros.dds import DdsError, message_class
+
+__all__ = ["BagMessage", "ReplayError", "ReplayStats", "bag_topics", "read_bag", "replay_bag", "restamp_cdr"]
+
+
+class ReplayError(RuntimeError):
+    """A bag that cannot be replayed (missing, unreadable, no publishable topic)."""
+
+
+@dataclass(frozen=True)
+class BagMessage:
+    """One serialised message of a bag."""
+
+    topic: str
+    msgtype: str
+    log_time_ns: int
+    data: bytes
+    has_header: bool
+
+
+@dataclass
+class ReplayStats:
+    """What a replay published and how punctually.
+
+    Attributes:
+        messages: messages published.
+        per_topic: topic -> messages published.
+        duration_s: wall time from the first to the last publication.
+        late_p50_ms, late_p95_ms, late_max_ms: publication time minus schedule.
+        skipped_topics: topic -> why it was not replayed.
+        loops: passes over the bag.
+        stamp_offset_ns: with restamp, new stamp minus old stamp of the last pass (rate 1).
+    """
+
+    messages: int = 0
+    per_topic: dict[str, int] = field(default_factory=dict)
+    duration_s: float = 0.0
+    late_p50_ms: float = 0.0
+    late_p95_ms: float = 0.0
+    late_max_ms: float = 0.0
+    skipped_topics: dict[str, str] = field(default_factory=dict)
+    loops: int = 0
+    stamp_offset_ns: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+def _starts_with_header(msgdef: str) -> bool:
+    for line in msgdef.splitlines():
+        line = line.split("#", 1)[0].strip()
+        if line:
+            return line.split()[0] in ("std_msgs/Header", "Header", "std_msgs/msg/Header")
+    return False
+
+
+def _open_reader(path: Path) -> Any:
+    from rosbags.highlevel import AnyReader
+
+    if not path.exists():
+        raise ReplayError(f"bag not found: {path}")
+    try:
+        reader = AnyReader([path])
+        reader.open()
+    except Exception as exc:  # rosbags raises several unrelated types for unreadable bags
+        raise ReplayError(f"cannot read bag {path}: {exc}") from None
+    return reader
+
+
+def bag_topics(path: str | Path) -> dict[str, str]:
+    """Topic -> message type of every topic in the bag."""
+    reader = _open_reader(Path(path))
+    try:
+        return {c.topic: c.msgtype for c in reader.connections}
+    finally:
+        reader.close()
+
+
+def read_bag(path: str | Path, topics: Sequence[str] | None = None) -> Iterator[BagMessage]:
+    """The bag's messages in log-time order, as raw bytes.
+
+    Args:
+        path: a rosbag2 directory or a single ``.mcap`` file.
+        topics: only these topics (None = all).
+    """
+    reader = _open_reader(Path(path))
+    try:
+        wanted = [c for c in reader.connections if topics is None or c.topic in topics]
+        header_first = {c.id: _starts_with_header(getattr(c.msgdef, "data", "") or "") for c in wanted}
+        for conn, log_time, raw in reader.messages(connections=wanted):
+            yield BagMessage(conn.topic, conn.msgtype, int(log_time), bytes(raw), header_first[conn.id])
+    finally:
+        reader.close()
+
+
+def restamp_cdr(data: bytes, stamp_ns: int) -> bytes:
+    """``data`` (a CDR message whose first field is a Header) with its stamp set to ``stamp_ns``."""
+    if len(data) < 12:
+        raise ReplayError("message too short to carry a header")
+    little = data[1] & 1  # encapsulation kind: 0x0001 = CDR_LE, 0x0000 = CDR_BE
+    fmt = "<iI" if little else ">iI"
+    sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
+    return data[:4] + struct.pack(fmt, sec, nsec) + data[12:]
+
+
+def header_stamp_ns(data: bytes) -> int:
+    """The header stamp of a CDR message whose first field is a Header."""
+    fmt = "<iI" if data[1] & 1 else ">iI"
+    sec, nsec = struct.unpack_from(fmt, data, 4)
+    return sec * 1_000_000_000 + nsec
+
+
+def _percentile(values: list[float], q: float) -> float:
+    if not values:
+        return 0.0
+    values = sorted(values)
+    return values[min(len(values) - 1, int(round((len(values) - 1) * q / 100.0)))]
+
+
+def replay_bag(
+    node: Any,
+    path: str | Path,
+    *,
+    rate: float = 1.0,
+    loop: bool = False,
+    topics: Sequence[str] | None = None,
+    restamp: bool = False,
+    publish_clock: bool = False,
+    wait_for_subscribers: float = 0.0,
+    qos_depth: int = 10,
+    stop: threading.Event | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> ReplayStats:
+    """Publish the bag through ``node``'s publishers with the original timing.
+
+    Args:
+        node: an rclpy node (its publishers are created here and destroyed at the end).
+        path: a rosbag2 directory or ``.mcap`` file.
+        rate: speed factor; 0 or less = as fast as possible.
+        loop: start again at the end until ``stop`` is set.
+        topics: only these topics (None = all topics whose message type is installed).
+        restamp: set header stamps to the wall-clock publication time.
+        publish_clock: publish ``/clock`` (rosgraph_msgs/Clock) with the bag time.
+        wait_for_subscribers: wait up to this many seconds until every replayed topic has a
+            subscriber before starting (0 = do not wait).
+        qos_depth: reliable keep-last depth of the publishers.
+        stop: set it to end the replay early.
+        progress: called with the number of messages published so far, every message.
+
+    Raises:
+        ReplayError: unreadable bag, or none of the asked topics can be published.
+    """
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    path = Path(path)
+    available = bag_topics(path)
+    stats = ReplayStats()
+    wanted = list(available) if topics is None else list(topics)
+    for topic in wanted:
+        if topic not in available:
+            stats.skipped_topics[topic] = "not in the bag"
+    qos = QoSProfile(depth=qos_depth, reliability=ReliabilityPolicy.RELIABLE)
+    publishers: dict[str, Any] = {}
+    for topic in wanted:
+        if topic not in available:
+            continue
+        try:
+            publishers[topic] = node.create_publisher(message_class(available[topic]), topic, qos)
+        except DdsError as exc:
+            stats.skipped_topics[topic] = str(exc)
+    if not publishers:
+        raise ReplayError(f"nothing to replay from {path}: {stats.skipped_topics or 'empty bag'}")
+    clock_pub = None
+    clock_msg = None
+    if publish_clock:
+        from rosgraph_msgs.msg import Clock
+
+        clock_pub = node.create_publisher(Clock, "/clock", qos)
+        clock_msg = Clock()
+    stop = stop or threading.Event()
+    if wait_for_subscribers > 0:
+        deadline = time.monotonic() + wait_for_subscribers
+        while time.monotonic() < deadline and not stop.is_set():
+            if all(p.get_subscription_count() > 0 for p in publishers.values()):
+                break
+            time.sleep(0.02)
+    per_topic: Counter[str] = Counter()
+    lateness_ms: list[float] = []
+    first_wall = None
+    last_wall = 0.0
+    try:
+        while not stop.is_set():
+            stats.loops += 1
+            start_wall = time.monotonic()
+            start_unix_ns = time.time_ns()
+            bag_start: int | None = None
+            for msg in read_bag(path, list(publishers)):
+                if stop.is_set():
+                    break
+                if bag_start is None:
+                    bag_start = msg.log_time_ns
+                offset_s = (msg.log_time_ns - bag_start) * 1e-9
+                if rate > 0:
+                    target = start_wall + offset_s / rate
+                    delay = target - time.monotonic()
+                    while delay > 0 and not stop.is_set():
+                        time.sleep(min(delay, 0.1))
+                        delay = target - time.monotonic()
+                    lateness_ms.append(max(0.0, -delay) * 1e3)
+                data = msg.data
+                if restamp and msg.has_header:
+                    scale = rate if rate > 0 else 1.0
+                    old = header_stamp_ns(data)
+                    new = start_unix_ns + int((old - bag_start) / scale)
+                    stats.stamp_offset_ns = new - old
+                    data = restamp_cdr(data, new)
+                if clock_pub is not None:
+                    sec, nsec = divmod(msg.log_time_ns, 1_000_000_000)
+                    clock_msg.clock.sec, clock_msg.clock.nanosec = sec, nsec
+                    clock_pub.publish(clock_msg)
+                publishers[msg.topic].publish(data)
+                last_wall = time.monotonic()
+                first_wall = first_wall if first_wall is not None else last_wall
+                per_topic[msg.topic] += 1
+                stats.messages += 1
+                if progress is not None:
+                    progress(stats.messages)
+            if not loop or bag_start is None:
+                break
+    finally:
+        for publisher in publishers.values():
+            node.destroy_publisher(publisher)
+        if clock_pub is not None:
+            node.destroy_publisher(clock_pub)
+    stats.per_topic = dict(per_topic)
+    stats.duration_s = 0.0 if first_wall is None else last_wall - first_wall
+    stats.late_p50_ms = _percentile(lateness_ms, 50)
+    stats.late_p95_ms = _percentile(lateness_ms, 95)
+    stats.late_max_ms = max(lateness_ms, default=0.0)
+    return stats

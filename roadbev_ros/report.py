@@ -1,0 +1,638 @@
+"""The demo's visual report: matplotlib figures (Agg) and an HTML page that opens offline.
+
+Pure plotting over arrays: :func:`write_report` takes a :class:`ReportData` (metrics per run,
+a few frames with image, ground truth and estimate, wheel-track profiles, timing) and writes
+
+* ``frames.png``: the paper's Fig. 7 layout, one row per frame: left image with the ROI (the
+  voxel grid's footprint projected into it), ground truth, estimate, residual (GT - estimate),
+  elevation in cm with one colour bar shared by GT and estimate and one for the residuals;
+* ``surface.png``: a 3D surface render of one estimate;
+* ``preview.png``: left and right wheel-track profiles (recorded) against ground-truth profiles;
+* ``band_error.png``: absolute error against distance (15 bands) per run;
+* ``timing.png``: latency and output rate over time;
+* ``index.html`` (images referenced relatively) and ``report.json`` (every number shown).
+
+BEV maps are drawn with true aspect (the default grid is 4.92 m long x 1.92 m wide), near at the
+bottom and left on the left: the array's row 0 is the farthest row and column 0 the leftmost,
+so ``imshow`` of the array as is, with the lateral axis running from +y (left) to -y (right).
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.geometry import Attitude, project_points, road_to_camera
+
+os.environ.setdefault("MPLBACKEND", "Agg")
+import matplotlib  # noqa: E402
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib import colors as mcolors  # noqa: E402
+
+__all__ = [
+    "FIGURE_NAMES",
+    "FrameView",
+    "ReportData",
+    "ReportError",
+    "RunSummary",
+    "TimingTrace",
+    "TrackProfile",
+    "band_centres_m",
+    "plot_band_error",
+    "plot_frames",
+    "plot_preview",
+    "plot_surface",
+    "plot_timing",
+    "roi_outline_px",
+    "write_report",
+]
+
+FIGURE_NAMES: tuple[str, ...] = ("frames.png", "surface.png", "preview.png", "band_error.png", "timing.png")
+_DPI = 110
+_ELEVATION_CMAP = "turbo"
+_RESIDUAL_CMAP = "RdBu_r"
+_NO_DATA_COLOUR = "#d9d9d9"
+
+
+class ReportError(ValueError):
+    """Report input that cannot be drawn (no frames, mismatched shapes), with the reason."""
+
+
+# --------------------------------------------------------------------------------------------
+# inputs
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TrackProfile:
+    """Elevation along one wheel track, nearest sample first.
+
+    Attributes:
+        name: ``left`` or ``right`` (or another track name).
+        lateral_offset_m: y of the track centre in the road frame (left positive).
+        distance_m: [n] x of each sample ahead of the camera.
+        elevation_m: [n] road height (NaN = none).
+        sigma_m: [n] 1-sigma uncertainty, or None.
+    """
+
+    name: str
+    lateral_offset_m: float
+    distance_m: np.ndarray
+    elevation_m: np.ndarray
+    sigma_m: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class FrameView:
+    """One frame as the report shows it.
+
+    Attributes:
+        index: frame number in the drive (0-based).
+        stamp_ns: the left image's stamp.
+        left: [H, W, 3] RGB uint8 or [H, W] grey left image.
+        camera: the rig (for the ROI overlay).
+        attitude: camera attitude at the stamp.
+        truth: [n_rows, n_cols] ground-truth elevation (m, NaN = no label), or None.
+        estimate: [n_rows, n_cols] estimated elevation (m, NaN = none).
+        tracks: estimated wheel-track profiles (as recorded from the node).
+        truth_tracks: the same profiles computed from the ground truth.
+    """
+
+    index: int
+    stamp_ns: int
+    left: np.ndarray
+    camera: StereoCamera
+    attitude: Attitude
+    truth: np.ndarray | None
+    estimate: np.ndarray
+    tracks: tuple[TrackProfile, ...] = ()
+    truth_tracks: tuple[TrackProfile, ...] = ()
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    """Metrics of one backend run (contract JSON keys), labelled for the table."""
+
+    label: str
+    backend: str
+    mode: str
+    metrics: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class TimingTrace:
+    """When each output arrived, for the latency and rate plots.
+
+    Attributes:
+        stamp_s: [n] image stamp of each output, seconds since the first input stamp.
+        latency_ms: [n] time from the input's publication to the output's reception.
+        receive_s: [n] reception time of each output, seconds since the first publication.
+    """
+
+    stamp_s: np.ndarray
+    latency_ms: np.ndarray
+    receive_s: np.ndarray
+
+
+@dataclass
+class ReportData:
+    """Everything the report shows."""
+
+    title: str
+    grid: GridSpec
+    runs: list[RunSummary]
+    frames: list[FrameView]
+    timing: TimingTrace | None = None
+    notes: list[str] = field(default_factory=list)
+    settings: dict[str, Any] = field(default_factory=dict)
+    stage_seconds: dict[str, float] = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------------------------
+# geometry helpers
+# --------------------------------------------------------------------------------------------
+def _bev_extent(grid: GridSpec) -> tuple[float, float, float, float]:
+    """imshow extent: lateral from +y (left, image left) to -y, x from near (bottom) to far."""
+    return (grid.y_max, grid.y_min, grid.x_min, grid.x_max)
+
+
+def band_centres_m(grid: GridSpec, n_bands: int = 15) -> np.ndarray:
+    """[n_bands] mean x of the rows in each distance band, near to far."""
+    bands = grid.band_of_rows(n_bands)
+    x = grid.x_centres()
+    return np.array([x[bands == b].mean() for b in range(n_bands)])
+
+
+def roi_outline_px(
+    grid: GridSpec, camera: StereoCamera, attitude: Attitude, z: float = 0.0, samples: int = 50
+) -> np.ndarray:
+    """The grid's rectangle at height ``z`` projected into the left image.
+
+    Returns:
+        [4 * samples + 1, 2] pixel coordinates (u, v) of the closed outline; NaN where a point
+        lies behind the camera.
+    """
+    corners = [
+        (grid.x_min, grid.y_max),
+        (grid.x_max, grid.y_max),
+        (grid.x_max, grid.y_min),
+        (grid.x_min, grid.y_min),
+    ]
+    pts = []
+    for (xa, ya), (xb, yb) in zip(corners, corners[1:] + corners[:1]):
+        t = np.linspace(0.0, 1.0, samples, endpoint=False)
+        pts.append(np.stack([xa + (xb - xa) * t, ya + (yb - ya) * t, np.full_like(t, z)], axis=1))
+    road = np.concatenate(pts + [pts[0][:1]], axis=0)  # [4*samples+1, 3]
+    u, v, depth = project_points(road_to_camera(road, attitude, grid.base_height), camera)
+    uv = np.stack([u, v], axis=1)
+    uv[depth <= 0] = np.nan
+    return uv
+
+
+def _project_line(
+    grid: GridSpec, camera: StereoCamera, attitude: Attitude, y: float, samples: int = 40
+) -> np.ndarray:
+    """[samples, 2] pixels of the line at lateral ``y`` from x_min to x_max on the z = 0 plane."""
+    x = np.linspace(grid.x_min, grid.x_max, samples)
+    road = np.stack([x, np.full_like(x, y), np.zeros_like(x)], axis=1)
+    u, v, _ = project_points(road_to_camera(road, attitude, grid.base_height), camera)
+    return np.stack([u, v], axis=1)
+
+
+# --------------------------------------------------------------------------------------------
+# colour scales
+# --------------------------------------------------------------------------------------------
+def _elevation_limits_cm(maps: Sequence[np.ndarray]) -> tuple[float, float]:
+    """Shared colour range (cm): 0.2nd..99.8th percentile of the maps, at least 2 cm wide.
+
+    Callers pass the ground-truth maps when there are any, so that a pothole's full depth stays
+    inside the scale and an estimate's outliers clip instead of washing out the colours.
+    """
+    values = np.concatenate([m[np.isfinite(m)].ravel() for m in maps if m is not None] or [np.zeros(1)])
+    if values.size == 0:
+        values = np.zeros(1)
+    lo, hi = np.percentile(values * 100.0, [0.2, 99.8])
+    if hi - lo < 2.0:
+        mid = 0.5 * (hi + lo)
+        lo, hi = mid - 1.0, mid + 1.0
+    return float(lo), float(hi)
+
+
+def _residual_limit_cm(residuals: Sequence[np.ndarray]) -> float:
+    """Symmetric residual colour range (cm): 99th percentile of |residual|, at least 0.5 cm."""
+    values = np.concatenate([np.abs(r[np.isfinite(r)]).ravel() for r in residuals] or [np.zeros(1)])
+    if values.size == 0:
+        return 0.5
+    return float(max(np.percentile(values * 100.0, 99.0), 0.5))
+
+
+def _cmap(name: str) -> mcolors.Colormap:
+    cmap = matplotlib.colormaps[name].copy()
+    cmap.set_bad(_NO_DATA_COLOUR)
+    return cmap
+
+
+# --------------------------------------------------------------------------------------------
+# figures
+# --------------------------------------------------------------------------------------------
+def _draw_roi(ax: Any, frame: FrameView, grid: GridSpec) -> None:
+    """Left image with the voxel grid's footprint: the ROI at z = 0 (red) and z_min / z_max."""
+    img = frame.left
+    ax.imshow(img, cmap="gray" if img.ndim == 2 else None, vmin=0, vmax=255, interpolation="antialiased")
+    for z, style in ((grid.z_min, dict(color="orange", lw=0.7, ls=":")),
+                     (grid.z_max, dict(color="orange", lw=0.7, ls="--")),
+                     (0.0, dict(color="red", lw=1.4, ls="-"))):
+        uv = roi_outline_px(grid, frame.camera, frame.attitude, z)
+        ax.plot(uv[:, 0], uv[:, 1], **style)
+    for track in frame.tracks or frame.truth_tracks:
+        uv = _project_line(grid, frame.camera, frame.attitude, track.lateral_offset_m)
+        ax.plot(uv[:, 0], uv[:, 1], color="cyan", lw=0.9, ls="-.")
+    ax.set_xlim(-0.5, frame.camera.width - 0.5)
+    ax.set_ylim(frame.camera.height - 0.5, -0.5)
+    ax.set_xticks([])
+    ax.set_yticks([])
+    ax.set_title(f"frame {frame.index}: left image, ROI", fontsize=9)
+
+
+def _style_bev_axes(ax: Any, grid: GridSpec, *, first: bool, last_row: bool) -> None:
+    ax.set_aspect("equal")
+    ax.tick_params(labelsize=7)
+    ax.set_xticks([grid.y_max, 0.0, grid.y_min])
+    ax.set_xticklabels([f"{grid.y_max:+.2f}", "0", f"{grid.y_min:+.2f}"])
+    if last_row:
+        ax.set_xlabel("lateral y (m, + left)", fontsize=7)
+    if first:
+        ax.set_ylabel("distance ahead x (m)", fontsize=7)
+    else:
+        ax.set_yticklabels([])
+
+
+def plot_frames(frames: Sequence[FrameView], grid: GridSpec, path: str | Path) -> Path:
+    """The paper's Fig. 7: image with ROI | GT | estimate | residual (GT - estimate), in cm.
+
+    GT and estimate share one colour bar; residuals share another; both span all rows. Axes are
+    placed in inches so that every panel keeps its true aspect without wasted space.
+    """
+    if not frames:
+        raise ReportError("no frames to draw")
+    truths = [f.truth for f in frames if f.truth is not None]
+    residuals = [f.truth - f.estimate for f in frames if f.truth is not None]
+    lo, hi = _elevation_limits_cm(truths or [f.estimate for f in frames])
+    rlim = _residual_limit_cm(residuals)
+    cam = frames[0].camera
+    h = 3.0  # height of every panel (in)
+    w_img = h * cam.width / cam.height
+    w_map = h * grid.length_y / grid.length_x
+    margin, gap_img, gap_map, title_h, ticks_h, bar_h, bar_label_h = 0.15, 0.75, 0.35, 0.35, 0.5, 0.14, 0.75
+    fig_w = margin + w_img + gap_img + 3 * w_map + 2 * gap_map + 0.3
+    row_h = title_h + h + ticks_h
+    fig_h = 0.45 + row_h * len(frames) + bar_h + bar_label_h
+    fig = plt.figure(figsize=(fig_w, fig_h), dpi=_DPI)
+
+    def axes_at(left_in: float, bottom_in: float, width_in: float, height_in: float) -> Any:
+        return fig.add_axes((left_in / fig_w, bottom_in / fig_h, width_in / fig_w, height_in / fig_h))
+
+    extent = _bev_extent(grid)
+    elev_cmap, res_cmap = _cmap(_ELEVATION_CMAP), _cmap(_RESIDUAL_CMAP)
+    map_left = [margin + w_img + gap_img + k * (w_map + gap_map) for k in range(3)]
+    im_e = im_r = None
+    for i, frame in enumerate(frames):
+        if frame.estimate.shape != grid.shape:
+            raise ReportError(f"frame {frame.index}: estimate {frame.estimate.shape} is not the grid {grid.shape}")
+        bottom = fig_h - 0.45 - (i + 1) * row_h + ticks_h
+        _draw_roi(axes_at(margin, bottom, w_img, h), frame, grid)
+        panels = [
+            ("ground truth", frame.truth, elev_cmap, lo, hi),
+            ("estimate", frame.estimate, elev_cmap, lo, hi),
+            ("residual GT - est.", None if frame.truth is None else frame.truth - frame.estimate,
+             res_cmap, -rlim, rlim),
+        ]
+        for j, (title, arr, cmap, vmin, vmax) in enumerate(panels):
+            ax = axes_at(map_left[j], bottom, w_map, h)
+            shown = np.full(grid.shape, np.nan) if arr is None else arr * 100.0
+            im = ax.imshow(shown, cmap=cmap, vmin=vmin, vmax=vmax, extent=extent,
+                           interpolation="nearest", origin="upper", aspect="equal")
+            if j < 2:
+                im_e = im
+            else:
+                im_r = im
+            ax.set_title(title if arr is not None else f"{title}: none", fontsize=9)
+            _style_bev_axes(ax, grid, first=(j == 0), last_row=True)
+    cax_e = axes_at(map_left[0], bar_label_h, 2 * w_map + gap_map, bar_h)
+    cbar_e = fig.colorbar(im_e, cax=cax_e, orientation="horizontal")
+    cbar_e.set_label("elevation (cm), GT and estimate", fontsize=8)
+    cax_r = axes_at(map_left[2], bar_label_h, w_map, bar_h)
+    cbar_r = fig.colorbar(im_r, cax=cax_r, orientation="horizontal")
+    cbar_r.set_label("residual (cm)", fontsize=8)
+    for cbar in (cbar_e, cbar_r):
+        cbar.ax.tick_params(labelsize=7)
+    fig.text(margin / fig_w, 1.0 - 0.12 / fig_h,
+             "Red: ROI at z = 0; orange: voxel range z_min (dotted) .. z_max (dashed); cyan: wheel tracks. "
+             "Grey cells: no label / no estimate.",
+             fontsize=8, va="top")
+    out = Path(path)
+    fig.savefig(out)
+    plt.close(fig)
+    return out
+
+
+def plot_surface(frame: FrameView, grid: GridSpec, path: str | Path) -> Path:
+    """3D surface of one estimate (true horizontal aspect, elevation exaggerated and labelled)."""
+    from mpl_toolkits.mplot3d import Axes3D  # noqa: F401  (registers the 3d projection)
+
+    est_cm = frame.estimate.astype(np.float64) * 100.0
+    if not np.isfinite(est_cm).any():
+        raise ReportError(f"frame {frame.index}: the estimate is empty, nothing to render")
+    yy, xx = np.meshgrid(grid.y_centres(), grid.x_centres())  # [R, C]
+    lo, hi = _elevation_limits_cm([frame.truth if frame.truth is not None else frame.estimate])
+    fig = plt.figure(figsize=(8.0, 6.0), dpi=_DPI)
+    ax = fig.add_subplot(111, projection="3d")
+    surf = ax.plot_surface(
+        yy, xx, np.ma.masked_invalid(est_cm), cmap=_cmap(_ELEVATION_CMAP), vmin=lo, vmax=hi,
+        rstride=1, cstride=1, linewidth=0, antialiased=False,
+    )
+    z_span = max(hi - lo, 2.0)
+    exaggeration = 0.6 * grid.length_y / (z_span / 100.0)  # the z axis gets 60 % of the width
+    ax.set_box_aspect((grid.length_y, grid.length_x, 0.6 * grid.length_y))
+    ax.set_xlim(grid.y_max, grid.y_min)  # left on the left when seen from behind the car
+    ax.set_ylim(grid.x_min, grid.x_max)
+    ax.set_zlim(lo, hi)
+    ax.view_init(elev=28, azim=-110)
+    ax.set_xlabel("lateral y (m, + left)", fontsize=8)
+    ax.set_ylabel("distance ahead x (m)", fontsize=8)
+    ax.set_zlabel("elevation (cm)", fontsize=8)
+    ax.tick_params(labelsize=7)
+    fig.colorbar(surf, ax=ax, shrink=0.6, pad=0.08).set_label("elevation (cm)", fontsize=8)
+    ax.set_title(f"Estimated road surface, frame {frame.index} "
+                 f"(vertical exaggerated about {exaggeration:.0f}x)", fontsize=10)
+    out = Path(path)
+    fig.savefig(out)
+    plt.close(fig)
+    return out
+
+
+def plot_preview(frames: Sequence[FrameView], path: str | Path) -> Path:
+    """Left and right wheel-track profiles (estimate with 1-sigma band) against ground truth."""
+    rows = [f for f in frames if f.tracks or f.truth_tracks]
+    if not rows:
+        raise ReportError("no wheel-track profiles to draw")
+    names: list[str] = []
+    for f in rows:
+        for t in (*f.tracks, *f.truth_tracks):
+            if t.name not in names:
+                names.append(t.name)
+    fig, axes = plt.subplots(len(rows), len(names), figsize=(5.0 * len(names), 2.6 * len(rows) + 0.6),
+                             dpi=_DPI, squeeze=False, sharex=True)
+    for i, frame in enumerate(rows):
+        est = {t.name: t for t in frame.tracks}
+        gt = {t.name: t for t in frame.truth_tracks}
+        for j, name in enumerate(names):
+            ax = axes[i, j]
+            if name in gt:
+                t = gt[name]
+                ax.plot(t.distance_m, t.elevation_m * 100.0, color="black", lw=1.4, label="ground truth")
+            if name in est:
+                t = est[name]
+                ax.plot(t.distance_m, t.elevation_m * 100.0, color="tab:red", lw=1.2, label="estimate (/roadbev/preview)")
+                if t.sigma_m is not None and np.isfinite(t.sigma_m).any():
+                    ax.fill_between(t.distance_m, (t.elevation_m - t.sigma_m) * 100.0,
+                                    (t.elevation_m + t.sigma_m) * 100.0, color="tab:red", alpha=0.2,
+                                    lw=0, label="estimate ±1σ")
+            offset = (est.get(name) or gt.get(name)).lateral_offset_m  # type: ignore[union-attr]
+            ax.set_title(f"frame {frame.index}: {name} wheel track (y = {offset:+.2f} m)", fontsize=9)
+            ax.grid(True, alpha=0.3)
+            ax.tick_params(labelsize=7)
+            ax.set_ylabel("elevation (cm)", fontsize=8)
+            if i == len(rows) - 1:
+                ax.set_xlabel("distance ahead x (m)", fontsize=8)
+            if i == 0 and j == 0:
+                ax.legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    out = Path(path)
+    fig.savefig(out)
+    plt.close(fig)
+    return out
+
+
+def plot_band_error(runs: Sequence[RunSummary], grid: GridSpec, path: str | Path) -> Path:
+    """Mean absolute error per distance band (15 bands, near to far), one line per run."""
+    if not runs:
+        raise ReportError("no runs to draw")
+    fig, ax = plt.subplots(figsize=(7.0, 3.6), dpi=_DPI)
+    markers = "osd^v<>"
+    for k, run in enumerate(runs):
+        bands = np.asarray(run.metrics.get("band_abs_err_cm", []), dtype=np.float64)
+        if bands.size == 0:
+            continue
+        centres = band_centres_m(grid, bands.size)
+        ax.plot(centres, bands, marker=markers[k % len(markers)], ms=4, lw=1.3,
+                ls="-" if k % 2 == 0 else "--", label=run.label)
+    ax.set_xlabel("distance ahead x (m), band centre", fontsize=9)
+    ax.set_ylabel("mean absolute error (cm)", fontsize=9)
+    ax.set_title(f"Error against distance ({len(band_centres_m(grid))} bands of "
+                 f"{grid.length_x / 15:.2f} m)", fontsize=10)
+    ax.set_ylim(bottom=0.0)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    out = Path(path)
+    fig.savefig(out)
+    plt.close(fig)
+    return out
+
+
+def plot_timing(timing: TimingTrace, path: str | Path) -> Path:
+    """Latency per output and output rate over time (two panels)."""
+    if timing.receive_s.size == 0:
+        raise ReportError("no outputs were received: nothing to time")
+    fig, (ax_l, ax_r) = plt.subplots(2, 1, figsize=(7.0, 5.0), dpi=_DPI, sharex=True)
+    ax_l.plot(timing.receive_s, timing.latency_ms, marker="o", ms=3, lw=1.0, color="tab:blue")
+    med = float(np.median(timing.latency_ms))
+    ax_l.axhline(med, color="tab:blue", ls=":", lw=1.0, label=f"median {med:.0f} ms")
+    ax_l.set_ylabel("latency (ms)", fontsize=9)
+    ax_l.set_ylim(bottom=0.0)
+    ax_l.set_title("Latency: input image published -> /roadbev/elevation received", fontsize=10)
+    ax_l.legend(fontsize=8)
+    ax_l.grid(True, alpha=0.3)
+    if timing.receive_s.size >= 2:
+        dt = np.diff(timing.receive_s)
+        rate = 1.0 / np.maximum(dt, 1e-6)
+        ax_r.plot(timing.receive_s[1:], rate, marker="o", ms=3, lw=1.0, color="tab:green",
+                  label="1 / interval between outputs")
+        span = timing.receive_s[-1] - timing.receive_s[0]
+        mean_rate = (timing.receive_s.size - 1) / span if span > 0 else float("nan")
+        ax_r.axhline(mean_rate, color="tab:green", ls=":", lw=1.0, label=f"mean {mean_rate:.1f} Hz")
+        ax_r.legend(fontsize=8)
+    ax_r.set_ylabel("output rate (Hz)", fontsize=9)
+    ax_r.set_ylim(bottom=0.0)
+    ax_r.set_xlabel("time since the first input was published (s)", fontsize=9)
+    ax_r.set_title("Output rate", fontsize=10)
+    ax_r.grid(True, alpha=0.3)
+    fig.tight_layout()
+    out = Path(path)
+    fig.savefig(out)
+    plt.close(fig)
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# HTML + JSON
+# --------------------------------------------------------------------------------------------
+_TABLE_KEYS: tuple[tuple[str, str, str], ...] = (
+    ("frames", "frames", "{:d}"),
+    ("cells", "cells compared", "{:d}"),
+    ("abs_err_cm", "abs. error (cm)", "{:.3f}"),
+    ("rmse_cm", "RMSE (cm)", "{:.3f}"),
+    ("gt_0p5cm_pct", "> 0.5 cm (%)", "{:.1f}"),
+    ("coverage_pct", "coverage (%)", "{:.1f}"),
+    ("fps", "rate (Hz)", "{:.2f}"),
+    ("latency_ms_median", "latency median (ms)", "{:.0f}"),
+)
+
+
+def _fmt(value: Any, pattern: str) -> str:
+    if value is None:
+        return "–"
+    if isinstance(value, float) and not math.isfinite(value):
+        return "–"
+    try:
+        return pattern.format(int(value) if pattern == "{:d}" else float(value))
+    except (TypeError, ValueError):
+        return html.escape(str(value))
+
+
+def _metrics_table(runs: Sequence[RunSummary]) -> str:
+    head = "".join(f"<th>{html.escape(t)}</th>" for _, t, _ in _TABLE_KEYS)
+    rows = []
+    for run in runs:
+        cells = "".join(f"<td>{_fmt(run.metrics.get(k), p)}</td>" for k, _, p in _TABLE_KEYS)
+        rows.append(f"<tr><th>{html.escape(run.label)}</th>{cells}</tr>")
+    return f"<table><tr><th>run</th>{head}</tr>{''.join(rows)}</table>"
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def _clean(obj: Any) -> Any:
+    """NaN/inf -> None so the JSON stays standard."""
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, dict):
+        return {k: _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    return obj
+
+
+_CAPTIONS: dict[str, str] = {
+    "frames.png": "Left image with the ROI (the grid's footprint on the z = 0 plane, red; the voxel "
+    "range z_min..z_max, orange; the wheel tracks, cyan), ground truth, estimate and residual "
+    "(GT - estimate) in cm, as in the paper's Fig. 7. Maps are drawn with true aspect, near at the "
+    "bottom, left on the left.",
+    "surface.png": "3D surface of the estimate (horizontal axes to scale, elevation exaggerated).",
+    "preview.png": "Wheel-track preview profiles as published on /roadbev/preview against the same "
+    "profiles computed from the ground truth (roadbev_core.preview).",
+    "band_error.png": "Mean absolute error in 15 distance bands along x, near to far (paper Fig. 9).",
+    "timing.png": "Latency (input image published by the replay until its elevation map was "
+    "received by the recorder) and output rate over time.",
+}
+
+
+def _html_page(data: ReportData, figures: list[str]) -> str:
+    settings = "".join(
+        f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(str(v))}</td></tr>" for k, v in data.settings.items()
+    )
+    stages = "".join(
+        f"<tr><th>{html.escape(k)}</th><td>{v:.1f} s</td></tr>" for k, v in data.stage_seconds.items()
+    )
+    notes = "".join(f"<li>{html.escape(n)}</li>" for n in data.notes)
+    figs = "".join(
+        f'<figure><img src="{html.escape(name)}" alt="{html.escape(name)}">'
+        f"<figcaption>{html.escape(_CAPTIONS.get(name, name))}</figcaption></figure>"
+        for name in figures
+    )
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>{html.escape(data.title)}</title>
+<style>
+body {{ font-family: sans-serif; margin: 1.5em auto; max-width: 1400px; color: #222; }}
+table {{ border-collapse: collapse; margin: 0.5em 0 1em; }}
+th, td {{ border: 1px solid #bbb; padding: 0.25em 0.6em; text-align: right; font-size: 0.9em; }}
+th {{ background: #f0f0f0; text-align: left; }}
+figure {{ margin: 1.2em 0; }} img {{ max-width: 100%; border: 1px solid #ddd; }}
+figcaption {{ font-size: 0.9em; color: #444; }}
+</style></head><body>
+<h1>{html.escape(data.title)}</h1>
+<h2>Metrics</h2>
+{_metrics_table(data.runs)}
+<ul>{notes}</ul>
+<h2>Figures</h2>
+{figs}
+<h2>Settings</h2><table>{settings}</table>
+<h2>Stage times</h2><table>{stages}</table>
+<p>Numbers: <a href="report.json">report.json</a>.</p>
+</body></html>
+"""
+
+
+def write_report(data: ReportData, out_dir: str | Path) -> dict[str, Path]:
+    """Draw every figure the data allows and write ``index.html`` and ``report.json``.
+
+    Returns:
+        File name -> path of everything written.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    if not data.frames:
+        raise ReportError("the report needs at least one frame")
+    written: dict[str, Path] = {}
+    written["frames.png"] = plot_frames(data.frames, data.grid, out / "frames.png")
+    # The 3D render shows the frame with the most relief in its ground truth (else the first).
+    relief = [
+        float(np.nanmax(f.truth) - np.nanmin(f.truth)) if f.truth is not None and np.isfinite(f.truth).any() else -1.0
+        for f in data.frames
+    ]
+    written["surface.png"] = plot_surface(data.frames[int(np.argmax(relief))], data.grid, out / "surface.png")
+    if any(f.tracks or f.truth_tracks for f in data.frames):
+        written["preview.png"] = plot_preview(data.frames, out / "preview.png")
+    if data.runs:
+        written["band_error.png"] = plot_band_error(data.runs, data.grid, out / "band_error.png")
+    if data.timing is not None and data.timing.receive_s.size:
+        written["timing.png"] = plot_timing(data.timing, out / "timing.png")
+    figures = [name for name in FIGURE_NAMES if name in written]
+    payload = {
+        "title": data.title,
+        "runs": [{"label": r.label, "backend": r.backend, "mode": r.mode, "metrics": r.metrics} for r in data.runs],
+        "notes": data.notes,
+        "settings": data.settings,
+        "stage_seconds": data.stage_seconds,
+        "grid": data.grid.to_dict(),
+        "frames_shown": [f.index for f in data.frames],
+        "figures": figures,
+    }
+    if data.timing is not None:
+        payload["timing"] = {
+            "stamp_s": data.timing.stamp_s, "latency_ms": data.timing.latency_ms, "receive_s": data.timing.receive_s,
+        }
+    json_path = out / "report.json"
+    json_path.write_text(json.dumps(_clean(json.loads(json.dumps(payload, default=_json_default))), indent=2))
+    written["report.json"] = json_path
+    html_path = out / "index.html"
+    html_path.write_text(_html_page(data, figures))
+    written["index.html"] = html_path
+    return written

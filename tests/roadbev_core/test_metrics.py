@@ -1,0 +1,54 @@
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from roadbev_core.config import GridSpec
+from roadbev_core.metrics import MetricAccumulator
+
+G = GridSpec()
+
+
+def test_metrics_by_hand() -> None:
+    truth = np.full(G.shape, np.nan, dtype=np.float32)
+    est = np.full(G.shape, np.nan, dtype=np.float32)
+    truth[-1, 0], est[-1, 0] = 0.0, 0.01  # nearest row: 1 cm error
+    truth[0, 0], est[0, 0] = 0.0, -0.002  # farthest row: 0.2 cm error
+    truth[50, 3] = 0.05  # labelled, no estimate: missing, not zero error
+    est[60, 3] = 0.3  # estimate without label: ignored
+    acc = MetricAccumulator(G)
+    acc.add(est, truth)
+    m = acc.result()
+    assert m.frames == 1 and m.cells == 2 and m.labelled_cells == 3
+    assert m.abs_err_cm == pytest.approx(0.6, abs=1e-5)
+    assert m.rmse_cm == pytest.approx(math.sqrt((1.0 + 0.04) / 2), abs=1e-5)
+    assert m.gt_0p5cm_pct == pytest.approx(50.0)
+    assert m.coverage_pct == pytest.approx(200 / 3)
+    assert m.band_abs_err_cm[0] == pytest.approx(1.0, abs=1e-5)
+    assert m.band_abs_err_cm[-1] == pytest.approx(0.2, abs=1e-5)
+    assert all(math.isnan(b) for b in m.band_abs_err_cm[1:-1])
+    d = m.to_dict()
+    assert len(d["band_abs_err_cm"]) == 15
+
+
+def test_accumulates_over_frames_and_checks_shapes() -> None:
+    rng = np.random.default_rng(0)
+    acc = MetricAccumulator(G)
+    errs = []
+    for _ in range(3):
+        t = rng.normal(0, 0.02, G.shape).astype(np.float32)
+        e = t + rng.normal(0, 0.005, G.shape).astype(np.float32)
+        acc.add(e, t)
+        errs.append(np.abs(e - t).ravel() * 100)
+    assert acc.result().abs_err_cm == pytest.approx(np.concatenate(errs).mean(), rel=1e-4)
+    with pytest.raises(ValueError, match="must match grid"):
+        acc.add(np.zeros((3, 3)), np.zeros((3, 3)))
+
+
+def test_no_estimates_gives_nan_not_zero() -> None:
+    acc = MetricAccumulator(G)
+    acc.add(np.full(G.shape, np.nan), np.zeros(G.shape))
+    m = acc.result()
+    assert math.isnan(m.abs_err_cm) and m.coverage_pct == 0.0

@@ -1,0 +1,108 @@
+"""ImuBuffer: slerp to the image stamp, refusal when stale, gaps and bad samples."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from roadbev_core.geometry import Attitude, rotation_from_rpy
+from roadbev_ros.imu_buffer import ImuBuffer, ImuError, ImuStale, slerp
+
+MS = 1_000_000
+
+
+def quat_from_rpy(roll: float, pitch: float, yaw: float = 0.0) -> tuple[float, float, float, float]:
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return (
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+        cr * cp * cy + sr * sp * sy,
+    )
+
+
+def test_quat_helper_matches_geometry() -> None:
+    from roadbev_core.geometry import quaternion_to_rotation
+
+    np.testing.assert_allclose(
+        quaternion_to_rotation(*quat_from_rpy(0.1, -0.2, 0.3)), rotation_from_rpy(0.1, -0.2, 0.3), atol=1e-12
+    )
+
+
+def test_slerp_endpoints_midpoint_and_short_arc() -> None:
+    q0 = np.array(quat_from_rpy(0.0, 0.0))
+    q1 = np.array(quat_from_rpy(0.0, 0.4))
+    np.testing.assert_allclose(slerp(q0, q1, 0.0), q0, atol=1e-12)
+    np.testing.assert_allclose(slerp(q0, q1, 1.0), q1, atol=1e-12)
+    np.testing.assert_allclose(slerp(q0, q1, 0.5), quat_from_rpy(0.0, 0.2), atol=1e-12)
+    # -q1 is the same rotation: the result must be too (shorter arc)
+    mid = slerp(q0, -q1, 0.5)
+    assert abs(abs(float(np.dot(mid, quat_from_rpy(0.0, 0.2)))) - 1.0) < 1e-12
+
+
+def test_interpolates_a_changing_attitude_to_the_image_stamp() -> None:
+    buf = ImuBuffer(max_age_s=0.05, max_gap_s=0.05)
+    # pitch ramps 0.01 rad per 10 ms sample, roll constant, with yaw that must be ignored
+    for k in range(20):
+        buf.add(1_000 * MS + k * 10 * MS, quat_from_rpy(0.02, 0.01 * k, 0.5))
+    att = buf.attitude_at(1_000 * MS + 73 * MS)
+    assert att.pitch == pytest.approx(0.073, abs=1e-4)
+    assert att.roll == pytest.approx(0.02, abs=1e-6)
+
+
+def test_holds_the_edge_sample_within_max_age_then_refuses() -> None:
+    buf = ImuBuffer(max_age_s=0.05)
+    buf.add(1_000 * MS, quat_from_rpy(0.0, 0.1))
+    buf.add(1_010 * MS, quat_from_rpy(0.0, 0.1))
+    assert buf.attitude_at(1_050 * MS).pitch == pytest.approx(0.1)
+    assert buf.attitude_at(975 * MS).pitch == pytest.approx(0.1)
+    with pytest.raises(ImuStale, match="newer than"):
+        buf.attitude_at(1_100 * MS)
+    with pytest.raises(ImuStale, match="older than"):
+        buf.attitude_at(900 * MS)
+
+
+def test_refuses_across_an_imu_gap() -> None:
+    buf = ImuBuffer(max_age_s=0.05, max_gap_s=0.05)
+    buf.add(1_000 * MS, quat_from_rpy(0.0, 0.0))
+    buf.add(1_300 * MS, quat_from_rpy(0.0, 0.3))
+    with pytest.raises(ImuStale, match="gap"):
+        buf.attitude_at(1_150 * MS)
+
+
+def test_empty_buffer_refuses() -> None:
+    with pytest.raises(ImuStale, match="no IMU"):
+        ImuBuffer().attitude_at(1)
+
+
+@pytest.mark.parametrize(
+    "q", [(math.nan, 0.0, 0.0, 1.0), (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 2.0), (0.0, math.inf, 0.0, 1.0)]
+)
+def test_bad_samples_are_refused_and_do_not_enter(q: tuple[float, ...]) -> None:
+    buf = ImuBuffer()
+    with pytest.raises(ImuError):
+        buf.add(1_000 * MS, q)
+    assert len(buf) == 0
+
+
+def test_out_of_order_samples_are_sorted_and_history_is_bounded() -> None:
+    buf = ImuBuffer(horizon_s=0.5, max_gap_s=0.05)
+    buf.add(1_020 * MS, quat_from_rpy(0.0, 0.02))
+    buf.add(1_000 * MS, quat_from_rpy(0.0, 0.0))
+    buf.add(1_010 * MS, quat_from_rpy(0.0, 0.01))
+    assert buf.attitude_at(1_015 * MS).pitch == pytest.approx(0.015, abs=1e-6)
+    for k in range(200):
+        buf.add(2_000 * MS + k * 10 * MS, quat_from_rpy(0.0, 0.0))
+    assert len(buf) <= 51
+    assert buf.newest_ns == 2_000 * MS + 199 * 10 * MS
+    assert buf.age_s(buf.newest_ns + 250 * MS) == pytest.approx(0.25)
+
+
+def test_imu_to_camera_rotation_is_applied() -> None:
+    buf = ImuBuffer(imu_to_camera_rpy_deg=(0.0, 5.0, 0.0))
+    buf.add(1_000 * MS, quat_from_rpy(0.0, 0.0))
+    assert buf.attitude_at(1_000 * MS).degrees == pytest.approx(Attitude.from_degrees(0.0, 5.0).degrees)

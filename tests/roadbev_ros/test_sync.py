@@ -1,0 +1,141 @@
+"""ApproximateTimeSync against message_filters' ApproximateTimeSynchronizer semantics."""
+
+from __future__ import annotations
+
+import pytest
+
+from roadbev_ros.sync import ApproximateTimeSync, DropReason, SyncError
+
+MS = 1_000_000
+
+
+class Recorder:
+    def __init__(self) -> None:
+        self.sets: list[tuple] = []
+        self.drops: list[tuple[int, int, str]] = []
+
+    def emit(self, *msgs: object) -> None:
+        self.sets.append(msgs)
+
+    def drop(self, topic: int, stamp: int, msg: object, reason: str) -> None:
+        self.drops.append((topic, stamp, reason))
+
+
+def make(n: int = 2, queue: int = 10, slop: float = 0.01) -> tuple[ApproximateTimeSync, Recorder]:
+    rec = Recorder()
+    return ApproximateTimeSync(n, queue, slop, rec.emit, rec.drop), rec
+
+
+def test_exact_stamps_emit_once_all_topics_arrived() -> None:
+    sync, rec = make(3)
+    assert not sync.add(0, 100 * MS, "a")
+    assert not sync.add(1, 100 * MS, "b")
+    assert sync.add(2, 100 * MS, "c")
+    assert rec.sets == [("a", "b", "c")]
+    assert sync.queued() == [0, 0, 0]
+
+
+def test_slop_is_inclusive_and_wider_spreads_never_pair() -> None:
+    sync, rec = make(slop=0.010)
+    sync.add(0, 100 * MS, "a0")
+    assert sync.add(1, 110 * MS, "b0")  # spread == slop: pairs
+    sync.add(0, 200 * MS, "a1")
+    assert not sync.add(1, 211 * MS, "b1")  # 11 ms > 10 ms slop
+    assert rec.sets == [("a0", "b0")]
+
+
+def test_closest_set_wins() -> None:
+    sync, rec = make(slop=0.05)
+    sync.add(1, 95 * MS, "b_far")  # alone: nothing to pair with yet
+    sync.add(1, 101 * MS, "b_near")
+    sync.add(0, 100 * MS, "a")  # pivot: both b within slop; the closer one wins
+    assert rec.sets == [("a", "b_near")]
+    # b_far is older than the emitted set: it can never be emitted in order, so it is dropped
+    assert (1, 95 * MS, DropReason.SUPERSEDED) in rec.drops
+
+
+def test_tie_prefers_the_newest_set() -> None:
+    sync, rec = make(slop=0.05)
+    sync.add(1, 90 * MS, "b_old")
+    sync.add(1, 110 * MS, "b_new")
+    sync.add(0, 100 * MS, "a")
+    assert rec.sets == [("a", "b_new")]
+
+
+def test_queue_size_drops_oldest() -> None:
+    sync, rec = make(queue=3, slop=0.001)
+    for k in range(5):
+        sync.add(0, (k + 1) * 100 * MS, f"a{k}")
+    assert sync.queued() == [3, 0]
+    assert [d[1] for d in rec.drops] == [100 * MS, 200 * MS]
+    assert all(d[2] == DropReason.OVERFLOW for d in rec.drops)
+    assert not sync.add(1, 100 * MS, "b0")  # its partner overflowed
+    assert sync.add(1, 300 * MS, "b2")
+    assert rec.sets == [("a2", "b2")]
+
+
+def test_left_without_right_is_dropped_when_the_next_set_completes() -> None:
+    sync, rec = make()
+    sync.add(0, 100 * MS, "a0")  # its right image never comes
+    sync.add(0, 200 * MS, "a1")
+    sync.add(1, 200 * MS, "b1")
+    assert rec.sets == [("a1", "b1")]
+    assert rec.drops == [(0, 100 * MS, DropReason.SUPERSEDED)]
+    assert sync.stats.emitted == 1 and sync.stats.dropped == 1
+
+
+def test_out_of_order_and_duplicate_stamps_are_refused() -> None:
+    sync, rec = make()
+    sync.add(0, 200 * MS, "a")
+    sync.add(1, 200 * MS, "b")
+    assert not sync.add(0, 150 * MS, "late")
+    assert not sync.add(1, 200 * MS, "again")
+    assert rec.drops == [(0, 150 * MS, DropReason.OUT_OF_ORDER), (1, 200 * MS, DropReason.DUPLICATE)]
+    # a duplicate while still queued replaces the queued message (message_filters keys by stamp)
+    sync.add(0, 300 * MS, "x")
+    sync.add(0, 300 * MS, "y")
+    sync.add(1, 300 * MS, "b3")
+    assert rec.sets[-1] == ("y", "b3")
+
+
+def test_reset_forgets_history() -> None:
+    sync, rec = make()
+    sync.add(0, 200 * MS, "a")
+    sync.add(1, 200 * MS, "b")
+    sync.add(0, 300 * MS, "q")
+    sync.reset()
+    assert sync.queued() == [0, 0]
+    sync.add(0, 100 * MS, "a0")  # earlier than before the reset: accepted again
+    assert sync.add(1, 100 * MS, "b0")
+
+
+def test_bad_configuration_is_refused() -> None:
+    with pytest.raises(SyncError):
+        make(queue=0)
+    with pytest.raises(SyncError):
+        make(slop=-1.0)
+    with pytest.raises(SyncError):
+        make(slop=float("nan"))
+    sync, _ = make()
+    with pytest.raises(SyncError):
+        sync.add(2, 1, "x")
+
+
+def test_many_interleaved_topics_pair_every_frame() -> None:
+    """Four streams with jitter and a shuffled arrival order pair frame by frame."""
+    import random
+
+    rnd = random.Random(3)
+    sync, rec = make(4, queue=5, slop=0.004)
+    events = []
+    for k in range(50):
+        for topic in range(4):
+            jitter = rnd.randint(-2, 2) * MS
+            arrival = k + rnd.random()  # arrival order shuffled within each frame
+            events.append((arrival, topic, k * 200 * MS + jitter, (k, topic)))
+    events.sort()
+    for _, topic, stamp, msg in events:
+        sync.add(topic, stamp, msg)
+    assert len(rec.sets) == 50
+    assert all(len({m[0] for m in s}) == 1 for s in rec.sets)
+    assert rec.drops == []
