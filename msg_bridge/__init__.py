@@ -1,0 +1,47 @@
+"""ROS messages <-> numpy and the project's types, and rosbag2 MCAP bags.
+
+Every converter reads messages by attribute only, so rclpy messages (the node), rosbags typestore
+messages (bags) and ``mcap_ros2`` decoded messages all work. Converters that build messages take
+a factory: :class:`RclpyFactory` (rclpy objects, imported lazily) or :class:`TypestoreFactory`
+(``TypestoreFactory(msg_bridge.bag.typestore())`` for bag writing). Every malformed message
+raises :class:`MessageError` (a ``ValueError``) saying what is wrong; damaged bags raise
+:class:`BagError`. No rclpy import happens at module level.
+
+Modules: ``image`` (Image, CompressedImage), ``camera_info`` (CameraInfo <-> StereoCamera),
+``imu`` (Imu -> Attitude, slerp), ``grid_map`` (GridMap <-> arrays + GridSpec), ``preview``
+(RoadPreview), ``point_cloud`` (PointCloud2), ``bag`` (MCAP bags), ``evalbag`` (evaluation bags).
+"""
+
+from __future__ import annotations
+
+from msg_bridge._common import (
+    MessageError,
+    MessageFactory,
+    RclpyFactory,
+    TypestoreFactory,
+    make_header,
+    stamp_from_header,
+    stamp_to_ns,
+)
+from msg_bridge.bag import BagError, BagWriter, bag_topics, read_messages, typestore
+
+__all__ = [
+    "BagError",
+    "BagWriter",
+    "MessageError",
+    "MessageFactory",
+    "RclpyFactory",
+    "TypestoreFactory",
+    "bag_factory",
+    "bag_topics",
+    "make_header",
+    "read_messages",
+    "stamp_from_header",
+    "stamp_to_ns",
+    "typestore",
+]
+
+
+def bag_factory() -> TypestoreFactory:
+    """A factory of typestore messages for :class:`BagWriter` (custom types registered)."""
+    return TypestoreFactory(typestore())

@@ -20,7 +20,7 @@ from __future__ import annotations
 import array
 import importlib
 import math
-from functools import lru_cache
+from functools import cache
 from typing import Any, Protocol
 
 import numpy as np
@@ -160,7 +160,7 @@ class RclpyFactory:
         return out
 
 
-@lru_cache(maxsize=None)
+@cache
 def _rclpy_class(msgtype: str) -> type:
     package, kind, name = _split(msgtype)
     return getattr(importlib.import_module(f"{package}.{kind}"), name)

@@ -108,10 +108,11 @@ def stereo_camera_from_camera_info(left: Any, right: Any | None = None) -> Stere
             )
         if P_right[1, 3] != 0.0:
             raise MessageError(f"right CameraInfo.p has a vertical shift P[7]={P_right[1, 3]}")
-        baseline = -P_right[0, 3] / P_right[0, 0]
+        # rounded to the picometre so that B -> P -> B gives B back exactly (fx*B/fx is not exact)
+        baseline = round(-P_right[0, 3] / P_right[0, 0], 12)
         if not math.isfinite(baseline) or baseline <= 0:
             raise MessageError(
-                f"right CameraInfo.p gives baseline {baseline} m (B = -P[3]/P[0]); it must be "
+                f"right CameraInfo.p gives baseline {baseline + 0.0:.6g} m (B = -P[3]/P[0]); it must be "
                 "positive (the right camera lies to the right of the left one)"
             )
     try:

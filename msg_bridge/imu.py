@@ -41,7 +41,8 @@ QUATERNION_NORM_TOL = 1e-3
 
 def _unit_quaternion(values: Sequence[float], what: str) -> np.ndarray:
     q = np.array([as_float(v, what) for v in values], dtype=np.float64)
-    norm = float(np.linalg.norm(q))
+    with np.errstate(over="ignore"):  # a huge component overflows to inf: not unit, reported below
+        norm = float(np.linalg.norm(q))
     if abs(norm - 1.0) > QUATERNION_NORM_TOL:
         raise MessageError(f"{what} is not a unit quaternion (norm {norm:.6g})")
     return q / norm

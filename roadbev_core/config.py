@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ConfigError", "GridSpec", "StereoCamera", "GRID_PRESETS", "grid_preset"]
+__all__ = ["GRID_PRESETS", "ConfigError", "GridSpec", "StereoCamera", "grid_preset"]
 
 _EPS = 1e-6
 

@@ -16,8 +16,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -34,6 +33,7 @@ from roadbev_core.models.roadbev import prepare_image
 __all__ = [
     "TEST_SEED_START",
     "BagSet",
+    "ConcatSource",
     "DatasetError",
     "FrameSource",
     "ModelInputs",
@@ -99,9 +99,8 @@ class SyntheticSet:
         missing = [s for s in self.seeds if not self.path(s).exists()]
         if not missing:
             return 0
-        from roadbev_core.synth import (
-            make_sample,  # imported lazily: rendering is optional
-        )
+        # Imported lazily: reading a cache needs no renderer.
+        from roadbev_core.synth import make_sample
 
         self.folder.mkdir(parents=True, exist_ok=True)
         bar = _progress(missing, "rendering scenes", progress)
@@ -116,7 +115,7 @@ class SyntheticSet:
                 attitude=np.array([frame.attitude.roll, frame.attitude.pitch]),
                 truth=sample.truth.elevation.astype(np.float32),
             )
-            os.replace(tmp, self.path(seed))  # atomic: a killed run never leaves half a file
+            tmp.replace(self.path(seed))  # atomic: a killed run never leaves half a file
         return len(missing)
 
     def __len__(self) -> int:
@@ -140,9 +139,8 @@ class BagSet:
     """The labelled frames of an evaluation bag (rosbag2 MCAP, contract), held in memory."""
 
     def __init__(self, path: str | Path, params: dict[str, Any] | None = None) -> None:
-        from msg_bridge.evalbag import (
-            read_eval_bag,  # optional dependency on the bag reader
-        )
+        # Imported lazily: the bag reader pulls in rosbags.
+        from msg_bridge.evalbag import read_eval_bag
 
         bag = read_eval_bag(path, params)
         self.grid: GridSpec = bag.grid
@@ -164,7 +162,9 @@ class ModelInputs(Dataset):
     float32 [n_rows, n_cols] (NaN = no label), ``camera``, ``attitude``.
     """
 
-    def __init__(self, source: FrameSource, config: ModelConfig, grid: GridSpec, *, keep_in_memory: bool = True) -> None:
+    def __init__(
+        self, source: FrameSource, config: ModelConfig, grid: GridSpec, *, keep_in_memory: bool = True
+    ) -> None:
         if source.grid.shape != grid.shape:
             raise DatasetError(f"data labels are on a {source.grid.shape} grid, the model's is {grid.shape}")
         self.source = source
@@ -217,4 +217,24 @@ def as_samples(source: FrameSource) -> Iterable[tuple[Frame, np.ndarray]]:
         yield source[i]
 
 
-ProgressFactory = Callable[[Sequence[Any], str], Iterable[Any]]
+class ConcatSource:
+    """Several frame sources on the same grid, one after another."""
+
+    def __init__(self, sources: Sequence[FrameSource]) -> None:
+        if not sources:
+            raise DatasetError("no data sources given")
+        shapes = {s.grid.shape for s in sources}
+        if len(shapes) > 1:
+            raise DatasetError(f"data sources disagree on the grid: {sorted(shapes)}")
+        self.sources = list(sources)
+        self.grid = sources[0].grid
+        self._starts = np.cumsum([0, *(len(s) for s in sources)])
+
+    def __len__(self) -> int:
+        return int(self._starts[-1])
+
+    def __getitem__(self, index: int) -> tuple[Frame, np.ndarray]:
+        if not 0 <= index < len(self):
+            raise IndexError(index)
+        k = int(np.searchsorted(self._starts, index, side="right") - 1)
+        return self.sources[k][index - int(self._starts[k])]

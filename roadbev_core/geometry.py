@@ -25,10 +25,10 @@ import numpy as np
 from roadbev_core.config import ConfigError, GridSpec, StereoCamera
 
 __all__ = [
+    "R_BODY_FROM_OPTICAL",
     "Attitude",
     "GeometryError",
     "ProjectedVoxels",
-    "R_BODY_FROM_OPTICAL",
     "attitude_from_quaternion",
     "attitude_from_rotation",
     "camera_to_road",

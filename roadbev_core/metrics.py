@@ -14,7 +14,7 @@ import numpy as np
 
 from roadbev_core.config import GridSpec
 
-__all__ = ["MetricAccumulator", "Metrics", "N_BANDS"]
+__all__ = ["N_BANDS", "MetricAccumulator", "Metrics"]
 
 N_BANDS = 15
 

@@ -143,6 +143,7 @@ class Health:
     stamp_age_ms: LatencyWindow = field(default_factory=LatencyWindow)
     inference_ms: LatencyWindow = field(default_factory=LatencyWindow)
     overhead_ms: LatencyWindow = field(default_factory=LatencyWindow)
+    imu_wait_ms: LatencyWindow = field(default_factory=LatencyWindow)
     frames_in: int = 0
     sets: int = 0
     outputs: int = 0
@@ -172,8 +173,17 @@ class Health:
             self.sets += 1
             self.set_rate.tick()
 
-    def output(self, latency_ms: float, stamp_age_ms: float, inference_ms: float, overhead_ms: float) -> None:
-        """An elevation map was published."""
+    def output(self, latency_ms: float, stamp_age_ms: float, inference_ms: float, overhead_ms: float,
+               imu_wait_ms: float = 0.0) -> None:
+        """An elevation map was published.
+
+        Args:
+            latency_ms: set complete (last message received) to outputs published.
+            stamp_age_ms: outputs published minus the image stamp (end to end on a live clock).
+            inference_ms: the backend's ``estimate``.
+            overhead_ms: the node's own work (conversions, preview, publishing).
+            imu_wait_ms: time spent waiting for an IMU sample at or after the image stamp.
+        """
         with self._lock:
             self.outputs += 1
             self.output_rate.tick()
@@ -181,6 +191,7 @@ class Health:
             self.stamp_age_ms.add(stamp_age_ms)
             self.inference_ms.add(inference_ms)
             self.overhead_ms.add(overhead_ms)
+            self.imu_wait_ms.add(imu_wait_ms)
 
     def drop(self, kind: str, count: int = 1) -> None:
         """Frames lost: ``busy`` (worker still busy: newest kept), ``sync`` (never paired),
@@ -217,6 +228,8 @@ class Health:
                 "stamp_age_p50_ms": f"{self.stamp_age_ms.percentile(50):.1f}",
                 "inference_mean_ms": f"{self.inference_ms.mean():.1f}",
                 "overhead_mean_ms": f"{self.overhead_ms.mean():.2f}",
+                "overhead_p95_ms": f"{self.overhead_ms.percentile(95):.2f}",
+                "imu_wait_mean_ms": f"{self.imu_wait_ms.mean():.2f}",
                 "frames_in": str(self.frames_in),
                 "sets": str(self.sets),
                 "outputs": str(self.outputs),

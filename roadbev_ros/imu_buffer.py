@@ -2,22 +2,22 @@
 
 The IMU runs faster than the cameras and on its own clock ticks, so the attitude for an image is
 interpolated between the two IMU samples around the image stamp (spherical linear interpolation
-of the orientation quaternions). The buffer refuses to guess rather than hand a backend a wrong
-attitude: with no sample, with a gap in the IMU stream around the stamp, or with the nearest
-sample older than ``max_age_s`` it raises :class:`ImuStale` with the reason.
+of the orientation quaternions, :func:`msg_bridge.imu.slerp`). The buffer refuses to guess rather
+than hand a backend a wrong attitude: with no sample, with a gap in the IMU stream around the
+stamp, or with the nearest sample older than ``max_age_s`` it raises :class:`ImuStale`.
 """
 
 from __future__ import annotations
 
 import bisect
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from msg_bridge.imu import slerp
 from roadbev_core.geometry import Attitude, GeometryError, attitude_from_quaternion
 
-__all__ = ["ImuBuffer", "ImuError", "ImuStale", "slerp"]
+__all__ = ["ImuBuffer", "ImuError", "ImuStale"]
 
 
 class ImuError(ValueError):
@@ -26,30 +26,6 @@ class ImuError(ValueError):
 
 class ImuStale(RuntimeError):
     """No trustworthy attitude for the asked stamp (no IMU, a gap, or too old)."""
-
-
-def slerp(q0: np.ndarray, q1: np.ndarray, t: float) -> np.ndarray:
-    """Spherical linear interpolation between unit quaternions (x, y, z, w order).
-
-    Args:
-        q0, q1: [4] unit quaternions.
-        t: 0 gives q0, 1 gives q1.
-
-    Returns:
-        [4] unit quaternion on the shorter arc between q0 and q1.
-    """
-    q0 = np.asarray(q0, dtype=np.float64)
-    q1 = np.asarray(q1, dtype=np.float64)
-    dot = float(np.dot(q0, q1))
-    if dot < 0.0:  # q and -q are the same rotation: take the shorter arc
-        q1, dot = -q1, -dot
-    if dot > 0.9995:  # nearly equal: linear interpolation is exact enough and stable
-        q = q0 + t * (q1 - q0)
-    else:
-        theta = math.acos(min(dot, 1.0))
-        s = math.sin(theta)
-        q = (math.sin((1.0 - t) * theta) / s) * q0 + (math.sin(t * theta) / s) * q1
-    return q / np.linalg.norm(q)
 
 
 @dataclass

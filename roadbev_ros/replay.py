@@ -17,27 +17,19 @@ import time
 from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
+from functools import cache
 from pathlib import Path
+from queue import Empty, Full, Queue
 from typing import Any
 
+from msg_bridge import bag
 from roadbev_ros.dds import DdsError, message_class
 
-__all__ = ["BagMessage", "ReplayError", "ReplayStats", "bag_topics", "read_bag", "replay_bag", "restamp_cdr"]
+__all__ = ["ReplayError", "ReplayStats", "header_stamp_ns", "replay_bag", "restamp_cdr", "starts_with_header"]
 
 
 class ReplayError(RuntimeError):
     """A bag that cannot be replayed (missing, unreadable, no publishable topic)."""
-
-
-@dataclass(frozen=True)
-class BagMessage:
-    """One serialised message of a bag."""
-
-    topic: str
-    msgtype: str
-    log_time_ns: int
-    data: bytes
-    has_header: bool
 
 
 @dataclass
@@ -68,51 +60,17 @@ class ReplayStats:
         return dict(self.__dict__)
 
 
-def _starts_with_header(msgdef: str) -> bool:
-    for line in msgdef.splitlines():
-        line = line.split("#", 1)[0].strip()
-        if line:
-            return line.split()[0] in ("std_msgs/Header", "Header", "std_msgs/msg/Header")
-    return False
-
-
-def _open_reader(path: Path) -> Any:
-    from rosbags.highlevel import AnyReader
-
-    if not path.exists():
-        raise ReplayError(f"bag not found: {path}")
+@cache
+def starts_with_header(msgtype: str) -> bool:
+    """Whether the first field of ``msgtype`` is a ``std_msgs/Header`` (restampable)."""
     try:
-        reader = AnyReader([path])
-        reader.open()
-    except Exception as exc:  # rosbags raises several unrelated types for unreadable bags
-        raise ReplayError(f"cannot read bag {path}: {exc}") from None
-    return reader
-
-
-def bag_topics(path: str | Path) -> dict[str, str]:
-    """Topic -> message type of every topic in the bag."""
-    reader = _open_reader(Path(path))
-    try:
-        return {c.topic: c.msgtype for c in reader.connections}
-    finally:
-        reader.close()
-
-
-def read_bag(path: str | Path, topics: Sequence[str] | None = None) -> Iterator[BagMessage]:
-    """The bag's messages in log-time order, as raw bytes.
-
-    Args:
-        path: a rosbag2 directory or a single ``.mcap`` file.
-        topics: only these topics (None = all).
-    """
-    reader = _open_reader(Path(path))
-    try:
-        wanted = [c for c in reader.connections if topics is None or c.topic in topics]
-        header_first = {c.id: _starts_with_header(getattr(c.msgdef, "data", "") or "") for c in wanted}
-        for conn, log_time, raw in reader.messages(connections=wanted):
-            yield BagMessage(conn.topic, conn.msgtype, int(log_time), bytes(raw), header_first[conn.id])
-    finally:
-        reader.close()
+        _consts, fields = bag.typestore().fielddefs[msgtype]
+    except KeyError:
+        return False
+    if not fields:
+        return False
+    name, (_kind, detail) = fields[0]
+    return name == "header" and detail == "std_msgs/msg/Header"
 
 
 def restamp_cdr(data: bytes, stamp_ns: int) -> bytes:
@@ -130,6 +88,46 @@ def header_stamp_ns(data: bytes) -> int:
     fmt = "<iI" if data[1] & 1 else ">iI"
     sec, nsec = struct.unpack_from(fmt, data, 4)
     return sec * 1_000_000_000 + nsec
+
+
+def _prefetched(messages: Iterator[Any], stop: threading.Event, depth: int = 256) -> Iterator[Any]:
+    """``messages`` read ahead on a thread, so decompressing a chunk never delays a publication."""
+    queue: Queue[Any] = Queue(maxsize=depth)
+    done = object()
+    halt = threading.Event()  # the consumer has left
+    failure: list[BaseException] = []
+
+    def read() -> None:
+        try:
+            for item in messages:
+                while not (stop.is_set() or halt.is_set()):
+                    try:
+                        queue.put(item, timeout=0.1)
+                        break
+                    except Full:
+                        continue
+                if stop.is_set() or halt.is_set():
+                    return
+        except BaseException as exc:  # handed to the consumer, raised there
+            failure.append(exc)
+        queue.put(done)
+
+    reader = threading.Thread(target=read, name="replay-reader", daemon=True)
+    reader.start()
+    try:
+        while not stop.is_set():
+            try:
+                item = queue.get(timeout=0.1)
+            except Empty:
+                continue
+            if item is done:
+                break
+            yield item
+        if failure:
+            raise failure[0]
+    finally:
+        halt.set()
+        reader.join(timeout=1.0)
 
 
 def _percentile(values: list[float], q: float) -> float:
@@ -152,6 +150,7 @@ def replay_bag(
     qos_depth: int = 10,
     stop: threading.Event | None = None,
     progress: Callable[[int], None] | None = None,
+    before_publish: Callable[[str, int, bytes], None] | None = None,
 ) -> ReplayStats:
     """Publish the bag through ``node``'s publishers with the original timing.
 
@@ -168,26 +167,38 @@ def replay_bag(
         qos_depth: reliable keep-last depth of the publishers.
         stop: set it to end the replay early.
         progress: called with the number of messages published so far, every message.
+        before_publish: called ``(topic, log_time_ns, data)`` just before each publication; it
+            may block (the online evaluation holds each image back until the node has answered
+            the previous one).
 
     Raises:
         ReplayError: unreadable bag, or none of the asked topics can be published.
     """
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
     path = Path(path)
-    available = bag_topics(path)
+    try:
+        available = bag.bag_topics(path)
+    except bag.BagError as exc:
+        raise ReplayError(str(exc)) from None
     stats = ReplayStats()
     wanted = list(available) if topics is None else list(topics)
     for topic in wanted:
         if topic not in available:
             stats.skipped_topics[topic] = "not in the bag"
     qos = QoSProfile(depth=qos_depth, reliability=ReliabilityPolicy.RELIABLE)
+    # a topic with a single message is taken for a latched one (configuration): late joiners get it
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
     publishers: dict[str, Any] = {}
     for topic in wanted:
         if topic not in available:
             continue
+        info = available[topic]
         try:
-            publishers[topic] = node.create_publisher(message_class(available[topic]), topic, qos)
+            publishers[topic] = node.create_publisher(
+                message_class(info.msgtype), topic, latched if info.count == 1 else qos
+            )
         except DdsError as exc:
             stats.skipped_topics[topic] = str(exc)
     if not publishers:
@@ -213,14 +224,14 @@ def replay_bag(
     try:
         while not stop.is_set():
             stats.loops += 1
-            start_wall = time.monotonic()
-            start_unix_ns = time.time_ns()
             bag_start: int | None = None
-            for msg in read_bag(path, list(publishers)):
+            for msg in _prefetched(bag.read_messages(path, list(publishers), raw=True), stop):
                 if stop.is_set():
                     break
-                if bag_start is None:
+                if bag_start is None:  # the clock starts with the first message, after opening
                     bag_start = msg.log_time_ns
+                    start_wall = time.monotonic()
+                    start_unix_ns = time.time_ns()
                 offset_s = (msg.log_time_ns - bag_start) * 1e-9
                 if rate > 0:
                     target = start_wall + offset_s / rate
@@ -229,13 +240,15 @@ def replay_bag(
                         time.sleep(min(delay, 0.1))
                         delay = target - time.monotonic()
                     lateness_ms.append(max(0.0, -delay) * 1e3)
-                data = msg.data
-                if restamp and msg.has_header:
+                data = bytes(msg.msg)
+                if restamp and starts_with_header(msg.msgtype):
                     scale = rate if rate > 0 else 1.0
                     old = header_stamp_ns(data)
                     new = start_unix_ns + int((old - bag_start) / scale)
                     stats.stamp_offset_ns = new - old
                     data = restamp_cdr(data, new)
+                if before_publish is not None:
+                    before_publish(msg.topic, msg.log_time_ns, data)
                 if clock_pub is not None:
                     sec, nsec = divmod(msg.log_time_ns, 1_000_000_000)
                     clock_msg.clock.sec, clock_msg.clock.nanosec = sec, nsec
@@ -250,7 +263,11 @@ def replay_bag(
             if not loop or bag_start is None:
                 break
     finally:
+        from rclpy.duration import Duration
+
         for publisher in publishers.values():
+            # reliable subscribers may still be fetching the last samples
+            publisher.wait_for_all_acked(Duration(seconds=1.0))
             node.destroy_publisher(publisher)
         if clock_pub is not None:
             node.destroy_publisher(clock_pub)

@@ -34,11 +34,11 @@ from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.geometry import Attitude, project_points, road_to_camera
 
 os.environ.setdefault("MPLBACKEND", "Agg")
-import matplotlib  # noqa: E402
+import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-from matplotlib import colors as mcolors  # noqa: E402
+import matplotlib.pyplot as plt
+from matplotlib import colors as mcolors
 
 __all__ = [
     "FIGURE_NAMES",
@@ -293,7 +293,7 @@ def plot_frames(frames: Sequence[FrameView], grid: GridSpec, path: str | Path) -
     w_img = h * cam.width / cam.height
     w_map = h * grid.length_y / grid.length_x
     margin, gap_img, gap_map, title_h, ticks_h, bar_h, bar_label_h = 0.15, 0.75, 0.35, 0.35, 0.5, 0.14, 0.75
-    fig_w = margin + w_img + gap_img + 3 * w_map + 2 * gap_map + 0.3
+    fig_w = margin + w_img + gap_img + 3 * w_map + 2 * gap_map + 0.45
     row_h = title_h + h + ticks_h
     fig_h = 0.45 + row_h * len(frames) + bar_h + bar_label_h
     fig = plt.figure(figsize=(fig_w, fig_h), dpi=_DPI)
@@ -355,25 +355,29 @@ def plot_surface(frame: FrameView, grid: GridSpec, path: str | Path) -> Path:
     yy, xx = np.meshgrid(grid.y_centres(), grid.x_centres())  # [R, C]
     lo, hi = _elevation_limits_cm([frame.truth if frame.truth is not None else frame.estimate])
     fig = plt.figure(figsize=(8.0, 6.0), dpi=_DPI)
-    ax = fig.add_subplot(111, projection="3d")
+    ax = fig.add_axes((0.0, 0.0, 0.86, 0.93), projection="3d")
     surf = ax.plot_surface(
         yy, xx, np.ma.masked_invalid(est_cm), cmap=_cmap(_ELEVATION_CMAP), vmin=lo, vmax=hi,
         rstride=1, cstride=1, linewidth=0, antialiased=False,
     )
     z_span = max(hi - lo, 2.0)
-    exaggeration = 0.6 * grid.length_y / (z_span / 100.0)  # the z axis gets 60 % of the width
-    ax.set_box_aspect((grid.length_y, grid.length_x, 0.6 * grid.length_y))
+    z_box = 0.35 * grid.length_y  # the elevation axis gets 35 % of the width
+    exaggeration = z_box / (z_span / 100.0)
+    ax.set_box_aspect((grid.length_y, grid.length_x, z_box), zoom=1.25)
     ax.set_xlim(grid.y_max, grid.y_min)  # left on the left when seen from behind the car
     ax.set_ylim(grid.x_min, grid.x_max)
     ax.set_zlim(lo, hi)
-    ax.view_init(elev=28, azim=-110)
-    ax.set_xlabel("lateral y (m, + left)", fontsize=8)
-    ax.set_ylabel("distance ahead x (m)", fontsize=8)
-    ax.set_zlabel("elevation (cm)", fontsize=8)
+    ax.set_xticks([1.0, 0.5, 0.0, -0.5])
+    ax.view_init(elev=32, azim=-118)
+    ax.set_xlabel("lateral y (m, + left)", fontsize=8, labelpad=6)
+    ax.set_ylabel("distance ahead x (m)", fontsize=8, labelpad=8)
+    ax.set_zlabel("elevation (cm)", fontsize=8, labelpad=4)
     ax.tick_params(labelsize=7)
-    fig.colorbar(surf, ax=ax, shrink=0.6, pad=0.08).set_label("elevation (cm)", fontsize=8)
-    ax.set_title(f"Estimated road surface, frame {frame.index} "
-                 f"(vertical exaggerated about {exaggeration:.0f}x)", fontsize=10)
+    cbar = fig.colorbar(surf, ax=ax, shrink=0.55, pad=0.02)
+    cbar.set_label("elevation (cm)", fontsize=8)
+    cbar.ax.tick_params(labelsize=7)
+    fig.suptitle(f"Estimated road surface, frame {frame.index} "
+                 f"(elevation exaggerated about {exaggeration:.0f}x)", fontsize=10, y=0.97)
     out = Path(path)
     fig.savefig(out)
     plt.close(fig)

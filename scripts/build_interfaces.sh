@@ -38,6 +38,10 @@ for pkg in "${packages[@]}"; do
   build="$build_root/$pkg"
   log="$build_root/$pkg.log"
   [[ -f "$src/CMakeLists.txt" && -f "$src/package.xml" ]] || die "$src is not an ament_cmake package"
+  # A build folder configured for another source tree (the checkout moved) cannot be reused.
+  if [[ -f "$build/CMakeCache.txt" ]] && ! grep -qxF "CMAKE_HOME_DIRECTORY:INTERNAL=$src" "$build/CMakeCache.txt"; then
+    rm -rf "$build"
+  fi
   mkdir -p "$build"
   echo "[build_interfaces] $pkg: configure, build, install into $venv (log: $log)" >&2
   {

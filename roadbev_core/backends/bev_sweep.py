@@ -3,12 +3,20 @@
 For every voxel of the grid (and a few sub-samples per cell), the left and right grey images are
 sampled bilinearly at the voxel's projections. At the true road height the two samples show the
 same surface point, so their zero-normalised cross-correlation (ZNCC) over a small window *in the
-road plane* (not fronto-parallel: the window follows the road, which is what the BEV formulation
-buys) peaks there. The ZNCC volume is aggregated over the BEV plane per height (box filter), the
-height with the best score is refined below the sweep step (a parabola through the peak and its
-two neighbours), and a softmax over heights gives a per-cell 1-sigma uncertainty (the spread of
-the distribution). Cells whose score curve has no clear, unique peak (texture-less, occluded, out
-of the image, or a peak on the range boundary) are NaN: no guess.
+road plane* (not fronto-parallel: the window lies on the road, which is what the BEV formulation
+buys) peaks there. Two passes:
+
+1. **coarse sweep** over horizontal planes spanning the grid's height range: a few samples per
+   cell, ZNCC over a patch of cells, a box filter over the BEV plane per height, the best height
+   per cell refined below the step by a parabola. Cells whose score curve has no clear, unique
+   peak (texture-less, occluded, out of the image, a peak on the range boundary) are NaN.
+2. **surface-following refinement**: a short sweep of offsets around the coarse surface (holes
+   filled from neighbours), now with dense samples (several per image pixel near the camera),
+   so the ZNCC windows lie on the estimated surface rather than on horizontal planes and use
+   (almost) every pixel of the cell's footprint, as a block matcher would.
+
+The per-cell uncertainty is the spread of the softmax over the refinement's offsets (a Laplace-like
+measure of the peak's sharpness) with the step's quantisation as a floor.
 
 Pixel convention (contract): pixel column i is centred at u = i, so ``grid_sample`` runs with
 ``align_corners=True`` (normalised -1 and +1 are the centres of the first and last pixels).
@@ -21,9 +29,8 @@ sums of broadcast terms, so no [Z, R, C, 3] point array is ever built.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import asdict, dataclass, fields
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -31,6 +38,7 @@ import torch
 import torch.nn.functional as F
 
 from roadbev_core.backends import register
+from roadbev_core.backends.common import StageClock, grey_u8
 from roadbev_core.config import ConfigError, GridSpec, StereoCamera
 from roadbev_core.frame import Estimate, Frame, FrameError
 from roadbev_core.geometry import Attitude, optical_from_road_rotation
@@ -39,99 +47,151 @@ __all__ = ["BevSweep", "SweepParams", "grey_image"]
 
 torch.set_flush_denormal(True)
 
+_WORST = -2.0  # below any ZNCC: levels outside the image never win
+
 
 @dataclass(frozen=True)
 class SweepParams:
-    """Tuning of the sweep (defaults chosen by measurement, see ``benchmarks/sweep_params.py``).
+    """Tuning of the sweep (defaults chosen by measurement, see ``benchmarks/tune_bev_sweep.py``).
 
     Attributes:
-        z_step: height step of the sweep (m); None = the grid's voxel size. The answer is refined
-            below this step, so it sets robustness more than resolution.
-        subsamples_x, subsamples_y: samples per cell along x (rows) and y (columns), so a ZNCC
-            window sees the texture inside a cell and not only at its centre. Across the road a
-            3 cm cell spans 4-13 pixels, along it (foreshortened) 1-6, hence more along y.
-        patch_cells: side of the ZNCC window, in cells (odd).
-        aggregation_cells: side of the box filter over the BEV plane applied to the ZNCC volume
-            per height, in cells (odd; 1 = none).
-        min_score: a cell whose best aggregated ZNCC is below this is NaN (no reliable match).
-        min_margin: a cell is NaN when a second peak (more than ``peak_exclusion`` steps from the
-            best) scores within this margin of the best (ambiguous, e.g. repetitive texture).
-        peak_exclusion: half-width (steps) around the best height excluded when looking for a
-            second peak.
-        min_texture: grey-level standard deviation (0..255) of the left patch below which a cell
-            is texture-less (NaN).
-        temperature: softmax temperature on the ZNCC scores for the uncertainty (smaller = the
-            distribution follows the peak more tightly).
-        blur_sigma: Gaussian pre-smoothing of the images (pixels; 0 = none); it reduces the bias
-            of bilinear sampling toward whole-pixel disparities.
+        z_step: height step of the coarse sweep (m); None = the grid's voxel size.
+        subsamples: samples per cell (along x = rows, along y = columns) in the coarse pass.
+            Across the road a 3 cm cell spans 4-13 pixels, along it (foreshortened) 1-6.
+        patch_cells: side of the ZNCC window in cells (odd), both passes.
+        aggregation_cells: side of the coarse pass's box filter over the BEV plane (odd; 1 = none).
+        refine_levels: offsets swept around the coarse surface (odd, >= 3; 0 = no refinement).
+        refine_step: offset step of the refinement (m).
+        refine_passes: refinement sweeps, each around the previous one's surface.
+        refine_subsamples: samples per cell (x, y) in the refinement.
+        refine_aggregation_cells: box filter of the refinement's ZNCC (odd; 1 = none).
+        min_score: cells whose best coarse aggregated ZNCC is below this are NaN.
+        min_margin: a cell is NaN when a second coarse peak (more than ``peak_exclusion`` from
+            the best) scores within this margin of the best (ambiguous, e.g. repetitive texture).
+        peak_exclusion: half-width (m) around the best height ignored when looking for a second peak.
+        min_texture: std (grey levels of the filtered image) of the left patch below which a
+            cell is texture-less (NaN).
+        temperature: softmax temperature on the refinement's ZNCC for the uncertainty.
+        blur_sigma: Gaussian pre-smoothing of the images (pixels; 0 = none).
+        highpass_sigma: the images minus their Gaussian blur of this sigma (pixels; 0 = none):
+            removes shading and exposure gradients that correlate at every height.
+        occlusion_clearance: a cell is NaN when a camera's line of sight to it passes nearer
+            surface with less than this share of the clearance it would have over a flat road
+            (hidden behind a bump, or seen at grazing incidence); 0 = no occlusion test.
+        max_sigma: cells whose coarse softmax spread (1-sigma, m) exceeds this are NaN: a flat
+            or multi-modal score curve.
     """
 
     z_step: float | None = None
-    subsamples_x: int = 1
-    subsamples_y: int = 2
+    subsamples: tuple[int, int] = (1, 2)
     patch_cells: int = 3
-    aggregation_cells: int = 3
-    min_score: float = 0.5
+    aggregation_cells: int = 5
+    refine_levels: int = 0
+    refine_step: float = 0.005
+    refine_passes: int = 2
+    refine_subsamples: tuple[int, int] = (4, 8)
+    refine_aggregation_cells: int = 1
+    min_score: float = 0.8
     min_margin: float = 0.02
-    peak_exclusion: int = 3
-    min_texture: float = 1.0
-    temperature: float = 0.02
-    blur_sigma: float = 0.0
+    peak_exclusion: float = 0.04
+    min_texture: float = 0.5
+    temperature: float = 0.01
+    blur_sigma: float = 1.0
+    highpass_sigma: float = 4.0
+    occlusion_clearance: float = 0.5
+    max_sigma: float = 0.02
 
     def __post_init__(self) -> None:
-        if self.z_step is not None and not (math.isfinite(self.z_step) and self.z_step > 0):
-            raise ConfigError(f"z_step must be a positive number of metres, got {self.z_step}")
-        for name in ("subsamples_x", "subsamples_y", "patch_cells", "aggregation_cells", "peak_exclusion"):
+        if self.z_step is not None and not (isinstance(self.z_step, (int, float)) and self.z_step > 0):
+            raise ConfigError(f"z_step must be a positive number of metres, got {self.z_step!r}")
+        for name in ("subsamples", "refine_subsamples"):
             value = getattr(self, name)
-            if not isinstance(value, int) or value < 1:
-                raise ConfigError(f"{name} must be a positive integer, got {value!r}")
-        for name in ("patch_cells", "aggregation_cells"):
-            if getattr(self, name) % 2 == 0:
-                raise ConfigError(f"{name} must be odd (a centred window), got {getattr(self, name)}")
-        for name in ("min_score", "min_margin", "min_texture", "temperature", "blur_sigma"):
+            if (
+                not isinstance(value, tuple)
+                or len(value) != 2
+                or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in value)
+            ):
+                raise ConfigError(f"{name} must be two positive integers (x, y), got {value!r}")
+        if not isinstance(self.refine_passes, int) or isinstance(self.refine_passes, bool) or self.refine_passes < 0:
+            raise ConfigError(f"refine_passes must be a non-negative integer, got {self.refine_passes!r}")
+        for name in ("patch_cells", "aggregation_cells", "refine_aggregation_cells"):
             value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not math.isfinite(value):
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1 or value % 2 == 0:
+                raise ConfigError(f"{name} must be an odd positive integer (a centred window), got {value!r}")
+        levels = self.refine_levels
+        if not isinstance(levels, int) or isinstance(levels, bool) or levels < 0 or (levels and (levels < 3 or levels % 2 == 0)):
+            raise ConfigError(f"refine_levels must be 0 or an odd integer >= 3, got {levels!r}")
+        numbers = ("refine_step", "min_score", "min_margin", "peak_exclusion", "min_texture", "temperature")
+        for name in (*numbers, "blur_sigma", "highpass_sigma", "occlusion_clearance", "max_sigma"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise ConfigError(f"{name} must be a finite number, got {value!r}")
-        if self.temperature <= 0:
-            raise ConfigError(f"temperature must be positive, got {self.temperature}")
-        if self.blur_sigma < 0 or self.min_texture < 0:
-            raise ConfigError("blur_sigma and min_texture must be >= 0")
+        if self.refine_step <= 0 or self.temperature <= 0:
+            raise ConfigError("refine_step and temperature must be positive")
+        if min(self.blur_sigma, self.highpass_sigma, self.min_texture, self.peak_exclusion, self.occlusion_clearance) < 0:
+            raise ConfigError("blur_sigma, highpass_sigma, min_texture, peak_exclusion, occlusion_clearance must be >= 0")
 
     @classmethod
     def from_options(cls, options: dict[str, Any]) -> SweepParams:
-        """Parameters from keyword options; unknown names raise :class:`ConfigError`."""
+        """Parameters from keyword options (lists become tuples); unknown names raise ConfigError."""
         known = {f.name for f in fields(cls)}
         unknown = set(options) - known
         if unknown:
             raise ConfigError(
                 f"unknown bev_sweep option(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(known))}"
             )
-        return cls(**options)
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in options.items()})
 
 
-def grey_image(image: np.ndarray, blur_sigma: float = 0.0) -> np.ndarray:
-    """[H, W] float32 grey levels (0..255) of an RGB [H, W, 3] or grey [H, W] uint8 image."""
-    if image.ndim == 3:
-        grey = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
-    else:
-        grey = image
-    grey = grey.astype(np.float32, copy=False)
+def grey_image(image: np.ndarray, blur_sigma: float = 0.0, highpass_sigma: float = 0.0) -> np.ndarray:
+    """[H, W] float32 grey levels of an RGB [H, W, 3] or grey [H, W] uint8 image, filtered.
+
+    Args:
+        image: the camera image.
+        blur_sigma: Gaussian smoothing (pixels; 0 = none).
+        highpass_sigma: subtract the Gaussian blur of this sigma (pixels; 0 = keep the mean level).
+    """
+    grey = grey_u8(image).astype(np.float32)
     if blur_sigma > 0:
         grey = cv2.GaussianBlur(grey, (0, 0), blur_sigma)
+    if highpass_sigma > 0:
+        grey = grey - cv2.GaussianBlur(grey, (0, 0), highpass_sigma)
     return grey
 
 
-class _Clock:
-    """Wall time per stage, in milliseconds."""
+class _Samples(NamedTuple):
+    """Road-frame sample positions of one pass: [R*sx] x and [C*sy] y, with the counts per cell."""
 
-    def __init__(self) -> None:
-        self.timings: dict[str, float] = {}
-        self._last = time.perf_counter()
+    x: torch.Tensor
+    y: torch.Tensor
+    per_x: int
+    per_y: int
 
-    def lap(self, stage: str) -> None:
-        now = time.perf_counter()
-        self.timings[stage] = self.timings.get(stage, 0.0) + 1000.0 * (now - self._last)
-        self._last = now
+
+def _sample_positions(grid: GridSpec, per_x: int, per_y: int) -> _Samples:
+    """Sample positions ``per_x`` x ``per_y`` per cell, centred in it (row 0 farthest, col 0 leftmost)."""
+    x = grid.x_max - (np.arange(grid.n_rows * per_x) + 0.5) * (grid.resolution / per_x)
+    y = grid.y_max - (np.arange(grid.n_cols * per_y) + 0.5) * (grid.resolution / per_y)
+    return _Samples(torch.tensor(x, dtype=torch.float32), torch.tensor(y, dtype=torch.float32), per_x, per_y)
+
+
+class _Decision(NamedTuple):
+    """Per-cell outcome of one sweep: [R, C] tensors."""
+
+    elevation: torch.Tensor  # refined height (m)
+    sigma: torch.Tensor  # 1-sigma (m)
+    best: torch.Tensor  # best score
+    index: torch.Tensor  # level of the best score
+    second: torch.Tensor  # best score outside the exclusion zone
+    interior: torch.Tensor  # bool: the peak is not on the first or last level
+
+
+def _box(volume: torch.Tensor, size: int) -> torch.Tensor:
+    """Mean over a ``size`` x ``size`` window of the last two axes of [K, R, C] (1 = identity)."""
+    if size == 1:
+        return volume
+    pooled = F.avg_pool2d(volume[:, None], kernel_size=size, stride=1, padding=size // 2, count_include_pad=False)
+    return pooled[:, 0]
 
 
 class BevSweep:
@@ -152,38 +212,35 @@ class BevSweep:
                 "into at least 3 levels"
             )
         self.z_step = step
-        sx, sy = p.subsamples_x, p.subsamples_y
-        # Sample positions: sx x sy per cell, centred in the cell (row 0 farthest, col 0 leftmost).
-        self._x = torch.tensor(
-            grid.x_max - (np.arange(grid.n_rows * sx) + 0.5) * (grid.resolution / sx), dtype=torch.float32
-        )
-        self._y = torch.tensor(
-            grid.y_max - (np.arange(grid.n_cols * sy) + 0.5) * (grid.resolution / sy), dtype=torch.float32
-        )
-        self._x_cell = torch.tensor(grid.x_centres(), dtype=torch.float32)
-        self._y_cell = torch.tensor(grid.y_centres(), dtype=torch.float32)
+        self._coarse = _sample_positions(grid, *p.subsamples)
+        self._fine = _sample_positions(grid, *p.refine_subsamples)
+        self._cells = _sample_positions(grid, 1, 1)
         self._z = torch.tensor(grid.z_min + (np.arange(n_levels) + 0.5) * step, dtype=torch.float32)
+        half = (p.refine_levels - 1) / 2.0
+        self._offsets = torch.tensor((np.arange(p.refine_levels) - half) * p.refine_step, dtype=torch.float32)
 
-    # --- stages --------------------------------------------------------------------------------
+    # --- geometry ------------------------------------------------------------------------------
     def _normalised_coordinates(
-        self, x: torch.Tensor, y: torch.Tensor, camera: StereoCamera, attitude: Attitude
+        self, samples: _Samples, heights: torch.Tensor, camera: StereoCamera, attitude: Attitude
     ) -> torch.Tensor:
-        """Normalised ``grid_sample`` coordinates [2, Z, len(x), len(y), 2] (left, right images).
+        """Normalised ``grid_sample`` coordinates [2, K, Rs, Cs, 2] (left, right images).
 
         Args:
-            x: [Rs] road-frame x of the sample rows; y: [Cs] y of the sample columns.
+            samples: the sample rows' x and columns' y (road frame).
+            heights: road-frame z of the samples, [K, 1, 1] (horizontal planes, the cheap case)
+                or [K, Rs, Cs] (surfaces).
         """
         R = torch.tensor(optical_from_road_rotation(attitude), dtype=torch.float32)  # road -> optical
-        xs = x[None, :, None]  # [1, Rs, 1]
-        ys = y[None, None, :]  # [1, 1, Cs]
-        dz = (self._z - self.grid.base_height)[:, None, None]  # [Z, 1, 1]
+        xs = samples.x[None, :, None]  # [1, Rs, 1]
+        ys = samples.y[None, None, :]  # [1, 1, Cs]
+        dz = heights - self.grid.base_height
         w, h = camera.width, camera.height
         # u_norm = 2 u / (W - 1) - 1 with u = fx X / Z + cx (align_corners=True: centres at -1, +1).
         ax, bx = 2.0 * camera.fx / (w - 1), 2.0 * camera.cx / (w - 1) - 1.0
         ay, by = 2.0 * camera.fy / (h - 1), 2.0 * camera.cy / (h - 1) - 1.0
-        # Camera coordinates are sums of separable terms [Z, Rs, 1] + [1, 1, Cs], pre-scaled so that
-        # one multiply by 1/depth gives the normalised coordinate (no [Z, R, C, 3] array is built).
-        inv_depth = ((R[2, 0] * xs + R[2, 2] * dz) + R[2, 1] * ys).reciprocal_()  # [Z, Rs, Cs]
+        # Camera coordinates are sums of separable terms ([K, Rs, 1] + [1, 1, Cs] for planes),
+        # pre-scaled so that one multiply by 1/depth gives the normalised coordinate.
+        inv_depth = ((R[2, 0] * xs + R[2, 2] * dz) + R[2, 1] * ys).reciprocal_()  # [K, Rs, Cs]
         coords = torch.empty(2, *inv_depth.shape, 2)
         u_left, v_norm = coords[0, ..., 0], coords[0, ..., 1]
         torch.mul((ax * R[0, 0]) * xs + (ax * R[0, 2]) * dz, inv_depth, out=u_left)
@@ -201,99 +258,136 @@ class BevSweep:
         The window never reaches behind the camera (x_min > 0 and z_max < base_height), so only
         the image bounds are checked, with half a pixel of slack as ``geometry.project_voxels``.
         """
-        coords = self._normalised_coordinates(self._x_cell, self._y_cell, camera, attitude)
+        coords = self._normalised_coordinates(self._cells, self._z[:, None, None], camera, attitude)
         lim = torch.tensor([1.0 + 1.0 / (camera.width - 1), 1.0 + 1.0 / (camera.height - 1)])
         return (coords.abs() <= lim).all(dim=-1).all(dim=0)
 
-    def _zncc(self, samples: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """ZNCC [Z, R, C] of left vs right samples over the patch, and the left patch std [Z, R, C].
+    # --- matching ------------------------------------------------------------------------------
+    def _zncc(self, images: torch.Tensor, samples: _Samples, heights: torch.Tensor, frame: Frame, clock: StageClock):
+        """ZNCC [K, R, C] over the patch window and the left patch's std [K, R, C].
 
         Args:
-            samples: [2, Z, R*sx, C*sy] left and right grey samples (images centred on zero mean,
-                so the moments keep float32 precision).
+            images: [2, 1, H, W] filtered (zero-mean) left and right images.
+            samples: sample positions of this pass.
+            heights: [K, 1, 1] or [K, R*sx, C*sy] road-frame heights of the samples.
         """
-        p = self.params
-        sx, sy = p.subsamples_x, p.subsamples_y
-        n_z = samples.shape[1]
+        coords = self._normalised_coordinates(samples, heights, frame.camera, frame.attitude)
+        clock.lap("projection")
+        n_k, n_rs, n_cs = coords.shape[1:4]
+        values = F.grid_sample(
+            images, coords.view(2, n_k * n_rs, n_cs, 2), mode="bilinear", padding_mode="border", align_corners=True
+        ).view(2, n_k, n_rs, n_cs)
+        clock.lap("sampling")
         n_rows, n_cols = self.grid.shape
-        left, right = samples[0], samples[1]
+        sx, sy = samples.per_x, samples.per_y
+        left, right = values[0], values[1]
 
-        def cell_sum(values: torch.Tensor) -> torch.Tensor:  # [Z, R*sx, C*sy] -> [Z, R, C]
-            if sx == sy == 1:
-                return values
-            return values.view(n_z, n_rows, sx, n_cols, sy).sum(dim=(2, 4))
+        def cell_sum(v: torch.Tensor) -> torch.Tensor:  # [K, R*sx, C*sy] -> [K, R, C]
+            return v if sx == sy == 1 else v.view(n_k, n_rows, sx, n_cols, sy).sum(dim=(2, 4))
 
         moments = torch.stack(
-            (
-                cell_sum(left),
-                cell_sum(right),
-                cell_sum(left * left),
-                cell_sum(right * right),
-                cell_sum(left * right),
-            )
-        )  # [5, Z, R, C] sums over each cell's samples
-        k = p.patch_cells
-        # Box window over k x k cells at cell resolution (the mean over the window's samples).
-        moments = F.avg_pool2d(
-            moments.view(5 * n_z, 1, n_rows, n_cols),
-            kernel_size=k,
-            stride=1,
-            padding=k // 2,
-            count_include_pad=False,
-        ).view(5, n_z, n_rows, n_cols) * (1.0 / (sx * sy))
+            (cell_sum(left), cell_sum(right), cell_sum(left * left), cell_sum(right * right), cell_sum(left * right))
+        )  # [5, K, R, C]: per-cell sums
+        k = self.params.patch_cells
+        # Box window over k x k cells at cell resolution = the mean over the window's samples.
+        moments = _box(moments.view(5 * n_k, n_rows, n_cols), k).view(5, n_k, n_rows, n_cols) * (1.0 / (sx * sy))
         m_l, m_r, m_ll, m_rr, m_lr = moments.unbind(dim=0)
         var_l = (m_ll - m_l * m_l).clamp_min_(0.0)
         var_r = (m_rr - m_r * m_r).clamp_min_(0.0)
         zncc = (m_lr - m_l * m_r).mul_(torch.rsqrt(var_l * var_r + 1e-6))
+        clock.lap("cost")
         return zncc, var_l.sqrt_()
 
-    def _aggregate(self, zncc: torch.Tensor) -> torch.Tensor:
-        """Box filter [Z, R, C] over the BEV plane per height."""
-        a = self.params.aggregation_cells
-        if a == 1:
-            return zncc
-        return F.avg_pool2d(zncc[:, None], kernel_size=a, stride=1, padding=a // 2, count_include_pad=False)[:, 0]
+    def _decide(self, score: torch.Tensor, levels: torch.Tensor, step: float) -> _Decision:
+        """Best level per cell of a score volume [K, R, C] over heights ``levels`` ([K, R, C] or [K, 1, 1]).
 
-    def _decide(
-        self, score: torch.Tensor, texture: torch.Tensor, valid: torch.Tensor
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Elevation and uncertainty [R, C] from the aggregated score volume [Z, R, C]."""
+        The best level is refined by a parabola through it and its neighbours; the uncertainty is
+        the spread of the softmax over the levels with the step's quantisation as a floor.
+        """
         p = self.params
-        n_z = score.shape[0]
-        score = torch.where(valid, score, torch.full_like(score, -2.0))  # invalid levels never win
+        n_k = score.shape[0]
         best, idx = score.max(dim=0)  # [R, C]
-        lo = (idx - 1).clamp_min(0)
-        hi = (idx + 1).clamp_max(n_z - 1)
-        s_lo = score.gather(0, lo[None])[0]
-        s_hi = score.gather(0, hi[None])[0]
-        # Parabola through the peak and its neighbours: offset in steps, within (-0.5, 0.5).
+        s_lo = score.gather(0, (idx - 1).clamp_min(0)[None])[0]
+        s_hi = score.gather(0, (idx + 1).clamp_max(n_k - 1)[None])[0]
         curvature = s_lo - 2.0 * best + s_hi
         offset = torch.where(curvature < -1e-9, 0.5 * (s_lo - s_hi) / curvature, torch.zeros_like(best))
-        offset = offset.clamp(-0.5, 0.5)
-        elevation = self._z[idx] + offset * self.z_step
-        # A second peak outside the exclusion zone around the best.
-        levels = torch.arange(n_z)[:, None, None]
-        far = (levels - idx[None]).abs() > p.peak_exclusion
-        second = torch.where(far, score, torch.full_like(score, -2.0)).max(dim=0).values
-        # Uncertainty: spread of the softmax over heights around the estimate.
+        level_at_best = levels.expand(n_k, *best.shape).gather(0, idx[None])[0]
+        elevation = level_at_best + offset.clamp(-0.5, 0.5) * step
+        # The second peak: the best local maximum outside the exclusion zone (a broad main peak's
+        # flanks are not a second peak; a separate maximum is).
+        edge = torch.full_like(score[:1], _WORST)
+        padded = torch.cat((edge, score, edge))  # [K+2, R, C]
+        local_max = (score >= padded[:-2]) & (score >= padded[2:])
+        far = (torch.arange(n_k)[:, None, None] - idx[None]).abs() * step > p.peak_exclusion
+        second = torch.where(far & local_max, score, torch.full_like(score, _WORST)).max(dim=0).values
         prob = torch.softmax(score / p.temperature, dim=0)
-        spread = (prob * (self._z[:, None, None] - elevation[None]).square()).sum(dim=0).sqrt()
-        # Sub-step floor: a distribution that collapses on one level still has the step's error.
-        sigma = torch.sqrt(spread.square() + (self.z_step / math.sqrt(12.0)) ** 2)
-        texture_at_best = texture.gather(0, idx[None])[0]
-        column_inside = valid.all(dim=0)
-        confident = (
-            (best >= p.min_score)
-            & (best - second >= p.min_margin)
-            & (idx > 0)
-            & (idx < n_z - 1)
-            & (texture_at_best >= p.min_texture)
-            & column_inside
-        )
-        nan = torch.full_like(elevation, float("nan"))
-        elevation = torch.where(confident, elevation, nan)
-        sigma = torch.where(confident, sigma, nan)
-        return elevation.numpy().astype(np.float32), sigma.numpy().astype(np.float32)
+        spread = (prob * (levels - elevation[None]).square()).sum(dim=0)
+        sigma = torch.sqrt(spread + step * step / 12.0)
+        interior = (idx > 0) & (idx < n_k - 1)
+        return _Decision(elevation, sigma, best, idx, second, interior)
+
+    @staticmethod
+    def _fill_holes(surface: torch.Tensor, known: torch.Tensor) -> torch.Tensor:
+        """[R, C] ``surface`` with the cells not ``known`` filled from known neighbours (0 m if none)."""
+        values = torch.where(known, surface, torch.zeros_like(surface))
+        weight = known.float()
+        filled, have = values, known
+        # Normalised convolution with a growing reach until every cell has a value.
+        for reach in (2, 4, 8, 16, 32):
+            if bool(have.all()):
+                break
+            num = _box(values[None], 2 * reach + 1)[0]
+            den = _box(weight[None], 2 * reach + 1)[0]
+            filled = torch.where(have, filled, num / den.clamp_min(1e-6))
+            have = have | (den > 0)
+        return torch.where(have, filled, torch.zeros_like(filled))
+
+    def _occluded(self, surface: torch.Tensor, baseline: float) -> torch.Tensor:
+        """[R, C] bool: cells whose line of sight (left or right camera) grazes the nearer surface.
+
+        The ray from a camera centre (``base_height`` above the road origin; the right camera
+        ``baseline`` to the right) to a cell at its estimated height is sampled at fractions f of
+        the way; at each sample the clearance above the (hole-filled) surface is compared with the
+        clearance over a flat road, (H - e)(1 - f). Behind a bump or a kerb that ratio drops to
+        about zero: the cell is hidden or seen at grazing incidence, and what the sweep found there
+        is the occluder's edge, not the road.
+
+        Args:
+            surface: [R, C] elevation with no holes.
+            baseline: stereo baseline (m).
+        """
+        grid, p = self.grid, self.params
+        n_rows, n_cols = grid.shape
+        height = grid.base_height
+        x = self._cells.x[None, :, None]  # [1, R, 1]
+        y = self._cells.y[None, None, :]  # [1, 1, C]
+        e = surface[None]  # [1, R, C]
+        fractions = torch.linspace(0.2, 1.0, 25)[:-1][:, None, None]  # [F, 1, 1]
+        hidden = torch.zeros(n_rows, n_cols, dtype=torch.bool)
+        for origin_y in (0.0, -baseline):
+            px = fractions * x  # [F, R, 1]
+            py = origin_y + fractions * (y - origin_y)  # [F, 1, C]
+            ray_z = height + fractions * (e - height)  # [F, R, C]
+            # Normalised grid_sample coordinates of (px, py) on the [R, C] map (cell centres).
+            col = (grid.y_max - py) / grid.resolution - 0.5
+            row = (grid.x_max - px) / grid.resolution - 0.5
+            coords = torch.stack(
+                torch.broadcast_tensors(2.0 * col / (n_cols - 1) - 1.0, 2.0 * row / (n_rows - 1) - 1.0), dim=-1
+            )  # [F, R, C, 2]
+            ground = F.grid_sample(
+                surface[None, None].expand(coords.shape[0], 1, n_rows, n_cols),
+                coords,
+                mode="bilinear",
+                padding_mode="border",
+                align_corners=True,
+            )[:, 0]  # [F, R, C]
+            flat = (height - e) * (1.0 - fractions)
+            ratio = (ray_z - ground) / flat.clamp_min(1e-6)
+            # Samples nearer than the grid (nothing known there) or within a cell of the target.
+            inside = (px >= grid.x_min) & ((x - px) > 1.5 * grid.resolution)
+            ratio = torch.where(inside, ratio, torch.full_like(ratio, math.inf))
+            hidden |= ratio.min(dim=0).values < p.occlusion_clearance
+        return hidden
 
     # --- protocol ------------------------------------------------------------------------------
     def estimate(self, frame: Frame) -> Estimate:
@@ -302,28 +396,50 @@ class BevSweep:
             raise FrameError("bev_sweep needs a stereo frame (the right image is missing)")
         if frame.camera.baseline <= 0:
             raise FrameError("bev_sweep needs a stereo rig with a positive baseline")
-        clock = _Clock()
+        clock = StageClock()
         p = self.params
-        greys = np.stack((grey_image(frame.left, p.blur_sigma), grey_image(frame.right, p.blur_sigma)))
+        greys = np.stack([grey_image(im, p.blur_sigma, p.highpass_sigma) for im in (frame.left, frame.right)])
         greys -= greys.mean(axis=(1, 2), keepdims=True)  # zero-mean: precise float32 moments
         images = torch.from_numpy(greys)[:, None]  # [2, 1, H, W]
         clock.lap("preprocess")
         with torch.no_grad():
-            coords = self._normalised_coordinates(self._x, self._y, frame.camera, frame.attitude)
             valid = self._valid_levels(frame.camera, frame.attitude)  # [Z, R, C]
-            clock.lap("projection")
-            n_z, n_rs, n_cs = coords.shape[1:4]
-            samples = F.grid_sample(
-                images, coords.view(2, n_z * n_rs, n_cs, 2), mode="bilinear", padding_mode="border", align_corners=True
-            ).view(2, n_z, n_rs, n_cs)
-            clock.lap("sampling")
-            zncc, texture = self._zncc(samples)
-            clock.lap("cost")
-            score = self._aggregate(zncc)
+            planes = self._z[:, None, None]  # [Z, 1, 1]
+            zncc, texture = self._zncc(images, self._coarse, planes, frame, clock)
+            score = torch.where(valid, _box(zncc, p.aggregation_cells), torch.full_like(zncc, _WORST))
             clock.lap("aggregation")
-            elevation, sigma = self._decide(score, texture, valid)
+            coarse = self._decide(score, planes, self.z_step)
+            confident = (
+                (coarse.best >= p.min_score)
+                & (coarse.best - coarse.second >= p.min_margin)
+                & coarse.interior
+                & (texture.gather(0, coarse.index[None])[0] >= p.min_texture)
+                & valid.all(dim=0)
+                & (coarse.sigma <= p.max_sigma)
+            )
+            elevation, sigma = coarse.elevation, coarse.sigma
+            for _ in range(p.refine_passes if p.refine_levels else 0):
+                # Offsets around the current surface (bilinear between cell centres), dense samples.
+                guide = self._fill_holes(elevation, confident)  # [R, C]
+                sx, sy = p.refine_subsamples
+                guide_fine = F.interpolate(guide[None, None], scale_factor=(sx, sy), mode="bilinear")[0]
+                clock.lap("post")
+                offsets = self._offsets[:, None, None]
+                zncc, _ = self._zncc(images, self._fine, guide_fine + offsets, frame, clock)
+                fine_score = _box(zncc, p.refine_aggregation_cells)
+                clock.lap("aggregation")
+                refined = self._decide(fine_score, guide[None] + offsets, p.refine_step)
+                # A peak on the offsets' edge means the surface was off by more than the offsets
+                # reach: that cell moves to the edge and the next pass continues from there.
+                elevation = refined.elevation
+                sigma = torch.where(refined.interior, refined.sigma, sigma)
+            if p.occlusion_clearance > 0:
+                confident &= ~self._occluded(self._fill_holes(elevation, confident), frame.camera.baseline)
+            nan = torch.full_like(elevation, float("nan"))
+            elevation_np = torch.where(confident, elevation, nan).numpy().astype(np.float32)
+            sigma_np = torch.where(confident, sigma, nan).numpy().astype(np.float32)
             clock.lap("post")
-        return Estimate(elevation=elevation, uncertainty=sigma, timings_ms=clock.timings)
+        return Estimate(elevation=elevation_np, uncertainty=sigma_np, timings_ms=clock.timings)
 
     def describe(self) -> dict[str, Any]:
         """Parameters as a JSON-able dict (for benchmark records)."""

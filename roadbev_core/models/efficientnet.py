@@ -236,8 +236,8 @@ def load_imagenet_weights(
     else:
         try:
             state = torch.load(Path(source), map_location="cpu", weights_only=True)
-        except (OSError, RuntimeError, ValueError, EOFError) as exc:
-            raise WeightLoadError(f"cannot read weights from {source}: {exc}") from exc
+        except Exception as exc:  # torch raises many types for foreign files (pickle, zip, runtime)
+            raise WeightLoadError(f"cannot read weights from {source}: {exc.__class__.__name__}") from exc
     if isinstance(state, dict) and isinstance(state.get("state_dict"), dict):
         state = state["state_dict"]
     if not isinstance(state, dict):

@@ -58,22 +58,22 @@ class Hourglass3d(nn.Module):
 class StereoHead(nn.Module):
     """Cost volume [B, C, Nz, Ny, Nx] -> occupancy score [B, Nz, Ny, Nx].
 
-    Six 3-D conv layers (three residual pairs), three stacked hourglass modules with stride-2
-    reductions, and two convs down to one channel.
+    Six 3-D conv layers (an entry pair C -> W, then two residual pairs at width W), three stacked
+    hourglass modules with stride-2 reductions, and two convs down to one channel.
     """
 
-    def __init__(self, channels: int) -> None:
+    def __init__(self, channels: int, width: int) -> None:
         super().__init__()
-        self.pre = nn.ModuleList(
-            nn.Sequential(_conv3d(channels, channels), ConvBnAct(channels, channels, 3, act=None, dims=3))
-            for _ in range(3)
+        self.entry = nn.Sequential(_conv3d(channels, width), _conv3d(width, width))
+        self.residual = nn.ModuleList(
+            nn.Sequential(_conv3d(width, width), ConvBnAct(width, width, 3, act=None, dims=3)) for _ in range(2)
         )
-        self.hourglasses = nn.ModuleList(Hourglass3d(channels) for _ in range(3))
-        self.out = nn.Sequential(_conv3d(channels, channels), nn.Conv3d(channels, 1, 3, padding=1))
+        self.hourglasses = nn.ModuleList(Hourglass3d(width) for _ in range(3))
+        self.out = nn.Sequential(_conv3d(width, width), nn.Conv3d(width, 1, 3, padding=1))
 
     def forward(self, volume: torch.Tensor) -> torch.Tensor:
-        x = volume
-        for pair in self.pre:
+        x = self.entry(volume)  # [B, W, Nz, Ny, Nx]
+        for pair in self.residual:
             x = F.relu(x + pair(x))
         for hourglass in self.hourglasses:
             x = hourglass(x)

@@ -32,7 +32,7 @@ class ModelConfig:
         sampling: ``bilinear`` (sub-pixel grid_sample) or ``integer`` (the paper's indexing).
         grid_factor: internal voxel cells are this many output cells wide (1 = the output grid).
         z_factor: internal voxels are this many ``z_resolution`` steps tall.
-        head_width: width of the mono 2D head (ignored by stereo).
+        head_width: width of the mono 2-D head or of the stereo 3-D head.
         volume: stereo cost volume, ``product`` (paper eq. 2) or ``difference`` (ablation).
         label: training target, ``one_hot`` (paper eq. 3) or ``two_hot`` (no quantisation floor).
     """
@@ -84,29 +84,40 @@ class ModelConfig:
         return cls(**data)
 
 
-# name -> settings shared by both kinds; the feature stride differs per kind (paper: 1/2 stereo,
-# 1/4 mono) and is filled in by model_config().
-PRESETS: dict[str, dict[str, Any]] = {
+# name -> settings shared by both kinds, then per kind. Feature strides follow the paper (1/2 for
+# stereo, 1/4 for mono); head_width is the mono 2-D head's width and the stereo 3-D head's width.
+PRESETS: dict[str, dict[str, dict[str, Any]]] = {
     # The paper: EfficientNet-B6, C = 64, 960x528, integer indexing, full 164x64x40 voxels,
     # one-hot targets. For GPUs; on this CPU it serves shape checks only.
     "paper": {
-        "backbone": "b6", "input_width": 960, "input_height": 528, "channels": 64, "sampling": "integer",
-        "grid_factor": 1, "z_factor": 1, "head_width": 256, "label": "one_hot",
+        "common": {
+            "backbone": "b6", "input_width": 960, "input_height": 528, "channels": 64,
+            "sampling": "integer", "grid_factor": 1, "z_factor": 1, "label": "one_hot",
+        },
+        "stereo": {"feature_stride": 2, "head_width": 32},
+        "mono": {"feature_stride": 4, "head_width": 256},
     },
     # CPU model (shared/design/cpu-sizing.md): B0 on 480x264, C = 16, bilinear sampling,
-    # 40 x 82 x 32 internal voxels, upsampled to the output grid.
+    # 40 x 82 x 32 internal voxels upsampled to the output grid; a 3-D head 8 wide keeps stereo
+    # above 5 Hz on 2 cores.
     "lite": {
-        "backbone": "b0", "input_width": 480, "input_height": 264, "channels": 16, "sampling": "bilinear",
-        "grid_factor": 2, "z_factor": 1, "head_width": 64, "label": "two_hot",
+        "common": {
+            "backbone": "b0", "input_width": 480, "input_height": 264, "channels": 16,
+            "sampling": "bilinear", "grid_factor": 2, "z_factor": 1, "label": "two_hot",
+        },
+        "stereo": {"feature_stride": 2, "head_width": 8},
+        "mono": {"feature_stride": 4, "head_width": 64},
     },
     # Tests: 224x128 input, C = 8, 10 x 41 x 16 internal voxels; a training step well under 1 s.
     "tiny": {
-        "backbone": "b0", "input_width": 224, "input_height": 128, "channels": 8, "sampling": "bilinear",
-        "grid_factor": 4, "z_factor": 4, "head_width": 32, "label": "two_hot",
+        "common": {
+            "backbone": "b0", "input_width": 224, "input_height": 128, "channels": 8,
+            "sampling": "bilinear", "grid_factor": 4, "z_factor": 4, "label": "two_hot",
+        },
+        "stereo": {"feature_stride": 2, "head_width": 8},
+        "mono": {"feature_stride": 4, "head_width": 32},
     },
 }
-
-_STRIDE = {"stereo": 2, "mono": 4}
 
 
 def model_config(preset: str, kind: str, **overrides: Any) -> ModelConfig:
@@ -115,5 +126,5 @@ def model_config(preset: str, kind: str, **overrides: Any) -> ModelConfig:
         raise ConfigError(f"unknown model preset {preset!r}; choose from {', '.join(PRESETS)}")
     if kind not in KINDS:
         raise ConfigError(f"unknown model kind {kind!r}; choose from {', '.join(KINDS)}")
-    settings = {**PRESETS[preset], "kind": kind, "feature_stride": _STRIDE[kind], **overrides}
+    settings = {**PRESETS[preset]["common"], **PRESETS[preset][kind], "kind": kind, **overrides}
     return ModelConfig.from_dict(settings)

@@ -71,7 +71,7 @@ class RoadBEV(nn.Module):
         self.fusion = PyramidFusion(self.backbone.out_channels, self.backbone.strides,
                                     config.channels, config.feature_stride)
         if config.kind == "stereo":
-            self.head: nn.Module = StereoHead(config.channels)
+            self.head: nn.Module = StereoHead(config.channels, config.head_width)
         else:
             self.head = MonoHead(config.channels * self.inner.n_z, config.head_width, grid.n_classes)
         self.register_buffer("centres", torch.tensor(grid.class_centres(), dtype=torch.float32), persistent=False)

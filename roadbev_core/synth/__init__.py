@@ -1,0 +1,43 @@
+"""Realistic synthetic stereo road data: height fields, textures, a ray-casting renderer, drives.
+
+Public API (``shared`` agreement, see the project notes)::
+
+    from roadbev_core.synth import RoadConfig, DriveConfig, SyntheticDrive, DriveSample, ImuSample, make_sample
+"""
+
+from __future__ import annotations
+
+from roadbev_core.synth.drive import (
+    RSRD_ATTITUDE,
+    DriveConfig,
+    DriveSample,
+    ImuSample,
+    LidarConfig,
+    SyntheticDrive,
+    make_sample,
+    random_road,
+    slerp,
+)
+from roadbev_core.synth.heightfield import FEATURE_NAMES, ISO8608_GD0, SynthError
+from roadbev_core.synth.render import CameraPose, render_view
+from roadbev_core.synth.scene import RoadConfig, Scene, build_scene
+
+__all__ = [
+    "FEATURE_NAMES",
+    "ISO8608_GD0",
+    "RSRD_ATTITUDE",
+    "CameraPose",
+    "DriveConfig",
+    "DriveSample",
+    "ImuSample",
+    "LidarConfig",
+    "RoadConfig",
+    "Scene",
+    "SynthError",
+    "SyntheticDrive",
+    "build_scene",
+    "make_sample",
+    "random_road",
+    "render_view",
+    "slerp",
+]

@@ -99,7 +99,7 @@ def test_out_of_order_and_duplicate_stamps_are_refused() -> None:
 
 
 def test_reset_forgets_history() -> None:
-    sync, rec = make()
+    sync, _ = make()
     sync.add(0, 200 * MS, "a")
     sync.add(1, 200 * MS, "b")
     sync.add(0, 300 * MS, "q")

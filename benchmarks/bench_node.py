@@ -1,0 +1,221 @@
+"""Node throughput and end-to-end latency per backend, over real DDS (replay -> node -> record).
+
+Run (from the repository root)::
+
+    .venv/bin/python -m benchmarks.bench_node                       # bev_sweep, sgbm, bm
+    .venv/bin/python -m benchmarks.bench_node --backends bm --frames 10 --scale 0.5
+
+For every backend the node runs as its own process (``roadbev node``) and a synthetic drive
+(5 Hz, 960 x 528 stereo at ``--scale 1``, 100 Hz IMU) is replayed into it twice:
+
+* ``5hz``: with the bag's timing, as a camera would deliver it; a backend slower than the camera
+  makes the node drop frames (it keeps the newest);
+* ``max``: as fast as the node answers (each left image waits for the previous answer), i.e.
+  the node's maximum throughput.
+
+Latency is end to end: the left image leaving the replay process to its elevation map arriving
+in the recording process (DDS both ways, synchronisation, IMU wait, inference, conversions).
+The node's own figures come from its ``/diagnostics``: ``inference_mean_ms`` (the backend) and
+``overhead_mean_ms`` (everything else the node does per frame: decoding, calibration, preview,
+message building and publishing; waiting for the IMU is reported apart). Writes
+``benchmarks/results/node.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from benchmarks.common import RESULTS, available_backends, machine_info, write_json
+
+REPO = Path(__file__).resolve().parents[1]
+CACHE = REPO / ".cache"
+TARGET_HZ = 5.0
+TARGET_P95_MS = 200.0
+TARGET_OVERHEAD_MS = 10.0
+
+
+def drive_bag(frames: int, scale: float, seed: int = 7) -> Path:
+    """A synthetic drive as an evaluation bag (cached by frames/scale/seed)."""
+    from msg_bridge.evalbag import write_eval_bag
+    from roadbev_core.config import StereoCamera
+    from roadbev_core.synth import DriveConfig, RoadConfig, SyntheticDrive
+
+    CACHE.mkdir(exist_ok=True)
+    path = CACHE / f"bench_node_{frames}f_{scale:g}x_s{seed}.mcap"
+    if not path.exists():
+        camera = StereoCamera.rsrd_half()
+        if scale != 1.0:
+            camera = camera.scaled(scale)
+        road = RoadConfig(road_class="C", features=("pothole", "speed_bump"))
+        drive = SyntheticDrive(DriveConfig(frames=frames, camera=camera, seed=seed, road=road))
+        tmp = path.with_suffix(".tmp.mcap")
+        tmp.unlink(missing_ok=True)
+        write_eval_bag(tmp, drive)
+        tmp.replace(path)
+    return path
+
+
+def _float(values: dict[str, str], key: str) -> float:
+    try:
+        return float(values[key])
+    except (KeyError, ValueError):
+        return math.nan
+
+
+def run_one(bag: Path, backend: str, mode: str, work: Path) -> dict[str, Any]:
+    """One backend in one mode: throughput, latency, node figures and accuracy."""
+    from roadbev_ros.online_eval import evaluate_online
+
+    rate = 1.0 if mode == "5hz" else None
+    result = evaluate_online(bag, work / f"{backend}_{mode}", backend=backend, rate=rate)
+    m = result.metrics
+    online = m["online"]
+    node = online["node"]
+    outputs = online["outputs_matched"]
+    frames = online["frames_published"]
+    wall = online["wall_s"]
+    inference = _float(node, "inference_mean_ms")
+    return {
+        "backend": backend,
+        "mode": mode,
+        "frames": frames,
+        "outputs": outputs,
+        "dropped": frames - outputs,
+        "throughput_hz": outputs / wall if wall > 0 else math.nan,
+        "latency_ms": online["latency_ms"],
+        "node_latency_p95_ms": _float(node, "latency_p95_ms"),
+        "inference_mean_ms": inference,
+        "overhead_mean_ms": _float(node, "overhead_mean_ms"),
+        "overhead_p95_ms": _float(node, "overhead_p95_ms"),
+        "imu_wait_mean_ms": _float(node, "imu_wait_mean_ms"),
+        "e2e_minus_inference_p50_ms": online["latency_ms"]["p50"] - inference,
+        "abs_err_cm": m["abs_err_cm"],
+        "coverage_pct": m["coverage_pct"],
+    }
+
+
+def pipeline_overhead(scale: float, repeats: int = 30) -> dict[str, float]:
+    """The node's own per-frame work, single-threaded and without DDS or contention.
+
+    Times :func:`roadbev_ros.node.images_from_messages` (image and CameraInfo conversion), the
+    Frame, and :func:`roadbev_ros.node.output_messages` (preview profiles, GridMap and
+    RoadPreview messages; the PointCloud2 apart, it is only built for a listening viewer) on
+    messages of the benchmark's image size and the default grid.
+    """
+    import numpy as np
+
+    from msg_bridge._common import RclpyFactory
+    from msg_bridge.camera_info import camera_info_from_stereo
+    from msg_bridge.image import array_to_image
+    from roadbev_core.config import StereoCamera
+    from roadbev_core.frame import Estimate, Frame
+    from roadbev_core.geometry import Attitude
+    from roadbev_ros.node import NodeConfig, images_from_messages, output_messages
+
+    camera = StereoCamera.rsrd_half()
+    if scale != 1.0:
+        camera = camera.scaled(scale)
+    factory = RclpyFactory()
+    rng = np.random.default_rng(0)
+    pixels = rng.integers(0, 255, (camera.height, camera.width, 3), np.uint8)
+    msgs = (
+        array_to_image(pixels, factory, stamp_ns=1, encoding="rgb8"),
+        array_to_image(pixels, factory, stamp_ns=1, encoding="rgb8"),
+        camera_info_from_stereo(camera, factory, stamp_ns=1),
+        camera_info_from_stereo(camera, factory, right=True, stamp_ns=1),
+    )
+    config = NodeConfig.from_values({})
+    elevation = rng.normal(0.0, 0.02, config.grid.shape).astype(np.float32)
+    estimate = Estimate(elevation, np.full_like(elevation, 0.01))
+    times: dict[str, list[float]] = {"inputs_ms": [], "outputs_ms": [], "points_ms": []}
+    for _ in range(repeats + 1):
+        t0 = time.perf_counter()
+        images = images_from_messages(msgs, "raw")
+        Frame(images.left, images.right, images.camera, Attitude(), images.stamp_ns)
+        t1 = time.perf_counter()
+        output_messages(estimate, config, images.stamp_ns, 5.0, with_points=False)
+        t2 = time.perf_counter()
+        output_messages(estimate, config, images.stamp_ns, 5.0, with_points=True)
+        t3 = time.perf_counter()
+        times["inputs_ms"].append((t1 - t0) * 1e3)
+        times["outputs_ms"].append((t2 - t1) * 1e3)
+        times["points_ms"].append((t3 - t2 - (t2 - t1)) * 1e3)
+    out = {k: float(np.median(v[1:])) for k, v in times.items()}  # the first is a warm-up
+    out["total_ms"] = out["inputs_ms"] + out["outputs_ms"]
+    return out
+
+
+def check_targets(rows: list[dict[str, Any]], default: str = "bev_sweep") -> dict[str, Any]:
+    """The issue's targets on the default backend (and the overhead on every backend)."""
+    by = {(r["backend"], r["mode"]): r for r in rows}
+    out: dict[str, Any] = {}
+    five, fast = by.get((default, "5hz")), by.get((default, "max"))
+    if five is not None:
+        out["default_p95_latency_under_200ms_at_5hz"] = five["latency_ms"]["p95"] < TARGET_P95_MS
+        out["default_no_drops_at_5hz"] = five["dropped"] == 0
+    if fast is not None:
+        out["default_sustains_5hz"] = fast["throughput_hz"] >= TARGET_HZ
+    out["overhead_under_10ms"] = {
+        f"{r['backend']}/{r['mode']}": r["overhead_mean_ms"] < TARGET_OVERHEAD_MS for r in rows
+    }
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--backends", nargs="+", default=["bev_sweep", "sgbm", "bm"])
+    parser.add_argument("--modes", nargs="+", choices=("5hz", "max"), default=["5hz", "max"])
+    parser.add_argument("--frames", type=int, default=15)
+    parser.add_argument("--scale", type=float, default=1.0, help="image scale of the 960x528 rig")
+    parser.add_argument("--out", type=Path, default=RESULTS / "node.json")
+    args = parser.parse_args(argv)
+
+    import torch
+
+    torch.set_flush_denormal(True)
+    t0 = time.monotonic()
+    bag = drive_bag(args.frames, args.scale)
+    print(f"bag {bag.name} ready in {time.monotonic() - t0:.1f} s", file=sys.stderr)
+    status = available_backends(args.backends)
+    rows: list[dict[str, Any]] = []
+    skipped = {name: reason for name, reason in status.items() if reason}
+    with tempfile.TemporaryDirectory(prefix="bench_node_") as tmp:
+        for backend in args.backends:
+            if backend in skipped:
+                print(f"skip {backend}: {skipped[backend]}", file=sys.stderr)
+                continue
+            for mode in args.modes:
+                row = run_one(bag, backend, mode, Path(tmp))
+                rows.append(row)
+                lat = row["latency_ms"]
+                print(
+                    f"{backend:9s} {mode:3s}: {row['throughput_hz']:6.2f} Hz, {row['outputs']}/{row['frames']} "
+                    f"frames, latency p50 {lat['p50']:7.1f} / p95 {lat['p95']:7.1f} ms, inference "
+                    f"{row['inference_mean_ms']:7.1f} ms, node overhead {row['overhead_mean_ms']:5.2f} ms "
+                    f"(p95 {row['overhead_p95_ms']:5.2f}), IMU wait {row['imu_wait_mean_ms']:5.2f} ms",
+                    file=sys.stderr,
+                )
+    overhead = pipeline_overhead(args.scale)
+    print(f"node pipeline overhead (single thread, no DDS): {overhead}", file=sys.stderr)
+    record = {
+        "what": "node throughput and end-to-end latency over DDS (replay -> node process -> record)",
+        "bag": {"frames": args.frames, "scale": args.scale, "frame_rate_hz": 5.0},
+        "machine": machine_info(),
+        "rows": rows,
+        "pipeline_overhead_ms": overhead,
+        "skipped": skipped,
+        "targets": check_targets(rows),
+    }
+    write_json(args.out, record)
+    print(f"wrote {args.out}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

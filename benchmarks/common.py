@@ -1,0 +1,129 @@
+"""The synthetic evaluation set and helpers shared by the benchmark scripts.
+
+The evaluation set uses seeds from :data:`EVAL_SEED_BASE` upward, disjoint from the training
+seeds (0..9,999), and cycles through ISO 8608 road classes, surfaces and feature mixes so that
+every backend sees the same varied frames.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Any
+
+from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.evaluation import json_safe
+
+__all__ = [
+    "EVAL_SEED_BASE",
+    "RESULTS",
+    "available_backends",
+    "eval_roads",
+    "eval_samples",
+    "machine_info",
+    "write_json",
+]
+
+RESULTS = Path(__file__).resolve().parent / "results"
+EVAL_SEED_BASE = 100_000
+
+# (road class, surface, features): a mix of roughness, surfaces and features, cycled over seeds.
+_ROAD_MIX: tuple[tuple[str, str, tuple[str, ...]], ...] = (
+    ("A", "asphalt", ("pothole",)),
+    ("B", "concrete", ("speed_bump",)),
+    ("C", "asphalt", ("pothole", "crack")),
+    ("C", "asphalt", ("rut", "patch")),
+    ("D", "asphalt", ("hump", "step")),
+    ("B", "asphalt", ()),
+    ("E", "concrete", ("pothole", "patch")),
+    ("C", "concrete", ("speed_bump", "crack")),
+)
+
+
+def eval_roads() -> list[Any]:
+    """The RoadConfigs of the mix (synth imported lazily: it is another helper's package)."""
+    from roadbev_core.synth import RoadConfig
+
+    return [RoadConfig(road_class=c, surface=s, features=f) for c, s, f in _ROAD_MIX]
+
+
+def eval_samples(
+    n_frames: int,
+    *,
+    camera: StereoCamera | None = None,
+    grid: GridSpec | None = None,
+    progress: Callable[[int], Any] | None = None,
+) -> list[Any]:
+    """``n_frames`` rendered samples (``DriveSample``), seeds ``EVAL_SEED_BASE + i``, roads cycled."""
+    from roadbev_core.synth import make_sample
+
+    roads = eval_roads()
+    out = []
+    for i in range(n_frames):
+        out.append(make_sample(EVAL_SEED_BASE + i, camera=camera, grid=grid, road=roads[i % len(roads)]))
+        if progress is not None:
+            progress(1)
+    return out
+
+
+def available_backends(names: Iterable[str] = ("bev_sweep", "sgbm", "bm", "stereo", "mono")) -> dict[str, str]:
+    """Backends that can be created here: name -> '' (ok) or the reason it is skipped."""
+    from roadbev_core.backends import BackendError, create
+
+    status: dict[str, str] = {}
+    for name in names:
+        try:
+            create(name, GridSpec())
+            status[name] = ""
+        except (BackendError, ImportError, OSError, ValueError, RuntimeError) as exc:
+            status[name] = f"{type(exc).__name__}: {exc}"
+    return status
+
+
+def machine_info() -> dict[str, Any]:
+    """Where the numbers were measured."""
+    import torch
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with Path("/proc/cpuinfo").open() as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    try:
+        load = os.getloadavg()
+    except OSError:
+        load = (math.nan, math.nan, math.nan)
+    try:
+        commit = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=False, timeout=5
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        commit = ""
+    return {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "torch_threads": torch.get_num_threads(),
+        "python": sys.version.split()[0],
+        "torch": torch.__version__,
+        "load_average_at_start": [round(v, 2) for v in load],
+        "git_commit": commit,
+        "time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+    }
+
+
+def write_json(path: Path, data: dict[str, Any]) -> None:
+    """Write strict JSON (NaN -> null)."""
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(json_safe(data), indent=2) + "\n")

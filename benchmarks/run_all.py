@@ -1,0 +1,180 @@
+"""Every available backend on the same synthetic evaluation set: the paper's Table I for this data.
+
+Run (from the repository root)::
+
+    .venv/bin/python -m benchmarks.run_all            # default: 24 frames + robustness sweep
+    .venv/bin/python -m benchmarks.run_all --quick    # smoke test: 3 frames, one level each
+
+Writes ``benchmarks/results/table1.json`` and ``table1.md`` (abs. err., RMSE, >0.5 cm, FPS on
+this machine, coverage, per-stage times), ``band_error.png`` (abs. error per distance band, one
+line per backend, like the paper's Fig. 9), and the robustness sweep
+(:mod:`benchmarks.robustness`): ``robustness.json`` and ``robustness.png``.
+
+Backends: ``bev_sweep``, ``sgbm``, ``bm`` always; ``stereo`` and ``mono`` when their checkpoints
+exist (skipped with the reason otherwise). All run in one process on the same frames; the issue's
+targets are checked on these numbers and recorded in the JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from benchmarks.common import EVAL_SEED_BASE, RESULTS, available_backends, eval_samples, machine_info, write_json
+from roadbev_core.backends import create
+from roadbev_core.config import GridSpec
+from roadbev_core.evaluation import evaluate, format_table
+from roadbev_core.metrics import N_BANDS
+
+torch.set_flush_denormal(True)
+
+DEFAULT_FRAMES = 24
+QUICK_FRAMES = 3
+
+
+def markdown_table(rows: list[dict[str, Any]]) -> str:
+    """The Table I rows as markdown."""
+
+    def f(value: Any, digits: int) -> str:
+        return "–" if value is None else f"{value:.{digits}f}"
+
+    lines = [
+        "| backend | abs. err. (cm) | RMSE (cm) | >0.5 cm (%) | coverage (%) | FPS | decode | projection | cost/network"
+        " | post (ms) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for m in rows:
+        s = m["stage_ms"]
+        lines.append(
+            f"| {m['backend']} | {f(m['abs_err_cm'], 3)} | {f(m['rmse_cm'], 3)} | {f(m['gt_0p5cm_pct'], 1)} "
+            f"| {f(m['coverage_pct'], 1)} | {f(m['fps'], 1)} | {f(s['decode'], 1)} | {f(s['projection'], 1)} "
+            f"| {f(s['cost_network'], 1)} | {f(s['post'], 1)} |"
+        )
+    return "\n".join(lines)
+
+
+def check_targets(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The issue's targets on the measured rows: bev_sweep vs the better of sgbm and bm."""
+    by_name = {m["backend"]: m for m in rows}
+    if not {"bev_sweep", "sgbm", "bm"} <= set(by_name):
+        return {"checked": False, "reason": "bev_sweep, sgbm and bm must all have run"}
+    sweep = by_name["bev_sweep"]
+    best = min((by_name["sgbm"], by_name["bm"]), key=lambda m: m["abs_err_cm"])
+    gain = 1.0 - sweep["abs_err_cm"] / best["abs_err_cm"]
+    return {
+        "checked": True,
+        "best_image_view": best["backend"],
+        "abs_err_reduction_pct": 100.0 * gain,
+        "abs_err_reduction_ok": gain >= 0.30,
+        "coverage_ok": sweep["coverage_pct"] >= best["coverage_pct"],
+        "faster_than_sgbm": sweep["fps"] > by_name["sgbm"]["fps"],
+        "bev_sweep_fps_ge_10": sweep["fps"] >= 10.0,
+    }
+
+
+def plot_bands(rows: list[dict[str, Any]], grid_x: tuple[float, float], path: Path, title: str) -> None:
+    """Abs. error per distance band, one line per backend (the paper's Fig. 9)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    x_min, x_max = grid_x
+    width = (x_max - x_min) / N_BANDS
+    centres = [x_min + (i + 0.5) * width for i in range(N_BANDS)]
+    fig, ax = plt.subplots(figsize=(7.5, 4.2), dpi=120)
+    markers = ["o", "s", "^", "D", "v", "P"]
+    for i, m in enumerate(rows):
+        values = [float("nan") if v is None else v for v in m["band_abs_err_cm"]]
+        label = f"{m['backend']} (mean {m['abs_err_cm']:.3f} cm, {m['coverage_pct']:.0f} % cov.)"
+        ax.plot(centres, values, marker=markers[i % len(markers)], ms=4, lw=1.6, label=label)
+    ax.set_xlabel("distance ahead of the camera (m), band centre")
+    ax.set_ylabel("mean abs. elevation error (cm)")
+    ax.set_title(title, fontsize=10)
+    ax.set_xlim(x_min, x_max)
+    ax.set_ylim(bottom=0)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def run_table(frames: int, names: list[str], *, out_dir: Path, quiet: bool = False) -> dict[str, Any]:
+    """Render the evaluation set, run every backend on it, write table1.{json,md} and band_error.png."""
+    from tqdm import tqdm
+
+    grid = GridSpec()  # the contract's default grid and the RSRD half-resolution rig
+    t0 = time.perf_counter()
+    with tqdm(total=frames, desc="render eval set", unit="frame", disable=quiet, file=sys.stderr) as bar:
+        samples = eval_samples(frames, grid=grid, progress=bar.update)
+    render_s = time.perf_counter() - t0
+    rows = []
+    for name in names:
+        backend = create(name, grid)
+        with tqdm(total=frames, desc=name, unit="frame", disable=quiet, file=sys.stderr) as bar:
+            result = evaluate(backend, samples, progress=bar.update)
+        metrics = result.to_dict()
+        if hasattr(backend, "describe"):
+            metrics["parameters"] = backend.describe()
+        rows.append(metrics)
+    table = format_table(rows)
+    targets = check_targets(rows)
+    record = {
+        "command": " ".join(["python -m benchmarks.run_all", *sys.argv[1:]]),
+        "machine": machine_info(),
+        "frames": frames,
+        "seeds": [EVAL_SEED_BASE, EVAL_SEED_BASE + frames - 1],
+        "render_s": render_s,
+        "results": rows,
+        "targets": targets,
+    }
+    write_json(out_dir / "table1.json", record)
+    (out_dir / "table1.md").write_text(markdown_table(rows) + "\n")
+    title = f"Abs. error vs distance, {frames} synthetic frames"
+    plot_bands(rows, (grid.x_min, grid.x_max), out_dir / "band_error.png", title)
+    print(table)
+    print("targets:", targets)
+    return record
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.run_all", description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=None, help=f"evaluation frames (default {DEFAULT_FRAMES})")
+    parser.add_argument("--quick", action="store_true", help=f"smoke test: {QUICK_FRAMES} frames, short sweep")
+    parser.add_argument("--backends", default=None, help="comma-separated subset (default: all available)")
+    parser.add_argument("--no-robustness", action="store_true", help="skip the robustness sweep")
+    parser.add_argument("--out", default=str(RESULTS), help="results folder")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    args = parser.parse_args(argv)
+    frames = args.frames or (QUICK_FRAMES if args.quick else DEFAULT_FRAMES)
+    if frames < 2:
+        parser.error("--frames must be >= 2 (the first frame is the timing warm-up)")
+    wanted = args.backends.split(",") if args.backends else ["bev_sweep", "sgbm", "bm", "stereo", "mono"]
+    status = available_backends(wanted)
+    names = [n for n in wanted if not status[n]]
+    for n in wanted:
+        if status[n]:
+            print(f"skipping {n}: {status[n]}", file=sys.stderr)
+    if not names:
+        print("no backend available", file=sys.stderr)
+        return 2
+    out_dir = Path(args.out)
+    record = run_table(frames, names, out_dir=out_dir, quiet=args.quiet)
+    record["skipped"] = {n: status[n] for n in wanted if status[n]}
+    write_json(out_dir / "table1.json", record)
+    if not args.no_robustness:
+        from benchmarks.robustness import run_sweep
+
+        run_sweep(names, quick=args.quick, out_dir=out_dir, quiet=args.quiet)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

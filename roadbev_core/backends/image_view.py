@@ -1,0 +1,271 @@
+"""``sgbm`` and ``bm``: the image-view baselines (the paper's comparison protocol).
+
+What a user would build with ``stereo_image_proc`` today: OpenCV StereoSGBM / StereoBM on the
+rectified grey pair, sub-pixel disparities -> 3-D points in the left optical frame -> road frame
+-> :func:`roadbev_core.labels.elevation_map` (the very label code of the ground truth) ->
+elevation map. Per-cell uncertainty is the 1-sigma of one of the cell's points: their spread
+about the cell's mean combined with the disparity precision. Cells without points are NaN.
+
+Speed: only the image window that can see the grid is matched (rows and columns from the
+projection of the grid's volume, plus the matcher's margins), and the disparity search covers
+exactly the disparities that volume can produce at the frame's attitude.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from typing import Any, NamedTuple
+
+import cv2
+import numpy as np
+
+from roadbev_core.backends import register
+from roadbev_core.backends.common import StageClock, grey_u8
+from roadbev_core.config import ConfigError, GridSpec, StereoCamera
+from roadbev_core.frame import Estimate, Frame, FrameError
+from roadbev_core.geometry import Attitude, optical_from_road_rotation, project_points, road_to_camera
+from roadbev_core.labels import elevation_map
+
+__all__ = ["ImageViewParams", "ImageViewStereo", "MatchWindow", "match_window"]
+
+cv2.setNumThreads(2)
+
+_SGBM_MODES = {
+    "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
+    "3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY,
+    "hh": cv2.STEREO_SGBM_MODE_HH,
+    "hh4": cv2.STEREO_SGBM_MODE_HH4,
+}
+
+
+@dataclass(frozen=True)
+class ImageViewParams:
+    """Matcher tuning (defaults chosen by measurement on the synthetic rig; see the benchmark).
+
+    Attributes:
+        block_size: matching window side (odd; StereoBM needs >= 5).
+        uniqueness_ratio: percent margin by which the best cost must beat the second best.
+        speckle_window: largest blob of disparities (pixels) removed as speckle (0 = off).
+        speckle_range: disparity variation (pixels) inside one connected blob.
+        texture_threshold: StereoBM only: minimum texture of a window (sum of |x-derivative|).
+        pre_filter_cap: clip of the pre-filtered image (both matchers).
+        p1, p2: StereoSGBM smoothness penalties per channel x block area (P1 = p1*block^2...).
+        disp12_max_diff: left-right consistency tolerance (pixels; -1 = off).
+        mode: StereoSGBM mode: ``sgbm`` (5 paths), ``3way``, ``hh`` or ``hh4``.
+        disparity_margin_px: extra disparities searched on either side of the grid's range.
+        min_points: cells with fewer points are NaN.
+        disparity_sigma_px: 1-sigma disparity precision used for the uncertainty floor.
+    """
+
+    block_size: int = 5
+    uniqueness_ratio: int = 10
+    speckle_window: int = 100
+    speckle_range: int = 2
+    texture_threshold: int = 10
+    pre_filter_cap: int = 31
+    p1: int = 8
+    p2: int = 32
+    disp12_max_diff: int = 1
+    mode: str = "sgbm"
+    disparity_margin_px: int = 4
+    min_points: int = 1
+    disparity_sigma_px: float = 0.25
+
+    def __post_init__(self) -> None:
+        for name in ("block_size", "speckle_window", "speckle_range", "pre_filter_cap", "min_points"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 0:
+                raise ConfigError(f"{name} must be a non-negative integer, got {value!r}")
+        if self.block_size < 1 or self.block_size % 2 == 0:
+            raise ConfigError(f"block_size must be odd and positive, got {self.block_size}")
+        if not 1 <= self.pre_filter_cap <= 63:
+            raise ConfigError(f"pre_filter_cap must be in 1..63, got {self.pre_filter_cap}")
+        if self.mode not in _SGBM_MODES:
+            raise ConfigError(f"unknown SGBM mode {self.mode!r}; choose from {', '.join(_SGBM_MODES)}")
+        if not (math.isfinite(self.disparity_sigma_px) and self.disparity_sigma_px > 0):
+            raise ConfigError(f"disparity_sigma_px must be positive, got {self.disparity_sigma_px}")
+        if self.min_points < 1:
+            raise ConfigError(f"min_points must be >= 1, got {self.min_points}")
+
+    @classmethod
+    def from_options(cls, options: dict[str, Any], defaults: dict[str, Any]) -> ImageViewParams:
+        """Parameters from keyword options over per-matcher defaults; unknown names raise."""
+        known = {f.name for f in fields(cls)}
+        unknown = set(options) - known
+        if unknown:
+            raise ConfigError(f"unknown option(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(known))}")
+        return cls(**{**defaults, **options})
+
+
+class MatchWindow(NamedTuple):
+    """The part of the image pair to match and the disparities to search.
+
+    Attributes:
+        top, bottom: image rows [top, bottom) that see the grid (with the block margin).
+        left, right: image columns [left, right) of the crop; it starts early enough that the
+            matcher has the full disparity range for every column that sees the grid.
+        min_disparity, num_disparities: search range (num a positive multiple of 16).
+    """
+
+    top: int
+    bottom: int
+    left: int
+    right: int
+    min_disparity: int
+    num_disparities: int
+
+
+def match_window(
+    grid: GridSpec, camera: StereoCamera, attitude: Attitude, *, margin_px: int, block_size: int
+) -> MatchWindow:
+    """Image window and disparity range covering the grid's volume at ``attitude``.
+
+    The grid volume is a box in the road frame; its image and its depths are bounded by its eight
+    corners (all ahead of the camera), so the extremes are exact for a pinhole camera.
+    """
+    xs, ys, zs = (grid.x_min, grid.x_max), (grid.y_min, grid.y_max), (grid.z_min, grid.z_max)
+    corners = np.array([[x, y, z] for x in xs for y in ys for z in zs])  # [8, 3]
+    cam = road_to_camera(corners, attitude, grid.base_height)
+    if np.any(cam[:, 2] <= 0.05):
+        raise FrameError("the grid reaches behind the camera at this attitude")
+    u, v, depth = project_points(cam, camera)
+    disparity = camera.fx * camera.baseline / depth
+    d_min = max(0, int(math.floor(disparity.min())) - margin_px)
+    d_max = int(math.ceil(disparity.max())) + margin_px
+    num = max(16, int(math.ceil((d_max - d_min) / 16.0)) * 16)
+    half = block_size // 2 + 1
+    top = int(np.clip(math.floor(v.min()) - half, 0, camera.height - 1))
+    bottom = int(np.clip(math.ceil(v.max()) + half + 1, top + 1, camera.height))
+    # Matchers leave the first min_disparity + num_disparities columns without a result.
+    right = int(np.clip(math.ceil(u.max()) + half + 1, 1, camera.width))
+    left = int(np.clip(math.floor(u.min()) - half - d_min - num, 0, right - 1))
+    if bottom - top < block_size or right - left <= d_min + num:
+        raise FrameError("the grid does not fall inside the image at this attitude")
+    return MatchWindow(top, bottom, left, right, d_min, num)
+
+
+class ImageViewStereo:
+    """OpenCV block matching (``bm``) or semi-global matching (``sgbm``) + binning into the grid."""
+
+    needs_stereo = True
+
+    def __init__(self, name: str, grid: GridSpec, params: ImageViewParams) -> None:
+        if name not in ("bm", "sgbm"):
+            raise ConfigError(f"image-view matcher must be 'bm' or 'sgbm', got {name!r}")
+        if name == "bm" and params.block_size < 5:
+            raise ConfigError(f"StereoBM needs block_size >= 5, got {params.block_size}")
+        self.name = name
+        self.grid = grid
+        self.params = params
+        self._matchers: dict[tuple[int, int], Any] = {}  # (min, num disparities) -> matcher
+
+    def _matcher(self, min_disparity: int, num_disparities: int) -> Any:
+        """A matcher for the disparity range (cached: ranges repeat from frame to frame)."""
+        key = (min_disparity, num_disparities)
+        if key not in self._matchers:
+            p = self.params
+            if self.name == "bm":
+                m = cv2.StereoBM_create(numDisparities=num_disparities, blockSize=p.block_size)
+                m.setMinDisparity(min_disparity)
+                m.setTextureThreshold(p.texture_threshold)
+                m.setPreFilterCap(p.pre_filter_cap)
+            else:
+                area = p.block_size * p.block_size
+                m = cv2.StereoSGBM_create(
+                    minDisparity=min_disparity,
+                    numDisparities=num_disparities,
+                    blockSize=p.block_size,
+                    P1=p.p1 * area,
+                    P2=p.p2 * area,
+                    preFilterCap=p.pre_filter_cap,
+                    mode=_SGBM_MODES[p.mode],
+                )
+            m.setUniquenessRatio(p.uniqueness_ratio)
+            m.setSpeckleWindowSize(p.speckle_window)
+            m.setSpeckleRange(p.speckle_range)
+            m.setDisp12MaxDiff(p.disp12_max_diff)
+            self._matchers[key] = m
+        return self._matchers[key]
+
+    def _road_points(
+        self, disparity: np.ndarray, window: MatchWindow, camera: StereoCamera, attitude: Attitude
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Road-frame points [N, 3] of the valid disparities [h, w] of the crop, and their depths [N].
+
+        A pixel (u, v) with depth Z is at Z * ray(u, v) in the optical frame; in the road frame
+        the ray's components are sums of a per-column and a per-row term, so only [N]-sized
+        arithmetic remains after the valid pixels are picked.
+        """
+        # cv2 marks invalid pixels with (min_disparity - 1); zero disparity is at infinity.
+        rows, cols = np.nonzero(disparity > max(window.min_disparity - 0.5, 0.5))
+        depth = (camera.fx * camera.baseline) / disparity[rows, cols]  # [N] float32
+        R = optical_from_road_rotation(attitude)  # road -> optical; rows of R.T map optical -> road
+        x_norm = (np.arange(window.left, window.right) - camera.cx) / camera.fx  # [w]
+        y_norm = (np.arange(window.top, window.bottom) - camera.cy) / camera.fy  # [h]
+        points = np.empty((depth.size, 3), dtype=np.float32)
+        for k in range(3):
+            # road_k = sum_j R[j, k] * optical_j with optical = Z * (x_norm, y_norm, 1)
+            per_col = (R[0, k] * x_norm + R[2, k]).astype(np.float32)
+            per_row = (R[1, k] * y_norm).astype(np.float32)
+            points[:, k] = depth * (per_col[cols] + per_row[rows])
+        points[:, 2] += self.grid.base_height
+        return points, depth
+
+    def estimate(self, frame: Frame) -> Estimate:
+        """Elevation and uncertainty of ``self.grid`` for one stereo frame."""
+        if frame.right is None:
+            raise FrameError(f"{self.name} needs a stereo frame (the right image is missing)")
+        camera, grid, p = frame.camera, self.grid, self.params
+        if camera.baseline <= 0:
+            raise FrameError(f"{self.name} needs a stereo rig with a positive baseline")
+        clock = StageClock()
+        window = match_window(
+            grid, camera, frame.attitude, margin_px=p.disparity_margin_px, block_size=p.block_size
+        )
+        crop = (slice(window.top, window.bottom), slice(window.left, window.right))
+        left = np.ascontiguousarray(grey_u8(frame.left)[crop])
+        right = np.ascontiguousarray(grey_u8(frame.right)[crop])
+        clock.lap("preprocess")
+        raw = self._matcher(window.min_disparity, window.num_disparities).compute(left, right)
+        disparity = raw.astype(np.float32) * (1.0 / 16.0)  # fixed point, 4 fractional bits
+        clock.lap("matching")
+        points, depth = self._road_points(disparity, window, camera, frame.attitude)
+        # Points outside the height range are mismatches; the label code keeps the rest.
+        keep = (points[:, 2] >= grid.z_min) & (points[:, 2] <= grid.z_max)
+        points, depth = points[keep], depth[keep]
+        clock.lap("projection")
+        label = elevation_map(points, grid)
+        # Disparity precision -> elevation: a depth error moves the point along its ray, whose
+        # vertical share is (camera height above the point) / depth.
+        sigma_point = depth * (p.disparity_sigma_px / (camera.fx * camera.baseline)) * (grid.base_height - points[:, 2])
+        # Second moment per cell (same label code): E[z^2 + sigma^2] - E[z]^2 = spread + precision.
+        points[:, 2] = np.square(points[:, 2]) + np.square(sigma_point)
+        second = elevation_map(points, grid).elevation
+        enough = label.count >= p.min_points
+        elevation = np.where(enough, label.elevation, np.nan).astype(np.float32)
+        variance = np.maximum(second - np.square(label.elevation), 0.0)
+        uncertainty = np.where(enough, np.sqrt(variance), np.nan).astype(np.float32)
+        clock.lap("post")
+        return Estimate(elevation=elevation, uncertainty=uncertainty, timings_ms=clock.timings)
+
+    def describe(self) -> dict[str, Any]:
+        """Parameters as a JSON-able dict (for benchmark records)."""
+        return {"backend": self.name, **asdict(self.params)}
+
+
+# Defaults per matcher, chosen by measurement on the synthetic rig (benchmarks/run_all.py --tune).
+BM_DEFAULTS: dict[str, Any] = {"block_size": 9, "texture_threshold": 10, "uniqueness_ratio": 10}
+SGBM_DEFAULTS: dict[str, Any] = {"block_size": 5, "mode": "sgbm", "uniqueness_ratio": 10}
+
+
+@register("bm")
+def create_bm(grid: GridSpec, **options: Any) -> ImageViewStereo:
+    """Registry factory for OpenCV StereoBM (options: see :class:`ImageViewParams`)."""
+    return ImageViewStereo("bm", grid, ImageViewParams.from_options(options, BM_DEFAULTS))
+
+
+@register("sgbm")
+def create_sgbm(grid: GridSpec, **options: Any) -> ImageViewStereo:
+    """Registry factory for OpenCV StereoSGBM (options: see :class:`ImageViewParams`)."""
+    return ImageViewStereo("sgbm", grid, ImageViewParams.from_options(options, SGBM_DEFAULTS))

@@ -1,0 +1,282 @@
+"""Run a backend over frames with ground truth and report the paper's metrics and the timing.
+
+Shared by ``roadbev eval``, the demo and the benchmarks, so a number in one is the number in
+all. Accuracy comes from :class:`roadbev_core.metrics.MetricAccumulator` (labelled cells only; a
+labelled cell without an estimate lowers ``coverage_pct`` and never counts as zero error). Time
+is wall time on this machine:
+
+* ``decode``: getting the next sample from the iterable (reading and decoding a bag's messages)
+  plus the backend's own image preparation (``preprocess``: colour conversion, tensors);
+* ``projection``: voxel/point geometry;
+* ``cost_network``: sampling, matching costs, aggregation, or the network;
+* ``post``: decisions, reprojection, binning, uncertainty.
+
+``fps`` is frames per second of the whole pipeline (decode + estimate). The first frame is a
+warm-up (lazy initialisation, allocator growth): when more than one frame runs, it counts for the
+accuracy but not for the timing.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from roadbev_core.backends import Backend
+from roadbev_core.frame import Estimate, Frame
+from roadbev_core.metrics import MetricAccumulator
+
+__all__ = [
+    "CONTRACT_KEYS",
+    "STAGE_GROUPS",
+    "EvalResult",
+    "EvaluationError",
+    "evaluate",
+    "format_table",
+    "json_safe",
+    "stage_group",
+]
+
+# Keys every metrics dict carries (contract, "Command line": roadbev eval --json).
+CONTRACT_KEYS: tuple[str, ...] = (
+    "backend",
+    "frames",
+    "cells",
+    "abs_err_cm",
+    "rmse_cm",
+    "gt_0p5cm_pct",
+    "band_abs_err_cm",
+    "fps",
+    "coverage_pct",
+)
+
+# Backend stage names (Estimate.timings_ms keys) -> the four reported groups.
+STAGE_GROUPS: dict[str, tuple[str, ...]] = {
+    "decode": ("decode", "preprocess"),
+    "projection": ("projection",),
+    "cost_network": ("sampling", "cost", "aggregation", "matching", "network", "backbone", "head", "features"),
+    "post": ("post", "reprojection", "binning", "postprocess"),
+}
+
+
+class EvaluationError(ValueError):
+    """Samples that cannot be evaluated (none at all, or truth on another grid)."""
+
+
+def stage_group(stage: str) -> str:
+    """The reported group of a backend stage name (``other`` when unknown)."""
+    for group, names in STAGE_GROUPS.items():
+        if stage in names:
+            return group
+    return "other"
+
+
+@dataclass
+class EvalResult:
+    """What :func:`evaluate` measured.
+
+    Attributes:
+        metrics: contract keys (:data:`CONTRACT_KEYS`) plus ``labelled_cells``,
+            ``frames_with_truth``, ``timed_frames``, ``pipeline_ms`` (mean per timed frame),
+            ``stage_ms`` (the four groups + ``other``) and ``backend_stage_ms`` (the backend's own
+            stage names).
+        per_frame: one dict per frame: ``stamp_ns``, ``abs_err_cm``, ``coverage_pct`` (NaN
+            without truth), ``decode_ms``, ``estimate_ms``.
+        estimates: the backend's estimates, in order (only with ``keep_estimates``).
+    """
+
+    metrics: dict[str, Any]
+    per_frame: list[dict[str, float]] = field(default_factory=list)
+    estimates: list[Estimate] | None = None
+
+    def to_dict(self, *, per_frame: bool = False) -> dict[str, Any]:
+        """JSON-able metrics (NaN becomes null), optionally with the per-frame records."""
+        out = json_safe(dict(self.metrics))
+        if per_frame:
+            out["per_frame"] = json_safe(self.per_frame)
+        return out
+
+
+def json_safe(value: Any) -> Any:
+    """NaN/inf -> None, numpy scalars -> Python, recursively (strict JSON has no NaN)."""
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    if isinstance(value, (np.floating, float)):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def _unpack(sample: Any) -> tuple[Frame, np.ndarray | None]:
+    """(frame, truth [n_rows, n_cols] or None) from a (frame, truth) pair or an object with
+    ``.frame`` and ``.truth`` (an ``EvalSample`` or a synthetic ``DriveSample``, whose truth is
+    an ``ElevationLabel``)."""
+    if hasattr(sample, "frame") and hasattr(sample, "truth"):
+        frame, truth = sample.frame, sample.truth
+    else:
+        try:
+            frame, truth = sample
+        except (TypeError, ValueError):
+            raise EvaluationError(
+                f"a sample must be (frame, truth) or have .frame and .truth, got {type(sample).__name__}"
+            ) from None
+    if not isinstance(frame, Frame):
+        raise EvaluationError(f"sample frame must be a Frame, got {type(frame).__name__}")
+    if truth is not None and hasattr(truth, "elevation"):
+        truth = truth.elevation
+    if truth is not None:
+        truth = np.asarray(truth, dtype=np.float32)
+    return frame, truth
+
+
+def evaluate(
+    backend: Backend,
+    samples: Iterable[Any],
+    *,
+    progress: Callable[[int], Any] | None = None,
+    keep_estimates: bool = False,
+    max_frames: int | None = None,
+) -> EvalResult:
+    """Run ``backend`` on every sample and measure accuracy and speed.
+
+    Args:
+        backend: any registered backend (``estimate(frame) -> Estimate`` on ``backend.grid``).
+        samples: (frame, truth) pairs or objects with ``.frame``/``.truth``; truth is
+            [n_rows, n_cols] metres with NaN = no label (or an ``ElevationLabel``, or None for a
+            frame without ground truth: it is timed but not scored).
+        progress: called with 1 after each frame (e.g. ``tqdm.update``).
+        keep_estimates: keep every :class:`Estimate` in the result (memory!).
+        max_frames: stop after this many frames (None = all).
+
+    Returns:
+        An :class:`EvalResult`.
+
+    Raises:
+        EvaluationError: no samples, or truth/estimates not on the backend's grid.
+    """
+    if max_frames is not None and max_frames < 1:
+        raise EvaluationError(f"max_frames must be >= 1, got {max_frames}")
+    grid = backend.grid
+    accumulator = MetricAccumulator(grid)
+    per_frame: list[dict[str, float]] = []
+    estimates: list[Estimate] = []
+    stage_timings: list[dict[str, float]] = []
+    iterator = iter(samples)
+    frames = 0
+    while max_frames is None or frames < max_frames:
+        start = time.perf_counter()
+        try:
+            sample = next(iterator)
+        except StopIteration:
+            break
+        frame, truth = _unpack(sample)
+        decoded = time.perf_counter()
+        estimate = backend.estimate(frame)
+        done = time.perf_counter()
+        if estimate.elevation.shape != grid.shape:
+            raise EvaluationError(f"backend {backend.name} returned {estimate.elevation.shape}, grid is {grid.shape}")
+        record = {
+            "stamp_ns": int(frame.stamp_ns),
+            "abs_err_cm": math.nan,
+            "coverage_pct": math.nan,
+            "decode_ms": 1000.0 * (decoded - start),
+            "estimate_ms": 1000.0 * (done - decoded),
+        }
+        if truth is not None:
+            if truth.shape != grid.shape:
+                raise EvaluationError(f"ground truth is {truth.shape} but the backend's grid is {grid.shape}")
+            labelled = np.isfinite(truth)
+            both = labelled & np.isfinite(estimate.elevation)
+            if both.any():
+                record["abs_err_cm"] = float(np.abs(estimate.elevation[both] - truth[both]).mean() * 100.0)
+            record["coverage_pct"] = 100.0 * float(both.sum()) / max(int(labelled.sum()), 1)
+            accumulator.add(estimate.elevation, truth)
+        per_frame.append(record)
+        stage_timings.append(dict(estimate.timings_ms))
+        if keep_estimates:
+            estimates.append(estimate)
+        frames += 1
+        if progress is not None:
+            progress(1)
+    if frames == 0:
+        raise EvaluationError("no frames to evaluate")
+    first_timed = 1 if frames > 1 else 0  # frame 0 is the warm-up
+    stage_sums: dict[str, float] = {}
+    for timings in stage_timings[first_timed:]:
+        for stage, ms in timings.items():
+            stage_sums[stage] = stage_sums.get(stage, 0.0) + ms
+    return EvalResult(
+        metrics=_metrics(backend.name, accumulator, per_frame, per_frame[first_timed:], stage_sums),
+        per_frame=per_frame,
+        estimates=estimates if keep_estimates else None,
+    )
+
+
+def _metrics(
+    name: str,
+    accumulator: MetricAccumulator,
+    per_frame: list[dict[str, float]],
+    timed: list[dict[str, float]],
+    stage_sums: dict[str, float],
+) -> dict[str, Any]:
+    """The metrics dict of :class:`EvalResult` from the accumulated numbers."""
+    scored = accumulator.result()
+    n_timed = len(timed)
+    decode_ms = sum(r["decode_ms"] for r in timed) / n_timed
+    estimate_ms = sum(r["estimate_ms"] for r in timed) / n_timed
+    pipeline_ms = decode_ms + estimate_ms
+    backend_stage_ms = {stage: total / n_timed for stage, total in stage_sums.items()}
+    groups = {group: 0.0 for group in (*STAGE_GROUPS, "other")}
+    groups["decode"] = decode_ms
+    for stage, ms in backend_stage_ms.items():
+        groups[stage_group(stage)] += ms
+    # Time inside estimate() that no stage claimed (Python overhead, result conversion).
+    groups["other"] += max(0.0, estimate_ms - sum(backend_stage_ms.values()))
+    return {
+        "backend": name,
+        "frames": len(per_frame),
+        "cells": scored.cells,
+        "abs_err_cm": scored.abs_err_cm,
+        "rmse_cm": scored.rmse_cm,
+        "gt_0p5cm_pct": scored.gt_0p5cm_pct,
+        "band_abs_err_cm": scored.band_abs_err_cm,
+        "fps": 1000.0 / pipeline_ms if pipeline_ms > 0 else math.inf,
+        "coverage_pct": scored.coverage_pct if scored.labelled_cells else math.nan,
+        "labelled_cells": scored.labelled_cells,
+        "frames_with_truth": scored.frames,
+        "timed_frames": n_timed,
+        "pipeline_ms": pipeline_ms,
+        "stage_ms": groups,
+        "backend_stage_ms": backend_stage_ms,
+    }
+
+
+def _fmt(value: Any, digits: int) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "-"
+    return f"{value:.{digits}f}"
+
+
+def format_table(results: Iterable[dict[str, Any]]) -> str:
+    """A plain-text table (the paper's Table I columns + coverage and stage times) of metrics dicts."""
+    header = (
+        f"{'backend':<12} {'frames':>6} {'abs.err cm':>10} {'RMSE cm':>8} {'>0.5cm %':>9} "
+        f"{'coverage %':>10} {'FPS':>6} | {'decode':>7} {'proj.':>7} {'cost/net':>8} {'post':>7} ms"
+    )
+    lines = [header, "-" * len(header)]
+    for m in results:
+        stages = m.get("stage_ms", {})
+        lines.append(
+            f"{m['backend']:<12} {m['frames']:>6d} {_fmt(m['abs_err_cm'], 3):>10} {_fmt(m['rmse_cm'], 3):>8} "
+            f"{_fmt(m['gt_0p5cm_pct'], 1):>9} {_fmt(m['coverage_pct'], 1):>10} {_fmt(m['fps'], 1):>6} | "
+            f"{_fmt(stages.get('decode'), 1):>7} {_fmt(stages.get('projection'), 1):>7} "
+            f"{_fmt(stages.get('cost_network'), 1):>8} {_fmt(stages.get('post'), 1):>7}"
+        )
+    return "\n".join(lines)

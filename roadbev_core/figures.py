@@ -1,0 +1,170 @@
+"""Figures: voxel columns over the left image (the paper's Fig. 4) and elevation maps in cm.
+
+Pure matplotlib (Agg, no display, no ROS). Every function draws into a new figure, saves a PNG
+and closes the figure, so it is safe in loops and in headless runs.
+"""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.collections import LineCollection
+
+from roadbev_core.config import GridSpec
+from roadbev_core.frame import Frame
+from roadbev_core.geometry import project_points, road_to_camera
+
+__all__ = ["FigureError", "elevation_figure", "voxel_column_segments", "voxel_columns_figure"]
+
+
+class FigureError(ValueError):
+    """Input a figure cannot be drawn from."""
+
+
+def voxel_column_segments(
+    frame: Frame, grid: GridSpec, *, row_step: int = 8, col_step: int = 8, right: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """Image segments of the voxel columns of every ``row_step``-th row, ``col_step``-th column.
+
+    A column is the vertical stack of voxels over one grid cell, from ``z_min`` to ``z_max``;
+    its image is the segment between the projections of its bottom and top points.
+
+    Returns:
+        segments [M, 2, 2] (u, v) pixel coordinates (bottom, top) of the columns whose both ends
+        are in front of the camera, and their distances x [M] (m).
+    """
+    if row_step < 1 or col_step < 1:
+        raise FigureError(f"row_step and col_step must be >= 1, got {row_step}, {col_step}")
+    xs = grid.x_centres()[::row_step]
+    ys = grid.y_centres()[::col_step]
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    ends = []
+    for z in (grid.z_min, grid.z_max):
+        pts = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, z)], axis=1)
+        u, v, depth = project_points(road_to_camera(pts, frame.attitude, grid.base_height), frame.camera, right=right)
+        ends.append((u, v, depth))
+    (u0, v0, d0), (u1, v1, d1) = ends
+    ok = (d0 > 0) & (d1 > 0)
+    segments = np.stack([np.stack([u0, v0], axis=1), np.stack([u1, v1], axis=1)], axis=1)[ok]
+    return segments, gx.ravel()[ok]
+
+
+def voxel_columns_figure(
+    frame: Frame,
+    grid: GridSpec,
+    path: str | Path,
+    *,
+    row_step: int = 8,
+    col_step: int = 8,
+    title: str | None = None,
+    dpi: int = 100,
+) -> Path:
+    """The left image with the grid's voxel columns drawn as line segments (paper Fig. 4).
+
+    Columns are coloured by distance; the outline of the grid's footprint on the road
+    reference plane (z = 0) is drawn too.
+    """
+    segments, dist = voxel_column_segments(frame, grid, row_step=row_step, col_step=col_step)
+    img = frame.left
+    h, w = img.shape[:2]
+    fig, ax = plt.subplots(figsize=(w / dpi, h / dpi + 0.45), dpi=dpi)
+    ax.imshow(img, cmap="gray" if img.ndim == 2 else None, interpolation="nearest")
+    lines = LineCollection(segments, cmap="turbo", linewidths=1.4, alpha=0.95)
+    lines.set_array(dist)
+    lines.set_clim(grid.x_min, grid.x_max)
+    ax.add_collection(lines)
+    # bottom and top ends as dots so the direction of the columns reads at a glance
+    ax.scatter(segments[:, 0, 0], segments[:, 0, 1], s=4, c="white", linewidths=0)
+    # footprint outline on the reference plane
+    x0, x1, y0, y1 = grid.x_min, grid.x_max, grid.y_min, grid.y_max
+    n = 50
+    border = np.concatenate(
+        [
+            np.stack([np.full(n, x0), np.linspace(y0, y1, n)], 1),
+            np.stack([np.linspace(x0, x1, n), np.full(n, y1)], 1),
+            np.stack([np.full(n, x1), np.linspace(y1, y0, n)], 1),
+            np.stack([np.linspace(x1, x0, n), np.full(n, y0)], 1),
+        ]
+    )
+    pts = np.concatenate([border, np.zeros((border.shape[0], 1))], axis=1)
+    u, v, _ = project_points(road_to_camera(pts, frame.attitude, grid.base_height), frame.camera)
+    ax.plot(u, v, color="yellow", linewidth=1.0, linestyle="--")
+    ax.set_xlim(-0.5, w - 0.5)
+    ax.set_ylim(h - 0.5, -0.5)
+    ax.set_axis_off()
+    roll, pitch = frame.attitude.degrees
+    ax.set_title(
+        title
+        or f"voxel columns z in [{grid.z_min * 100:+.0f}, {grid.z_max * 100:+.0f}] cm, every {row_step}th row / "
+        f"{col_step}th column; pitch {pitch:.1f} deg, roll {roll:.1f} deg",
+        fontsize=9,
+    )
+    cbar = fig.colorbar(lines, ax=ax, fraction=0.025, pad=0.01)
+    cbar.set_label("distance ahead x (m)", fontsize=8)
+    cbar.ax.tick_params(labelsize=7)
+    fig.tight_layout(pad=0.3)
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=dpi)
+    plt.close(fig)
+    return out
+
+
+def elevation_figure(
+    elevation: np.ndarray,
+    grid: GridSpec,
+    path: str | Path,
+    *,
+    title: str = "ground-truth elevation",
+    limits_cm: tuple[float, float] | None = None,
+    dpi: int = 120,
+) -> Path:
+    """An elevation map [n_rows, n_cols] (m; NaN = none) as a BEV image with a colour bar in cm.
+
+    The far end is at the top, the vehicle's left on the left (grid_map's own order), axes in
+    metres of the road frame; cells without a value are grey.
+    """
+    elev = np.asarray(elevation, dtype=np.float64)
+    if elev.shape != grid.shape:
+        raise FigureError(f"elevation map is {elev.shape}, the grid is {grid.shape}")
+    cm = elev * 100.0
+    finite = np.isfinite(cm)
+    if limits_cm is None:
+        if finite.any():
+            lo, hi = np.percentile(cm[finite], [1, 99])
+            span = max(abs(lo), abs(hi), 0.5)
+            limits_cm = (-span, span)
+        else:
+            limits_cm = (-1.0, 1.0)
+    cmap = plt.get_cmap("RdBu_r").with_extremes(bad="0.6")
+    aspect = grid.length_x / grid.length_y
+    fig, ax = plt.subplots(figsize=(3.6, min(2.6 + 1.55 * aspect, 9.0)), dpi=dpi)
+    extent = (grid.y_max, grid.y_min, grid.x_min, grid.x_max)  # left edge = +y (vehicle's left)
+    im = ax.imshow(
+        np.ma.masked_invalid(cm),
+        cmap=cmap,
+        vmin=limits_cm[0],
+        vmax=limits_cm[1],
+        extent=extent,
+        origin="upper",
+        interpolation="nearest",
+        aspect="equal",
+    )
+    ax.set_xlabel("lateral y (m, left +)")
+    ax.set_ylabel("distance ahead x (m)")
+    valid = f"{finite.mean() * 100:.0f}% cells" if finite.any() else "no cells"
+    rng = f", {np.nanmin(cm):+.1f}..{np.nanmax(cm):+.1f} cm" if finite.any() else ""
+    ax.set_title("\n".join([*textwrap.wrap(title, 38), f"{valid}{rng}"]), fontsize=9)
+    cbar = fig.colorbar(im, ax=ax, fraction=0.08, pad=0.04)
+    cbar.set_label("elevation (cm)")
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=dpi, bbox_inches="tight", pad_inches=0.1)
+    plt.close(fig)
+    return out

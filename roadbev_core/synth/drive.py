@@ -1,0 +1,515 @@
+"""Synthetic drives and single samples: stereo frames, IMU, LiDAR-like points and labels.
+
+A drive is a vehicle going along a synthetic road at constant speed. Its body moves on the
+suspension: a second-order low-pass response (body modes 1.2-1.8 Hz) to the road under the four
+wheels, plus a slow random component for what the road model leaves out (driver inputs, load),
+scaled to the attitude spread of the real RSRD drives. The IMU (100 Hz) reports that motion; each
+5 Hz stereo frame's attitude is the slerp of the IMU orientations at its stamp, so a consumer
+that interpolates the IMU recovers the exact attitude the frame was rendered with.
+
+Ground truth is a dense LiDAR-like point cloud sampled from the height field over the grid
+(jittered 1 cm spacing, optional noise, dropout and range fall-off) turned into labels by
+:func:`roadbev_core.labels.elevation_map`, exactly as the real labels are made.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+
+from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.frame import Frame
+from roadbev_core.geometry import Attitude, attitude_from_rotation, quaternion_to_rotation, rotation_from_rpy
+from roadbev_core.labels import ElevationLabel, elevation_map
+from roadbev_core.synth.heightfield import FEATURE_NAMES, SynthError
+from roadbev_core.synth.render import LOOK_AHEAD_M, CameraPose, render_stereo, sensor_image
+from roadbev_core.synth.scene import RoadConfig, Scene, build_scene
+
+__all__ = [
+    "RSRD_ATTITUDE",
+    "DriveConfig",
+    "DriveSample",
+    "ImuSample",
+    "LidarConfig",
+    "SyntheticDrive",
+    "make_sample",
+    "render_sample",
+    "sample_points",
+]
+
+GRAVITY = 9.80665
+
+# Left-camera attitude of the 1,581 real RSRD samples (train + test), degrees, derived with
+# geometry.rsrd_camera_attitude from the pinned sample_info and calibrations: mean, standard
+# deviation, extremes, and the mean within-sequence standard deviation (the part that moves
+# while driving; the rest differs between drives).
+RSRD_ATTITUDE = {
+    "pitch_mean": 19.137,
+    "pitch_std": 0.682,
+    "pitch_min": 16.216,
+    "pitch_max": 21.607,
+    "pitch_std_in_drive": 0.354,
+    "roll_mean": -0.377,
+    "roll_std": 0.780,
+    "roll_min": -2.457,
+    "roll_max": 1.955,
+    "roll_std_in_drive": 0.388,
+}
+
+# Vehicle geometry relative to the left camera (m): axles ahead/behind, half track.
+FRONT_AXLE = 0.6
+WHEELBASE = 2.7
+HALF_TRACK = 0.8
+
+
+class ImuSample(NamedTuple):
+    """One IMU message (camera body == IMU body, orientation relative to ENU).
+
+    Attributes:
+        stamp_ns: time (ns).
+        orientation_xyzw: unit quaternion of the body in ENU.
+        angular_velocity: body rates (rad/s, body axes).
+        linear_acceleration: specific force (m/s^2, body axes; +9.81 on z when level at rest).
+    """
+
+    stamp_ns: int
+    orientation_xyzw: tuple[float, float, float, float]
+    angular_velocity: tuple[float, float, float]
+    linear_acceleration: tuple[float, float, float]
+
+
+class DriveSample(NamedTuple):
+    """One stereo frame with its ground truth.
+
+    Attributes:
+        frame: the images, rig, true attitude and stamp.
+        truth: labels from the LiDAR-like points (elevation NaN where no point fell).
+        points_road: [N, 3] float32 LiDAR-like points in the road frame.
+    """
+
+    frame: Frame
+    truth: ElevationLabel
+    points_road: np.ndarray
+
+
+@dataclass(frozen=True)
+class LidarConfig:
+    """The LiDAR-like ground truth.
+
+    Attributes:
+        spacing_m: mean point spacing on the ground (jittered grid).
+        noise_m: Gaussian range-like noise on z (1-sigma, m).
+        dropout: share of points removed at random.
+        range_falloff: points beyond the grid's near edge are kept with probability
+            ``(x_min / x) ** range_falloff`` (0 = uniform density).
+        margin_m: points are sampled this far beyond the grid on every side.
+    """
+
+    spacing_m: float = 0.01
+    noise_m: float = 0.0
+    dropout: float = 0.0
+    range_falloff: float = 0.0
+    margin_m: float = 0.03
+
+    def __post_init__(self) -> None:
+        if not 0.002 <= self.spacing_m <= 0.1:
+            raise SynthError(f"LiDAR spacing must be in [0.002, 0.1] m, got {self.spacing_m}")
+        if self.noise_m < 0 or not 0.0 <= self.dropout < 1.0 or self.range_falloff < 0:
+            raise SynthError("LiDAR noise must be >= 0, dropout in [0, 1), range_falloff >= 0")
+
+
+@dataclass(frozen=True)
+class DriveConfig:
+    """A synthetic drive.
+
+    Attributes:
+        frames: stereo frames to render.
+        speed_mps: vehicle speed (m/s).
+        frame_rate_hz, imu_rate_hz: camera and IMU rates.
+        seed: everything (road, appearance, motion, noise) follows from it.
+        road: the road.
+        camera: the stereo rig.
+        grid: the BEV grid (labels and base height).
+        start_stamp_ns: time of the first IMU sample.
+        lidar: the ground-truth point cloud.
+    """
+
+    frames: int = 20
+    speed_mps: float = 5.0
+    frame_rate_hz: float = 5.0
+    imu_rate_hz: float = 100.0
+    seed: int = 0
+    road: RoadConfig = field(default_factory=RoadConfig)
+    camera: StereoCamera = field(default_factory=StereoCamera.rsrd_half)
+    grid: GridSpec = field(default_factory=GridSpec)
+    start_stamp_ns: int = 1_700_000_000_000_000_000
+    lidar: LidarConfig = field(default_factory=LidarConfig)
+
+    def __post_init__(self) -> None:
+        if self.frames < 1:
+            raise SynthError(f"a drive needs at least one frame, got {self.frames}")
+        if not 0.0 <= self.speed_mps <= 40.0:
+            raise SynthError(f"speed must be in [0, 40] m/s, got {self.speed_mps}")
+        if not 0.1 <= self.frame_rate_hz <= 60.0:
+            raise SynthError(f"frame rate must be in [0.1, 60] Hz, got {self.frame_rate_hz}")
+        if not self.frame_rate_hz < self.imu_rate_hz <= 2000.0:
+            raise SynthError(f"IMU rate must exceed the frame rate and be <= 2000 Hz, got {self.imu_rate_hz}")
+        if self.speed_mps * self.frames / self.frame_rate_hz > 1500.0:
+            raise SynthError("drive longer than 1.5 km; split it into several drives")
+        if self.start_stamp_ns < 0:
+            raise SynthError("start_stamp_ns must be >= 0")
+
+
+# --- rotations ------------------------------------------------------------------------------
+def _quat_from_rotation(R: np.ndarray) -> np.ndarray:
+    """Unit quaternion (x, y, z, w) of a rotation matrix, w >= 0."""
+    m = np.asarray(R, np.float64)
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    if tr > 0:
+        s = 2.0 * math.sqrt(tr + 1.0)
+        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s]
+    else:
+        i = int(np.argmax([m[0, 0], m[1, 1], m[2, 2]]))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = 2.0 * math.sqrt(max(1.0 + m[i, i] - m[j, j] - m[k, k], 1e-12))
+        q = [0.0, 0.0, 0.0, (m[k, j] - m[j, k]) / s]
+        q[i] = 0.25 * s
+        q[j] = (m[j, i] + m[i, j]) / s
+        q[k] = (m[k, i] + m[i, k]) / s
+    q = np.array(q)
+    q /= np.linalg.norm(q)
+    return q if q[3] >= 0 else -q
+
+
+def slerp(q0: np.ndarray, q1: np.ndarray, t: float) -> np.ndarray:
+    """Spherical interpolation of unit quaternions (x, y, z, w) at fraction ``t``."""
+    q0 = np.asarray(q0, np.float64)
+    q1 = np.asarray(q1, np.float64)
+    dot = float(q0 @ q1)
+    if dot < 0:
+        q1, dot = -q1, -dot
+    if dot > 0.9999995:
+        q = q0 + t * (q1 - q0)
+        return q / np.linalg.norm(q)
+    theta = math.acos(min(dot, 1.0))
+    return (math.sin((1 - t) * theta) * q0 + math.sin(t * theta) * q1) / math.sin(theta)
+
+
+def _rotvec(R: np.ndarray) -> np.ndarray:
+    """Rotation vector (axis * angle) of a rotation matrix (small angles are exact enough)."""
+    angle = math.acos(max(-1.0, min(1.0, (np.trace(R) - 1.0) / 2.0)))
+    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / 2.0
+    return v if angle < 1e-9 else v * angle / math.sin(angle)
+
+
+# --- motion -----------------------------------------------------------------------------------
+def _smooth_process(n: int, dt: float, tau: float, std: float, rng: np.random.Generator) -> np.ndarray:
+    """[n] smooth stationary Gaussian process: white noise through four first-order low-passes
+    of time constant ``tau`` (its first and second derivatives stay bounded, as body motion
+    and the accelerometer need), scaled to ``std``."""
+    warm = int(8 * tau / dt) + 1  # brings the filters to steady state
+    a = math.exp(-dt / tau)
+    x = rng.standard_normal(n + warm)
+    for _ in range(4):
+        y = np.empty_like(x)
+        acc = 0.0
+        for k in range(x.shape[0]):
+            acc = a * acc + (1 - a) * x[k]
+            y[k] = acc
+        x = y
+    x = x[warm:]
+    return x / (x.std() + 1e-12) * std if n > 1 else x * 0.0
+
+
+def _second_order(u: np.ndarray, dt: float, freq_hz: float, damping: float, substeps: int = 10) -> np.ndarray:
+    """Response [n] of a base-excited 2nd-order low-pass to the input [n] (starts at rest on u[0])."""
+    wn = 2 * math.pi * freq_hz
+    h = dt / substeps
+    y, v = float(u[0]), 0.0
+    out = np.empty_like(u)
+    for k in range(u.shape[0]):
+        target = u[k]
+        for _ in range(substeps):
+            acc = wn * wn * (target - y) - 2 * damping * wn * v
+            v += acc * h
+            y += v * h
+        out[k] = y
+    return out
+
+
+def _wheel_heights(scene: Scene, x: np.ndarray, y: np.ndarray, yaw: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Mean road height under the front, rear, left and right wheels (tyre patch averaged)."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    out = {}
+    for name, ax in (("front", FRONT_AXLE), ("rear", FRONT_AXLE - WHEELBASE)):
+        for side, ay in (("left", HALF_TRACK), ("right", -HALF_TRACK)):
+            total = np.zeros_like(x)
+            for dx in (-0.06, 0.0, 0.06):  # contact patch along x
+                wx = x + c * (ax + dx) - s * ay
+                wy = y + s * (ax + dx) + c * ay
+                total += scene.height(wx, wy)
+            out[(name, side)] = total / 3
+    front = (out[("front", "left")] + out[("front", "right")]) / 2
+    rear = (out[("rear", "left")] + out[("rear", "right")]) / 2
+    left = (out[("front", "left")] + out[("rear", "left")]) / 2
+    right = (out[("front", "right")] + out[("rear", "right")]) / 2
+    return front, rear, left, right
+
+
+def draw_mount_attitude(rng: np.random.Generator, *, in_drive: bool) -> tuple[float, float]:
+    """Camera (roll, pitch) in degrees from the RSRD distribution.
+
+    Args:
+        in_drive: draw only the per-drive part (the suspension adds the in-drive spread);
+            otherwise draw from the whole distribution (independent samples).
+    """
+    a = RSRD_ATTITUDE
+    if in_drive:
+        p_std = math.sqrt(a["pitch_std"] ** 2 - a["pitch_std_in_drive"] ** 2)
+        r_std = math.sqrt(a["roll_std"] ** 2 - a["roll_std_in_drive"] ** 2)
+    else:
+        p_std, r_std = a["pitch_std"], a["roll_std"]
+    pitch = float(np.clip(rng.normal(a["pitch_mean"], p_std), a["pitch_min"] + 0.5, a["pitch_max"] - 0.5))
+    roll = float(np.clip(rng.normal(a["roll_mean"], r_std), a["roll_min"] + 0.5, a["roll_max"] - 0.5))
+    return roll, pitch
+
+
+# --- ground truth ---------------------------------------------------------------------------
+def sample_points(
+    scene: Scene, pose: CameraPose, grid: GridSpec, lidar: LidarConfig, rng: np.random.Generator
+) -> np.ndarray:
+    """[N, 3] float32 LiDAR-like road-frame points on the true surface over the grid."""
+    m = lidar.margin_m
+    xs = np.arange(grid.x_min - m, grid.x_max + m, lidar.spacing_m)
+    ys = np.arange(grid.y_min - m, grid.y_max + m, lidar.spacing_m)
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    jitter = rng.uniform(-0.5, 0.5, (2, *gx.shape)) * lidar.spacing_m
+    pts = np.stack([gx + jitter[0], gy + jitter[1], np.zeros_like(gx)], axis=-1).reshape(-1, 3)
+    keep = np.ones(pts.shape[0], bool)
+    if lidar.dropout > 0:
+        keep &= rng.random(pts.shape[0]) >= lidar.dropout
+    if lidar.range_falloff > 0:
+        prob = np.minimum(1.0, (grid.x_min / np.maximum(pts[:, 0], 1e-3)) ** lidar.range_falloff)
+        keep &= rng.random(pts.shape[0]) < prob
+    pts = pts[keep]
+    world = pose.road_to_world(pts, grid.base_height)
+    z_world = scene.height(world[:, 0], world[:, 1])
+    pts[:, 2] = z_world - (pose.z - grid.base_height)
+    if lidar.noise_m > 0:
+        pts[:, 2] += rng.normal(0.0, lidar.noise_m, pts.shape[0])
+    return pts.astype(np.float32)
+
+
+def render_sample(
+    scene: Scene,
+    pose: CameraPose,
+    camera: StereoCamera,
+    grid: GridSpec,
+    lidar: LidarConfig,
+    rng: np.random.Generator,
+    stamp_ns: int,
+    attitude: Attitude | None = None,
+) -> DriveSample:
+    """Render the stereo pair at ``pose``, sample the LiDAR-like points, make the labels."""
+    road = scene.config
+    left, right = render_stereo(scene, camera, pose)
+    lum = left.radiance.mean(axis=2)
+    ground = np.isfinite(left.depth)
+    median = float(np.median(lum[ground])) if ground.any() else float(np.median(lum))
+    exposure = (115.0 / 255.0) ** 2.2 / max(median, 1e-4) * rng.uniform(0.8, 1.2)
+    gain_right = 1.0 + rng.uniform(-road.gain_mismatch, road.gain_mismatch)
+    kwargs = dict(noise_sigma=road.noise_sigma, blur_sigma_px=road.blur_sigma_px, jpeg_quality=road.jpeg_quality)
+    img_left = sensor_image(left.radiance, exposure=exposure, gain=1.0, rng=rng, **kwargs)
+    img_right = sensor_image(right.radiance, exposure=exposure, gain=gain_right, rng=rng, **kwargs) if right else None
+    points = sample_points(scene, pose, grid, lidar, rng)
+    frame = Frame(
+        left=img_left, right=img_right, camera=camera, attitude=attitude or pose.attitude, stamp_ns=int(stamp_ns)
+    )
+    return DriveSample(frame=frame, truth=elevation_map(points, grid), points_road=points)
+
+
+# --- drives --------------------------------------------------------------------------------------
+class SyntheticDrive:
+    """A deterministic synthetic drive: 5 Hz stereo frames with labels and a 100 Hz IMU.
+
+    Frames are rendered on demand (``drive[i]`` or iteration); the road, the motion and the IMU
+    are made up front.
+    """
+
+    def __init__(self, config: DriveConfig | None = None) -> None:
+        self.config = config = config or DriveConfig()
+        seq = np.random.SeedSequence([int(config.seed) & 0xFFFFFFFF, 0xD417E])
+        self._rng_motion, self._rng_frames = (np.random.default_rng(s) for s in seq.spawn(2))
+        self._frame_seeds = self._rng_frames.integers(0, 2**63 - 1, config.frames)
+        rng = self._rng_motion
+        frame_dt = 1.0 / config.frame_rate_hz
+        imu_dt = 1.0 / config.imu_rate_hz
+        # Frames fall between IMU samples (a real camera is not triggered by the IMU).
+        first = 2 * imu_dt + rng.uniform(0.1, 0.9) * imu_dt
+        frame_t = first + np.arange(config.frames) * frame_dt
+        n_imu = int(math.ceil((frame_t[-1] + 2 * imu_dt) / imu_dt)) + 1
+        imu_t = np.arange(n_imu) * imu_dt
+        self._imu_t = imu_t
+        self._frame_t = frame_t
+        self.frame_stamps_ns = [config.start_stamp_ns + int(round(t * 1e9)) for t in frame_t]
+        self.imu_stamps_ns = [config.start_stamp_ns + int(round(t * 1e9)) for t in imu_t]
+
+        length = config.speed_mps * imu_t[-1]
+        self.scene = build_scene(config.road, config.seed, (-4.0, length + LOOK_AHEAD_M + 2.0))
+        # Trajectory: constant speed, slow lateral wander inside the lane.
+        x = config.speed_mps * imu_t
+        lane_offset = rng.uniform(-0.4, 0.4)
+        wander = _smooth_process(n_imu, imu_dt, 3.0, 0.08, rng)
+        y = lane_offset + wander
+        yaw = np.gradient(y, imu_dt) / max(config.speed_mps, 0.5) if n_imu > 1 else np.zeros(1)
+        yaw = np.clip(yaw, -0.05, 0.05)
+        # Body on the suspension: filtered road input plus a slow random part.
+        front, rear, left, right = _wheel_heights(self.scene, x, y, yaw)
+        road_pitch = np.arctan2(rear - front, WHEELBASE)
+        road_roll = np.arctan2(left - right, 2 * HALF_TRACK)
+        road_heave = (front + rear) / 2
+        a = RSRD_ATTITUDE
+        # The RSRD attitudes already include the usual road slopes: the drive's mean slope is
+        # taken out of the mount attitude so that the total stays in the real distribution.
+        body_pitch = _second_order(road_pitch, imu_dt, 1.5, 0.35) - float(np.mean(road_pitch))
+        body_roll = _second_order(road_roll, imu_dt, 1.8, 0.3) - float(np.mean(road_roll))
+        heave = _second_order(road_heave, imu_dt, 1.2, 0.3)
+        body_pitch += np.radians(_smooth_process(n_imu, imu_dt, 0.6, a["pitch_std_in_drive"] * 0.8, rng))
+        body_roll += np.radians(_smooth_process(n_imu, imu_dt, 0.6, a["roll_std_in_drive"] * 0.8, rng))
+        heave += _smooth_process(n_imu, imu_dt, 0.4, 0.004, rng)
+        mount_roll, mount_pitch = draw_mount_attitude(rng, in_drive=True)
+        height_offset = float(np.clip(rng.normal(0.0, 0.008), -0.015, 0.015))
+        heading = rng.uniform(-math.pi, math.pi)  # the road's direction in ENU
+        roll = np.radians(mount_roll) + body_roll
+        pitch = np.radians(mount_pitch) + body_pitch
+        z = heave + config.grid.base_height + height_offset
+        self._x, self._y, self._z, self._yaw = x, y, z, yaw
+        self._heading = heading
+        self._R = [
+            rotation_from_rpy(float(r), float(p), float(heading + w)) for r, p, w in zip(roll, pitch, yaw, strict=True)
+        ]
+        self._q = np.array([_quat_from_rotation(R) for R in self._R])
+        for k in range(1, n_imu):  # keep the quaternion sign continuous
+            if self._q[k] @ self._q[k - 1] < 0:
+                self._q[k] = -self._q[k]
+        # Specific force: R^T (a_world + g z).
+        acc = np.zeros((n_imu, 3))
+        if n_imu > 2:
+            acc[:, 1] = np.gradient(np.gradient(y, imu_dt), imu_dt)
+            acc[:, 2] = np.gradient(np.gradient(z, imu_dt), imu_dt)
+        acc[:, 2] += GRAVITY
+        self._acc_body = np.einsum("kji,kj->ki", np.array(self._R), acc)
+
+    def __len__(self) -> int:
+        return self.config.frames
+
+    def __iter__(self) -> Iterator[DriveSample]:
+        for i in range(len(self)):
+            yield self[i]
+
+    def pose(self, index: int) -> tuple[CameraPose, Attitude]:
+        """The left camera's pose at frame ``index`` and its attitude (slerp of the IMU)."""
+        t = self._frame_t[index]
+        imu_dt = 1.0 / self.config.imu_rate_hz
+        k = int(math.floor(t / imu_dt))
+        frac = (t - self._imu_t[k]) / imu_dt
+        q = slerp(self._q[k], self._q[k + 1], frac)
+        R = quaternion_to_rotation(*q)
+        attitude = attitude_from_rotation(R)
+        yaw_world = math.atan2(R[1, 0], R[0, 0])
+        lerp = lambda arr: float(arr[k] * (1 - frac) + arr[k + 1] * frac)  # noqa: E731
+        pose = CameraPose(
+            x=lerp(self._x),
+            y=lerp(self._y),
+            z=lerp(self._z),
+            attitude=attitude,
+            yaw=math.remainder(yaw_world - self._heading, 2 * math.pi),
+        )
+        return pose, attitude
+
+    def __getitem__(self, index: int) -> DriveSample:
+        if not -len(self) <= index < len(self):
+            raise IndexError(f"frame {index} of a {len(self)}-frame drive")
+        index %= len(self)
+        pose, attitude = self.pose(index)
+        rng = np.random.default_rng(int(self._frame_seeds[index]))
+        c = self.config
+        return render_sample(self.scene, pose, c.camera, c.grid, c.lidar, rng, self.frame_stamps_ns[index], attitude)
+
+    def imu_samples(self) -> list[ImuSample]:
+        """The IMU stream (covers every frame stamp with samples on both sides)."""
+        imu_dt = 1.0 / self.config.imu_rate_hz
+        out = []
+        n = len(self._R)
+        for k in range(n):
+            a, b = max(k - 1, 0), min(k + 1, n - 1)
+            omega = _rotvec(self._R[a].T @ self._R[b]) / (max(b - a, 1) * imu_dt)
+            q = self._q[k]
+            out.append(
+                ImuSample(
+                    stamp_ns=self.imu_stamps_ns[k],
+                    orientation_xyzw=(float(q[0]), float(q[1]), float(q[2]), float(q[3])),
+                    angular_velocity=(float(omega[0]), float(omega[1]), float(omega[2])),
+                    linear_acceleration=tuple(float(v) for v in self._acc_body[k]),  # type: ignore[arg-type]
+                )
+            )
+        return out
+
+
+# --- independent samples --------------------------------------------------------------------
+def random_road(rng: np.random.Generator) -> RoadConfig:
+    """A random road configuration for training/evaluation sets."""
+    road_class = str(rng.choice(list("ABCDE"), p=[0.1, 0.3, 0.35, 0.2, 0.05]))
+    n_feat = int(rng.integers(1, 4))
+    features = tuple(str(f) for f in rng.choice(FEATURE_NAMES, n_feat, replace=False))
+    return RoadConfig(
+        road_class=road_class,
+        features=features,
+        surface=str(rng.choice(["asphalt", "concrete"], p=[0.8, 0.2])),
+        cross_slope=float(rng.uniform(-0.03, 0.03)),
+        grade=float(rng.uniform(-0.006, 0.006)),
+        noise_sigma=float(rng.uniform(0.5, 3.0)),
+        gain_mismatch=float(rng.uniform(0.0, 0.08)),
+        jpeg_quality=None if rng.random() < 0.7 else int(rng.integers(70, 96)),
+    )
+
+
+def make_sample(
+    seed: int,
+    *,
+    camera: StereoCamera | None = None,
+    grid: GridSpec | None = None,
+    road: RoadConfig | None = None,
+    lidar: LidarConfig | None = None,
+) -> DriveSample:
+    """One independent random scene seen by a stationary-looking rig (deterministic per seed).
+
+    The camera attitude is drawn from the whole RSRD attitude distribution, the features of
+    ``road`` (a random road when None) are placed inside the grid's window.
+    """
+    camera = camera or StereoCamera.rsrd_half()
+    grid = grid or GridSpec()
+    lidar = lidar or LidarConfig()
+    seq = np.random.SeedSequence([int(seed) & 0xFFFFFFFF, 0x5A3B1E])
+    rng_cfg, rng_pose, rng_render = (np.random.default_rng(s) for s in seq.spawn(3))
+    road = road or random_road(rng_cfg)
+    y_cam = float(rng_pose.uniform(-0.5, 0.5))
+    centres = [
+        (
+            name,
+            float(rng_pose.uniform(grid.x_min + 0.4, grid.x_max - 0.4)),
+            y_cam + float(rng_pose.uniform(grid.y_min + 0.2, grid.y_max - 0.2)),
+        )
+        for name in road.features
+    ]
+    scene = build_scene(road, int(seed), (-4.0, LOOK_AHEAD_M + 2.0), centres)
+    roll, pitch = draw_mount_attitude(rng_pose, in_drive=False)
+    front, rear, _, _ = _wheel_heights(scene, np.zeros(1), np.full(1, y_cam), np.zeros(1))
+    support = float((front[0] + rear[0]) / 2)
+    z = support + grid.base_height + float(np.clip(rng_pose.normal(0.0, 0.01), -0.02, 0.02))
+    pose = CameraPose(0.0, y_cam, z, Attitude.from_degrees(roll, pitch))
+    return render_sample(scene, pose, camera, grid, lidar, rng_render, 0)

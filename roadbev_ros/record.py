@@ -1,0 +1,137 @@
+"""Record topics into an MCAP bag from raw subscriptions (no deserialising).
+
+Topics are subscribed as soon as they are discovered (their type comes from the graph), with the
+publishers' reliability and durability ("auto" QoS, as ``ros2 bag record`` does) so that both
+reliable and best-effort publishers are recorded. Each message is written with its receive time
+as log time through :class:`msg_bridge.bag.BagWriter`; :meth:`Recorder.close` finishes the file,
+and the ``roadbev record`` command calls it on Ctrl-C and SIGTERM so nothing recorded is lost.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from msg_bridge.bag import BagWriter
+from roadbev_ros.dds import DdsError, message_class
+
+__all__ = ["RecordError", "Recorder"]
+
+
+class RecordError(RuntimeError):
+    """A recording that cannot start (output exists, no topics)."""
+
+
+class Recorder:
+    """Records ``topics`` through ``node`` into ``out_path`` (spin the node to record).
+
+    Args:
+        node: an rclpy node; its executor must be spinning for messages to arrive.
+        out_path: ``*.mcap`` file (or a rosbag2 directory), must not exist.
+        topics: topic names to record.
+        compression: "zstd" (chunk compression) or "none".
+        depth: subscription queue depth.
+        discovery_period_s: how often not yet seen topics are looked up.
+        listener: called ``(topic, data)`` with every recorded message (raw CDR), after writing.
+    """
+
+    def __init__(
+        self,
+        node: Any,
+        out_path: str | Path,
+        topics: Sequence[str],
+        *,
+        compression: str = "zstd",
+        depth: int = 100,
+        discovery_period_s: float = 0.1,
+        listener: Callable[[str, bytes], None] | None = None,
+    ) -> None:
+        if not topics:
+            raise RecordError("no topics to record")
+        self.node = node
+        self.path = Path(out_path)
+        self._writer = BagWriter(self.path, compression=compression)
+        self._writer.open()
+        self._lock = threading.Lock()
+        self._pending = [t if t.startswith("/") else f"/{t}" for t in topics]
+        self._depth = depth
+        self._listener = listener
+        self._subs: dict[str, Any] = {}
+        self.counts: Counter[str] = Counter()
+        self.problems: list[str] = []
+        self._closed = False
+        self._timer = node.create_timer(discovery_period_s, self._discover)
+        self._discover()
+
+    @property
+    def subscribed(self) -> list[str]:
+        return sorted(self._subs)
+
+    def _qos_for(self, topic: str) -> tuple[Any, bool]:
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+        infos = self.node.get_publishers_info_by_topic(topic)
+        reliable = bool(infos) and all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
+        latched = bool(infos) and all(
+            i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos
+        )
+        return QoSProfile(
+            depth=self._depth,
+            reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
+        ), latched
+
+    def _discover(self) -> None:
+        if not self._pending or self._closed:
+            return
+        graph = dict(self.node.get_topic_names_and_types())
+        for topic in list(self._pending):
+            types = graph.get(topic)
+            if not types or not self.node.get_publishers_info_by_topic(topic):
+                continue
+            msgtype = types[0]
+            try:
+                cls = message_class(msgtype)
+            except DdsError as exc:
+                self.problems.append(f"{topic}: {exc}")
+                self._pending.remove(topic)
+                continue
+            qos, latched = self._qos_for(topic)
+            with self._lock:
+                self._writer.add_topic(topic, msgtype, latched=latched)
+                self._subs[topic] = self.node.create_subscription(
+                    cls, topic, lambda data, t=topic: self._write(t, data), qos, raw=True
+                )
+            self._pending.remove(topic)
+        if not self._pending:
+            self._timer.cancel()
+
+    def _write(self, topic: str, data: bytes) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._writer.write_raw(topic, data, time.time_ns())
+            self.counts[topic] += 1
+        if self._listener is not None:
+            self._listener(topic, data)
+
+    def total(self) -> int:
+        """Messages recorded so far."""
+        return sum(self.counts.values())
+
+    def close(self) -> dict[str, int]:
+        """Stop recording and finish the file; returns messages per topic."""
+        with self._lock:
+            if self._closed:
+                return dict(self.counts)
+            self._closed = True
+            self._timer.cancel()
+            self.node.destroy_timer(self._timer)
+            for sub in self._subs.values():
+                self.node.destroy_subscription(sub)
+            self._writer.close()
+        return dict(self.counts)

@@ -1,0 +1,66 @@
+"""PreviewProfiles <-> roadbev_msgs/RoadPreview."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from msg_bridge import MessageError, bag_factory
+from msg_bridge.preview import preview_from_message, road_preview_message
+from roadbev_core.config import GridSpec
+from roadbev_core.preview import wheel_track_profiles
+
+GRID = GridSpec()
+
+
+def _profiles(speed: float | None):  # type: ignore[no-untyped-def]
+    rng = np.random.default_rng(1)
+    elevation = rng.normal(0, 0.02, GRID.shape).astype(np.float32)
+    elevation[:30] = np.nan
+    sigma = np.full(GRID.shape, 0.01, np.float32)
+    return wheel_track_profiles(elevation, sigma, GRID, vehicle_speed=speed, reference_distance=1.5)
+
+
+@pytest.mark.parametrize("speed", [None, 8.0])
+def test_round_trip(factory, speed: float | None) -> None:  # type: ignore[no-untyped-def]
+    profiles = _profiles(speed)
+    msg = road_preview_message(profiles, factory, stamp_ns=3_000_000_001)
+    assert msg.header.frame_id == "roadbev_road"
+    assert [t.name for t in msg.tracks] == ["left", "right"]
+    assert math.isnan(msg.vehicle_speed) if speed is None else msg.vehicle_speed == speed
+    assert len(msg.time_of_arrival) == (0 if speed is None else profiles.n_samples)
+    decoded = preview_from_message(msg)
+    assert decoded.stamp_ns == 3_000_000_001
+    out = decoded.profiles
+    assert out.vehicle_speed == speed
+    assert out.start_distance == pytest.approx(profiles.start_distance)
+    assert out.reference_distance == pytest.approx(1.5)
+    for a, b in zip(out.tracks, profiles.tracks, strict=True):
+        assert (a.name, a.lateral_offset, a.width) == pytest.approx((b.name, b.lateral_offset, b.width))
+        np.testing.assert_array_equal(a.elevation, b.elevation)
+        np.testing.assert_array_equal(a.uncertainty, b.uncertainty)
+    if speed is not None:
+        np.testing.assert_allclose(decoded.time_of_arrival, (profiles.distances() - 1.5) / speed, rtol=1e-6)
+
+
+def test_malformed_previews_raise_message_error() -> None:
+    factory = bag_factory()
+    msg = road_preview_message(_profiles(5.0), factory, stamp_ns=0)
+    msg.tracks[1].uncertainty = msg.tracks[1].uncertainty[:-1]
+    with pytest.raises(MessageError, match="uncertainties"):
+        preview_from_message(msg)
+    msg = road_preview_message(_profiles(5.0), factory, stamp_ns=0)
+    msg.tracks[1].elevation = msg.tracks[1].elevation[:-1]
+    msg.tracks[1].uncertainty = msg.tracks[1].uncertainty[:-1]
+    with pytest.raises(MessageError, match="different lengths"):
+        preview_from_message(msg)
+    msg = road_preview_message(_profiles(5.0), factory, stamp_ns=0)
+    msg.spacing = 0.0
+    with pytest.raises(MessageError, match="spacing"):
+        preview_from_message(msg)
+    msg = road_preview_message(_profiles(5.0), factory, stamp_ns=0)
+    msg.time_of_arrival = msg.time_of_arrival[:3]
+    with pytest.raises(MessageError, match="3 times of arrival"):
+        preview_from_message(msg)

@@ -1,0 +1,136 @@
+"""bev_sweep: accuracy on rendered frames, geometry sign/offset errors caught, NaN handling, options."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from roadbev_core.backends import BackendError, create
+from roadbev_core.backends.bev_sweep import BevSweep, SweepParams
+from roadbev_core.config import ConfigError, GridSpec, StereoCamera
+from roadbev_core.evaluation import evaluate
+from roadbev_core.frame import Frame, FrameError
+from roadbev_core.geometry import Attitude
+
+torch.set_flush_denormal(True)
+
+CAMERA = StereoCamera.rsrd_half().scaled(0.5)  # 480 x 264
+GRID = GridSpec().scaled(2)  # 82 x 32 cells of 6 cm
+
+
+@pytest.fixture(scope="module")
+def samples() -> list[tuple[Frame, np.ndarray]]:
+    """Two rendered half-resolution frames with a textured asphalt road and a pothole."""
+    from roadbev_core.synth import RoadConfig, make_sample
+
+    road = RoadConfig(road_class="C", features=("pothole",), surface="asphalt", noise_sigma=1.0)
+    out = []
+    for seed in (11, 12):
+        s = make_sample(seed, camera=CAMERA, grid=GRID, road=road)
+        out.append((s.frame, s.truth.elevation))
+    return out
+
+
+@pytest.fixture(scope="module")
+def sweep() -> BevSweep:
+    backend = create("bev_sweep", GRID)
+    assert isinstance(backend, BevSweep)
+    return backend
+
+
+def _abs_err_cm(backend: BevSweep, frames: list[tuple[Frame, np.ndarray]]) -> tuple[float, float]:
+    m = evaluate(backend, frames).metrics
+    return m["abs_err_cm"], m["coverage_pct"]
+
+
+def test_accurate_on_rendered_frames(sweep: BevSweep, samples: list[tuple[Frame, np.ndarray]]) -> None:
+    err, coverage = _abs_err_cm(sweep, samples)
+    # Predicting a flat road scores ~1.5-2 cm here; the sweep is sub-centimetre on most cells.
+    flat = np.nanmean(np.concatenate([np.abs(t).ravel() for _, t in samples])) * 100
+    assert flat > 1.0
+    assert err < 0.6, err
+    assert coverage > 50.0, coverage
+
+
+def test_half_pixel_shift_of_the_right_image_breaks_the_bound(
+    sweep: BevSweep, samples: list[tuple[Frame, np.ndarray]]
+) -> None:
+    """A renderer or rig off by half a pixel in disparity must show up as a clear error."""
+    shifted = []
+    for frame, truth in samples:
+        shift = np.float32([[1, 0, 0.5], [0, 1, 0]])
+        right = cv2.warpAffine(frame.right, shift, frame.camera.size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        shifted.append((replace(frame, right=right), truth))
+    good, _ = _abs_err_cm(sweep, samples)
+    bad, _ = _abs_err_cm(sweep, shifted)
+    assert bad > max(2.0 * good, 0.8), (good, bad)
+
+
+def test_swapped_cameras_fail(sweep: BevSweep, samples: list[tuple[Frame, np.ndarray]]) -> None:
+    """Left and right exchanged (a mis-signed baseline): no trustworthy surface."""
+    swapped = [(replace(f, left=f.right, right=f.left), t) for f, t in samples]
+    err, coverage = _abs_err_cm(sweep, swapped)
+    assert err > 1.5 or coverage < 20.0, (err, coverage)
+
+
+def test_textureless_images_give_nan(sweep: BevSweep) -> None:
+    grey = np.full((CAMERA.height, CAMERA.width, 3), 128, dtype=np.uint8)
+    estimate = sweep.estimate(Frame(grey, grey.copy(), CAMERA, Attitude.from_degrees(0.0, 19.0)))
+    assert np.isnan(estimate.elevation).all()
+    assert np.isnan(estimate.uncertainty).all()
+
+
+def test_cells_outside_the_image_are_nan(sweep: BevSweep, samples: list[tuple[Frame, np.ndarray]]) -> None:
+    """Crop the bottom of the images: the near rows of the grid fall outside and must be NaN."""
+    frame, _ = samples[0]
+    keep = CAMERA.height * 2 // 3
+    camera = CAMERA.cropped(0, 0, CAMERA.width, keep)
+    cropped = Frame(frame.left[:keep], frame.right[:keep], camera, frame.attitude)
+    estimate = sweep.estimate(cropped)
+    assert np.isnan(estimate.elevation[-5:]).all()  # nearest rows: below the crop
+    assert np.isfinite(estimate.elevation[:40]).mean() > 0.4  # far rows still estimated
+
+
+def test_uncertainty_is_finite_exactly_where_elevation_is(
+    sweep: BevSweep, samples: list[tuple[Frame, np.ndarray]]
+) -> None:
+    frame, truth = samples[0]
+    estimate = sweep.estimate(frame)
+    finite = np.isfinite(estimate.elevation)
+    assert np.array_equal(finite, np.isfinite(estimate.uncertainty))
+    sigma = estimate.uncertainty[finite]
+    assert (sigma > 0).all() and (sigma < 0.2).all()
+    # Sanity: the farthest third (small disparity change per cm) is less certain than the nearest.
+    rows = estimate.uncertainty.shape[0]
+    far = np.nanmedian(estimate.uncertainty[: rows // 3])
+    near = np.nanmedian(estimate.uncertainty[-rows // 3 :])
+    assert far > near
+    assert estimate.elevation.dtype == np.float32 and estimate.elevation.shape == GRID.shape
+
+
+def test_reports_stage_timings(sweep: BevSweep, samples: list[tuple[Frame, np.ndarray]]) -> None:
+    timings = sweep.estimate(samples[0][0]).timings_ms
+    assert {"projection", "sampling", "cost", "aggregation", "post"} <= set(timings)
+    assert all(v >= 0 for v in timings.values())
+
+
+def test_mono_frame_is_refused(sweep: BevSweep, samples: list[tuple[Frame, np.ndarray]]) -> None:
+    frame = samples[0][0]
+    with pytest.raises(FrameError):
+        sweep.estimate(replace(frame, right=None))
+
+
+def test_options_are_validated() -> None:
+    assert create("bev_sweep", GRID, patch_cells=5, subsamples=[2, 2]).params.subsamples == (2, 2)
+    with pytest.raises(BackendError, match="unknown bev_sweep option"):
+        create("bev_sweep", GRID, patch=3)
+    with pytest.raises(BackendError, match="odd"):
+        create("bev_sweep", GRID, patch_cells=4)
+    with pytest.raises(ConfigError):
+        SweepParams(temperature=0.0)
+    with pytest.raises(ConfigError, match="z_step"):
+        BevSweep(GRID, SweepParams(z_step=0.03))  # 0.40 m is not a whole number of 3 cm steps

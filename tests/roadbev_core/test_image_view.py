@@ -1,0 +1,92 @@
+"""sgbm / bm: disparity window, accuracy on rendered frames, offsets caught, NaN handling."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+
+from roadbev_core.backends import BackendError, create
+from roadbev_core.backends.image_view import ImageViewStereo, match_window
+from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.evaluation import evaluate
+from roadbev_core.frame import Frame, FrameError
+from roadbev_core.geometry import Attitude, project_voxels
+
+CAMERA = StereoCamera.rsrd_half().scaled(0.5)  # 480 x 264
+GRID = GridSpec().scaled(2)  # 82 x 32 cells of 6 cm
+
+
+@pytest.fixture(scope="module")
+def samples() -> list[tuple[Frame, np.ndarray]]:
+    """Two rendered half-resolution frames (same scenes as the bev_sweep tests)."""
+    from roadbev_core.synth import RoadConfig, make_sample
+
+    road = RoadConfig(road_class="C", features=("pothole",), surface="asphalt", noise_sigma=1.0)
+    return [
+        (s.frame, s.truth.elevation)
+        for s in (make_sample(seed, camera=CAMERA, grid=GRID, road=road) for seed in (11, 12))
+    ]
+
+
+@pytest.mark.parametrize("pitch_deg", [15.0, 19.0, 23.0])
+def test_match_window_covers_every_voxel(pitch_deg: float) -> None:
+    """Every voxel's disparity lies in the search range, and its pixel in the matched crop."""
+    attitude = Attitude.from_degrees(1.0, pitch_deg)
+    window = match_window(GridSpec(), StereoCamera.rsrd_half(), attitude, margin_px=0, block_size=5)
+    left = project_voxels(GridSpec(), StereoCamera.rsrd_half(), attitude)
+    right = project_voxels(GridSpec(), StereoCamera.rsrd_half(), attitude, right=True)
+    disparity = left.u - right.u
+    assert window.num_disparities % 16 == 0
+    assert disparity.min() >= window.min_disparity
+    assert disparity.max() <= window.min_disparity + window.num_disparities
+    inside = left.inside
+    assert left.u[inside].min() >= window.left + window.min_disparity + window.num_disparities - 1
+    assert left.u[inside].max() < window.right
+    assert left.v[inside].min() >= window.top and left.v[inside].max() < window.bottom
+
+
+@pytest.mark.parametrize(("name", "bound_cm"), [("bm", 1.2), ("sgbm", 2.5)])
+def test_accurate_on_rendered_frames(name: str, bound_cm: float, samples: list[tuple[Frame, np.ndarray]]) -> None:
+    backend = create(name, GRID)
+    assert isinstance(backend, ImageViewStereo) and backend.name == name
+    m = evaluate(backend, samples).metrics
+    assert m["abs_err_cm"] < bound_cm, m["abs_err_cm"]
+    assert m["coverage_pct"] > 80.0, m["coverage_pct"]
+
+
+def test_half_pixel_disparity_offset_breaks_the_bound(samples: list[tuple[Frame, np.ndarray]]) -> None:
+    backend = create("bm", GRID)
+    good = evaluate(backend, samples).metrics["abs_err_cm"]
+    shift = np.float32([[1, 0, 0.5], [0, 1, 0]])
+    shifted = [
+        (replace(f, right=cv2.warpAffine(f.right, shift, f.camera.size, borderMode=cv2.BORDER_REFLECT)), t)
+        for f, t in samples
+    ]
+    bad = evaluate(backend, shifted).metrics["abs_err_cm"]
+    assert bad > 1.5 * good and bad > 1.2, (good, bad)
+
+
+def test_uncertainty_and_nan(samples: list[tuple[Frame, np.ndarray]]) -> None:
+    estimate = create("bm", GRID).estimate(samples[0][0])
+    finite = np.isfinite(estimate.elevation)
+    assert np.array_equal(finite, np.isfinite(estimate.uncertainty))
+    assert (estimate.uncertainty[finite] > 0).all()
+    assert {"matching", "projection", "post"} <= set(estimate.timings_ms)
+    flat = np.full((CAMERA.height, CAMERA.width), 90, dtype=np.uint8)  # grey, texture-less
+    blank = create("sgbm", GRID).estimate(Frame(flat, flat.copy(), CAMERA, samples[0][0].attitude))
+    assert np.isnan(blank.elevation).all()
+
+
+def test_errors() -> None:
+    with pytest.raises(BackendError, match="unknown option"):
+        create("bm", GRID, window=9)
+    with pytest.raises(BackendError, match="block_size"):
+        create("bm", GRID, block_size=4)
+    with pytest.raises(BackendError, match="mode"):
+        create("sgbm", GRID, mode="fast")
+    frame = Frame(np.zeros((CAMERA.height, CAMERA.width), np.uint8), None, CAMERA, Attitude())
+    with pytest.raises(FrameError, match="right image"):
+        create("sgbm", GRID).estimate(frame)

@@ -1,0 +1,209 @@
+"""Drives and samples: determinism, IMU/frame consistency, suspension, labels vs the height field."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.geometry import attitude_from_quaternion
+from roadbev_core.synth import (
+    RSRD_ATTITUDE,
+    DriveConfig,
+    LidarConfig,
+    RoadConfig,
+    SynthError,
+    SyntheticDrive,
+    make_sample,
+)
+from roadbev_core.synth.drive import _wheel_heights
+
+SMALL = StereoCamera.rsrd_half().scaled(0.25)
+GRID = GridSpec()
+
+
+def _slerp(q0: np.ndarray, q1: np.ndarray, t: float) -> np.ndarray:
+    """Reference slerp, written independently of the library's."""
+    if q0 @ q1 < 0:
+        q1 = -q1
+    omega = math.acos(min(1.0, float(q0 @ q1)))
+    if omega < 1e-9:
+        return q0
+    return (math.sin((1 - t) * omega) * q0 + math.sin(t * omega) * q1) / math.sin(omega)
+
+
+@pytest.fixture(scope="module")
+def drive() -> SyntheticDrive:
+    road = RoadConfig(road_class="C", features=("speed_bump", "pothole", "hump"), feature_spacing_m=3.0)
+    return SyntheticDrive(DriveConfig(frames=12, seed=3, camera=SMALL, road=road))
+
+
+def test_frame_attitudes_equal_the_slerped_imu(drive: SyntheticDrive) -> None:
+    imu = drive.imu_samples()
+    stamps = np.array([s.stamp_ns for s in imu])
+    assert np.all(np.diff(stamps) == 10_000_000)  # 100 Hz
+    quats = np.array([s.orientation_xyzw for s in imu])
+    np.testing.assert_allclose(np.linalg.norm(quats, axis=1), 1.0, atol=1e-9)
+    for i in range(len(drive)):
+        stamp = drive.frame_stamps_ns[i]
+        k = int(np.searchsorted(stamps, stamp)) - 1
+        assert k >= 0 and stamps[k] < stamp < stamps[k + 1]  # between samples, covered both sides
+        t = (stamp - stamps[k]) / (stamps[k + 1] - stamps[k])
+        q = _slerp(quats[k], quats[k + 1], t)
+        expected = attitude_from_quaternion(*q)
+        _, attitude = drive.pose(i)
+        assert abs(math.degrees(attitude.roll - expected.roll)) < 0.01
+        assert abs(math.degrees(attitude.pitch - expected.pitch)) < 0.01
+
+
+def test_frames_come_at_5hz_with_their_attitude(drive: SyntheticDrive) -> None:
+    assert len(drive) == 12
+    assert np.all(np.diff(drive.frame_stamps_ns) == 200_000_000)
+    sample = drive[0]
+    assert sample.frame.stamp_ns == drive.frame_stamps_ns[0]
+    assert sample.frame.left.shape == (SMALL.height, SMALL.width, 3) and sample.frame.left.dtype == np.uint8
+    assert sample.frame.right is not None and not np.array_equal(sample.frame.left, sample.frame.right)
+    assert sample.frame.attitude == drive.pose(0)[1]
+    with pytest.raises(IndexError):
+        drive[12]
+
+
+def test_imu_rates_and_specific_force_are_physical(drive: SyntheticDrive) -> None:
+    imu = drive.imu_samples()
+    acc = np.array([s.linear_acceleration for s in imu])
+    gyro = np.array([s.angular_velocity for s in imu])
+    norm = np.linalg.norm(acc, axis=1)
+    assert abs(float(np.median(norm)) - 9.80665) < 0.3 and np.all(np.abs(norm - 9.80665) < 6.0)
+    assert np.median(acc[:, 2]) > 9.0  # mostly gravity on the body z (camera body pitched ~19 deg)
+    assert np.abs(gyro).max() < 1.0  # rad/s: suspension motion, not tumbling
+    # the gyro integrates to the orientation change (pitch about body y, small angles)
+    pitch = np.array([attitude_from_quaternion(*s.orientation_xyzw).pitch for s in imu])
+    integrated = np.cumsum(gyro[:-1, 1] * 0.01)
+    assert np.corrcoef(integrated, pitch[1:] - pitch[0])[0, 1] > 0.9
+
+
+def test_attitudes_and_camera_height_are_realistic() -> None:
+    road = RoadConfig(road_class="D", features=("speed_bump", "hump"), feature_spacing_m=4.0)
+    drive = SyntheticDrive(DriveConfig(frames=40, seed=5, camera=SMALL, road=road))  # no frame rendered
+    imu = drive.imu_samples()
+    att = np.degrees([attitude_from_quaternion(*s.orientation_xyzw).pitch for s in imu])
+    roll = np.degrees([attitude_from_quaternion(*s.orientation_xyzw).roll for s in imu])
+    a = RSRD_ATTITUDE
+    assert a["pitch_min"] - 1.0 < att.min() and att.max() < a["pitch_max"] + 1.0
+    assert a["roll_min"] - 1.0 < roll.min() and roll.max() < a["roll_max"] + 1.0
+    assert 0.1 < att.std() < 1.2 and 0.1 < roll.std() < 1.2  # moves on the suspension
+    deflection = []
+    for i in range(len(drive)):
+        pose, _ = drive.pose(i)
+        front, rear, _, _ = _wheel_heights(drive.scene, np.array([pose.x]), np.array([pose.y]), np.array([pose.yaw]))
+        deflection.append(pose.z - GRID.base_height - float(front[0] + rear[0]) / 2)
+    # the camera rides on the suspension: centimetres around its mount height above the wheels
+    assert np.abs(deflection).max() < 0.06 and 0.002 < np.std(deflection) < 0.02
+
+
+def test_drives_are_deterministic_and_seeded() -> None:
+    cfg = DriveConfig(frames=2, seed=9, camera=SMALL.scaled(0.5), road=RoadConfig(features=("crack",)))
+    a, b = SyntheticDrive(cfg), SyntheticDrive(cfg)
+    other = SyntheticDrive(
+        DriveConfig(frames=2, seed=10, camera=SMALL.scaled(0.5), road=RoadConfig(features=("crack",)))
+    )
+    assert a.imu_samples() == b.imu_samples()
+    sa, sb, so = a[1], b[1], other[1]
+    np.testing.assert_array_equal(sa.frame.left, sb.frame.left)
+    np.testing.assert_array_equal(sa.frame.right, sb.frame.right)
+    np.testing.assert_array_equal(sa.truth.elevation, sb.truth.elevation)
+    assert not np.array_equal(sa.frame.left, so.frame.left)
+    assert a.imu_samples() != other.imu_samples()
+
+
+def _truth_vs_surface(drive: SyntheticDrive, index: int) -> tuple[np.ndarray, np.ndarray]:
+    sample = drive[index]
+    pose, _ = drive.pose(index)
+    x, y = np.meshgrid(GRID.x_centres(), GRID.y_centres(), indexing="ij")
+    centres = np.stack([x, y, np.zeros_like(x)], axis=-1).reshape(-1, 3)
+    world = pose.road_to_world(centres, GRID.base_height)
+    surface = drive.scene.height(world[:, 0], world[:, 1]) - (pose.z - GRID.base_height)
+    return sample.truth.elevation.ravel().astype(np.float64), surface
+
+
+def test_noise_free_labels_match_the_height_field_at_cell_centres() -> None:
+    road = RoadConfig(road_class="B", features=("hump", "rut"), feature_spacing_m=2.0)
+    drive = SyntheticDrive(DriveConfig(frames=2, seed=4, camera=SMALL.scaled(0.5), road=road))
+    truth, surface = _truth_vs_surface(drive, 1)
+    assert np.isfinite(truth).all()  # dense LiDAR-like points label every cell
+    assert np.abs(truth - surface).max() < 0.002
+    assert truth.max() - truth.min() > 0.02  # the features are in view, not a flat road
+    # with sharp features (pothole walls, steps) the cell mean differs at edges only
+    road = RoadConfig(road_class="C", features=("pothole", "speed_bump", "step", "crack"), feature_spacing_m=2.0)
+    drive = SyntheticDrive(DriveConfig(frames=2, seed=4, camera=SMALL.scaled(0.5), road=road))
+    truth, surface = _truth_vs_surface(drive, 1)
+    assert np.percentile(np.abs(truth - surface), 95) < 0.002
+
+
+def test_labels_stay_in_the_grid_range_and_lidar_options_work() -> None:
+    road = RoadConfig(road_class="D", features=("kerb", "speed_bump", "pothole"), cross_slope=0.03)
+    for seed in (1, 2):
+        sample = make_sample(seed, camera=SMALL.scaled(0.5), road=road)
+        elev = sample.truth.elevation
+        assert np.nanmin(elev) >= GRID.z_min and np.nanmax(elev) <= GRID.z_max
+    sparse = make_sample(
+        1, camera=SMALL.scaled(0.5), road=road, lidar=LidarConfig(spacing_m=0.03, dropout=0.5, range_falloff=2.0)
+    )
+    dense = make_sample(1, camera=SMALL.scaled(0.5), road=road)
+    assert sparse.points_road.shape[0] < dense.points_road.shape[0] / 10
+    assert 0.1 < sparse.truth.mask.mean() < 0.9  # some cells get no point
+    far, near = sparse.truth.mask[:40].mean(), sparse.truth.mask[-40:].mean()
+    assert far < near  # density falls with range
+    noisy = make_sample(1, camera=SMALL.scaled(0.5), road=road, lidar=LidarConfig(noise_m=0.01))
+    diff = noisy.truth.elevation - dense.truth.elevation
+    assert 0.001 < float(np.nanstd(diff)) < 0.01  # ~1 cm point noise averaged over ~9 points
+
+
+def test_make_sample_places_features_in_the_grid_with_their_signs() -> None:
+    cam = SMALL.scaled(0.5)
+    pothole = make_sample(21, camera=cam, road=RoadConfig(road_class="A", features=("pothole",)))
+    bump = make_sample(21, camera=cam, road=RoadConfig(road_class="A", features=("speed_bump",)))
+    base = np.nanmedian(pothole.truth.elevation)
+    assert np.nanmin(pothole.truth.elevation) < base - 0.025
+    assert np.nanmax(bump.truth.elevation) > np.nanmedian(bump.truth.elevation) + 0.03
+    again = make_sample(21, camera=cam, road=RoadConfig(road_class="A", features=("pothole",)))
+    np.testing.assert_array_equal(again.frame.left, pothole.frame.left)
+    roll, pitch = pothole.frame.attitude.degrees
+    assert RSRD_ATTITUDE["pitch_min"] <= pitch <= RSRD_ATTITUDE["pitch_max"]
+    assert RSRD_ATTITUDE["roll_min"] <= roll <= RSRD_ATTITUDE["roll_max"]
+
+
+def test_random_samples_differ_and_use_the_default_rig() -> None:
+    a = make_sample(100, camera=SMALL)
+    b = make_sample(101, camera=SMALL)
+    assert a.frame.camera == SMALL
+    assert not np.array_equal(a.frame.left, b.frame.left)
+    assert not np.array_equal(a.truth.elevation, b.truth.elevation)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"road_class": "Z"}, "road_class"),
+        ({"features": ("volcano",)}, "volcano"),
+        ({"surface": "gravel"}, "surface"),
+        ({"grade": 0.05}, "grade"),
+        ({"jpeg_quality": 0}, "jpeg"),
+    ],
+)
+def test_road_config_rejects_bad_values(kwargs: dict, match: str) -> None:
+    with pytest.raises(SynthError, match=match):
+        RoadConfig(**kwargs)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [({"frames": 0}, "frame"), ({"speed_mps": -1.0}, "speed"), ({"imu_rate_hz": 4.0}, "IMU")],
+)
+def test_drive_config_rejects_bad_values(kwargs: dict, match: str) -> None:
+    with pytest.raises(SynthError, match=match):
+        DriveConfig(**kwargs)
+    with pytest.raises(SynthError):
+        LidarConfig(spacing_m=0.0)

@@ -1,0 +1,161 @@
+"""The renderer is geometrically right: pixel convention, parallax, occlusion, stereo consistency."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.geometry import Attitude, project_points, road_to_camera
+from roadbev_core.synth import RoadConfig, SynthError, make_sample
+from roadbev_core.synth.drive import LidarConfig
+from roadbev_core.synth.heightfield import SpeedBump
+from roadbev_core.synth.render import CameraPose, ray_directions, render_stereo, render_view, sensor_image
+from roadbev_core.synth.scene import build_scene
+from roadbev_core.synth.texture import remap_points
+
+RIG = StereoCamera.rsrd_half()
+GRID = GridSpec()
+
+
+def _flat_scene(features: list[tuple[str, float, float]] | None = None, **road: object):
+    cfg = RoadConfig(road_class="A", roughness_scale=0.0, features=(), cross_slope=0.0, **road)  # type: ignore[arg-type]
+    return build_scene(cfg, 0, (-4.0, 36.0), features or [])
+
+
+def test_rays_go_through_pixel_centres_at_integer_coordinates() -> None:
+    """A hit point rendered for pixel (i, j) projects back to (i, j) (not i + 0.5)."""
+    cam = RIG.scaled(0.25)
+    scene = _flat_scene()
+    att = Attitude.from_degrees(1.5, 18.0)
+    pose = CameraPose(0.0, 0.1, GRID.base_height, att)
+    view = render_view(scene, cam, pose)
+    jj, ii = np.nonzero(np.isfinite(view.depth))
+    assert ii.size > 0.9 * view.depth.size  # pitched down: almost all road
+    dirs = ray_directions(cam, pose).reshape(cam.height, cam.width, 3)
+    world = np.array([pose.x, pose.y, pose.z]) + view.depth[jj, ii, None] * dirs[jj, ii]
+    road = pose.world_to_road(world, GRID.base_height)
+    assert np.abs(road[:, 2]).max() < 1e-4  # on the flat road plane
+    u, v, depth = project_points(road_to_camera(road, att, GRID.base_height), cam)
+    np.testing.assert_allclose(u, ii, atol=1e-3)
+    np.testing.assert_allclose(v, jj, atol=1e-3)
+    np.testing.assert_allclose(depth, view.depth[jj, ii], rtol=1e-5)
+
+
+def test_level_camera_sees_the_road_on_the_textbook_row() -> None:
+    """v = cy + fy * h / d for a level camera at height h (pixel centres at integers)."""
+    cam = StereoCamera(fx=400.0, fy=400.0, cx=99.0, cy=40.0, baseline=0.12, width=200, height=120)
+    view = render_view(_flat_scene(), cam, CameraPose(0.0, 0.0, 1.1, Attitude(0.0, 0.0)))
+    for row in (60, 80, 119):
+        expected = 400.0 * 1.1 / (row - 40.0)  # distance d for that row
+        assert view.depth[row, 99] == pytest.approx(expected, rel=1e-5)
+    assert np.isinf(view.depth[:40]).all()  # at and above the horizon: sky
+
+
+def test_right_view_has_the_disparity_of_the_rig() -> None:
+    cam = RIG.scaled(0.25)
+    pose = CameraPose(0.0, 0.0, GRID.base_height, Attitude.from_degrees(0.0, 19.0))
+    left, right = render_stereo(_flat_scene(), cam, pose)
+    assert right is not None
+    # Flat road: a row's depth is the same in both views, shifted by the disparity fx B / Z.
+    row = cam.height - 10
+    z = float(left.depth[row, cam.width // 2])
+    shift = cam.fx * cam.baseline / z
+    u = np.arange(20, cam.width - 20, dtype=np.float64)
+    lum_l = left.radiance[row, 20:-20].mean(axis=1)
+    lum_right = right.radiance[row].mean(axis=1)
+
+    def err(offset: float) -> float:
+        return float(np.abs(lum_l - np.interp(u - shift + offset, np.arange(cam.width), lum_right)).mean())
+
+    # the true disparity matches far better than one half a pixel off either way
+    assert err(0.0) < 0.5 * min(err(-0.5), err(0.5))
+
+
+def test_a_bump_occludes_the_road_behind_it() -> None:
+    cam = RIG.scaled(0.25)
+    pose = CameraPose(0.0, 0.0, GRID.base_height, Attitude.from_degrees(0.0, 10.0))
+    flat = render_view(_flat_scene(), cam, pose)
+    scene = _flat_scene()
+    bump = SpeedBump(x=6.0, y=0.0, length=0.3, height=0.10, width=4.0, profile="circular")
+    bump.apply(scene.canvas, np.random.default_rng(0))
+    scene.displacement_range = (-1e-3, 0.101)
+    bumpy = render_view(scene, cam, pose)
+    centre = cam.width // 2
+    dirs = ray_directions(cam, pose).reshape(cam.height, cam.width, 3)
+    hit_x = bumpy.depth[:, centre] * dirs[:, centre, 0]
+    flat_x = flat.depth[:, centre] * dirs[:, centre, 0]
+    # Rays that would meet the plane just behind the bump stop on its front face instead...
+    end = bump.x + bump.length / 2
+    behind = (flat_x > end) & (flat_x < end + 0.3)
+    assert behind.sum() >= 2
+    assert np.all(hit_x[behind] < bump.x + 0.02)
+    # ... so the road right behind the bump is seen by no pixel (a jump in hit distance).
+    order = np.sort(hit_x[np.isfinite(hit_x)])
+    gaps = np.diff(order)
+    assert gaps[np.searchsorted(order, bump.x) - 1 :].max() > 0.25
+    # Rays that pass well in front of the bump are unaffected.
+    before = flat_x < bump.x - 0.3
+    np.testing.assert_allclose(hit_x[before], flat_x[before], atol=1e-4)
+
+
+def test_sensor_model_gain_noise_and_jpeg() -> None:
+    rng = np.random.default_rng(0)
+    radiance = np.full((32, 48, 3), 0.2, np.float32)
+    clean = sensor_image(radiance, exposure=1.0, gain=1.0, noise_sigma=0.0, blur_sigma_px=0.0, rng=rng)
+    assert clean.dtype == np.uint8 and clean.shape == (32, 48, 3)
+    assert int(clean[0, 0, 0]) == round(255 * 0.2 ** (1 / 2.2))
+    brighter = sensor_image(radiance, exposure=1.0, gain=1.1, noise_sigma=0.0, blur_sigma_px=0.0, rng=rng)
+    assert brighter.mean() > clean.mean()
+    noisy = sensor_image(radiance, exposure=1.0, gain=1.0, noise_sigma=3.0, blur_sigma_px=0.0, rng=rng)
+    assert 2.0 < float(noisy.astype(np.float64).std()) < 5.0
+    jpeg = sensor_image(radiance, exposure=1.0, gain=1.0, noise_sigma=3.0, blur_sigma_px=0.0, rng=rng, jpeg_quality=50)
+    assert jpeg.shape == clean.shape and not np.array_equal(jpeg, noisy)
+
+
+def test_right_view_needs_a_baseline() -> None:
+    mono = StereoCamera(fx=100.0, fy=100.0, cx=10.0, cy=10.0, baseline=0.0, width=20, height=20)
+    with pytest.raises(SynthError, match="baseline"):
+        render_view(_flat_scene(), mono, CameraPose(0.0, 0.0, 1.1, Attitude()), right=True)
+
+
+def _photometric_errors(sample, camera: StereoCamera, shifts: list[float], near_x: float) -> list[float]:
+    """Mean |left - right| grey level at the LiDAR points moved up by each shift (metres)."""
+    left = np.ascontiguousarray(sample.frame.left.astype(np.float32).mean(axis=2))
+    right = np.ascontiguousarray(sample.frame.right.astype(np.float32).mean(axis=2))
+    pts = sample.points_road.astype(np.float64)
+    pts = pts[pts[:, 0] < near_x]
+    out = []
+    for dz in shifts:
+        p = pts + np.array([0.0, 0.0, dz])
+        cam_pts = road_to_camera(p, sample.frame.attitude, GRID.base_height)
+        ul, vl, _ = project_points(cam_pts, camera)
+        ur, vr, _ = project_points(cam_pts, camera, right=True)
+        a = remap_points(left, ul, vl, cv2.BORDER_REPLICATE)
+        b = remap_points(right, ur, vr, cv2.BORDER_REPLICATE)
+        out.append(float(np.mean(np.abs(a - b))))
+    return out
+
+
+@pytest.fixture(scope="module")
+def clean_sample():
+    road = RoadConfig(
+        road_class="C", features=("pothole", "speed_bump"), noise_sigma=0.0, gain_mismatch=0.0, blur_sigma_px=0.0
+    )
+    return make_sample(11, camera=RIG.scaled(0.5), road=road, lidar=LidarConfig(spacing_m=0.015))
+
+
+def test_warping_through_true_heights_beats_heights_off_by_2cm(clean_sample) -> None:
+    """The issue's test: right warped into left through the true surface matches far better
+    than through the surface shifted by +-2 cm (the renderer's parallax is right)."""
+    err_down, err_true, err_up = _photometric_errors(clean_sample, RIG.scaled(0.5), [-0.02, 0.0, 0.02], near_x=4.5)
+    assert err_true < 0.6 * min(err_down, err_up)
+
+
+def test_true_heights_win_even_with_sensor_noise_and_gain_mismatch() -> None:
+    road = RoadConfig(road_class="C", features=("hump",), noise_sigma=1.5, gain_mismatch=0.04, jpeg_quality=90)
+    cam = RIG.scaled(0.5)
+    sample = make_sample(12, camera=cam, road=road, lidar=LidarConfig(spacing_m=0.015))
+    errs = _photometric_errors(sample, cam, [-0.02, -0.01, 0.0, 0.01, 0.02], near_x=4.5)
+    assert int(np.argmin(errs)) == 2

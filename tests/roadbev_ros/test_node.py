@@ -1,0 +1,222 @@
+"""The node in-process over real DDS: pairing, IMU interpolation, drops, bad input, parameters."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+from _ros_harness import MS, START_NS, Harness, wait_for
+
+from msg_bridge._common import stamp_from_header
+from msg_bridge.preview import preview_from_message
+
+FRAME_NS = 100 * MS  # 10 Hz
+
+
+def pitch_ramp(t_ns: int) -> float:
+    """Pitch that changes by 0.1 rad per second, so interpolation errors show."""
+    return 0.05 + 0.1 * (t_ns - START_NS) * 1e-9
+
+
+@pytest.fixture
+def harness(ros: Any, request: pytest.FixtureRequest) -> Iterator[Harness]:
+    options = getattr(request, "param", {})
+    h = Harness(ros, **options)
+    try:
+        yield h
+    finally:
+        h.close()
+
+
+def feed(h: Harness, k: int, **kwargs: Any) -> int:
+    stamp = START_NS + k * FRAME_NS
+    h.imu_around(stamp + 3 * MS, pitch_ramp)  # IMU ticks are not aligned with the images
+    h.publish_frame(stamp, **kwargs)
+    return stamp
+
+
+def test_every_frame_gives_an_elevation_map_with_the_interpolated_pitch(harness: Harness) -> None:
+    stamps = []
+    for k in range(10):
+        stamps.append(feed(harness, k))
+        msg = harness.wait_output(stamps[-1])  # one at a time: no set may be dropped as busy
+        assert msg.header.frame_id == "roadbev_road"
+        assert msg.layers == ["elevation", "uncertainty"]
+        assert harness.elevation_value(msg) == pytest.approx(pitch_ramp(stamps[-1]), abs=1e-5)
+    counts = harness.node.counts()
+    assert counts["frames_in"] == 10 and counts["outputs"] == 10, counts
+    # the preview comes with every map, stamped alike; no speed topic: no time of arrival
+    assert wait_for(lambda: len(harness.previews) == 10)
+    preview = preview_from_message(harness.previews[-1])
+    assert sorted(stamp_from_header(m) for m in harness.previews) == stamps
+    assert [t.name for t in preview.profiles.tracks] == ["left", "right"]
+    assert preview.profiles.time_of_arrival() is None
+
+
+@pytest.mark.parametrize("harness", [{"compressed": True}], indirect=True)
+def test_compressed_transport(harness: Harness) -> None:
+    """image_transport:=compressed: jpeg/png on .../compressed, decoded in the worker."""
+    for k in range(3):
+        stamp = feed(harness, k)
+        assert harness.elevation_value(harness.wait_output(stamp)) == pytest.approx(pitch_ramp(stamp), abs=1e-5)
+    # a CompressedImage that does not decode is refused and the node goes on
+    bad = harness.frame_messages(START_NS + 3 * FRAME_NS)["left"]
+    bad.data = b"not a jpeg"
+    feed(harness, 3, replace={"left": bad})
+    assert wait_for(lambda: harness.node.health.problems["bad input"] == 1)
+    harness.wait_output(feed(harness, 4))
+
+
+@pytest.mark.parametrize("harness", [{"delay_s": 0.15}], indirect=True)
+def test_slow_inference_keeps_the_newest_set_and_counts_drops(harness: Harness) -> None:
+    stamps = []
+    for k in range(12):  # 40 Hz into a 6.7 Hz backend
+        stamps.append(feed(harness, k))
+        time.sleep(0.025)
+    last = harness.wait_output(stamps[-1], timeout=15.0)  # the newest set is never dropped
+    assert last is not None
+    counts = harness.node.counts()
+    assert counts["dropped_busy"] > 0, harness.node.health.last_error
+    assert counts["outputs"] + counts["dropped_busy"] + counts["dropped_sync"] + counts["dropped_invalid"] == 12, counts
+    assert counts["outputs"] == len(harness.output_stamps())
+    assert harness.output_stamps() == sorted(harness.output_stamps())
+
+
+def _bad_image(h: Harness, stamp: int, **fields: Any) -> Any:
+    msg = h.frame_messages(stamp)["left"]
+    for name, value in fields.items():
+        setattr(msg, name, value)
+    return msg
+
+
+def _nan_imu(stamp: int) -> Any:
+    from sensor_msgs.msg import Imu
+
+    msg = Imu()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+    msg.orientation.x = float("nan")
+    return msg
+
+
+def test_bad_input_is_reported_and_the_node_recovers(harness: Harness) -> None:
+    from sensor_msgs.msg import CameraInfo
+
+    h = harness
+    k = 0
+
+    def good() -> None:
+        nonlocal k
+        stamp = feed(h, k)
+        k += 1
+        h.wait_output(stamp)
+
+    def bad(expected_kind: str, **kwargs: Any) -> None:
+        nonlocal k
+        before = h.node.health.problems[expected_kind]
+        feed(h, k, **kwargs)
+        k += 1
+        time.sleep(0.2)  # let the worker see the bad set before a good one replaces it
+        good()  # recovers at once (an unpaired image is found out when the next set completes)
+        assert wait_for(lambda: h.node.health.problems[expected_kind] > before, 5.0), (
+            f"{expected_kind} not reported; problems {dict(h.node.health.problems)}, last {h.node.health.last_error}"
+        )
+
+    good()
+    stamp = START_NS + k * FRAME_NS
+    bad("bad input", replace={"left": _bad_image(h, stamp, data=bytes(10))})  # data too short
+    stamp = START_NS + k * FRAME_NS
+    bad("bad input", replace={"left": _bad_image(h, stamp, encoding="yuv422")})
+    stamp = START_NS + k * FRAME_NS
+    zero_info = CameraInfo()
+    zero_info.header.stamp.sec, zero_info.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+    zero_info.width, zero_info.height = 64, 48
+    bad("bad input", replace={"left_info": zero_info})  # uncalibrated: P all zero
+    stamp = START_NS + k * FRAME_NS
+    bad("bad frame", replace={"right": h.frame_messages(stamp)["right"].__class__(
+        header=h.frame_messages(stamp)["right"].header, height=24, width=32, encoding="rgb8", step=96,
+        data=bytes(32 * 24 * 3))})  # right image of another size
+    bad("unpaired", skip=("right",))  # a left image without a right one ...
+    bad("unpaired", skip=("left_info", "right_info"))  # ... or without camera infos
+    # IMU: NaN orientation, then a frame with no IMU near its stamp
+    before = h.node.health.problems["bad imu"]
+    h.pub["imu"].publish(_nan_imu(START_NS + k * FRAME_NS))
+    assert wait_for(lambda: h.node.health.problems["bad imu"] > before, 5.0)
+    stamp = START_NS + (k + 20) * FRAME_NS  # two seconds after the last IMU sample
+    before = h.node.health.problems["imu stale"]
+    h.publish_frame(stamp)
+    assert wait_for(lambda: h.node.health.problems["imu stale"] > before, 5.0)
+    k += 21
+    good()
+    # out-of-order and duplicate stamps
+    old = START_NS + (k - 3) * FRAME_NS
+    before = h.node.health.problems["stamp order"]
+    h.publish_frame(old)
+    h.publish_frame(START_NS + (k - 1) * FRAME_NS)  # the last processed frame again
+    assert wait_for(lambda: h.node.health.problems["stamp order"] >= before + 2, 5.0)
+    good()
+    # every left image is accounted for
+    counts = h.node.counts()
+    accounted = counts["outputs"] + counts["dropped_busy"] + counts["dropped_sync"] + counts["dropped_invalid"]
+    assert accounted + counts["queued"] == counts["frames_in"], counts
+    # diagnostics report the problems and the backend
+    assert wait_for(lambda: "problem.imu stale" in h.latest_diagnostics(), 3.0)
+    diag = h.latest_diagnostics()
+    for key in ("problem.bad input", "problem.unpaired", "problem.bad imu", "problem.stamp order",
+                "problem.bad frame"):
+        assert int(diag[key]) >= 1, diag
+    assert diag["backend"] == "stub-bev_sweep"
+    assert int(diag["outputs"]) >= 9
+
+
+def test_nonsense_parameters_are_rejected_with_a_reason(harness: Harness) -> None:
+    from rclpy.parameter import Parameter
+
+    node = harness.node
+
+    def set_param(name: str, value: Any) -> Any:
+        return node.set_parameters([Parameter(name, value=value)])[0]
+
+    for name, value, reason in [
+        ("sync_slop_s", -1.0, "out of range"),  # rclpy checks the declared range first
+        ("backend", "magic", "one of"),
+        ("backend", "mono", "cannot run"),  # the stub factory refuses it
+        ("resolution", 0.07, "whole number"),
+        ("preview.track_offsets_m", [0.8, -3.0], "leaves the grid"),
+        ("imu_to_camera_rpy_deg", [1.0, 2.0], "needs 3"),
+    ]:
+        result = set_param(name, value)
+        assert not result.successful, (name, value)
+        assert reason in result.reason, result.reason
+    assert node.health.problems["parameter"] >= 5 - 1  # the out-of-range one never reaches the node
+    # a read-only parameter cannot change
+    assert not set_param("image_transport", "compressed").successful
+    # good changes are applied; a grid change rebuilds the backend on the new grid
+    assert set_param("sync_slop_s", 0.03).successful
+    assert node.sync.slop_ns == 30 * MS
+    assert set_param("x_max", 3.06).successful
+    assert node.backend.grid.x_max == pytest.approx(3.06)
+    stamp = feed(harness, 0)
+    msg = harness.wait_output(stamp)
+    assert msg.data[0].layout.dim[0].size * msg.data[0].layout.dim[1].size == 30 * 64
+
+
+@pytest.mark.parametrize("harness", [{"params": {"speed_topic": "/odom"}}], indirect=True)
+def test_speed_topic_gives_times_of_arrival(harness: Harness) -> None:
+    from nav_msgs.msg import Odometry
+
+    pub = harness.feeder.create_publisher(Odometry, "/odom", 10)
+    assert wait_for(lambda: pub.get_subscription_count() > 0)
+    odom = Odometry()
+    odom.twist.twist.linear.x = 5.0
+    pub.publish(odom)
+    assert wait_for(lambda: harness.node._speed is not None)
+    stamp = feed(harness, 0)
+    harness.wait_output(stamp)
+    assert wait_for(lambda: len(harness.previews) == 1)
+    profiles = preview_from_message(harness.previews[0]).profiles
+    toa = profiles.time_of_arrival()
+    assert profiles.vehicle_speed == pytest.approx(5.0)
+    np.testing.assert_allclose(toa, profiles.distances() / 5.0, rtol=1e-5)

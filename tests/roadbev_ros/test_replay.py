@@ -1,0 +1,131 @@
+"""Replay in-process: timing and rate, raw bytes, restamping, looping, topic selection."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from _ros_harness import wait_for
+
+from msg_bridge._common import TypestoreFactory
+from msg_bridge.bag import BagWriter, typestore
+from msg_bridge.imu import imu_message
+from roadbev_ros.replay import ReplayError, header_stamp_ns, replay_bag, restamp_cdr
+
+START = 1_700_000_000_000_000_000
+PERIOD_NS = 20_000_000  # 50 Hz
+N = 25
+
+
+@pytest.fixture(scope="module")
+def imu_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """IMU at 50 Hz for half a second, and one latched-looking String."""
+    path = tmp_path_factory.mktemp("replay") / "imu.mcap"
+    factory = TypestoreFactory(typestore())
+    with BagWriter(path) as writer:
+        writer.add_topic("/imu/data", "sensor_msgs/msg/Imu")
+        writer.add_topic("/note", "std_msgs/msg/String", latched=True)
+        writer.write("/note", factory.new("std_msgs/msg/String", data="hello"), START)
+        for k in range(N):
+            stamp = START + k * PERIOD_NS
+            writer.write("/imu/data", imu_message(factory, stamp_ns=stamp, orientation_xyzw=(0, 0, 0, 1)), stamp)
+    return path
+
+
+class Listener:
+    """Receive times and stamps of /imu/data, and /note."""
+
+    def __init__(self, rclpy: Any) -> None:
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import Imu
+        from std_msgs.msg import String
+
+        self.node = rclpy.create_node("replay_listener")
+        self.pub_node = rclpy.create_node("replay_publisher")
+        self.imu: list[tuple[float, int]] = []
+        self.notes: list[str] = []
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        self.node.create_subscription(
+            Imu, "/imu/data",
+            lambda m: self.imu.append((time.monotonic(), m.header.stamp.sec * 10**9 + m.header.stamp.nanosec)),
+            qos)
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.node.create_subscription(String, "/note", lambda m: self.notes.append(m.data), latched)
+        self.executor = SingleThreadedExecutor()
+        self.executor.add_node(self.node)
+        self.running = True
+        self.thread = threading.Thread(target=self.spin, daemon=True)
+        self.thread.start()
+
+    def spin(self) -> None:
+        while self.running:
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def close(self) -> None:
+        self.running = False
+        self.thread.join(2)
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.pub_node.destroy_node()
+
+
+@pytest.fixture
+def listener(ros: Any) -> Any:
+    lis = Listener(ros)
+    yield lis
+    lis.close()
+
+
+def test_restamp_cdr_round_trip() -> None:
+    from msg_bridge.bag import serialize
+
+    factory = TypestoreFactory(typestore())
+    data = serialize(imu_message(factory, stamp_ns=START + 5, orientation_xyzw=(0, 0, 0, 1)), "sensor_msgs/msg/Imu")
+    assert header_stamp_ns(data) == START + 5
+    moved = restamp_cdr(data, 42 * 10**9 + 7)
+    assert header_stamp_ns(moved) == 42 * 10**9 + 7
+    assert moved[12:] == data[12:] and len(moved) == len(data)
+
+
+@pytest.mark.parametrize("rate", [1.0, 2.0])
+def test_replay_keeps_the_timing_at_the_rate(listener: Listener, imu_bag: Path, rate: float) -> None:
+    stats = replay_bag(listener.pub_node, imu_bag, rate=rate, wait_for_subscribers=10.0)
+    assert wait_for(lambda: len(listener.imu) == N, 5.0), len(listener.imu)
+    assert stats.per_topic == {"/imu/data": N, "/note": 1}
+    received = np.array([t for t, _ in listener.imu])
+    expected = np.arange(N) * PERIOD_NS * 1e-9 / rate
+    error = (received - received[0]) - expected
+    assert np.abs(error).max() < 0.03, error
+    assert stats.duration_s == pytest.approx(expected[-1], abs=0.03)
+    assert stats.late_p50_ms < 5.0
+    assert [s for _, s in listener.imu] == [START + k * PERIOD_NS for k in range(N)]  # untouched
+    assert wait_for(lambda: listener.notes == ["hello"], 3.0)
+
+
+def test_restamp_loop_and_stop(listener: Listener, imu_bag: Path) -> None:
+    stop = threading.Event()
+    timer = threading.Timer(1.2, stop.set)  # two full passes of 0.5 s, then stop
+    timer.start()
+    before = time.time_ns()
+    stats = replay_bag(listener.pub_node, imu_bag, rate=1.0, loop=True, restamp=True, topics=["/imu/data"],
+                       wait_for_subscribers=10.0, stop=stop)
+    timer.cancel()
+    assert stats.loops >= 2 and stats.per_topic["/imu/data"] >= 2 * N
+    assert wait_for(lambda: len(listener.imu) == stats.messages, 5.0)
+    stamps = np.array([s for _, s in listener.imu], dtype=np.int64)
+    assert np.all(np.diff(stamps) > 0)  # restamped: time goes on across the loop
+    assert stamps[0] >= before and stamps[-1] <= time.time_ns()  # wall-clock stamps
+    # each stamp is the wall time of its publication (within scheduling noise)
+    sent_wall = np.array([t for t, _ in listener.imu]) - listener.imu[0][0]
+    np.testing.assert_allclose((stamps - stamps[0]) * 1e-9, sent_wall, atol=0.03)
+
+
+def test_unknown_topics_only_give_an_error(listener: Listener, imu_bag: Path) -> None:
+    with pytest.raises(ReplayError, match="nothing to replay"):
+        replay_bag(listener.pub_node, imu_bag, topics=["/nope"])
