@@ -80,7 +80,7 @@ def run_one(bag: Path, backend: str, mode: str, work: Path) -> dict[str, Any]:
     outputs = online["outputs_matched"]
     frames = online["frames_published"]
     wall = online["wall_s"]
-    inference = _float(node, "inference_mean_ms")
+    inference = _float(node, "inference_mean_ms")  # the first frame includes the backend's warm-up
     return {
         "backend": backend,
         "mode": mode,
@@ -89,12 +89,14 @@ def run_one(bag: Path, backend: str, mode: str, work: Path) -> dict[str, Any]:
         "dropped": frames - outputs,
         "throughput_hz": outputs / wall if wall > 0 else math.nan,
         "latency_ms": online["latency_ms"],
+        "latency_after_first_ms": online["latency_after_first_ms"],
         "node_latency_p95_ms": _float(node, "latency_p95_ms"),
         "inference_mean_ms": inference,
+        "inference_p50_ms": _float(node, "inference_p50_ms"),
         "overhead_mean_ms": _float(node, "overhead_mean_ms"),
         "overhead_p95_ms": _float(node, "overhead_p95_ms"),
         "imu_wait_mean_ms": _float(node, "imu_wait_mean_ms"),
-        "e2e_minus_inference_p50_ms": online["latency_ms"]["p50"] - inference,
+        "e2e_minus_inference_p50_ms": online["latency_ms"]["p50"] - _float(node, "inference_p50_ms"),
         "abs_err_cm": m["abs_err_cm"],
         "coverage_pct": m["coverage_pct"],
     }
@@ -151,17 +153,21 @@ def pipeline_overhead(scale: float, repeats: int = 30) -> dict[str, float]:
     return out
 
 
-def check_targets(rows: list[dict[str, Any]], default: str = "bev_sweep") -> dict[str, Any]:
+def check_targets(rows: list[dict[str, Any]], overhead: dict[str, float], default: str = "bev_sweep") -> dict[str, Any]:
     """The issue's targets on the default backend (and the overhead on every backend)."""
     by = {(r["backend"], r["mode"]): r for r in rows}
     out: dict[str, Any] = {}
     five, fast = by.get((default, "5hz")), by.get((default, "max"))
     if five is not None:
         out["default_p95_latency_under_200ms_at_5hz"] = five["latency_ms"]["p95"] < TARGET_P95_MS
+        out["default_p95_latency_under_200ms_at_5hz_after_warmup"] = (
+            five["latency_after_first_ms"]["p95"] < TARGET_P95_MS
+        )
         out["default_no_drops_at_5hz"] = five["dropped"] == 0
     if fast is not None:
         out["default_sustains_5hz"] = fast["throughput_hz"] >= TARGET_HZ
-    out["overhead_under_10ms"] = {
+    out["pipeline_overhead_under_10ms"] = overhead["total_ms"] < TARGET_OVERHEAD_MS
+    out["in_node_overhead_under_10ms"] = {
         f"{r['backend']}/{r['mode']}": r["overhead_mean_ms"] < TARGET_OVERHEAD_MS for r in rows
     }
     return out
@@ -171,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--backends", nargs="+", default=["bev_sweep", "sgbm", "bm"])
     parser.add_argument("--modes", nargs="+", choices=("5hz", "max"), default=["5hz", "max"])
-    parser.add_argument("--frames", type=int, default=15)
+    parser.add_argument("--frames", type=int, default=20)
     parser.add_argument("--scale", type=float, default=1.0, help="image scale of the 960x528 rig")
     parser.add_argument("--out", type=Path, default=RESULTS / "node.json")
     args = parser.parse_args(argv)
@@ -194,10 +200,12 @@ def main(argv: list[str] | None = None) -> int:
                 row = run_one(bag, backend, mode, Path(tmp))
                 rows.append(row)
                 lat = row["latency_ms"]
+                steady = row["latency_after_first_ms"]
                 print(
                     f"{backend:9s} {mode:3s}: {row['throughput_hz']:6.2f} Hz, {row['outputs']}/{row['frames']} "
-                    f"frames, latency p50 {lat['p50']:7.1f} / p95 {lat['p95']:7.1f} ms, inference "
-                    f"{row['inference_mean_ms']:7.1f} ms, node overhead {row['overhead_mean_ms']:5.2f} ms "
+                    f"frames, latency p50 {lat['p50']:7.1f} / p95 {lat['p95']:7.1f} ms (p95 after the first "
+                    f"{steady['p95']:7.1f}), inference p50 "
+                    f"{row['inference_p50_ms']:7.1f} ms, node overhead {row['overhead_mean_ms']:5.2f} ms "
                     f"(p95 {row['overhead_p95_ms']:5.2f}), IMU wait {row['imu_wait_mean_ms']:5.2f} ms",
                     file=sys.stderr,
                 )
@@ -210,7 +218,7 @@ def main(argv: list[str] | None = None) -> int:
         "rows": rows,
         "pipeline_overhead_ms": overhead,
         "skipped": skipped,
-        "targets": check_targets(rows),
+        "targets": check_targets(rows, overhead),
     }
     write_json(args.out, record)
     print(f"wrote {args.out}", file=sys.stderr)

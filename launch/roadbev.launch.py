@@ -5,9 +5,10 @@
         left_info:=/cam/left/camera_info right_info:=/cam/right/camera_info imu:=/ins/imu \
         params_file:=/path/to/my_rig.params.yaml backend:=bev_sweep
 
-The ``backend`` argument overrides the params file's ``backend``. The Fast DDS profile (shared memory with 64 MB segments + UDPv4) is set for every process this
-launch file starts; camera drivers started elsewhere need the same FASTRTPS_DEFAULT_PROFILES_FILE
-or large images are lost in shared memory.
+The ``backend`` argument overrides the params file's ``backend``. The Fast DDS profile (shared
+memory with 64 MB segments + UDPv4) is set for every process this launch file starts; camera
+drivers started elsewhere need the same FASTRTPS_DEFAULT_PROFILES_FILE or large images are lost
+in shared memory.
 """
 
 from __future__ import annotations

@@ -227,6 +227,7 @@ class Health:
                 "latency_p95_ms": f"{self.latency_ms.percentile(95):.1f}",
                 "stamp_age_p50_ms": f"{self.stamp_age_ms.percentile(50):.1f}",
                 "inference_mean_ms": f"{self.inference_ms.mean():.1f}",
+                "inference_p50_ms": f"{self.inference_ms.percentile(50):.1f}",
                 "overhead_mean_ms": f"{self.overhead_ms.mean():.2f}",
                 "overhead_p95_ms": f"{self.overhead_ms.percentile(95):.2f}",
                 "imu_wait_mean_ms": f"{self.imu_wait_ms.mean():.2f}",

@@ -37,12 +37,15 @@ class ImuBuffer:
             lies outside the buffered interval (no extrapolation beyond it).
         max_gap_s: two samples around the stamp may be at most this far apart.
         horizon_s: history kept behind the newest sample.
+        jump_back_s: a sample this much older than the newest means the clock jumped back (a
+            bag started again): the history is dropped and starts again from that sample.
         imu_to_camera_rpy_deg: camera body in the IMU body frame (roll, pitch, yaw degrees).
     """
 
     max_age_s: float = 0.1
     max_gap_s: float = 0.1
     horizon_s: float = 2.0
+    jump_back_s: float = 1.0
     imu_to_camera_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
@@ -62,7 +65,8 @@ class ImuBuffer:
         self._quats.clear()
 
     def add(self, stamp_ns: int, orientation_xyzw: tuple[float, float, float, float]) -> None:
-        """Add one sample (any order; a repeated stamp replaces the earlier sample).
+        """Add one sample (any order within ``jump_back_s``; a repeated stamp replaces the
+        earlier sample).
 
         Raises:
             ImuError: NaN/inf components or not a unit quaternion (within 1e-2), or a zero stamp.
@@ -76,6 +80,8 @@ class ImuBuffer:
         if stamp_ns <= 0:
             raise ImuError("IMU sample has no stamp")
         q = q / norm
+        if self._stamps and stamp_ns < self._stamps[-1] - int(self.jump_back_s * 1e9):
+            self.clear()
         i = bisect.bisect_left(self._stamps, stamp_ns)
         if i < len(self._stamps) and self._stamps[i] == stamp_ns:
             self._quats[i] = q

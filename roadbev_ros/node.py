@@ -25,6 +25,7 @@ before it is accepted, otherwise it is rejected with the reason.
 from __future__ import annotations
 
 import math
+import os
 import sys
 import threading
 import time
@@ -33,6 +34,14 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import InvalidParameterValueException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from sensor_msgs.msg import Imu as ImuMsg
 
 from msg_bridge._common import MessageError, RclpyFactory, stamp_from_header
 from msg_bridge.camera_info import stereo_camera_from_camera_info
@@ -48,7 +57,16 @@ from roadbev_core.geometry import Attitude
 from roadbev_core.preview import PreviewError, wheel_track_profiles
 from roadbev_ros.diagnostics import Health, ThrottledLog, to_diagnostic_array
 from roadbev_ros.imu_buffer import ImuBuffer, ImuError, ImuStale
-from roadbev_ros.params import PARAMETERS, ParamError, ParamSpec, grid_from_params, validate
+from roadbev_ros.params import (
+    PARAMETERS,
+    ParamError,
+    ParamSpec,
+    backend_options,
+    grid_from_params,
+    is_backend_option,
+    validate,
+    validate_one,
+)
 from roadbev_ros.sync import ApproximateTimeSync, DropReason
 
 __all__ = [
@@ -66,8 +84,9 @@ BackendFactory = Callable[..., Backend]
 
 LEFT_IMAGE, RIGHT_IMAGE, LEFT_INFO, RIGHT_INFO = "left image", "right image", "left info", "right info"
 # A left image this much older than the last processed one means the clock jumped back (a bag
-# started again): the synchroniser and the IMU history are reset instead of refusing everything.
+# started again): the synchroniser is reset instead of refusing everything as out of order.
 TIME_JUMP_BACK_S = 1.0
+_PARAM_NAMES = frozenset(spec.name for spec in PARAMETERS)
 # Speeds older than this are treated as unknown.
 SPEED_MAX_AGE_S = 1.0
 
@@ -97,15 +116,7 @@ class NodeConfig:
         return cls(full, grid)
 
 
-def _backend_options(values: Mapping[str, Any]) -> dict[str, Any]:
-    if values["backend"] in ("stereo", "mono") and values["checkpoint"]:
-        return {"checkpoint": values["checkpoint"]}
-    return {}
-
-
-def _descriptor(spec: ParamSpec) -> Any:
-    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-
+def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
     descriptor = ParameterDescriptor(
         name=spec.name, description=spec.description, read_only=spec.read_only
     )
@@ -214,361 +225,377 @@ class _OutputPublishers:
             self._points.publish(points)
 
 
-class _Rclpy:
-    """rclpy pieces imported lazily (so this module imports without a ROS environment)."""
-
-    def __init__(self) -> None:
-        import rclpy
-        from rclpy.node import Node
-        from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-
-        self.rclpy = rclpy
-        self.Node = Node
-        self.sensor_qos = qos_profile_sensor_data
-        # the IMU comes in bursts of many small messages per image: a deeper best-effort queue
-        self.imu_qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
-        self.output_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+SENSOR_QOS = qos_profile_sensor_data
+# the IMU comes in bursts of many small messages per image: a deeper best-effort queue
+IMU_QOS = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
+OUTPUT_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
 
-def make_node_class() -> type:
-    """The node class (built on first use so that importing this module needs no rclpy)."""
-    global _NODE_CLASS
-    if _NODE_CLASS is None:
-        _NODE_CLASS = _build_node_class(_Rclpy())
-    return _NODE_CLASS
+def set_inference_threads(threads: int) -> int:
+    """Threads for the backends' parallel work (torch intra-op, OpenCV); 0 = cores - 1.
+
+    On a loaded machine a parallel section waits for its slowest thread, and the executor
+    thread needs a core for the callbacks: measured on the 2-core development machine, one
+    torch thread ran bev_sweep 2-4x faster inside the node than two.
+
+    Returns:
+        The number of threads set.
+    """
+    import cv2
+
+    n = threads if threads > 0 else max(1, (os.cpu_count() or 2) - 1)
+    cv2.setNumThreads(n)
+    if "torch" in sys.modules:  # only when a backend uses torch: never import it for bm/sgbm
+        sys.modules["torch"].set_num_threads(n)
+    return n
 
 
-_NODE_CLASS: type | None = None
+class RoadBevNode(Node):
+    """The RoadBEV node.
 
+    Args:
+        node_name: ROS node name.
+        backend_factory: ``factory(name, grid, **options) -> Backend`` (default: the
+            registry's :func:`roadbev_core.backends.create`).
+        parameter_overrides: initial values (as ``-p`` would give), for in-process use.
+    """
 
-def RoadBevNode(**kwargs: Any) -> Any:
-    """Create the node (see :func:`_build_node_class` for the keyword arguments)."""
-    return make_node_class()(**kwargs)
+    def __init__(
+        self,
+        *,
+        node_name: str = "roadbev",
+        backend_factory: BackendFactory | None = None,
+        parameter_overrides: Mapping[str, Any] | None = None,
+        **node_kwargs: Any,
+    ) -> None:
+        overrides = [Parameter(k, value=v) for k, v in (parameter_overrides or {}).items()]
+        super().__init__(node_name, parameter_overrides=overrides, **node_kwargs)
+        self._backend_factory = backend_factory or create
+        self._declare_parameters()
+        self._declare_backend_options()
+        declared = self.get_parameters_by_prefix("")  # every declared parameter
+        values = {name: _plain(p.value) for name, p in declared.items() if self._is_ours(name)}
+        self.config = NodeConfig.from_values(values)  # ParamError on nonsense at start
+        self.backend = self._make_backend(self.config)
+        self.health = Health(backend=self.backend.name)
+        self._log_gate = ThrottledLog(self.config["log_throttle_s"])
+        self._lock = threading.Condition()
+        self._pending: tuple[Any, ...] | None = None
+        self._pending_arrival = 0.0
+        self._stop = False
+        self._imu_lock = threading.Lock()
+        self.imu = self._make_imu_buffer(self.config)
+        self._speed: tuple[float, float] | None = None  # (speed m/s, monotonic time)
+        self.sync = self._make_sync(self.config)
+        self._create_io()
+        self.add_pre_set_parameters_callback(self._check_parameters)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._worker = threading.Thread(target=self._work, name="roadbev-inference", daemon=True)
+        self._worker.start()
+        self.get_logger().info(
+            f"backend {self.backend.name}, grid {self.config.grid.n_rows}x"
+            f"{self.config.grid.n_cols} @ {self.config.grid.resolution} m, inputs "
+            f"{self._topic(self.config['left_image_topic'])} (+ right, camera infos, "
+            f"{self.config['imu_topic']})"
+        )
 
-
-def _build_node_class(ros: _Rclpy) -> type:
-    from diagnostic_msgs.msg import DiagnosticArray
-    from rcl_interfaces.msg import SetParametersResult
-    from sensor_msgs.msg import CameraInfo, CompressedImage, Image
-    from sensor_msgs.msg import Imu as ImuMsg
-
-    class _RoadBevNode(ros.Node):
-        """The RoadBEV node.
-
-        Args:
-            node_name: ROS node name.
-            backend_factory: ``factory(name, grid, **options) -> Backend`` (default: the
-                registry's :func:`roadbev_core.backends.create`).
-            parameter_overrides: initial values (as ``-p`` would give), for in-process use.
-        """
-
-        def __init__(
-            self,
-            *,
-            node_name: str = "roadbev",
-            backend_factory: BackendFactory | None = None,
-            parameter_overrides: Mapping[str, Any] | None = None,
-            **node_kwargs: Any,
-        ) -> None:
-            from rclpy.parameter import Parameter
-
-            overrides = [Parameter(k, value=v) for k, v in (parameter_overrides or {}).items()]
-            super().__init__(node_name, parameter_overrides=overrides, **node_kwargs)
-            self._backend_factory = backend_factory or create
-            self._declare_parameters()
-            values = {s.name: _plain(self.get_parameter(s.name).value) for s in PARAMETERS}
-            self.config = NodeConfig.from_values(values)  # ParamError on nonsense at start
-            self.backend = self._make_backend(self.config)
-            self.health = Health(backend=self.backend.name)
-            self._log_gate = ThrottledLog(self.config["log_throttle_s"])
-            self._lock = threading.Condition()
-            self._pending: tuple[Any, ...] | None = None
-            self._pending_arrival = 0.0
-            self._stop = False
-            self._imu_lock = threading.Lock()
-            self.imu = self._make_imu_buffer(self.config)
-            self._speed: tuple[float, float] | None = None  # (speed m/s, monotonic time)
-            self._last_left_stamp: int | None = None
-            self.sync = self._make_sync(self.config)
-            self._create_io()
-            self.add_on_set_parameters_callback(self._on_set_parameters)
-            self._worker = threading.Thread(target=self._work, name="roadbev-inference", daemon=True)
-            self._worker.start()
-            self.get_logger().info(
-                f"backend {self.backend.name}, grid {self.config.grid.n_rows}x"
-                f"{self.config.grid.n_cols} @ {self.config.grid.resolution} m, inputs "
-                f"{self._topic(self.config['left_image_topic'])} (+ right, camera infos, "
-                f"{self.config['imu_topic']})"
-            )
-
-        # --- set-up ------------------------------------------------------------------------
-        def _declare_parameters(self) -> None:
-            from rclpy.exceptions import InvalidParameterValueException
-
-            for spec in PARAMETERS:
-                try:
-                    self.declare_parameter(spec.name, spec.default, _descriptor(spec))
-                except InvalidParameterValueException as exc:
-                    raise ParamError(f"parameter {spec.name}: {exc}") from None
-
-        def _make_backend(self, config: NodeConfig) -> Backend:
+    # --- set-up ------------------------------------------------------------------------
+    def _declare_parameters(self) -> None:
+        for spec in PARAMETERS:
             try:
-                return self._backend_factory(config["backend"], config.grid, **_backend_options(config.values))
-            except (BackendError, ConfigError, OSError, ValueError) as exc:
-                raise ParamError(f"backend {config['backend']!r} cannot run: {exc}") from None
+                self.declare_parameter(spec.name, spec.default, _descriptor(spec))
+            except InvalidParameterValueException as exc:
+                raise ParamError(f"parameter {spec.name}: {exc}") from None
 
-        @staticmethod
-        def _make_imu_buffer(config: NodeConfig) -> ImuBuffer:
-            return ImuBuffer(
-                max_age_s=config["imu_max_age_s"],
-                max_gap_s=config["imu_max_age_s"],
-                horizon_s=config["imu_buffer_s"],
-                imu_to_camera_rpy_deg=tuple(config["imu_to_camera_rpy_deg"]),
-            )
-
-        def _make_sync(self, config: NodeConfig) -> ApproximateTimeSync:
-            n = 4 if self.backend.needs_stereo else 2
-            return ApproximateTimeSync(
-                n, config["sync_queue_size"], config["sync_slop_s"], self._on_set, self._on_sync_drop
-            )
-
-        def _topic(self, base: str) -> str:
-            return base + "/compressed" if self.config["image_transport"] == "compressed" else base
-
-        def _create_io(self) -> None:
-            c = self.config
-            image_type = CompressedImage if c["image_transport"] == "compressed" else Image
-            qos = ros.sensor_qos
-            self.create_subscription(image_type, self._topic(c["left_image_topic"]),
-                                     lambda m: self._on_input(LEFT_IMAGE, m), qos)
-            self.create_subscription(image_type, self._topic(c["right_image_topic"]),
-                                     lambda m: self._on_input(RIGHT_IMAGE, m), qos)
-            self.create_subscription(CameraInfo, c["left_info_topic"],
-                                     lambda m: self._on_input(LEFT_INFO, m), qos)
-            self.create_subscription(CameraInfo, c["right_info_topic"],
-                                     lambda m: self._on_input(RIGHT_INFO, m), qos)
-            self.create_subscription(ImuMsg, c["imu_topic"], self._on_imu, ros.imu_qos)
-            if c["speed_topic"]:
-                if c["speed_topic_type"] == "odometry":
-                    from nav_msgs.msg import Odometry as SpeedMsg
-                else:
-                    from geometry_msgs.msg import TwistStamped as SpeedMsg
-                self.create_subscription(SpeedMsg, c["speed_topic"], self._on_speed, qos)
-            self._out = _OutputPublishers(self, ros.output_qos, c)
-            self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", ros.output_qos)
-            self._diag_timer = self.create_timer(c["diagnostics_period_s"], self._publish_diagnostics)
-
-        # --- problems ----------------------------------------------------------------------
-        def _problem(self, kind: str, reason: str) -> None:
-            self.health.problem(kind, reason)
-            if self._log_gate.allow(kind):
-                suppressed = self._log_gate.suppressed.pop(kind, 0)
-                more = f" ({suppressed} more since the last report)" if suppressed else ""
-                self.get_logger().warning(f"{kind}: {reason}{more}")
-
-        # --- callbacks (executor thread) ---------------------------------------------------
-        def _on_input(self, which: str, msg: Any) -> None:
-            if which == LEFT_IMAGE:
-                self.health.frame_in()
-            index = {LEFT_IMAGE: 0, RIGHT_IMAGE: 1, LEFT_INFO: 2, RIGHT_INFO: 3}[which]
-            if self.sync.n_topics == 2 and index in (1, 3):
-                return  # a mono backend needs neither the right image nor its info
-            if self.sync.n_topics == 2:
-                index //= 2
-            try:
-                stamp = stamp_from_header(msg)
-            except MessageError as exc:
-                self._problem("bad stamp", f"{which}: {exc}")
-                if which == LEFT_IMAGE:
-                    self.health.drop("invalid")
-                return
-            if stamp <= 0:
-                self._problem("bad stamp", f"{which} has no stamp (0)")
-                if which == LEFT_IMAGE:
-                    self.health.drop("invalid")
-                return
-            if which == LEFT_IMAGE:
-                last = self._last_left_stamp
-                if last is not None and stamp < last - int(TIME_JUMP_BACK_S * 1e9):
-                    self._problem("time jump", f"left image stamp went back {(last - stamp) * 1e-9:.2f} s; "
-                                  "resetting the synchroniser and the IMU history")
-                    self.sync.reset()
-                    with self._imu_lock:
-                        self.imu.clear()
-                    self._last_left_stamp = stamp
-                elif last is None or stamp > last:
-                    self._last_left_stamp = stamp
-            self.sync.add(index, stamp, (which, msg))
-
-        def _on_sync_drop(self, topic: int, stamp: int, item: Any, reason: str) -> None:
-            which = item[0]
-            if reason in (DropReason.OUT_OF_ORDER, DropReason.DUPLICATE):
-                self._problem("stamp order", f"{which} at {stamp * 1e-9:.6f} s: {reason}")
-            elif which == LEFT_IMAGE:
-                self._problem("unpaired", f"left image at {stamp * 1e-9:.6f} s dropped: {reason} "
-                              "(no matching right image / camera infos within the slop)")
-            if which == LEFT_IMAGE:
-                self.health.drop("sync")
-
-        def _on_set(self, *items: Any) -> None:
-            self.health.set_in()
-            with self._lock:
-                if self._pending is not None:
-                    self.health.drop("busy")
-                self._pending = tuple(msg for _, msg in items)
-                self._pending_arrival = time.monotonic()
-                self._lock.notify()
-
-        def _on_imu(self, msg: Any) -> None:
-            try:
-                stamp = stamp_from_header(msg)
-                q = imu_orientation(msg)
-                with self._imu_lock:
-                    self.imu.add(stamp, tuple(q))
-            except (MessageError, ImuError) as exc:
-                self._problem("bad imu", str(exc))
-
-        def _on_speed(self, msg: Any) -> None:
-            twist = msg.twist.twist if hasattr(msg, "pose") else msg.twist
-            speed = math.hypot(twist.linear.x, twist.linear.y)
-            if math.isfinite(speed):
-                self._speed = (math.copysign(speed, twist.linear.x or 1.0), time.monotonic())
-            else:
-                self._problem("bad speed", f"non-finite speed {twist.linear.x}, {twist.linear.y}")
-
-        # --- parameters --------------------------------------------------------------------
-        def _on_set_parameters(self, parameters: Sequence[Any]) -> Any:
-            candidate = dict(self.config.values)
-            for p in parameters:
-                candidate[p.name] = _plain(p.value)
-            try:
-                config = NodeConfig.from_values(candidate)
-                rebuild = any(config[k] != self.config[k] for k in ("backend", "checkpoint")) or (
-                    config.grid != self.config.grid
+    def _declare_backend_options(self) -> None:
+        # Backend options ("<backend>.<option>") are open-ended, so they are declared from what
+        # the command line / params file gives (rclpy keeps those overrides in _parameter_overrides).
+        for name, override in self._parameter_overrides.items():
+            if is_backend_option(name) and not self.has_parameter(name):
+                backend = name.split(".", 1)[0]
+                descriptor = ParameterDescriptor(
+                    name=name, description=f"option of the {backend} backend", dynamic_typing=True
                 )
-                backend = self._make_backend(config) if rebuild else self.backend
-            except ParamError as exc:
-                self._problem("parameter", f"rejected: {exc}")
-                return SetParametersResult(successful=False, reason=str(exc))
-            self._apply(config, backend)
-            return SetParametersResult(successful=True)
+                self.declare_parameter(name, override.value, descriptor)
 
-        def _apply(self, config: NodeConfig, backend: Backend) -> None:
-            old = self.config
-            stereo_changed = backend.needs_stereo != self.backend.needs_stereo
-            with self._lock:
-                self.config = config
-                self.backend = backend
-            self.health.backend = backend.name
-            self._log_gate.period_s = config["log_throttle_s"]
-            if stereo_changed:
-                self.sync = self._make_sync(config)
+    @staticmethod
+    def _is_ours(name: str) -> bool:
+        return name in _PARAM_NAMES or is_backend_option(name)
+
+    def _make_backend(self, config: NodeConfig) -> Backend:
+        try:
+            options = backend_options(config.values, config["backend"])
+            backend = self._backend_factory(config["backend"], config.grid, **options)
+        except (BackendError, ConfigError, OSError, ValueError) as exc:
+            raise ParamError(f"backend {config['backend']!r} cannot run: {exc}") from None
+        set_inference_threads(config["inference_threads"])
+        return backend
+
+    @staticmethod
+    def _make_imu_buffer(config: NodeConfig) -> ImuBuffer:
+        return ImuBuffer(
+            max_age_s=config["imu_max_age_s"],
+            max_gap_s=config["imu_max_age_s"],
+            horizon_s=config["imu_buffer_s"],
+            imu_to_camera_rpy_deg=tuple(config["imu_to_camera_rpy_deg"]),
+        )
+
+    def _make_sync(self, config: NodeConfig) -> ApproximateTimeSync:
+        n = 4 if self.backend.needs_stereo else 2
+        return ApproximateTimeSync(
+            n, config["sync_queue_size"], config["sync_slop_s"], self._on_set, self._on_sync_drop,
+            jump_back_s=TIME_JUMP_BACK_S, on_reset=self._on_time_jump,
+        )
+
+    def _topic(self, base: str) -> str:
+        return base + "/compressed" if self.config["image_transport"] == "compressed" else base
+
+    def _create_io(self) -> None:
+        c = self.config
+        image_type = CompressedImage if c["image_transport"] == "compressed" else Image
+        qos = SENSOR_QOS
+        self.create_subscription(image_type, self._topic(c["left_image_topic"]),
+                                 lambda m: self._on_input(LEFT_IMAGE, m), qos)
+        self.create_subscription(image_type, self._topic(c["right_image_topic"]),
+                                 lambda m: self._on_input(RIGHT_IMAGE, m), qos)
+        self.create_subscription(CameraInfo, c["left_info_topic"],
+                                 lambda m: self._on_input(LEFT_INFO, m), qos)
+        self.create_subscription(CameraInfo, c["right_info_topic"],
+                                 lambda m: self._on_input(RIGHT_INFO, m), qos)
+        self.create_subscription(ImuMsg, c["imu_topic"], self._on_imu, IMU_QOS)
+        if c["speed_topic"]:
+            if c["speed_topic_type"] == "odometry":
+                from nav_msgs.msg import Odometry as SpeedMsg
             else:
-                self.sync.configure(config["sync_queue_size"], config["sync_slop_s"])
-            imu_keys = ("imu_max_age_s", "imu_buffer_s", "imu_to_camera_rpy_deg")
-            if any(old[k] != config[k] for k in imu_keys):
-                with self._imu_lock:
-                    self.imu.max_age_s = self.imu.max_gap_s = config["imu_max_age_s"]
-                    self.imu.horizon_s = config["imu_buffer_s"]
-                    self.imu.imu_to_camera_rpy_deg = tuple(config["imu_to_camera_rpy_deg"])
-            if old["diagnostics_period_s"] != config["diagnostics_period_s"]:
-                self._diag_timer.cancel()
-                self.destroy_timer(self._diag_timer)
-                self._diag_timer = self.create_timer(config["diagnostics_period_s"], self._publish_diagnostics)
-            self.get_logger().info("parameters updated")
+                from geometry_msgs.msg import TwistStamped as SpeedMsg
+            self.create_subscription(SpeedMsg, c["speed_topic"], self._on_speed, qos)
+        self._out = _OutputPublishers(self, OUTPUT_QOS, c)
+        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", OUTPUT_QOS)
+        self._diag_timer = self.create_timer(c["diagnostics_period_s"], self._publish_diagnostics)
 
-        # --- worker thread -----------------------------------------------------------------
-        def _work(self) -> None:
-            while True:
-                with self._lock:
-                    while self._pending is None and not self._stop:
-                        self._lock.wait(0.5)
-                    if self._stop:
-                        return
-                    msgs, arrival = self._pending, self._pending_arrival
-                    self._pending = None
-                    config, backend = self.config, self.backend
+    # --- problems ----------------------------------------------------------------------
+    def _problem(self, kind: str, reason: str) -> None:
+        self.health.problem(kind, reason)
+        if self._log_gate.allow(kind):
+            suppressed = self._log_gate.suppressed.pop(kind, 0)
+            more = f" ({suppressed} more since the last report)" if suppressed else ""
+            self.get_logger().warning(f"{kind}: {reason}{more}")
+
+    # --- callbacks (executor thread) ---------------------------------------------------
+    def _on_input(self, which: str, msg: Any) -> None:
+        if which == LEFT_IMAGE:
+            self.health.frame_in()
+        index = {LEFT_IMAGE: 0, RIGHT_IMAGE: 1, LEFT_INFO: 2, RIGHT_INFO: 3}[which]
+        if self.sync.n_topics == 2 and index in (1, 3):
+            return  # a mono backend needs neither the right image nor its info
+        if self.sync.n_topics == 2:
+            index //= 2
+        try:
+            stamp = stamp_from_header(msg)
+            if stamp <= 0:
+                raise MessageError("header has no stamp (0)")
+        except MessageError as exc:
+            self._problem("bad stamp", f"{which}: {exc}")
+            if which == LEFT_IMAGE:
+                self.health.drop("invalid")
+            return
+        self.sync.add(index, stamp, (which, msg))
+
+    def _on_time_jump(self, topic: int, jump_ns: int) -> None:
+        self._problem("time jump", f"stamps went back {jump_ns * 1e-9:.2f} s (a bag started again?); "
+                      "the synchroniser starts afresh")
+
+    def _on_sync_drop(self, topic: int, stamp: int, item: Any, reason: str) -> None:
+        which = item[0]
+        if reason in (DropReason.OUT_OF_ORDER, DropReason.DUPLICATE):
+            self._problem("stamp order", f"{which} at {stamp * 1e-9:.6f} s: {reason}")
+        elif which == LEFT_IMAGE:
+            self._problem("unpaired", f"left image at {stamp * 1e-9:.6f} s dropped: {reason} "
+                          "(no matching right image / camera infos within the slop)")
+        if which == LEFT_IMAGE:
+            self.health.drop("sync")
+
+    def _on_set(self, *items: Any) -> None:
+        self.health.set_in()
+        with self._lock:
+            if self._pending is not None:
+                self.health.drop("busy")
+            self._pending = tuple(msg for _, msg in items)
+            self._pending_arrival = time.monotonic()
+            self._lock.notify()
+
+    def _on_imu(self, msg: Any) -> None:
+        try:
+            stamp = stamp_from_header(msg)
+            q = imu_orientation(msg)
+            with self._imu_lock:
+                self.imu.add(stamp, tuple(q))
+        except (MessageError, ImuError) as exc:
+            self._problem("bad imu", str(exc))
+
+    def _on_speed(self, msg: Any) -> None:
+        twist = msg.twist.twist if hasattr(msg, "pose") else msg.twist
+        speed = math.hypot(twist.linear.x, twist.linear.y)
+        if math.isfinite(speed):
+            self._speed = (math.copysign(speed, twist.linear.x or 1.0), time.monotonic())
+        else:
+            self._problem("bad speed", f"non-finite speed {twist.linear.x}, {twist.linear.y}")
+
+    # --- parameters --------------------------------------------------------------------
+    def _check_parameters(self, parameters: list[Any]) -> list[Any]:
+        """Runs before rclpy's own range checks: reports every bad value in diagnostics
+        (the change is then rejected by rclpy or by :meth:`_on_set_parameters`)."""
+        for p in parameters:
+            if p.name in _PARAM_NAMES:
                 try:
-                    self._process(msgs, arrival, config, backend)
-                except (MessageError, FrameError, ImuStale, PreviewError) as exc:
-                    self.health.drop("invalid")
-                    self._problem(_kind_of(exc), str(exc))
-                except Exception as exc:  # a backend failure must not end the node
-                    self.health.drop("invalid")
-                    self._problem("backend error", f"{type(exc).__name__}: {exc}")
+                    validate_one(p.name, _plain(p.value))
+                except ParamError as exc:
+                    self._problem("parameter", f"rejected: {exc}")
+        return parameters
 
-        def _attitude(self, stamp: int, config: NodeConfig) -> Attitude:
-            """The attitude at ``stamp``; waits up to ``imu_wait_s`` for an IMU sample at or after
-            the stamp (IMU messages may arrive after the images) before holding the newest one."""
-            deadline = time.monotonic() + config["imu_wait_s"]
-            while not self._stop:
-                with self._imu_lock:
-                    newest = self.imu.newest_ns
-                if (newest is not None and newest >= stamp) or time.monotonic() >= deadline:
-                    break
-                time.sleep(0.002)
+    def _on_set_parameters(self, parameters: Sequence[Any]) -> Any:
+        candidate = dict(self.config.values)
+        for p in parameters:
+            candidate[p.name] = _plain(p.value)
+            if p.name in _PARAM_NAMES:
+                try:
+                    validate_one(p.name, candidate[p.name])
+                except ParamError as exc:  # already reported by _check_parameters
+                    return SetParametersResult(successful=False, reason=str(exc))
+        try:
+            config = NodeConfig.from_values(candidate)
+            rebuild = (
+                config["backend"] != self.config["backend"]
+                or config.grid != self.config.grid
+                or backend_options(config.values, config["backend"])
+                != backend_options(self.config.values, config["backend"])
+            )
+            backend = self._make_backend(config) if rebuild else self.backend
+        except ParamError as exc:
+            self._problem("parameter", f"rejected: {exc}")
+            return SetParametersResult(successful=False, reason=str(exc))
+        self._apply(config, backend)
+        return SetParametersResult(successful=True)
+
+    def _apply(self, config: NodeConfig, backend: Backend) -> None:
+        old = self.config
+        stereo_changed = backend.needs_stereo != self.backend.needs_stereo
+        with self._lock:
+            self.config = config
+            self.backend = backend
+        self.health.backend = backend.name
+        self._log_gate.period_s = config["log_throttle_s"]
+        if stereo_changed:
+            self.sync = self._make_sync(config)
+        else:
+            self.sync.configure(config["sync_queue_size"], config["sync_slop_s"])
+        imu_keys = ("imu_max_age_s", "imu_buffer_s", "imu_to_camera_rpy_deg")
+        if any(old[k] != config[k] for k in imu_keys):
+            with self._imu_lock:
+                self.imu.max_age_s = self.imu.max_gap_s = config["imu_max_age_s"]
+                self.imu.horizon_s = config["imu_buffer_s"]
+                self.imu.imu_to_camera_rpy_deg = tuple(config["imu_to_camera_rpy_deg"])
+        if old["diagnostics_period_s"] != config["diagnostics_period_s"]:
+            self._diag_timer.cancel()
+            self.destroy_timer(self._diag_timer)
+            self._diag_timer = self.create_timer(config["diagnostics_period_s"], self._publish_diagnostics)
+        self.get_logger().info("parameters updated")
+
+    # --- worker thread -----------------------------------------------------------------
+    def _work(self) -> None:
+        if "torch" in sys.modules:  # the flag is per thread; backends set it in theirs
+            sys.modules["torch"].set_flush_denormal(True)
+        while True:
+            with self._lock:
+                while self._pending is None and not self._stop:
+                    self._lock.wait(0.5)
+                if self._stop:
+                    return
+                msgs, arrival = self._pending, self._pending_arrival
+                self._pending = None
+                config, backend = self.config, self.backend
+            try:
+                self._process(msgs, arrival, config, backend)
+            except (MessageError, FrameError, ImuStale, PreviewError) as exc:
+                self.health.drop("invalid")
+                self._problem(_kind_of(exc), str(exc))
+            except Exception as exc:  # a backend failure must not end the node
+                self.health.drop("invalid")
+                self._problem("backend error", f"{type(exc).__name__}: {exc}")
+
+    def _attitude(self, stamp: int, config: NodeConfig) -> Attitude:
+        """The attitude at ``stamp``. IMU messages may arrive after the images, so this waits
+        up to ``imu_wait_s`` for a sample at or after the stamp (rather than holding an older
+        one) and for an IMU that cannot answer yet (e.g. its stamps have not jumped back yet)."""
+        deadline = time.monotonic() + config["imu_wait_s"]
+        while True:
             with self._imu_lock:
                 newest = self.imu.newest_ns
-                self.health.imu_age_s = None if newest is None else (stamp - newest) * 1e-9
                 try:
-                    return self.imu.attitude_at(stamp)
-                except ImuStale:
-                    if config["require_imu"]:
-                        raise
-            return Attitude.from_degrees(config["default_roll_deg"], config["default_pitch_deg"])
+                    attitude: Attitude | None = self.imu.attitude_at(stamp)
+                except ImuStale as exc:
+                    attitude, error = None, exc
+            self.health.imu_age_s = None if newest is None else (stamp - newest) * 1e-9
+            bracketed = newest is not None and newest >= stamp
+            if (attitude is not None and bracketed) or time.monotonic() >= deadline or self._stop:
+                break
+            time.sleep(0.002)
+        if attitude is not None:
+            return attitude
+        if config["require_imu"]:
+            raise error
+        return Attitude.from_degrees(config["default_roll_deg"], config["default_pitch_deg"])
 
-        def _process(self, msgs: tuple[Any, ...], arrival: float, config: NodeConfig, backend: Backend) -> None:
-            t0 = time.perf_counter()
-            images = images_from_messages(msgs, config["image_transport"])
-            t_wait = time.perf_counter()
-            attitude = self._attitude(images.stamp_ns, config)
-            imu_wait = time.perf_counter() - t_wait  # waiting, not work: kept out of the overhead
-            frame = Frame(images.left, images.right, images.camera, attitude, images.stamp_ns)
-            t1 = time.perf_counter()
-            estimate = backend.estimate(frame)
-            t2 = time.perf_counter()
-            speed = self._speed
-            vehicle_speed = None
-            if speed is not None and time.monotonic() - speed[1] <= SPEED_MAX_AGE_S:
-                vehicle_speed = speed[0]
-            elevation, preview, points = output_messages(
-                estimate, config, images.stamp_ns, vehicle_speed, with_points=self._out.points_wanted()
-            )
-            self._out.publish(elevation, preview, points)
-            t3 = time.perf_counter()
-            stamp = images.stamp_ns
-            latency_ms = (time.monotonic() - arrival) * 1e3
-            stamp_age_ms = (time.time_ns() - stamp) * 1e-6
-            overhead_ms = ((t1 - t0) - imu_wait + (t3 - t2)) * 1e3
-            self.health.output(latency_ms, stamp_age_ms, (t2 - t1) * 1e3, overhead_ms, imu_wait * 1e3)
+    def _process(self, msgs: tuple[Any, ...], arrival: float, config: NodeConfig, backend: Backend) -> None:
+        t0 = time.perf_counter()
+        images = images_from_messages(msgs, config["image_transport"])
+        t_wait = time.perf_counter()
+        attitude = self._attitude(images.stamp_ns, config)
+        imu_wait = time.perf_counter() - t_wait  # waiting, not work: kept out of the overhead
+        frame = Frame(images.left, images.right, images.camera, attitude, images.stamp_ns)
+        t1 = time.perf_counter()
+        estimate = backend.estimate(frame)
+        t2 = time.perf_counter()
+        speed = self._speed
+        vehicle_speed = None
+        if speed is not None and time.monotonic() - speed[1] <= SPEED_MAX_AGE_S:
+            vehicle_speed = speed[0]
+        elevation, preview, points = output_messages(
+            estimate, config, images.stamp_ns, vehicle_speed, with_points=self._out.points_wanted()
+        )
+        self._out.publish(elevation, preview, points)
+        t3 = time.perf_counter()
+        stamp = images.stamp_ns
+        latency_ms = (time.monotonic() - arrival) * 1e3
+        stamp_age_ms = (time.time_ns() - stamp) * 1e-6
+        overhead_ms = ((t1 - t0) - imu_wait + (t3 - t2)) * 1e3
+        self.health.output(latency_ms, stamp_age_ms, (t2 - t1) * 1e3, overhead_ms, imu_wait * 1e3)
 
-        # --- diagnostics -------------------------------------------------------------------
-        def _publish_diagnostics(self) -> None:
-            snapshot = self.health.snapshot()
-            snapshot.values["queued_sets"] = "1" if self._pending is not None else "0"
-            snapshot.values["queued_left_images"] = str(self.sync.queued()[0])
-            self._diag_pub.publish(to_diagnostic_array(snapshot, self.get_clock().now().to_msg()))
+    # --- diagnostics -------------------------------------------------------------------
+    def _publish_diagnostics(self) -> None:
+        snapshot = self.health.snapshot()
+        snapshot.values["queued_sets"] = "1" if self._pending is not None else "0"
+        snapshot.values["queued_left_images"] = str(self.sync.queued()[0])
+        self._diag_pub.publish(to_diagnostic_array(snapshot, self.get_clock().now().to_msg()))
 
-        def counts(self) -> dict[str, int]:
-            """Frame accounting: every left image is an output, a drop, queued or in flight."""
-            h = self.health
-            return {
-                "frames_in": h.frames_in,
-                "outputs": h.outputs,
-                "dropped_busy": h.dropped_busy,
-                "dropped_sync": h.dropped_sync,
-                "dropped_invalid": h.dropped_invalid,
-                "queued": self.sync.queued()[0] + (self._pending is not None),
-            }
+    def counts(self) -> dict[str, int]:
+        """Frame accounting: every left image is an output, a drop, queued or in flight."""
+        h = self.health
+        return {
+            "frames_in": h.frames_in,
+            "outputs": h.outputs,
+            "dropped_busy": h.dropped_busy,
+            "dropped_sync": h.dropped_sync,
+            "dropped_invalid": h.dropped_invalid,
+            "queued": self.sync.queued()[0] + (self._pending is not None),
+        }
 
-        def shutdown(self) -> None:
-            """Stop the worker (waits for the frame in progress)."""
-            with self._lock:
-                self._stop = True
-                self._lock.notify_all()
-            self._worker.join(timeout=30.0)
-
-    return _RoadBevNode
+    def shutdown(self) -> None:
+        """Stop the worker (waits for the frame in progress)."""
+        with self._lock:
+            self._stop = True
+            self._lock.notify_all()
+        self._worker.join(timeout=30.0)
 
 
 def _kind_of(exc: Exception) -> str:

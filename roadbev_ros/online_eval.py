@@ -74,6 +74,8 @@ def node_command(backend: str, grid_params: Mapping[str, float], params_file: Pa
     if params_file is not None:
         ros_args += ["--params-file", str(params_file)]
     for name, value in {**dict(grid_params), **dict(extra_params or {}), "backend": backend}.items():
+        if value == "":
+            continue  # an empty string is the default of every string parameter
         text = repr(float(value)) if isinstance(value, float) else str(value)
         if isinstance(value, bool):
             text = "true" if value else "false"
@@ -279,9 +281,11 @@ def evaluate_online(
     answered = len(truths) - missing
     metrics["fps"] = answered / elapsed if elapsed > 0 else math.nan
     metrics["mode"] = "lockstep" if rate is None else f"rate {rate}"
-    latencies = [1e3 * (watcher.received[s] - sent[s]) for s in sent if s in watcher.received]
+    latencies = [1e3 * (watcher.received[s] - sent[s]) for s in sorted(sent) if s in watcher.received]
     metrics["online"] = {
         "latency_ms": _summary(latencies),
+        # without the first answer, which carries the backend's one-time warm-up
+        "latency_after_first_ms": _summary(latencies[1:]),
         "frames_published": images_sent,
         "outputs_matched": answered,
         "frames_without_output": missing,

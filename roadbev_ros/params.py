@@ -25,12 +25,15 @@ from roadbev_core.config import ConfigError, GridSpec
 
 __all__ = [
     "BACKENDS",
+    "BACKEND_OPTION_PREFIXES",
     "GRID_FIELDS",
     "PARAMETERS",
     "ParamError",
     "ParamSpec",
+    "backend_options",
     "defaults",
     "grid_from_params",
+    "is_backend_option",
     "load_params_file",
     "validate",
     "validate_one",
@@ -39,6 +42,9 @@ __all__ = [
 NODE_NAME = "roadbev"
 GRID_FIELDS: tuple[str, ...] = tuple(GridSpec.__dataclass_fields__)
 BACKENDS: tuple[str, ...] = ("bev_sweep", "stereo", "mono", "sgbm", "bm")
+# Backend options are parameters named "<backend>.<option>" (e.g. bev_sweep.patch_cells), as
+# `roadbev eval --params` reads them; they go to the backend's factory unchecked here.
+BACKEND_OPTION_PREFIXES: tuple[str, ...] = tuple(f"{name}." for name in BACKENDS)
 
 
 class ParamError(ValueError):
@@ -173,6 +179,8 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     # --- what to run
     ParamSpec("backend", "bev_sweep", "elevation backend", choices=BACKENDS),
     ParamSpec("checkpoint", "", "checkpoint file for the learned backends (stereo, mono)"),
+    ParamSpec("inference_threads", 0, "threads for the backend's torch/OpenCV work; 0 = one less than "
+              "the CPU cores (a core stays free for the callbacks)", 0, 256),
     ParamSpec("image_transport", "raw", "input image transport", choices=("raw", "compressed"),
               read_only=True),
     # --- inputs
@@ -287,11 +295,27 @@ def validate_one(name: str, value: Any) -> Any:
     return value
 
 
+def is_backend_option(name: str) -> bool:
+    """Whether ``name`` is a backend option (``<backend>.<option>``)."""
+    return name.startswith(BACKEND_OPTION_PREFIXES)
+
+
+def backend_options(params: Mapping[str, Any], backend: str) -> dict[str, Any]:
+    """The options of ``backend``: parameters ``<backend>.<option>``, plus ``checkpoint`` for
+    the learned backends when it is set."""
+    prefix = f"{backend}."
+    options = {name[len(prefix):]: value for name, value in params.items() if name.startswith(prefix)}
+    if backend in ("stereo", "mono") and params.get("checkpoint"):
+        options["checkpoint"] = params["checkpoint"]
+    return options
+
+
 def validate(params: Mapping[str, Any], *, strict: bool = True) -> dict[str, Any]:
     """A full parameter set checked value by value and as a whole (the grid must be valid).
 
     Args:
-        params: name -> value (missing names take their defaults).
+        params: name -> value (missing names take their defaults). Backend options
+            (``<backend>.<option>``) are kept as they are.
         strict: reject unknown names (a params file for another node's parameters is not an
             error when False; they are dropped).
 
@@ -303,6 +327,9 @@ def validate(params: Mapping[str, Any], *, strict: bool = True) -> dict[str, Any
     """
     out = defaults()
     for name, value in params.items():
+        if is_backend_option(name):
+            out[name] = value
+            continue
         if name not in _BY_NAME:
             if strict:
                 raise ParamError(f"unknown parameter {name!r}")

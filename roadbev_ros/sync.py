@@ -15,7 +15,9 @@ Two additions make it suitable for a node that must account for every frame:
 * after a set is emitted, messages older than that set can never be emitted in stamp order, so
   they are discarded and reported through ``on_drop`` (``message_filters`` keeps them until they
   overflow the queue);
-* a message older than the last emitted set on its topic (out of order) is refused and reported.
+* a message older than the last emitted set on its topic (out of order) is refused and reported;
+  one older by more than ``jump_back_s`` means the clock jumped back (a bag started again): the
+  synchroniser resets itself (reported through ``on_reset``) and goes on from that message.
 
 Stamps are integer nanoseconds; ``slop`` is in seconds like ``message_filters``. Not thread-safe:
 call :meth:`ApproximateTimeSync.add` from one thread (an rclpy single-threaded executor).
@@ -60,6 +62,9 @@ class ApproximateTimeSync:
         callback: called with the set's messages (in topic order) when a set is found.
         on_drop: called ``(topic_index, stamp_ns, message, reason)`` for every message that leaves
             a queue without being emitted.
+        jump_back_s: a stamp this much older than its topic's last emitted one resets the
+            synchroniser (None: never; such messages are refused as out of order).
+        on_reset: called ``(topic_index, jump_ns)`` when a jump back reset the synchroniser.
     """
 
     def __init__(
@@ -69,6 +74,8 @@ class ApproximateTimeSync:
         slop: float,
         callback: Callable[..., None],
         on_drop: Callable[[int, int, Any, str], None] | None = None,
+        jump_back_s: float | None = 1.0,
+        on_reset: Callable[[int, int], None] | None = None,
     ) -> None:
         if n_topics < 1:
             raise SyncError(f"need at least one topic, got {n_topics}")
@@ -76,6 +83,8 @@ class ApproximateTimeSync:
         self._last_emitted: list[int | None] = [None] * n_topics
         self._callback = callback
         self._on_drop = on_drop
+        self._jump_ns = None if jump_back_s is None else int(jump_back_s * 1e9)
+        self._on_reset = on_reset
         self.stats = _Stats()
         self.queue_size = 1
         self.slop_ns = 0
@@ -113,6 +122,11 @@ class ApproximateTimeSync:
             raise SyncError(f"topic index {topic} out of range 0..{self.n_topics - 1}")
         stamp_ns = int(stamp_ns)
         last = self._last_emitted[topic]
+        if last is not None and self._jump_ns is not None and stamp_ns < last - self._jump_ns:
+            self.reset()
+            if self._on_reset is not None:
+                self._on_reset(topic, last - stamp_ns)
+            last = None
         if last is not None and stamp_ns <= last:
             reason = DropReason.DUPLICATE if stamp_ns == last else DropReason.OUT_OF_ORDER
             self._drop(topic, stamp_ns, msg, reason)

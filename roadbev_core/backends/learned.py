@@ -85,7 +85,7 @@ class LearnedBackend:
         elevation = np.where(seen, pred.elevation[0].numpy(), np.nan).astype(np.float32)
         uncertainty = np.where(seen, pred.uncertainty[0].numpy(), np.nan).astype(np.float32)
         t3 = time.perf_counter()
-        timings = {"prepare": 1e3 * (t1 - t0), "network": 1e3 * (t2 - t1), "post": 1e3 * (t3 - t2)}
+        timings = {"preprocess": 1e3 * (t1 - t0), "network": 1e3 * (t2 - t1), "post": 1e3 * (t3 - t2)}
         return Estimate(elevation=elevation, uncertainty=uncertainty, timings_ms=timings)
 
 

@@ -67,11 +67,23 @@ class ModelConfig:
             if int(getattr(self, name)) < 1:
                 raise ConfigError(f"model {name} must be >= 1, got {getattr(self, name)}")
 
+    def padding(self, grid: GridSpec) -> tuple[int, int]:
+        """Output rows / columns added at the far / left edge so that ``grid_factor`` divides the grid."""
+        return (-grid.n_rows) % self.grid_factor, (-grid.n_cols) % self.grid_factor
+
     def internal_grid(self, grid: GridSpec) -> GridSpec:
-        """The voxel grid the network runs on for output ``grid`` (same extent, coarser cells)."""
-        return replace(
-            grid.scaled(self.grid_factor), z_resolution=grid.z_resolution * self.z_factor
-        )
+        """The voxel grid the network runs on for output ``grid`` (coarser cells).
+
+        When ``grid_factor`` does not divide the grid, the internal grid reaches a little further
+        (beyond ``x_max`` / ``y_max``, i.e. before row 0 / column 0) and the extra output rows and
+        columns are cropped after upsampling (:meth:`padding`).
+        """
+        if grid.n_z % self.z_factor:
+            raise ConfigError(f"z_factor {self.z_factor} does not divide the grid's {grid.n_z} voxel layers")
+        pad_rows, pad_cols = self.padding(grid)
+        padded = replace(grid, x_max=grid.x_max + pad_rows * grid.resolution,
+                         y_max=grid.y_max + pad_cols * grid.resolution)
+        return replace(padded.scaled(self.grid_factor), z_resolution=grid.z_resolution * self.z_factor)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

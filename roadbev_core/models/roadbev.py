@@ -123,21 +123,24 @@ class RoadBEV(nn.Module):
         look_l = self._lookups(cameras, attitudes, right=False)
         vox_l = query_voxels(fused[:b], look_l, cfg.sampling)  # [B, C, Nz, Ny, Nx]
         grid = self.grid
+        pad_rows, pad_cols = cfg.padding(grid)
+        size = (grid.n_rows + pad_rows, grid.n_cols + pad_cols)  # output cells covered by self.inner
         if self.is_stereo:
             look_r = self._lookups(cameras, attitudes, right=True)
             vox_r = query_voxels(fused[b:], look_r, cfg.sampling)
             volume = vox_l * vox_r if cfg.volume == "product" else vox_l - vox_r
             score = self.head(volume)  # [B, Nz, Ny, Nx]
-            logits = F.interpolate(score[:, None], size=(grid.n_classes, grid.n_rows, grid.n_cols),
+            logits = F.interpolate(score[:, None], size=(grid.n_classes, *size),
                                    mode="trilinear", align_corners=False)[:, 0]
             seen = (look_l.mask & look_r.mask).any(dim=1)  # [B, Ny, Nx]
         else:
             logits = self.head(vox_l.flatten(1, 2))  # [B, Nc, Ny, Nx]
-            if logits.shape[-2:] != grid.shape:
-                logits = F.interpolate(logits, size=grid.shape, mode="bilinear", align_corners=False)
+            if logits.shape[-2:] != size:
+                logits = F.interpolate(logits, size=size, mode="bilinear", align_corners=False)
             seen = look_l.mask.any(dim=1)
-        observed = F.interpolate(seen[:, None].float(), size=grid.shape, mode="nearest")[:, 0] > 0.5
-        return logits, observed
+        observed = F.interpolate(seen[:, None].float(), size=size, mode="nearest")[:, 0] > 0.5
+        # The padding rows / columns lie beyond x_max / y_max, i.e. before row 0 / column 0.
+        return logits[..., pad_rows:, pad_cols:], observed[..., pad_rows:, pad_cols:]
 
     def predict(
         self,

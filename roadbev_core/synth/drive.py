@@ -42,6 +42,7 @@ __all__ = [
 ]
 
 GRAVITY = 9.80665
+MAX_DRIVE_M = 600.0  # the road rasters of a drive are held in memory (1 cm cells, 7.2 m wide)
 
 # Left-camera attitude of the 1,581 real RSRD samples (train + test), degrees, derived with
 # geometry.rsrd_camera_attitude from the pinned sample_info and calibrations: mean, standard
@@ -136,6 +137,8 @@ class DriveConfig:
         grid: the BEV grid (labels and base height).
         start_stamp_ns: time of the first IMU sample.
         lidar: the ground-truth point cloud.
+        gyro_noise, accel_noise: white noise on the IMU rates (rad/s) and specific force (m/s^2),
+            1-sigma; the orientation is the filtered (exact) one.
     """
 
     frames: int = 20
@@ -148,6 +151,8 @@ class DriveConfig:
     grid: GridSpec = field(default_factory=GridSpec)
     start_stamp_ns: int = 1_700_000_000_000_000_000
     lidar: LidarConfig = field(default_factory=LidarConfig)
+    gyro_noise: float = 0.002
+    accel_noise: float = 0.03
 
     def __post_init__(self) -> None:
         if self.frames < 1:
@@ -158,10 +163,15 @@ class DriveConfig:
             raise SynthError(f"frame rate must be in [0.1, 60] Hz, got {self.frame_rate_hz}")
         if not self.frame_rate_hz < self.imu_rate_hz <= 2000.0:
             raise SynthError(f"IMU rate must exceed the frame rate and be <= 2000 Hz, got {self.imu_rate_hz}")
-        if self.speed_mps * self.frames / self.frame_rate_hz > 1500.0:
-            raise SynthError("drive longer than 1.5 km; split it into several drives")
+        if self.speed_mps * self.frames / self.frame_rate_hz > MAX_DRIVE_M:
+            raise SynthError(
+                f"a drive of {self.speed_mps * self.frames / self.frame_rate_hz:.0f} m is longer than "
+                f"{MAX_DRIVE_M:.0f} m (its rasters take ~1 GB per km); split it into several drives"
+            )
         if self.start_stamp_ns < 0:
             raise SynthError("start_stamp_ns must be >= 0")
+        if self.gyro_noise < 0 or self.accel_noise < 0:
+            raise SynthError("IMU noise must be >= 0")
 
 
 # --- rotations ------------------------------------------------------------------------------
@@ -207,22 +217,33 @@ def _rotvec(R: np.ndarray) -> np.ndarray:
 
 
 # --- motion -----------------------------------------------------------------------------------
-def _smooth_process(n: int, dt: float, tau: float, std: float, rng: np.random.Generator) -> np.ndarray:
-    """[n] smooth stationary Gaussian process: white noise through four first-order low-passes
-    of time constant ``tau`` (its first and second derivatives stay bounded, as body motion
-    and the accelerometer need), scaled to ``std``."""
-    warm = int(8 * tau / dt) + 1  # brings the filters to steady state
-    a = math.exp(-dt / tau)
-    x = rng.standard_normal(n + warm)
-    for _ in range(4):
+def _cascade(x: np.ndarray, a: float, stages: int) -> np.ndarray:
+    """``stages`` first-order low-passes y[k] = a y[k-1] + (1 - a) x[k] in series, from rest."""
+    for _ in range(stages):
         y = np.empty_like(x)
         acc = 0.0
         for k in range(x.shape[0]):
             acc = a * acc + (1 - a) * x[k]
             y[k] = acc
         x = y
-    x = x[warm:]
-    return x / (x.std() + 1e-12) * std if n > 1 else x * 0.0
+    return x
+
+
+def _smooth_process(n: int, dt: float, tau: float, std: float, rng: np.random.Generator) -> np.ndarray:
+    """[n] smooth stationary Gaussian process: white noise through four first-order low-passes
+    of time constant ``tau`` (its first and second derivatives stay bounded, as body motion
+    and the accelerometer need), with standard deviation ``std``.
+
+    The scale comes from the filter's own gain (not from the sample), so short drives are not
+    blown up to the full spread.
+    """
+    warm = int(8 * tau / dt) + 1  # brings the filters to steady state
+    a = math.exp(-dt / tau)
+    impulse = np.zeros(warm * 4)
+    impulse[0] = 1.0
+    gain = math.sqrt(float(np.sum(_cascade(impulse, a, 4) ** 2)))  # output std for unit white noise
+    x = _cascade(rng.standard_normal(n + warm), a, 4)[warm:]
+    return x * (std / gain)
 
 
 def _second_order(u: np.ndarray, dt: float, freq_hz: float, damping: float, substeps: int = 10) -> np.ndarray:
@@ -321,10 +342,20 @@ def render_sample(
     ground = np.isfinite(left.depth)
     median = float(np.median(lum[ground])) if ground.any() else float(np.median(lum))
     exposure = (115.0 / 255.0) ** 2.2 / max(median, 1e-4) * rng.uniform(0.8, 1.2)
-    gain_right = 1.0 + rng.uniform(-road.gain_mismatch, road.gain_mismatch)
-    kwargs = dict(noise_sigma=road.noise_sigma, blur_sigma_px=road.blur_sigma_px, jpeg_quality=road.jpeg_quality)
+    # the right camera: another overall gain and a slightly different colour balance
+    gain_right = (1.0 + rng.uniform(-road.gain_mismatch, road.gain_mismatch)) * (
+        1.0 + rng.uniform(-0.25, 0.25, 3) * road.gain_mismatch
+    )
+    kwargs = dict(
+        noise_sigma=road.noise_sigma,
+        blur_sigma_px=road.blur_sigma_px,
+        jpeg_quality=road.jpeg_quality,
+        vignetting=road.vignetting,
+    )
     img_left = sensor_image(left.radiance, exposure=exposure, gain=1.0, rng=rng, **kwargs)
-    img_right = sensor_image(right.radiance, exposure=exposure, gain=gain_right, rng=rng, **kwargs) if right else None
+    img_right = (
+        sensor_image(right.radiance, exposure=exposure, gain=tuple(gain_right), rng=rng, **kwargs) if right else None
+    )
     points = sample_points(scene, pose, grid, lidar, rng)
     frame = Frame(
         left=img_left, right=img_right, camera=camera, attitude=attitude or pose.attitude, stamp_ns=int(stamp_ns)
@@ -403,6 +434,8 @@ class SyntheticDrive:
             acc[:, 2] = np.gradient(np.gradient(z, imu_dt), imu_dt)
         acc[:, 2] += GRAVITY
         self._acc_body = np.einsum("kji,kj->ki", np.array(self._R), acc)
+        self._acc_body += rng.normal(0.0, config.accel_noise, self._acc_body.shape)
+        self._gyro_noise = rng.normal(0.0, config.gyro_noise, (n_imu, 3))
 
     def __len__(self) -> int:
         return self.config.frames
@@ -447,7 +480,7 @@ class SyntheticDrive:
         n = len(self._R)
         for k in range(n):
             a, b = max(k - 1, 0), min(k + 1, n - 1)
-            omega = _rotvec(self._R[a].T @ self._R[b]) / (max(b - a, 1) * imu_dt)
+            omega = _rotvec(self._R[a].T @ self._R[b]) / (max(b - a, 1) * imu_dt) + self._gyro_noise[k]
             q = self._q[k]
             out.append(
                 ImuSample(
@@ -478,6 +511,26 @@ def random_road(rng: np.random.Generator) -> RoadConfig:
     )
 
 
+def _place_in_grid(
+    names: tuple[str, ...], grid: GridSpec, y_cam: float, rng: np.random.Generator
+) -> list[tuple[str, float, float]]:
+    """World centres (the camera at x = 0, y = ``y_cam``) of features inside the grid's window,
+    kept apart where possible (a feature on top of another one reads as neither)."""
+    placed: list[tuple[str, float, float]] = []
+    for name in names:
+        best, best_gap = (0.0, 0.0), -1.0
+        for _ in range(12):
+            x = float(rng.uniform(grid.x_min + 0.4, grid.x_max - 0.4))
+            y = y_cam + float(rng.uniform(grid.y_min + 0.2, grid.y_max - 0.2))
+            gap = min((math.hypot((x - px) / 1.2, y - py) for _, px, py in placed), default=9.0)
+            if gap > best_gap:
+                best, best_gap = (x, y), gap
+            if gap >= 1.0:
+                break
+        placed.append((name, *best))
+    return placed
+
+
 def make_sample(
     seed: int,
     *,
@@ -498,14 +551,7 @@ def make_sample(
     rng_cfg, rng_pose, rng_render = (np.random.default_rng(s) for s in seq.spawn(3))
     road = road or random_road(rng_cfg)
     y_cam = float(rng_pose.uniform(-0.5, 0.5))
-    centres = [
-        (
-            name,
-            float(rng_pose.uniform(grid.x_min + 0.4, grid.x_max - 0.4)),
-            y_cam + float(rng_pose.uniform(grid.y_min + 0.2, grid.y_max - 0.2)),
-        )
-        for name in road.features
-    ]
+    centres = _place_in_grid(road.features, grid, y_cam, rng_pose)
     scene = build_scene(road, int(seed), (-4.0, LOOK_AHEAD_M + 2.0), centres)
     roll, pitch = draw_mount_attitude(rng_pose, in_drive=False)
     front, rear, _, _ = _wheel_heights(scene, np.zeros(1), np.full(1, y_cam), np.zeros(1))

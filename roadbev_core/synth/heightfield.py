@@ -10,7 +10,8 @@ Roughness (ISO 8608): the one-sided displacement PSD of a longitudinal profile i
 two-sided spectrum is ``P(k) = C * (|k|^2 + kc^2) ** -1.5`` has exactly the 1-D profile PSD
 ``4 C / (n^2 + kc^2)``; with ``C = Gd(n0) n0^2 / 4`` that is ISO 8608 above the cut-off ``kc``
 (wavelengths longer than about a wheelbase move the whole car and so do not show in the
-camera-relative elevation, and are left out).
+camera-relative elevation, and are left out). Above ``ISO8608_N_MAX`` the spectrum steepens to
+``n^-4``: the law describes unevenness, not the millimetre texture of the surface.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ __all__ = [
     "FEATURE_NAMES",
     "ISO8608_GD0",
     "ISO8608_N0",
+    "ISO8608_N_MAX",
     "Crack",
     "Feature",
     "Kerb",
@@ -50,6 +52,9 @@ class SynthError(ValueError):
 # ISO 8608 geometric-mean displacement PSD at n0 = 0.1 cycle/m, m^3 (classes A..E).
 ISO8608_GD0: dict[str, float] = {"A": 16e-6, "B": 64e-6, "C": 256e-6, "D": 1024e-6, "E": 4096e-6}
 ISO8608_N0 = 0.1
+# Highest spatial frequency the class law is applied to (cycle/m): ISO 8608 classifies profiles
+# up to about 3 cycle/m; shorter wavelengths fall off faster (see roughness_field).
+ISO8608_N_MAX = 4.0
 
 # Names accepted in RoadConfig.features (a "hump" covers speed humps and speed tables).
 FEATURE_NAMES = ("pothole", "speed_bump", "hump", "rut", "crack", "step", "kerb", "patch")
@@ -96,6 +101,7 @@ def roughness_field(
         road_class: ISO 8608 class "A".."E".
         rng: random source.
         cutoff_wavelength: longest wavelength kept (m), the high-pass corner ``kc = 1/it``.
+            (The short-wavelength corner is ``ISO8608_N_MAX``.)
         scale: multiplies the amplitude (0 gives a smooth road).
 
     Returns:
@@ -111,8 +117,12 @@ def roughness_field(
     c = ISO8608_GD0[road_class] * ISO8608_N0**2 / 4.0
     kc = 1.0 / cutoff_wavelength
 
+    k_hi = ISO8608_N_MAX
+
     def psd(k: np.ndarray) -> np.ndarray:
-        return c * (k * k + kc * kc) ** -1.5
+        # ISO 8608 within its band; beyond n_max the spectrum steepens by n^-2 more (texture
+        # below ~25 cm wavelength is the pavement's macrotexture, drawn by the albedo tiles).
+        return c * (k * k + kc * kc) ** -1.5 / (1.0 + (k / k_hi) ** 2)
 
     factor = 8
     coarse = resolution * factor
@@ -332,9 +342,9 @@ class SpeedBump:
         bump = self.along(xs - self.x) * taper
         canvas.heights[rows, cols] += bump.astype(np.float32)
         on = (bump > 0.002).astype(np.float32)
-        if self.painted:  # yellow/white chevron-like bands on the bump
-            bands = (np.floor((ys - self.y + 0.3 * (xs - self.x)) / 0.3) % 2 == 0).astype(np.float32)
-            canvas.albedo[rows, cols] *= 1.0 + 1.6 * on * bands
+        if self.painted:  # alternating light bands across the bump (painted or rubber units)
+            bands = (np.floor((ys - self.y) / 0.5) % 2 == 0).astype(np.float32)
+            canvas.albedo[rows, cols] *= 1.0 + 1.4 * on * bands
         else:
             canvas.albedo[rows, cols] *= 1.0 - 0.1 * on
 
@@ -563,7 +573,7 @@ def sample_feature(name: str, rng: np.random.Generator, x: float, y: float) -> F
             width=rng.uniform(3.5, 7.0),
             profile=profile,
             ramp=rng.uniform(0.8, 1.2),
-            painted=bool(rng.random() < 0.3),
+            painted=False,
             name="hump",
         )
     if name == "rut":

@@ -27,10 +27,20 @@ from roadbev_core.synth.heightfield import SynthError
 from roadbev_core.synth.scene import Scene
 from roadbev_core.synth.texture import build_pyramid, remap_points, sample_mip, sample_ripmap
 
-__all__ = ["CameraPose", "RenderedView", "ray_directions", "render_stereo", "render_view", "sensor_image", "view_crop"]
+__all__ = [
+    "CameraPose",
+    "RenderedView",
+    "ego_shadow",
+    "ray_directions",
+    "render_stereo",
+    "render_view",
+    "sensor_image",
+    "view_crop",
+]
 
 MARCH_SAMPLES = 20  # slab samples per ray before refinement
-REFINE_STEPS = 4  # regula falsi iterations
+REFINE_STEPS = 5  # regula falsi iterations at most
+REFINE_TOL_M = 1e-4  # stop refining a ray this close to the surface (m; 0.1 mm)
 LOOK_AHEAD_M = 32.0  # rasters are used this far ahead; beyond, the road is its plane
 HAZE_DISTANCE_M = 400.0
 
@@ -61,12 +71,20 @@ class CameraPose:
         return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
     def road_to_world(self, points_road: np.ndarray, base_height: float) -> np.ndarray:
-        """Road-frame points [..., 3] -> world points [..., 3]."""
-        return np.asarray(points_road, np.float64) @ self.yaw_matrix().T + self.road_origin(base_height)
+        """Road-frame points [..., 3] -> world points [..., 3] (a turn about z, then a shift)."""
+        p = np.asarray(points_road, np.float64)
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        o = self.road_origin(base_height)
+        # written out: numpy's [N, 3] @ [3, 3] is slow
+        return np.stack(
+            [c * p[..., 0] - s * p[..., 1] + o[0], s * p[..., 0] + c * p[..., 1] + o[1], p[..., 2] + o[2]], -1
+        )
 
     def world_to_road(self, points_world: np.ndarray, base_height: float) -> np.ndarray:
         """World points [..., 3] -> road-frame points [..., 3]."""
-        return (np.asarray(points_world, np.float64) - self.road_origin(base_height)) @ self.yaw_matrix()
+        p = np.asarray(points_world, np.float64) - self.road_origin(base_height)
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        return np.stack([c * p[..., 0] + s * p[..., 1], -s * p[..., 0] + c * p[..., 1], p[..., 2]], -1)
 
 
 class RenderedView(NamedTuple):
@@ -96,32 +114,35 @@ def ray_directions(camera: StereoCamera, pose: CameraPose) -> np.ndarray:
 class _Crop(NamedTuple):
     heights: np.ndarray  # [n, m] float32 displacement rows along x
     shade: list[np.ndarray]  # pyramid of [n, m, 4] (dz/dx, dz/dy, albedo, light)
-    bound_hi: np.ndarray  # [n', m'] max displacement within BOUND_RADIUS of each coarse cell
-    bound_lo: np.ndarray  # [n', m'] min displacement likewise
+    bounds: list[tuple[float, float, np.ndarray, np.ndarray]]  # (cell m, radius m, max, min) fine first
     x0: float
     y0: float
     res: float
 
 
-BOUND_CELL_M = 0.25  # coarse cells of the local displacement bounds
-BOUND_DILATE = 2  # bounds hold for every point within this many coarse cells
-BOUND_RADIUS_M = BOUND_CELL_M * BOUND_DILATE - 0.02
-STEP_M = 0.02  # horizontal spacing of the slab samples
+# Local displacement bounds at two scales: (coarse cell size, dilation in cells). A lookup at
+# any point bounds the surface within (dilation * cell - 2 cm) of it.
+BOUND_LEVELS = ((0.25, 2), (1.0, 2))
+STEP_M = 0.02  # horizontal spacing of the slab samples (near the camera)
+STEP_FOOTPRINTS = 0.5  # and at most half a pixel footprint further out
 
 
-def _local_bounds(h: np.ndarray, res: float) -> tuple[np.ndarray, np.ndarray]:
-    """Max and min displacement over coarse cells, dilated so that a lookup at any point bounds
-    the surface within ``BOUND_RADIUS_M`` of it."""
-    k = max(int(round(BOUND_CELL_M / res)), 1)
+def _local_bounds(h: np.ndarray, res: float, cell_m: float, dilate: int) -> tuple[np.ndarray, np.ndarray]:
+    """Max and min displacement over coarse cells of ``cell_m``, dilated by ``dilate`` cells.
+
+    A point within ``dilate * cell_m - 2 cm`` of a lookup point lies in one of the dilated cells
+    (the 2 cm cover the bilinear support of the fine raster), so the bounds hold for it.
+    """
+    k = max(int(round(cell_m / res)), 1)
     n, m = -(-h.shape[0] // k), -(-h.shape[1] // k)
     pad = np.pad(h, ((0, n * k - h.shape[0]), (0, m * k - h.shape[1])), mode="edge")
-    # a coarse cell also sees the first fine row/column of its neighbour (bilinear support)
     blocks = pad.reshape(n, k, m, k)
-    hi = np.maximum(blocks.max(axis=(1, 3)), 0.0)
+    hi = np.maximum(blocks.max(axis=(1, 3)), 0.0)  # the plane outside the raster is 0
     lo = np.minimum(blocks.min(axis=(1, 3)), 0.0)
-    kernel = np.ones((2 * BOUND_DILATE + 1, 2 * BOUND_DILATE + 1), np.uint8)
-    return cv2.dilate(hi, kernel, borderType=cv2.BORDER_REPLICATE), cv2.erode(
-        lo, kernel, borderType=cv2.BORDER_REPLICATE
+    kernel = np.ones((2 * dilate + 1, 2 * dilate + 1), np.uint8)
+    return (
+        cv2.dilate(hi, kernel, borderType=cv2.BORDER_REPLICATE),
+        cv2.erode(lo, kernel, borderType=cv2.BORDER_REPLICATE),
     )
 
 
@@ -143,8 +164,11 @@ def _crop(scene: Scene, x_lo: float, x_hi: float) -> _Crop:
         shade[..., 2] = c.albedo[i0:i1]
         shade[..., 3] = c.light[i0:i1]
         x0 = c.x0 + i0 * c.resolution
-    hi, lo = _local_bounds(h, c.resolution)
-    return _Crop(h, build_pyramid(shade, 7), hi, lo, x0, c.y0, c.resolution)
+    bounds = []
+    for cell_m, dilate in BOUND_LEVELS:
+        hi, lo = _local_bounds(h, c.resolution, cell_m, dilate)
+        bounds.append((cell_m, dilate * cell_m - 0.02, hi, lo))
+    return _Crop(h, build_pyramid(shade, 7), bounds, x0, c.y0, c.resolution)
 
 
 class _Rays(NamedTuple):
@@ -166,16 +190,20 @@ class _Rays(NamedTuple):
         return self.f0 + s * self.df[sel] - disp
 
 
-def _intersect(scene: Scene, crop: _Crop, origin: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _intersect(
+    scene: Scene, crop: _Crop, origin: np.ndarray, dirs: np.ndarray, pixel_angle: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Depth (optical z) of the first surface crossing of each ray; inf for rays that miss.
 
-    Each ray is sampled every ``STEP_M`` (horizontally) through the slab where it is between
-    the highest and the lowest displacement near its plane hit (local bounds when the slab is
-    short enough for them to hold, the scene's extremes otherwise); the first sample below the
-    surface brackets the first crossing, regula falsi refines it.
+    Each ray is sampled every ``STEP_M`` (horizontally; half a pixel footprint where that is
+    longer) through the slab where it is between the highest and the lowest displacement near
+    its plane hit (local bounds when the slab is short enough for them to hold, the scene's
+    extremes otherwise); the first sample below the surface brackets the first crossing, regula
+    falsi refines it.
 
     Args:
         origin: [3] world ray origin. dirs: [N, 3] world directions with unit optical z.
+        pixel_angle: angle subtended by one pixel (rad, 1 / fx).
 
     Returns:
         depth [N] float64 and ground [N] bool.
@@ -193,18 +221,21 @@ def _intersect(scene: Scene, crop: _Crop, origin: np.ndarray, dirs: np.ndarray) 
     s_plane = -a / bb
     row0, col0 = f32((origin[0] - crop.x0) / crop.res), f32((origin[1] - crop.y0) / crop.res)
     n_rows, n_cols = crop.heights.shape
-    # Local bounds at the plane hit; fall back to the scene's extremes where the slab is longer
-    # than the radius the bounds hold for.
-    per_bound = f32(crop.res / BOUND_CELL_M)
-    bi = np.clip(((row0 + s_plane * dr) * per_bound).astype(np.int32), 0, crop.bound_hi.shape[0] - 1)
-    bj = np.clip(((col0 + s_plane * dc) * per_bound).astype(np.int32), 0, crop.bound_hi.shape[1] - 1)
-    d_hi = crop.bound_hi[bi, bj] + f32(1e-3)
-    d_lo = crop.bound_lo[bi, bj] - f32(1e-3)
+    # Local bounds at the plane hit, the finest whose radius covers the ray's slab; the scene's
+    # extremes where none does.
     horiz = np.sqrt(dr * dr + dc * dc) * f32(crop.res)  # metres per unit s
-    far = np.maximum(d_hi, -d_lo) / -bb * horiz > BOUND_RADIUS_M
     g_lo, g_hi = scene.displacement_range
-    d_hi[far] = f32(g_hi + 1e-3)
-    d_lo[far] = f32(g_lo - 1e-3)
+    d_hi = np.full(idx.size, g_hi + 1e-3, np.float32)
+    d_lo = np.full(idx.size, g_lo - 1e-3, np.float32)
+    todo = np.arange(idx.size)
+    for cell_m, radius, b_hi, b_lo in crop.bounds:
+        per_cell = f32(crop.res / cell_m)
+        bi = np.clip(((row0 + s_plane[todo] * dr[todo]) * per_cell).astype(np.int32), 0, b_hi.shape[0] - 1)
+        bj = np.clip(((col0 + s_plane[todo] * dc[todo]) * per_cell).astype(np.int32), 0, b_hi.shape[1] - 1)
+        hi, lo = b_hi[bi, bj] + f32(1e-3), b_lo[bi, bj] - f32(1e-3)
+        fits = np.maximum(hi, -lo) / -bb[todo] * horiz[todo] <= radius
+        d_hi[todo[fits]], d_lo[todo[fits]] = hi[fits], lo[fits]
+        todo = todo[~fits]
     s_top = np.maximum((d_hi - a) / bb, f32(1e-3))
     s_bot = (d_lo - a) / bb
     # Rays whose slab starts beyond the rasters see the plain plane.
@@ -219,7 +250,12 @@ def _intersect(scene: Scene, crop: _Crop, origin: np.ndarray, dirs: np.ndarray) 
     s0, s1 = s_top[inside], s_bot[inside]
     rays = _Rays(row0, col0, a, dr[inside], dc[inside], bb[inside])
     n = march.size
-    steps = np.clip(np.ceil((s1 - s0) * horiz[inside] / STEP_M), 1, 4 * MARCH_SAMPLES).astype(np.float32)
+    # Sample spacing: STEP_M, or half the pixel's footprint along the road where that is longer
+    # (nothing narrower than a pixel can hide a crossing the image would show).
+    norm = np.sqrt(horiz * horiz + dirs[idx, 2] ** 2)
+    foot = s_plane * norm * f32(pixel_angle) * norm / np.maximum(-bb, f32(1e-6))
+    step = np.maximum(f32(STEP_M), f32(STEP_FOOTPRINTS) * foot)[inside]
+    steps = np.clip(np.ceil((s1 - s0) * horiz[inside] / step), 1, 4 * MARCH_SAMPLES).astype(np.float32)
     lo_s, hi_s = s0.copy(), s1.copy()
     lo_f = rays.above(crop, s0, np.arange(n))
     hi_f = np.full(n, -1e-6, np.float32)
@@ -238,19 +274,24 @@ def _intersect(scene: Scene, crop: _Crop, origin: np.ndarray, dirs: np.ndarray) 
         still = open_[~below]
         lo_s[still], lo_f[still] = s[~below], val[~below]
         open_ = still
-    # Regula falsi on [lo, hi] (Illinois variant keeps both ends moving).
-    everything = np.arange(n)
+    # Regula falsi on [lo, hi] (Illinois variant keeps both ends moving), until the ray is
+    # within REFINE_TOL_M of the surface.
+    active = np.arange(n)
     side = np.zeros(n, np.int8)
     for _ in range(REFINE_STEPS):
-        s = lo_s + (hi_s - lo_s) * lo_f / (lo_f - hi_f)
-        val = rays.above(crop, s, everything)
+        ls, hs, lf, hf = lo_s[active], hi_s[active], lo_f[active], hi_f[active]
+        s = ls + (hs - ls) * lf / (lf - hf)
+        val = rays.above(crop, s, active)
         up = val > 0
-        down = ~up
-        lo_f[down & (side == -1)] *= f32(0.5)
-        hi_f[up & (side == 1)] *= f32(0.5)
-        lo_s[up], lo_f[up] = s[up], val[up]
-        hi_s[down], hi_f[down] = s[down], np.minimum(val[down], f32(-1e-9))
-        side = np.where(up, 1, -1).astype(np.int8)
+        sd = side[active]
+        lf = np.where(~up & (sd == -1), lf * f32(0.5), np.where(up, val, lf))
+        hf = np.where(up & (sd == 1), hf * f32(0.5), np.where(up, hf, np.minimum(val, f32(-1e-9))))
+        lo_s[active], lo_f[active] = np.where(up, s, ls), lf
+        hi_s[active], hi_f[active] = np.where(up, hs, s), hf
+        side[active] = np.where(up, 1, -1)
+        active = active[np.abs(val) > REFINE_TOL_M]
+        if active.size == 0:
+            break
     depth[march] = lo_s + (hi_s - lo_s) * lo_f / (lo_f - hi_f)
     return depth.astype(np.float64), ground
 
@@ -276,8 +317,51 @@ def _marking_coverage(
     return cover, colour / np.maximum(cover, 1e-6)[:, None]
 
 
+# The ego vehicle as boxes in the camera's yaw-aligned level frame (m): x from the rear to the
+# front, y across, z relative to the camera (which sits on the roof): body, then cabin.
+EGO_BOXES = (
+    ((-3.4, 1.0), (-0.92, 0.92), (-0.8, -0.35)),
+    ((-2.7, 0.3), (-0.75, 0.75), (-0.35, 0.06)),
+)
+PENUMBRA_M = 0.03
+
+
+def ego_shadow(scene: Scene, pose: CameraPose, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """[N] float32 share of sunlight the ego vehicle lets through at world points (1 = none blocked).
+
+    The ray from each point towards the sun is tested against :data:`EGO_BOXES` (slab method);
+    the length of its chord through a box, over ``PENUMBRA_M``, softens the edge like the sun's
+    disc.
+    """
+    c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+    qx, qy, qz = x - np.float32(pose.x), y - np.float32(pose.y), z - np.float32(pose.z)
+    local = ((c * qx + s * qy), (-s * qx + c * qy), qz)
+    sun = scene.sun
+    direction = (c * sun[0] + s * sun[1], -s * sun[0] + c * sun[1], sun[2])
+    through = np.ones(x.shape[0], np.float32)
+    for box in EGO_BOXES:
+        t_near = np.zeros(x.shape[0], np.float32)
+        t_far = np.full(x.shape[0], np.inf, np.float32)
+        for (lo, hi), q, dq in zip(box, local, direction, strict=True):
+            if abs(dq) < 1e-9:
+                t_far = np.where((q >= lo) & (q <= hi), t_far, -np.inf).astype(np.float32)
+                continue
+            t1, t2 = (lo - q) / np.float32(dq), (hi - q) / np.float32(dq)
+            t_near = np.maximum(t_near, np.minimum(t1, t2))
+            t_far = np.minimum(t_far, np.maximum(t1, t2))
+        chord = np.maximum(t_far - t_near, 0.0)
+        through *= 1.0 - np.clip(chord / PENUMBRA_M, 0.0, 1.0)
+    return through.astype(np.float32)
+
+
 def _shade_ground(
-    scene: Scene, crop: _Crop, camera: StereoCamera, origin: np.ndarray, dirs: np.ndarray, depth: np.ndarray
+    scene: Scene,
+    crop: _Crop,
+    camera: StereoCamera,
+    pose: CameraPose,
+    origin: np.ndarray,
+    dirs: np.ndarray,
+    depth: np.ndarray,
 ) -> np.ndarray:
     """[N, 3] float32 radiance of ground hits (dirs [N, 3], depth [N] optical z)."""
     cfg = scene.config
@@ -302,7 +386,11 @@ def _shade_ground(
     inv = 1.0 / np.sqrt(gx * gx + gy * gy + 1.0)
     sun = scene.sun.astype(np.float32)
     n_dot_l = (sun[2] - gx * sun[0] - gy * sun[1]) * inv
-    light = scene.ambient * (0.75 + 0.25 * inv) + scene.sun_strength * np.maximum(n_dot_l, 0.0) * shade[:, 3]
+    direct = shade[:, 3]
+    if scene.config.shadows and scene.sun_strength > 0.5:  # the ego vehicle's own shadow
+        pz = np.float32(origin[2]) + s * d[:, 2]
+        direct = direct * ego_shadow(scene, pose, px, py, pz)
+    light = scene.ambient * (0.75 + 0.25 * inv) + scene.sun_strength * np.maximum(n_dot_l, 0.0) * direct
 
     # Pavement tile, laid in one of 8 orientations (quarter turns and a flip) with an offset;
     # anisotropic (rip-map) filtering: the footprint is long along the ray's horizontal
@@ -314,10 +402,16 @@ def _shade_ground(
     swap = turn % 2 == 1
     tx = (qy if swap else qx) * (np.float32(-1.0) if turn in (1, 2) else np.float32(1.0)) / texel
     ty = (qx if swap else qy) * (np.float32(-1.0) if turn in (2, 3) else np.float32(1.0)) / texel
-    cos_az = d[:, 0] / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-6)
-    sin2 = 1.0 - cos_az * cos_az
-    foot_x = np.sqrt(foot_long**2 * (1.0 - sin2) + foot_lat**2 * sin2)  # footprint along world x
-    foot_y = np.sqrt(foot_long**2 * sin2 + foot_lat**2 * (1.0 - sin2))
+    # The footprint on the actual surface (a bump's face seen head-on is far less foreshortened
+    # than the road plane), then its horizontal extent along the ray's azimuth.
+    horiz = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-6)
+    cos_az, sin_az = d[:, 0] / horiz, d[:, 1] / horiz
+    cos_inc = np.clip((d[:, 2] - gx * d[:, 0] - gy * d[:, 1]) * inv / -norm, 0.01, 1.0)
+    slope_along = gx * cos_az + gy * sin_az
+    foot_along = foot_lat / cos_inc / np.sqrt(1.0 + slope_along * slope_along)
+    sin2 = sin_az * sin_az
+    foot_x = np.sqrt(foot_along**2 * (1.0 - sin2) + foot_lat**2 * sin2)  # footprint along world x
+    foot_y = np.sqrt(foot_along**2 * sin2 + foot_lat**2 * (1.0 - sin2))
     foot_row, foot_col = (foot_y, foot_x) if swap else (foot_x, foot_y)
     tile_lod = log_foot - np.float32(math.log2(tile.texel))
     if tile.rip is not None:
@@ -337,8 +431,12 @@ def _shade_ground(
         albedo[steep] = (albedo[steep] * wz + on_x * wx + on_y * wy) / total
     lo, hi = scene.paved
     paved = np.clip(np.minimum(py - lo, hi - py) / np.maximum(foot_lat, 1e-3) + 0.5, 0.0, 1.0)
-    tint = (1.0, 1.0, 1.03) if cfg.surface == "asphalt" else (1.0, 0.99, 0.95)
-    rgb = (albedo * paved)[:, None] * np.array(tint, np.float32)
+    if scene.texture_contrast != 1.0:
+        mean = np.float32(tile.pyramid[-1].mean())
+        albedo = np.maximum(mean + (albedo - mean) * np.float32(scene.texture_contrast), np.float32(0.01))
+    base_tint = (1.0, 1.0, 1.03) if cfg.surface == "asphalt" else (1.0, 0.99, 0.95)
+    tint = np.array(base_tint, np.float32) * np.array(scene.tint, np.float32)
+    rgb = (albedo * paved)[:, None] * tint
     off = np.flatnonzero(paved < 1.0)
     if off.size:
         verge = scene.verge
@@ -399,12 +497,12 @@ def render_view(
         R = optical_from_road_rotation(pose.attitude)
         origin = origin + pose.yaw_matrix() @ (np.array([camera.baseline, 0.0, 0.0]) @ R)
     crop = crop if crop is not None else view_crop(scene, pose)
-    depth, ground = _intersect(scene, crop, origin, dirs)
+    depth, ground = _intersect(scene, crop, origin, dirs, 1.0 / camera.fx)
     ground &= depth < 1e5  # beyond that, the horizon
     n = dirs.shape[0]
     radiance = np.empty((n, 3), np.float32)
     hit = np.flatnonzero(ground)
-    radiance[hit] = _shade_ground(scene, crop, camera, origin, dirs[hit], depth[hit])
+    radiance[hit] = _shade_ground(scene, crop, camera, pose, origin, dirs[hit], depth[hit])
     sky = np.flatnonzero(~ground)
     if sky.size:
         radiance[sky] = _shade_sky(scene, dirs[sky])
@@ -426,17 +524,20 @@ def sensor_image(
     radiance: np.ndarray,
     *,
     exposure: float,
-    gain: float,
+    gain: float | tuple[float, float, float],
     noise_sigma: float,
     blur_sigma_px: float,
     rng: np.random.Generator,
     jpeg_quality: int | None = None,
+    vignetting: float = 0.0,
 ) -> np.ndarray:
-    """Camera response: optical blur, exposure and gain, gamma, shot and read noise, 8-bit, JPEG.
+    """Camera response: optical blur, vignetting, exposure and gain, gamma, shot and read noise,
+    8-bit, JPEG.
 
     Args:
         radiance: [H, W, 3] float32 linear radiance.
-        exposure, gain: linear scale of the radiance before encoding.
+        exposure, gain: linear scale of the radiance before encoding (gain per channel or one).
+        vignetting: brightness lost in the image corners (0.15 = 15 %), falling off as r^2.
         noise_sigma: read noise (digital numbers, 1-sigma); shot noise scales with sqrt(signal).
         blur_sigma_px: Gaussian optical blur (pixels).
         rng: noise source.
@@ -448,7 +549,14 @@ def sensor_image(
     img = radiance
     if blur_sigma_px > 0:
         img = cv2.GaussianBlur(img, (0, 0), blur_sigma_px)
-    lin = np.clip(img * (exposure * gain), 0.0, 1.0)
+    scale = exposure * np.asarray(gain, np.float32).reshape(-1)[None, None, :]
+    if vignetting > 0:
+        h, w = img.shape[:2]
+        yy = (np.arange(h, dtype=np.float32) - (h - 1) / 2) / (h / 2)
+        xx = (np.arange(w, dtype=np.float32) - (w - 1) / 2) / (w / 2)
+        r2 = (yy[:, None] ** 2 + xx[None, :] ** 2) / 2.0  # 1 in the corners
+        scale = scale * (1.0 - vignetting * r2)[:, :, None]
+    lin = np.clip(img * scale, 0.0, 1.0)
     dn = 255.0 * lin ** (1 / 2.2)
     if noise_sigma > 0:
         shot = np.sqrt(np.maximum(dn, 0.0) / 255.0) * noise_sigma

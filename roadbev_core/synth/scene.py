@@ -18,6 +18,7 @@ from roadbev_core.synth.heightfield import (
     FEATURE_NAMES,
     ISO8608_GD0,
     Feature,
+    Kerb,
     SurfaceCanvas,
     SynthError,
     roughness_field,
@@ -50,6 +51,7 @@ class RoadConfig:
         gain_mismatch: the right camera's gain differs from the left by up to this fraction.
         jpeg_quality: JPEG-compress both images at this quality (None = lossless).
         blur_sigma_px: optical blur (Gaussian sigma, pixels).
+        vignetting: brightness lost in the image corners (both cameras).
         resolution: height-field cell size (m).
     """
 
@@ -67,6 +69,7 @@ class RoadConfig:
     gain_mismatch: float = 0.04
     jpeg_quality: int | None = None
     blur_sigma_px: float = 0.5
+    vignetting: float = 0.12
     resolution: float = 0.01
 
     def __post_init__(self) -> None:
@@ -87,6 +90,8 @@ class RoadConfig:
             raise SynthError(f"feature_spacing_m must be > 0.5 m, got {self.feature_spacing_m}")
         if self.noise_sigma < 0 or self.blur_sigma_px < 0:
             raise SynthError("noise_sigma and blur_sigma_px must be >= 0")
+        if not 0.0 <= self.vignetting < 1.0:
+            raise SynthError(f"vignetting must be in [0, 1), got {self.vignetting}")
         if not 0.0 <= self.gain_mismatch < 0.5:
             raise SynthError(f"gain_mismatch must be in [0, 0.5), got {self.gain_mismatch}")
         if self.jpeg_quality is not None and not 1 <= int(self.jpeg_quality) <= 100:
@@ -122,7 +127,9 @@ class Scene:
         sun: unit vector towards the sun (world), sun_strength, ambient: lighting.
         sky_horizon, sky_zenith, haze: RGB colours (linear, 0..1).
         treeline: [n] heights (radians) of the distant skyline over 360 deg of azimuth.
-        exposure: scale from radiance to 8-bit (before gains and noise).
+        displacement_range: (min, max) displacement over the rasters (m).
+        texture_contrast: scales the pavement texture's contrast (aged, worn, fresh surfaces).
+        tint: RGB tint of the pavement.
     """
 
     config: RoadConfig
@@ -141,6 +148,8 @@ class Scene:
     sky_zenith: np.ndarray
     treeline: np.ndarray
     displacement_range: tuple[float, float] = field(default=(-0.16, 0.16))
+    texture_contrast: float = 1.0
+    tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def plane(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Height of the tilted road plane (m)."""
@@ -182,6 +191,33 @@ def _add_stains(canvas: SurfaceCanvas, rng: np.random.Generator) -> None:
         canvas.albedo[rows, cols] *= (1.0 - rng.uniform(0.2, 0.5) * stain).astype(np.float32)
 
 
+def _add_slab_joints(canvas: SurfaceCanvas, rng: np.random.Generator) -> None:
+    """Concrete pavement: sealed transverse joints every 4-6 m and a longitudinal joint at the
+    lane edge, with a few millimetres of faulting (slabs settle unevenly)."""
+    n_x, n_y = canvas.heights.shape
+    r = canvas.resolution
+    xs = canvas.x0 + np.arange(n_x) * r
+    ys = canvas.y0 + np.arange(n_y) * r
+    spacing = rng.uniform(4.0, 6.0)
+    joint_x = np.arange(canvas.x0 + rng.uniform(0.0, spacing), xs[-1], spacing)
+    fault = np.zeros(n_x, np.float32)
+    dist = np.full(n_x, np.inf, np.float32)
+    level = 0.0
+    start = 0
+    for jx in joint_x:  # each slab sits a little higher or lower than the previous one
+        stop = int(np.searchsorted(xs, jx))
+        fault[start:stop] = level
+        level = float(np.clip(level + rng.normal(0.0, 0.002), -0.006, 0.006))
+        start = stop
+        dist = np.minimum(dist, np.abs(xs - jx).astype(np.float32))
+    fault[start:] = level
+    groove = np.clip(1.0 - dist / 0.006, 0.0, 1.0)[:, None]  # 12 mm wide, V-shaped
+    lateral = np.abs(ys - rng.choice([-1.0, 1.0]) * rng.uniform(1.6, 1.9))
+    long_groove = np.clip(1.0 - lateral / 0.006, 0.0, 1.0)[None, :]
+    canvas.heights += fault[:, None] - 0.006 * np.maximum(groove, long_groove)
+    canvas.albedo *= (1.0 - 0.55 * np.maximum(groove, long_groove)).astype(np.float32)
+
+
 def _add_shadows(canvas: SurfaceCanvas, rng: np.random.Generator, sun: np.ndarray) -> None:
     """Cast shadows of roadside trees and poles (soft-edged), laid along the sun's azimuth."""
     n_x, n_y = canvas.heights.shape
@@ -189,8 +225,8 @@ def _add_shadows(canvas: SurfaceCanvas, rng: np.random.Generator, sun: np.ndarra
     ys = canvas.y0 + np.arange(n_y) * r
     light = np.ones((n_x, n_y), np.float32)
     # Tree canopies: thresholded smooth noise, present in some stretches only.
-    canopy = _smooth_noise((n_x, n_y), 0.8 / r, rng) + 0.6 * _smooth_noise((n_x, n_y), 0.25 / r, rng)
-    stretch = _smooth_noise((n_x, 1), 12.0 / r, rng)
+    canopy = _smooth_noise((n_x, n_y), 1.6 / r, rng) + 0.45 * _smooth_noise((n_x, n_y), 0.3 / r, rng)
+    stretch = _smooth_noise((n_x, 1), 15.0 / r, rng)
     side = np.clip((ys[None, :] * np.sign(sun[1] + 1e-9) * -1.0 + 1.0) / 4.0, 0.0, 1.0)  # shade falls away from the sun
     density = np.clip(stretch, -1.0, 1.0) * 0.9 + side * 0.8 - 0.6
     trees = np.clip((canopy + density - 1.0) * 3.0, 0.0, 1.0)
@@ -257,8 +293,8 @@ def build_scene(
     x0, x1 = float(x_range[0]), float(x_range[1])
     if not x1 - x0 >= 1.0:
         raise SynthError(f"scene strip {x_range} is shorter than 1 m")
-    if x1 - x0 > 2000.0:
-        raise SynthError(f"scene strip of {x1 - x0:.0f} m is longer than 2 km; split the drive")
+    if x1 - x0 > 700.0:
+        raise SynthError(f"scene strip of {x1 - x0:.0f} m is longer than 700 m; split the drive")
     res = config.resolution
     n_x = int(math.ceil((x1 - x0) / res)) + 1
     n_y = int(math.ceil(2 * half_width / res)) + 1
@@ -285,6 +321,8 @@ def build_scene(
         feat = sample_feature(name, rng_feat, fx, fy)
         feat.apply(canvas, rng_feat)
         features.append(feat)
+    if config.surface == "concrete":
+        _add_slab_joints(canvas, rng_feat)
     np.clip(canvas.heights, -DISPLACEMENT_LIMIT, DISPLACEMENT_LIMIT, out=canvas.heights)
 
     elevation = math.radians(rng_light.uniform(20.0, 65.0))
@@ -300,6 +338,9 @@ def build_scene(
     if config.shadows and not overcast:
         _add_shadows(canvas, rng_light, sun)
     markings, paved = _markings(rng_lane)
+    for feat in features:  # no lane lines painted on the pavement beyond a kerb
+        if isinstance(feat, Kerb):
+            markings = [m for m in markings if feat.side * (m.y - feat.y) < 0]
     if not config.lane_markings:
         markings = []
     variant = int(rng_look.integers(0, 3))
@@ -311,6 +352,11 @@ def build_scene(
     ]
     treeline = np.radians(np.clip(1.2 + 0.5 * tree_az / (np.abs(tree_az).max() + 1e-9) * 2.0, 0.1, 4.0))
     heights = canvas.heights
+    # Pavements differ: fresh dark asphalt with little contrast, aged grey asphalt with bright
+    # chips, brownish or bluish binders.
+    contrast = float(rng_look.uniform(0.7, 1.35))
+    warm = float(rng_look.normal(0.0, 0.025))
+    tint = (1.0 + warm, 1.0, 1.0 - warm)
     return Scene(
         config=config,
         canvas=canvas,
@@ -330,4 +376,6 @@ def build_scene(
         sky_zenith=zenith,
         treeline=treeline,
         displacement_range=(min(float(heights.min()), 0.0) - 1e-3, max(float(heights.max()), 0.0) + 1e-3),
+        texture_contrast=contrast,
+        tint=tint,
     )

@@ -13,6 +13,7 @@ from each pixel's footprint, with ``cv2.remap`` doing the bilinear taps.
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -113,7 +114,7 @@ def _groups(keys: np.ndarray) -> list[tuple[int, np.ndarray]]:
     sorted_keys = keys[order]
     starts = np.flatnonzero(np.diff(sorted_keys)) + 1
     bounds = np.concatenate([[0], starts, [keys.shape[0]]])
-    return [(int(sorted_keys[a]), order[a:b]) for a, b in zip(bounds[:-1], bounds[1:], strict=True) if b > a]
+    return [(int(sorted_keys[a]), order[a:b]) for a, b in itertools.pairwise(bounds) if b > a]
 
 
 def _level_taps(image: np.ndarray, col: np.ndarray, row: np.ndarray, level_col: int, level_row: int, wrap: bool):
@@ -148,9 +149,9 @@ def sample_ripmap(
 ) -> np.ndarray:
     """Anisotropic lookup of a periodic rip-map at level-0 coordinates.
 
-    The row level is rounded, the column level blended linearly (two taps per point): callers
-    put the long, foreshortened axis of the footprint on the rows, where rounding is hidden by
-    the stronger filtering anyway.
+    Both levels are blended linearly (four bilinear taps per point), so the filter changes
+    smoothly with the footprint: two cameras seeing a point from slightly different distances
+    filter it alike (a rounded level would differ between them at level boundaries).
 
     Args:
         rip: from :func:`build_ripmap`.
@@ -161,18 +162,23 @@ def sample_ripmap(
         [N] float32.
     """
     top = max(i for i, _ in rip)
-    li = np.clip(np.rint(np.nan_to_num(lod_row)), 0, top).astype(np.int64)
+    lr = np.clip(np.nan_to_num(lod_row), 0.0, top)
     lc = np.clip(np.nan_to_num(lod_col), 0.0, top)
+    li = np.minimum(np.floor(lr).astype(np.int64), top)
     lj = np.minimum(np.floor(lc).astype(np.int64), top)
-    frac = (lc - lj).astype(np.float32)
+    fr = (lr - li).astype(np.float32)
+    fc = (lc - lj).astype(np.float32)
     out = np.zeros(col.shape[0], np.float32)
     for key, sel in _groups(li * (top + 1) + lj):
         i, j = divmod(key, top + 1)
-        vals = _level_taps(rip[(i, j)], col[sel], row[sel], j, i, True)
-        if j < top:
-            f = frac[sel]
-            vals = vals * (1 - f) + _level_taps(rip[(i, j + 1)], col[sel], row[sel], j + 1, i, True) * f
-        out[sel] = vals
+        c, r = col[sel], row[sel]
+        i1, j1 = min(i + 1, top), min(j + 1, top)
+        lo = _level_taps(rip[(i, j)], c, r, j, i, True)
+        lo_c = _level_taps(rip[(i, j1)], c, r, j1, i, True)
+        hi = _level_taps(rip[(i1, j)], c, r, j, i1, True)
+        hi_c = _level_taps(rip[(i1, j1)], c, r, j1, i1, True)
+        a, b = fr[sel], fc[sel]
+        out[sel] = (lo * (1 - b) + lo_c * b) * (1 - a) + (hi * (1 - b) + hi_c * b) * a
     return out
 
 
@@ -284,7 +290,7 @@ def make_tile(surface: str, variant: int, size: int = 1024, texel: float = 0.003
         grain = _fourier_noise(size, rng, 0.0, 0.03, 0.5)
         # transverse brushing: fine stripes along y (tile rows run along x)
         brush = _brush_noise(size, rng)
-        base = 0.50 + 0.035 * mottle + 0.04 * grain + 0.015 * brush
+        base = 0.50 + 0.035 * mottle + 0.06 * grain + 0.015 * brush
         albedo = _composite_aggregate(
             base,
             rng,

@@ -55,7 +55,10 @@ def _load_params(path: str | None) -> dict[str, Any]:
         return {}
     from roadbev_ros.params import load_params_file
 
-    return load_params_file(path)
+    try:
+        return load_params_file(path)
+    except ValueError as exc:  # YAML errors span lines: the CLI gives one
+        raise CommandError(" ".join(line.strip() for line in str(exc).splitlines() if line.strip())) from exc
 
 
 def _backend_options(name: str, params: dict[str, Any], checkpoint: str | None) -> dict[str, Any]:

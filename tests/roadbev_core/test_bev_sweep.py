@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from roadbev_core.backends import BackendError, create
-from roadbev_core.backends.bev_sweep import BevSweep, SweepParams
+from roadbev_core.backends.bev_sweep import BevSweep, SweepParams, _box, _outliers
 from roadbev_core.config import ConfigError, GridSpec, StereoCamera
 from roadbev_core.evaluation import evaluate
 from roadbev_core.frame import Frame, FrameError
@@ -52,8 +52,8 @@ def test_accurate_on_rendered_frames(sweep: BevSweep, samples: list[tuple[Frame,
     # Predicting a flat road scores ~1.5-2 cm here; the sweep is sub-centimetre on most cells.
     flat = np.nanmean(np.concatenate([np.abs(t).ravel() for _, t in samples])) * 100
     assert flat > 1.0
-    assert err < 0.6, err
-    assert coverage > 50.0, coverage
+    assert err < 0.9, err
+    assert coverage > 80.0, coverage
 
 
 def test_half_pixel_shift_of_the_right_image_breaks_the_bound(
@@ -63,11 +63,11 @@ def test_half_pixel_shift_of_the_right_image_breaks_the_bound(
     shifted = []
     for frame, truth in samples:
         shift = np.float32([[1, 0, 0.5], [0, 1, 0]])
-        right = cv2.warpAffine(frame.right, shift, frame.camera.size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        right = cv2.warpAffine(frame.right, shift, frame.camera.size, borderMode=cv2.BORDER_REFLECT)
         shifted.append((replace(frame, right=right), truth))
     good, _ = _abs_err_cm(sweep, samples)
     bad, _ = _abs_err_cm(sweep, shifted)
-    assert bad > max(2.0 * good, 0.8), (good, bad)
+    assert bad > max(1.5 * good, 1.0), (good, bad)
 
 
 def test_swapped_cameras_fail(sweep: BevSweep, samples: list[tuple[Frame, np.ndarray]]) -> None:
@@ -91,15 +91,17 @@ def test_cells_outside_the_image_are_nan(sweep: BevSweep, samples: list[tuple[Fr
     camera = CAMERA.cropped(0, 0, CAMERA.width, keep)
     cropped = Frame(frame.left[:keep], frame.right[:keep], camera, frame.attitude)
     estimate = sweep.estimate(cropped)
+    full = sweep.estimate(frame)
+    assert np.isfinite(full.elevation[-5:]).mean() > 0.5
     assert np.isnan(estimate.elevation[-5:]).all()  # nearest rows: below the crop
-    assert np.isfinite(estimate.elevation[:40]).mean() > 0.4  # far rows still estimated
+    far = slice(0, GRID.n_rows // 3)  # far rows: still estimated much as before
+    assert np.isfinite(estimate.elevation[far]).mean() > 0.7 * np.isfinite(full.elevation[far]).mean()
 
 
 def test_uncertainty_is_finite_exactly_where_elevation_is(
     sweep: BevSweep, samples: list[tuple[Frame, np.ndarray]]
 ) -> None:
-    frame, truth = samples[0]
-    estimate = sweep.estimate(frame)
+    estimate = sweep.estimate(samples[0][0])
     finite = np.isfinite(estimate.elevation)
     assert np.array_equal(finite, np.isfinite(estimate.uncertainty))
     sigma = estimate.uncertainty[finite]
@@ -134,3 +136,35 @@ def test_options_are_validated() -> None:
         SweepParams(temperature=0.0)
     with pytest.raises(ConfigError, match="z_step"):
         BevSweep(GRID, SweepParams(z_step=0.03))  # 0.40 m is not a whole number of 3 cm steps
+
+
+def test_box_filter_is_the_mean_over_the_cells_inside_the_grid() -> None:
+    volume = torch.rand(40, 82, 32) * 2.0 - 1.0
+    for size in (3, 15, 25):
+        reference = torch.nn.functional.avg_pool2d(
+            volume[:, None], size, stride=1, padding=size // 2, count_include_pad=False
+        )[:, 0]
+        assert torch.allclose(_box(volume, size), reference, atol=1e-5)
+    assert _box(volume, 1) is volume
+
+
+def test_occlusion_behind_a_bump() -> None:
+    """Cells right behind a 15 cm bump are hidden from the cameras; cells before it are not."""
+    sweep = BevSweep(GRID)
+    surface = torch.zeros(GRID.shape)
+    rows = np.nonzero((GRID.x_centres() > 4.0) & (GRID.x_centres() < 4.3))[0]  # the bump, 4.0-4.3 m
+    surface[rows.min() : rows.max() + 1] = 0.15
+    hidden = sweep._occluded(surface, CAMERA.baseline).numpy()
+    behind = rows.min() - 2  # row 0 is the farthest: smaller row index = further away
+    assert hidden[behind].all()
+    assert not hidden[rows.max() + 3 :].any()  # nearer than the bump: visible
+    assert not hidden[:5].any()  # far beyond the bump the rays clear it again
+    assert not sweep._occluded(torch.zeros(GRID.shape), CAMERA.baseline).any()
+
+
+def test_isolated_wrong_peaks_are_outliers() -> None:
+    elevation = torch.zeros(GRID.shape)
+    elevation[40, 16] = 0.05
+    confident = torch.ones(GRID.shape, dtype=torch.bool)
+    out = _outliers(elevation, confident, 0.01)
+    assert out[40, 16] and out.sum() == 1

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import math
+import pickle
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from roadbev_core.config import GridSpec, StereoCamera
-from roadbev_core.geometry import attitude_from_quaternion
+from roadbev_core.geometry import attitude_from_quaternion, rsrd_camera_attitude
 from roadbev_core.synth import (
     RSRD_ATTITUDE,
     DriveConfig,
@@ -85,7 +87,7 @@ def test_imu_rates_and_specific_force_are_physical(drive: SyntheticDrive) -> Non
 
 
 def test_attitudes_and_camera_height_are_realistic() -> None:
-    road = RoadConfig(road_class="D", features=("speed_bump", "hump"), feature_spacing_m=4.0)
+    road = RoadConfig(road_class="C", features=("speed_bump", "hump", "pothole"), feature_spacing_m=6.0)
     drive = SyntheticDrive(DriveConfig(frames=40, seed=5, camera=SMALL, road=road))  # no frame rendered
     imu = drive.imu_samples()
     att = np.degrees([attitude_from_quaternion(*s.orientation_xyzw).pitch for s in imu])
@@ -200,10 +202,67 @@ def test_road_config_rejects_bad_values(kwargs: dict, match: str) -> None:
 
 @pytest.mark.parametrize(
     ("kwargs", "match"),
-    [({"frames": 0}, "frame"), ({"speed_mps": -1.0}, "speed"), ({"imu_rate_hz": 4.0}, "IMU")],
+    [
+        ({"frames": 0}, "frame"),
+        ({"speed_mps": -1.0}, "speed"),
+        ({"imu_rate_hz": 4.0}, "IMU"),
+        ({"frames": 1000, "speed_mps": 10.0}, "split it"),
+    ],
 )
 def test_drive_config_rejects_bad_values(kwargs: dict, match: str) -> None:
     with pytest.raises(SynthError, match=match):
         DriveConfig(**kwargs)
     with pytest.raises(SynthError):
         LidarConfig(spacing_m=0.0)
+
+
+@pytest.mark.parametrize("frames", [1, 3])
+def test_short_drives_stay_realistic(frames: int) -> None:
+    """The random motion of a short drive keeps its real amplitude (not the spread of a long one)."""
+    for seed in (0, frames + 4):
+        drive = SyntheticDrive(DriveConfig(frames=frames, seed=seed, camera=SMALL))  # nothing rendered
+        for i in range(frames):
+            pose, attitude = drive.pose(i)
+            roll, pitch = attitude.degrees
+            assert RSRD_ATTITUDE["pitch_min"] - 1.0 < pitch < RSRD_ATTITUDE["pitch_max"] + 1.0
+            assert RSRD_ATTITUDE["roll_min"] - 1.0 < roll < RSRD_ATTITUDE["roll_max"] + 1.0
+            assert abs(pose.y) < 0.8 and abs(pose.yaw) < 0.02  # in the lane, heading along it
+            assert abs(pose.z - GRID.base_height) < 0.05
+
+
+def test_embedded_attitude_statistics_match_the_real_rsrd_poses(rsrd_dir: Path) -> None:
+    """RSRD_ATTITUDE (the library never loads the pickles) equals the stats of the real poses."""
+    calibs: dict[str, dict] = {}
+    per_seq: dict[str, list[tuple[float, float]]] = {}
+    for f in sorted((rsrd_dir / "sample_info").glob("*/*.pkl")):
+        with f.open("rb") as fh:
+            samples = pickle.load(fh)  # trusted: pinned files in shared/rsrd
+        for s in samples:
+            day = s["time"][:8]
+            if day not in calibs:
+                with (rsrd_dir / f"calib_{day}_half.pkl").open("rb") as fh:
+                    calibs[day] = pickle.load(fh)
+            roll, pitch = rsrd_camera_attitude(s["roll"], s["pitch"], np.asarray(calibs[day]["R"])).degrees
+            per_seq.setdefault(s["path"], []).append((roll, pitch))
+    rp = np.array([v for seq in per_seq.values() for v in seq])
+    a = RSRD_ATTITUDE
+    assert rp.shape[0] == 1581
+    for i, name in ((0, "roll"), (1, "pitch")):
+        assert rp[:, i].mean() == pytest.approx(a[f"{name}_mean"], abs=0.002)
+        assert rp[:, i].std() == pytest.approx(a[f"{name}_std"], abs=0.002)
+        assert rp[:, i].min() == pytest.approx(a[f"{name}_min"], abs=0.002)
+        assert rp[:, i].max() == pytest.approx(a[f"{name}_max"], abs=0.002)
+        in_drive = np.mean([np.std([v[i] for v in seq]) for seq in per_seq.values() if len(seq) > 5])
+        assert in_drive == pytest.approx(a[f"{name}_std_in_drive"], abs=0.002)
+
+
+def test_mono_rig_other_grid_and_standing_vehicle() -> None:
+    mono = StereoCamera(fx=250.0, fy=250.0, cx=119.5, cy=65.5, baseline=0.0, width=240, height=132)
+    sample = make_sample(3, camera=mono)
+    assert sample.frame.right is None and sample.frame.left.shape == (132, 240, 3)
+    grid = GridSpec(x_min=3.0, x_max=12.0, base_height=1.5, z_min=-0.3, z_max=0.3)
+    sample = make_sample(4, camera=SMALL.scaled(0.5), grid=grid)
+    assert sample.truth.elevation.shape == grid.shape and sample.truth.mask.all()
+    drive = SyntheticDrive(DriveConfig(frames=2, speed_mps=0.0, camera=SMALL.scaled(0.5)))
+    assert drive.pose(0)[0].x == drive.pose(1)[0].x
+    assert drive[1].truth.mask.all()

@@ -32,13 +32,16 @@ def _field(road_class: str, seed: int = 0, shape: tuple[int, int] = (2048, 256))
 def test_roughness_psd_follows_iso8608_slope_and_level() -> None:
     field = _field("C")
     n, g = profile_psd(field.T, RES)  # profiles along x, averaged over the columns
-    band = (n >= 0.5) & (n <= 10.0)
+    band = (n >= 0.4) & (n <= 2.0)  # inside the ISO band, clear of both corners
     slope = np.polyfit(np.log(n[band]), np.log(g[band]), 1)[0]
-    assert -2.3 < slope < -1.7
+    assert -2.4 < slope < -1.7
     # Level: Gd(n) = Gd(n0) (n / n0)^-2 within a factor of 1.6 (one class is a factor of 4).
     expected = ISO8608_GD0["C"] * (n[band] / 0.1) ** -2
     ratio = np.exp(np.mean(np.log(g[band] / expected)))
     assert 1 / 1.6 < ratio < 1.6
+    # Beyond the ISO band the spectrum steepens (texture is the albedo's job, not the height's).
+    short = (n >= 12.0) & (n <= 30.0)
+    assert np.polyfit(np.log(n[short]), np.log(g[short]), 1)[0] < -3.2
 
 
 def test_roughness_classes_are_ordered_by_a_factor_two_in_amplitude() -> None:

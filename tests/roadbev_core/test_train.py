@@ -106,8 +106,11 @@ def test_two_gloo_processes_match_one_process_with_the_same_global_batch(frames:
     losses_ddp = [h["loss"] for h in ddp["train_state"]["history"]]
     np.testing.assert_allclose(losses_ddp, [h["loss"] for h in single.history], rtol=1e-4)
     reference = read_checkpoint(tmp_path / "single.pt")["state_dict"]
-    worst = max(float((ddp["state_dict"][k].float() - v.float()).abs().max()) for k, v in reference.items())
-    assert worst < 1e-4, worst
+    diffs = torch.cat([(ddp["state_dict"][k].double() - v.double()).abs().flatten() for k, v in reference.items()])
+    # Adam divides each gradient by its own magnitude, so float rounding in a near-zero gradient
+    # can flip one update (at most 2 steps x lr); every other weight must agree tightly.
+    assert float((diffs < 1e-5).double().mean()) > 0.999, float((diffs < 1e-5).double().mean())
+    assert float(diffs.max()) <= 2 * 1e-3 * 1.01
 
 
 def test_bad_settings_fail_clearly(frames: SyntheticSet, tmp_path: Path) -> None:

@@ -102,3 +102,15 @@ def test_imu_to_camera_rotation_is_applied() -> None:
     buf = ImuBuffer(imu_to_camera_rpy_deg=(0.0, 5.0, 0.0))
     buf.add(1_000 * MS, quat_from_rpy(0.0, 0.0))
     assert buf.attitude_at(1_000 * MS).degrees == pytest.approx(Attitude.from_degrees(0.0, 5.0).degrees)
+
+
+def test_a_clock_jump_back_restarts_the_history() -> None:
+    buf = ImuBuffer(jump_back_s=1.0, max_gap_s=0.05)
+    for k in range(10):
+        buf.add(10_000 * MS + k * 10 * MS, quat_from_rpy(0.0, 0.3))
+    buf.add(1_000 * MS, quat_from_rpy(0.0, 0.1))  # nine seconds back: a bag started again
+    buf.add(1_010 * MS, quat_from_rpy(0.0, 0.1))
+    assert len(buf) == 2 and buf.newest_ns == 1_010 * MS
+    assert buf.attitude_at(1_005 * MS).pitch == pytest.approx(0.1)
+    buf.add(1_005 * MS, quat_from_rpy(0.0, 0.1))  # slightly out of order is not a jump
+    assert len(buf) == 3

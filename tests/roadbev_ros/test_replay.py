@@ -100,9 +100,9 @@ def test_replay_keeps_the_timing_at_the_rate(listener: Listener, imu_bag: Path, 
     assert stats.per_topic == {"/imu/data": N, "/note": 1}
     received = np.array([t for t, _ in listener.imu])
     expected = np.arange(N) * PERIOD_NS * 1e-9 / rate
-    error = (received - received[0]) - expected
-    assert np.abs(error).max() < 0.03, error
-    assert stats.duration_s == pytest.approx(expected[-1], abs=0.03)
+    error = np.abs((received - received[0]) - expected)
+    assert np.median(error) < 0.01 and np.percentile(error, 90) < 0.05, error
+    assert stats.duration_s == pytest.approx(expected[-1], abs=0.05)
     assert stats.late_p50_ms < 5.0
     assert [s for _, s in listener.imu] == [START + k * PERIOD_NS for k in range(N)]  # untouched
     assert wait_for(lambda: listener.notes == ["hello"], 3.0)
@@ -110,20 +110,22 @@ def test_replay_keeps_the_timing_at_the_rate(listener: Listener, imu_bag: Path, 
 
 def test_restamp_loop_and_stop(listener: Listener, imu_bag: Path) -> None:
     stop = threading.Event()
-    timer = threading.Timer(1.2, stop.set)  # two full passes of 0.5 s, then stop
-    timer.start()
+    watcher = threading.Thread(target=lambda: wait_for(lambda: len(listener.imu) >= 2 * N + 3, 20.0) and stop.set())
+    watcher.start()  # stops the replay early in its third pass
     before = time.time_ns()
     stats = replay_bag(listener.pub_node, imu_bag, rate=1.0, loop=True, restamp=True, topics=["/imu/data"],
                        wait_for_subscribers=10.0, stop=stop)
-    timer.cancel()
-    assert stats.loops >= 2 and stats.per_topic["/imu/data"] >= 2 * N
+    watcher.join()
+    assert stats.loops == 3 and 2 * N + 3 <= stats.per_topic["/imu/data"] < 3 * N
     assert wait_for(lambda: len(listener.imu) == stats.messages, 5.0)
     stamps = np.array([s for _, s in listener.imu], dtype=np.int64)
     assert np.all(np.diff(stamps) > 0)  # restamped: time goes on across the loop
     assert stamps[0] >= before and stamps[-1] <= time.time_ns()  # wall-clock stamps
-    # each stamp is the wall time of its publication (within scheduling noise)
-    sent_wall = np.array([t for t, _ in listener.imu]) - listener.imu[0][0]
-    np.testing.assert_allclose((stamps - stamps[0]) * 1e-9, sent_wall, atol=0.03)
+    # each stamp is the wall time of its publication: it matches the receive time up to the
+    # delivery delay (robust statistics: a loaded machine delays a few deliveries)
+    received = np.array([t for t, _ in listener.imu])
+    offset = np.abs((stamps - stamps[0]) * 1e-9 - (received - received[0]))
+    assert np.median(offset) < 0.01 and np.percentile(offset, 90) < 0.05, offset
 
 
 def test_unknown_topics_only_give_an_error(listener: Listener, imu_bag: Path) -> None:

@@ -139,3 +139,24 @@ def test_many_interleaved_topics_pair_every_frame() -> None:
     assert len(rec.sets) == 50
     assert all(len({m[0] for m in s}) == 1 for s in rec.sets)
     assert rec.drops == []
+
+
+def test_a_jump_back_resets_instead_of_refusing_everything() -> None:
+    rec = Recorder()
+    resets: list[tuple[int, int]] = []
+    sync = ApproximateTimeSync(2, 10, 0.01, rec.emit, rec.drop, jump_back_s=1.0,
+                               on_reset=lambda topic, jump: resets.append((topic, jump)))
+    sync.add(0, 5_000 * MS, "a")
+    sync.add(1, 5_000 * MS, "b")
+    sync.add(0, 5_100 * MS, "queued")  # waiting for its partner when the clock jumps back
+    assert not sync.add(1, 4_500 * MS, "late")  # half a second back: only out of order
+    assert sync.add(1, 100 * MS, "b0") is False  # five seconds back: a reset, then queued
+    assert resets == [(1, 4_900 * MS)]
+    assert (0, 5_100 * MS, DropReason.SUPERSEDED) in rec.drops
+    assert sync.add(0, 100 * MS, "a0")
+    assert rec.sets[-1] == ("a0", "b0")
+    never = ApproximateTimeSync(2, 10, 0.01, rec.emit, rec.drop, jump_back_s=None)
+    never.add(0, 5_000 * MS, "a")
+    never.add(1, 5_000 * MS, "b")
+    never.add(0, 100 * MS, "x")
+    assert rec.drops[-1] == (0, 100 * MS, DropReason.OUT_OF_ORDER)

@@ -22,7 +22,7 @@ def test_compound_scaling_matches_the_published_b0_and_b6_shapes() -> None:
     stem, stages = stage_settings("b6")
     assert stem == 56 and [s.out_channels for s in stages] == [32, 40, 72, 144]
     assert [s.repeats for s in stages] == [3, 6, 6, 8]
-    with pytest.raises(ValueError, match="b0..b7"):
+    with pytest.raises(ValueError, match=r"b0\.\.b7"):
         stage_settings("b9")
 
 

@@ -1,0 +1,191 @@
+"""Robustness sweep: abs. error and coverage of each backend vs one perturbation at a time.
+
+Perturbations, applied to clean rendered frames (seeds ``EVAL_SEED_BASE + 1000 + i``, read noise
+0.5 DN, no gain mismatch, lossless):
+
+* ``noise_sigma``: extra Gaussian read noise on both images (8-bit digital numbers);
+* ``gain_mismatch``: the right image's gain is (1 + g) times the left's;
+* ``jpeg_quality``: both images JPEG-compressed at this quality (0 = lossless);
+* ``pitch_bias_deg``: the attitude given to the backend is off in pitch (an IMU bias);
+* ``base_height_error_m``: the backend assumes a camera height off by this much.
+
+Run via ``python -m benchmarks.run_all`` (or ``python -m benchmarks.robustness [--quick]``);
+writes ``benchmarks/results/robustness.json`` and ``robustness.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+
+from benchmarks.common import EVAL_SEED_BASE, RESULTS, machine_info, write_json
+from roadbev_core.backends import create
+from roadbev_core.config import GridSpec
+from roadbev_core.evaluation import evaluate
+from roadbev_core.frame import Frame
+from roadbev_core.geometry import Attitude
+
+torch.set_flush_denormal(True)
+
+# perturbation -> levels (the unperturbed level included)
+LEVELS: dict[str, list[float]] = {
+    "noise_sigma": [0.0, 2.0, 4.0, 8.0],
+    "gain_mismatch": [0.0, 0.05, 0.1, 0.2],
+    "jpeg_quality": [0.0, 90.0, 70.0, 50.0],
+    "pitch_bias_deg": [-0.5, -0.25, 0.0, 0.25, 0.5],
+    "base_height_error_m": [-0.03, 0.0, 0.03],
+}
+UNITS = {
+    "noise_sigma": "added noise sigma (DN)",
+    "gain_mismatch": "right/left gain - 1",
+    "jpeg_quality": "JPEG quality (0 = lossless)",
+    "pitch_bias_deg": "pitch bias (deg)",
+    "base_height_error_m": "base-height error (m)",
+}
+DEFAULT_FRAMES = 6
+QUICK_FRAMES = 2
+
+
+def _noisy(image: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
+    noisy = image.astype(np.float32) + rng.normal(0.0, sigma, image.shape).astype(np.float32)
+    return np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+
+
+def _jpeg(image: np.ndarray, quality: int) -> np.ndarray:
+    ok, data = cv2.imencode(".jpg", cv2.cvtColor(image, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise RuntimeError("JPEG encoding failed")
+    return cv2.cvtColor(cv2.imdecode(data, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+
+
+def perturb(frame: Frame, kind: str, level: float, seed: int) -> Frame:
+    """``frame`` with one perturbation applied (image ones only; geometry ones act on the backend)."""
+    rng = np.random.default_rng(seed)
+    if kind == "noise_sigma" and level > 0:
+        return replace(frame, left=_noisy(frame.left, level, rng), right=_noisy(frame.right, level, rng))
+    if kind == "gain_mismatch" and level != 0:
+        right = np.clip(frame.right.astype(np.float32) * (1.0 + level), 0, 255).astype(np.uint8)
+        return replace(frame, right=right)
+    if kind == "jpeg_quality" and level > 0:
+        return replace(frame, left=_jpeg(frame.left, int(level)), right=_jpeg(frame.right, int(level)))
+    if kind == "pitch_bias_deg" and level != 0:
+        roll, pitch = frame.attitude.degrees
+        return replace(frame, attitude=Attitude.from_degrees(roll, pitch + level))
+    return frame
+
+
+def clean_samples(n_frames: int, progress: Callable[[int], Any] | None = None) -> list[tuple[Frame, np.ndarray]]:
+    """Clean rendered frames for the sweep (a mix of roads with features)."""
+    from roadbev_core.synth import RoadConfig, make_sample
+
+    roads = [
+        RoadConfig(road_class=c, features=f, noise_sigma=0.5, gain_mismatch=0.0, jpeg_quality=None)
+        for c, f in (("C", ("pothole",)), ("B", ("speed_bump",)), ("D", ("crack", "patch")))
+    ]
+    out = []
+    for i in range(n_frames):
+        s = make_sample(EVAL_SEED_BASE + 1000 + i, road=roads[i % len(roads)])
+        out.append((s.frame, s.truth.elevation))
+        if progress is not None:
+            progress(1)
+    return out
+
+
+def run_sweep(names: list[str], *, quick: bool, out_dir: Path = RESULTS, quiet: bool = False) -> dict[str, Any]:
+    """Run every backend over every perturbation level; write robustness.{json,png}."""
+    from tqdm import tqdm
+
+    frames = QUICK_FRAMES if quick else DEFAULT_FRAMES
+    levels = {k: [v[0], v[-1]] if quick else v for k, v in LEVELS.items()}
+    with tqdm(total=frames, desc="render robustness set", disable=quiet, file=sys.stderr) as bar:
+        samples = clean_samples(frames, bar.update)
+    grid = GridSpec()
+    results: dict[str, Any] = {}
+    total = sum(len(v) for v in levels.values()) * len(names)
+    with tqdm(total=total, desc="robustness", disable=quiet, file=sys.stderr) as bar:
+        for kind, values in levels.items():
+            entry: dict[str, Any] = {"levels": values, "unit": UNITS[kind]}
+            for name in names:
+                errs, covs = [], []
+                for level in values:
+                    backend_grid = grid
+                    if kind == "base_height_error_m":
+                        backend_grid = grid.with_overrides(base_height=grid.base_height + level)
+                    backend = create(name, backend_grid)
+                    perturbed = [(perturb(f, kind, level, 7 + i), t) for i, (f, t) in enumerate(samples)]
+                    m = evaluate(backend, perturbed).metrics
+                    errs.append(m["abs_err_cm"])
+                    covs.append(m["coverage_pct"])
+                    bar.update(1)
+                entry[name] = {"abs_err_cm": errs, "coverage_pct": covs}
+            results[kind] = entry
+    record = {
+        "command": " ".join(["python -m benchmarks.run_all", *sys.argv[1:]]),
+        "machine": machine_info(),
+        "frames": frames,
+        "seeds": [EVAL_SEED_BASE + 1000, EVAL_SEED_BASE + 1000 + frames - 1],
+        "sweep": results,
+    }
+    write_json(out_dir / "robustness.json", record)
+    plot(results, names, out_dir / "robustness.png", frames)
+    return record
+
+
+def plot(results: dict[str, Any], names: list[str], path: Path, frames: int) -> None:
+    """Abs. error (top) and coverage (bottom) vs each perturbation, one line per backend."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    kinds = list(results)
+    fig, axes = plt.subplots(2, len(kinds), figsize=(3.3 * len(kinds), 5.6), dpi=110)
+    markers = ["o", "s", "^", "D", "v"]
+    for col, kind in enumerate(kinds):
+        entry = results[kind]
+        x = entry["levels"]
+        labels = [("lossless" if v == 0 else f"{v:g}") for v in x] if kind == "jpeg_quality" else None
+        xs = list(range(len(x))) if labels else x
+        for i, name in enumerate(names):
+            err = [math.nan if v is None else v for v in entry[name]["abs_err_cm"]]
+            cov = [math.nan if v is None else v for v in entry[name]["coverage_pct"]]
+            axes[0, col].plot(xs, err, marker=markers[i % len(markers)], ms=4, label=name)
+            axes[1, col].plot(xs, cov, marker=markers[i % len(markers)], ms=4, label=name)
+        for row in (0, 1):
+            axes[row, col].grid(True, alpha=0.3)
+            if labels:
+                axes[row, col].set_xticks(xs, labels)
+        axes[1, col].set_xlabel(entry["unit"], fontsize=9)
+    axes[0, 0].set_ylabel("mean abs. error (cm)")
+    axes[1, 0].set_ylabel("coverage (%)")
+    axes[0, 0].set_ylim(bottom=0)
+    axes[1, 0].set_ylim(0, 100)
+    axes[0, 0].legend(fontsize=8)
+    fig.suptitle(f"Robustness: one perturbation at a time ({frames} synthetic frames)", fontsize=11)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.robustness", description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="2 frames, two levels per perturbation")
+    parser.add_argument("--backends", default="bev_sweep,sgbm,bm", help="comma-separated backends")
+    parser.add_argument("--out", default=str(RESULTS), help="results folder")
+    args = parser.parse_args(argv)
+    run_sweep(args.backends.split(","), quick=args.quick, out_dir=Path(args.out))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

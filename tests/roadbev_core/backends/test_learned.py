@@ -1,0 +1,56 @@
+"""The learned backends behind the registry: estimates on the grid, clear errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from roadbev_core.backends import BackendError, create
+from roadbev_core.checkpoint import save_checkpoint
+from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.frame import Frame, FrameError
+from roadbev_core.geometry import Attitude
+from roadbev_core.models.presets import model_config
+from roadbev_core.models.roadbev import RoadBEV
+
+CAMERA = StereoCamera.rsrd_half().scaled(0.25)
+
+
+def _frame(stereo: bool = True) -> Frame:
+    rng = np.random.default_rng(0)
+    img = rng.integers(0, 255, (CAMERA.height, CAMERA.width, 3), dtype=np.uint8)
+    return Frame(img, img.copy() if stereo else None, CAMERA, Attitude.from_degrees(0.5, 18.5))
+
+
+@pytest.mark.parametrize("kind", ["stereo", "mono"])
+def test_backend_estimates_the_requested_grid(kind: str, tmp_path: Path) -> None:
+    torch.manual_seed(0)
+    path = save_checkpoint(tmp_path / f"{kind}.pt", RoadBEV(model_config("tiny", kind), GridSpec()))
+    grid = GridSpec(x_max=6.18)  # another window: 134 rows
+    backend = create(kind, grid, checkpoint=str(path))
+    assert backend.name == kind and backend.needs_stereo == (kind == "stereo")
+    est = backend.estimate(_frame())
+    assert est.elevation.shape == grid.shape == est.uncertainty.shape
+    seen = np.isfinite(est.elevation)
+    assert seen.mean() > 0.9 and np.array_equal(seen, np.isfinite(est.uncertainty))
+    assert np.all(np.abs(est.elevation[seen]) <= 0.2) and np.all(est.uncertainty[seen] >= 0)
+    assert {"preprocess", "network", "post"} <= set(est.timings_ms)
+
+
+def test_missing_corrupt_or_mismatched_checkpoints_are_backend_errors(tmp_path: Path) -> None:
+    with pytest.raises(BackendError, match="not found"):
+        create("stereo", checkpoint=str(tmp_path / "none.pt"))
+    (tmp_path / "bad.pt").write_bytes(b"PK\x03\x04 truncated zip")
+    with pytest.raises(BackendError, match="corrupt"):
+        create("mono", checkpoint=str(tmp_path / "bad.pt"))
+    path = save_checkpoint(tmp_path / "mono.pt", RoadBEV(model_config("tiny", "mono"), GridSpec()))
+    with pytest.raises(BackendError, match="RoadBEV-mono"):
+        create("stereo", checkpoint=str(path))
+    with pytest.raises(BackendError):
+        create("mono", checkpoint=str(path), colour="blue")
+    stereo = save_checkpoint(tmp_path / "stereo.pt", RoadBEV(model_config("tiny", "stereo"), GridSpec()))
+    with pytest.raises(FrameError, match="right image"):
+        create("stereo", checkpoint=str(stereo)).estimate(_frame(stereo=False))

@@ -1,0 +1,83 @@
+"""RoadBEV networks: presets, voxel query geometry, output shapes on any grid, input checks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from roadbev_core.config import ConfigError, GridSpec, StereoCamera
+from roadbev_core.geometry import Attitude, project_voxels
+from roadbev_core.models import ModelInputError, RoadBEV, model_config
+from roadbev_core.models.voxel_query import batch_lookup, query_voxels
+
+CAMERA = StereoCamera.rsrd_half()
+ATTITUDE = Attitude.from_degrees(0.8, 18.6)
+
+
+def test_presets_follow_the_paper_and_the_cpu_sizing() -> None:
+    paper = model_config("paper", "stereo")
+    assert (paper.backbone, paper.channels, paper.input_width, paper.input_height) == ("b6", 64, 960, 528)
+    assert paper.feature_stride == 2 and model_config("paper", "mono").feature_stride == 4
+    assert paper.sampling == "integer" and paper.internal_grid(GridSpec()) == GridSpec()
+    lite = model_config("lite", "stereo")
+    inner = lite.internal_grid(GridSpec())
+    assert (inner.n_z, inner.n_rows, inner.n_cols) == (40, 82, 32) and lite.sampling == "bilinear"
+    tiny = model_config("tiny", "mono").internal_grid(GridSpec())
+    assert (tiny.n_z, tiny.n_rows, tiny.n_cols) == (10, 41, 16)
+    with pytest.raises(ConfigError, match="backbone"):
+        model_config("lite", "stereo", backbone="b9")
+    with pytest.raises(ConfigError, match="preset"):
+        model_config("huge", "stereo")
+
+
+@pytest.mark.parametrize("kind", ["stereo", "mono"])
+def test_paper_models_have_the_right_shapes(kind: str) -> None:
+    """The B6 paper models are GPU-sized: shapes are checked on the meta device (no compute)."""
+    with torch.device("meta"):
+        model = RoadBEV(model_config("paper", kind), GridSpec())
+        images = torch.empty(2, 3, 528, 960)
+    logits, observed = model(images, images, [CAMERA] * 2, [ATTITUDE, Attitude.from_degrees(-1.0, 17.0)])
+    assert logits.shape == (2, 80, 164, 64) and observed.shape == (2, 164, 64)
+
+
+def test_voxel_query_reads_the_projected_feature_position() -> None:
+    grid = GridSpec().scaled(4)
+    cam = CAMERA.resized(240, 132)
+    stride = 2
+    proj = project_voxels(grid, cam, ATTITUDE, stride=stride, right=True)
+    h, w = proj.height, proj.width
+    ramp = torch.stack(torch.meshgrid(torch.arange(w, dtype=torch.float32), torch.arange(h, dtype=torch.float32),
+                                      indexing="xy"))[None] + 1.0  # [1, 2, H, W] = (u + 1, v + 1)
+    for sampling, (u, v) in (("bilinear", (proj.u, proj.v)), ("integer", (proj.iu, proj.iv))):
+        lookup = batch_lookup(grid, [cam], [ATTITUDE], stride, True, sampling)
+        vox = query_voxels(ramp, lookup, sampling)[0].numpy()  # [2, Nz, Ny, Nx]
+        inside = proj.inside
+        assert inside.mean() > 0.9 and np.array_equal(lookup.mask[0].numpy(), inside)
+        np.testing.assert_allclose(vox[0][inside], u[inside] + 1.0, atol=2e-3)
+        np.testing.assert_allclose(vox[1][inside], v[inside] + 1.0, atol=2e-3)
+        assert np.all(vox[:, ~inside] == 0.0)
+
+
+@pytest.mark.parametrize(("kind", "volume"), [("stereo", "product"), ("stereo", "difference"), ("mono", "product")])
+def test_tiny_models_predict_on_any_grid(kind: str, volume: str) -> None:
+    torch.manual_seed(0)
+    grid = GridSpec(x_max=6.54, y_min=-0.86)  # 146 x 62 cells: the coarse grid is padded and cropped
+    model = RoadBEV(model_config("tiny", kind, volume=volume), grid).eval()
+    images = torch.randint(0, 255, (2, 3, 128, 224), dtype=torch.uint8)
+    with torch.no_grad():
+        pred = model.predict(images, images, [CAMERA] * 2, [ATTITUDE, Attitude.from_degrees(0.0, 17.0)])
+    assert pred.elevation.shape == pred.uncertainty.shape == pred.observed.shape == (2, 146, 62)
+    assert float(pred.elevation.abs().max()) <= 0.2 and float(pred.uncertainty.min()) >= 0
+    assert bool(pred.observed.all())
+
+
+def test_bad_inputs_are_refused() -> None:
+    model = RoadBEV(model_config("tiny", "stereo"), GridSpec())
+    images = torch.zeros(1, 3, 128, 224, dtype=torch.uint8)
+    with pytest.raises(ModelInputError, match="right image"):
+        model(images, None, [CAMERA], [ATTITUDE])
+    with pytest.raises(ModelInputError, match=r"\[B, 3, 128, 224\]"):
+        model(torch.zeros(1, 3, 64, 64), None, [CAMERA], [ATTITUDE])
+    with pytest.raises(ModelInputError, match="cameras"):
+        model(images, images, [CAMERA, CAMERA], [ATTITUDE])

@@ -1,0 +1,56 @@
+"""Data sources: the synthetic scene cache, model inputs and batches."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import roadbev_core.synth as synth
+from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.datasets import ConcatSource, DatasetError, ModelInputs, SyntheticSet, collate
+from roadbev_core.models.presets import model_config
+
+CAMERA = StereoCamera.rsrd_half().scaled(0.25)
+GRID = GridSpec(resolution=0.12)
+
+
+def test_scenes_are_rendered_once_and_read_back_identically(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    first = SyntheticSet(tmp_path, [100_010], camera=CAMERA, grid=GRID)
+    frame, truth = first[0]
+    reference = synth.make_sample(100_010, camera=CAMERA, grid=GRID)
+    assert np.array_equal(frame.left, reference.frame.left) and np.array_equal(frame.right, reference.frame.right)
+    assert frame.attitude == reference.frame.attitude and frame.camera == CAMERA
+    np.testing.assert_array_equal(truth, reference.truth.elevation)
+
+    def no_render(*args: object, **kwargs: object) -> None:
+        raise AssertionError("a cached scene was rendered again")
+
+    monkeypatch.setattr(synth, "make_sample", no_render)
+    again = SyntheticSet(tmp_path, [100_010], camera=CAMERA, grid=GRID)
+    assert again.render_missing() == 0
+    assert np.array_equal(again[0][0].left, frame.left)
+    # another rig gets its own cache folder instead of stale scenes
+    with pytest.raises(AssertionError, match="rendered again"):
+        SyntheticSet(tmp_path, [100_010], camera=CAMERA.scaled(0.5), grid=GRID)
+
+
+def test_model_inputs_resize_and_batch(tmp_path: Path) -> None:
+    source = SyntheticSet(tmp_path, [100_011], camera=CAMERA, grid=GRID)
+    config = model_config("tiny", "stereo")
+    items = ModelInputs(ConcatSource([source, source]), config, GRID)
+    assert len(items) == 2
+    item = items[1]
+    assert item["left"].shape == item["right"].shape == (3, 128, 224) and item["left"].dtype == torch.uint8
+    batch = collate([items[0], items[1]])
+    assert batch["left"].shape == (2, 3, 128, 224) and batch["elevation"].shape == (2, *GRID.shape)
+    assert batch["attitude"] == [source[0][0].attitude] * 2
+    with pytest.raises(DatasetError, match="grid"):
+        ModelInputs(source, config, GridSpec())
+    (source.path(100_011)).write_bytes(b"broken")
+    with pytest.raises(DatasetError, match="unreadable"):
+        source[0]
+    with pytest.raises(DatasetError, match="seed"):
+        SyntheticSet(tmp_path, [])

@@ -1,0 +1,38 @@
+"""``roadbev train`` input checks and ``roadbev export``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from roadbev_core.checkpoint import read_checkpoint, save_checkpoint
+from roadbev_core.config import GridSpec
+from roadbev_core.models.presets import model_config
+from roadbev_core.models.roadbev import RoadBEV
+from roadbev_ros.cli import main
+
+
+def test_train_refuses_missing_data_and_test_seeds(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["train", "--kind", "mono", "--out", str(tmp_path / "m.pt")]) == 2
+    assert "no training data" in capsys.readouterr().err
+    args = ["train", "--kind", "stereo", "--out", str(tmp_path / "s.pt"), "--synth", "5", "--synth-seed", "99998"]
+    assert main(args) == 2
+    assert "training seeds" in capsys.readouterr().err
+    assert main(["train", "--kind", "mono", "--out", str(tmp_path / "m.pt"), "--rsrd", str(tmp_path)]) == 2
+    assert "--rsrd-info" in capsys.readouterr().err
+
+
+def test_export_drops_training_state_and_can_halve(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    torch.manual_seed(0)
+    model = RoadBEV(model_config("tiny", "mono"), GridSpec())
+    source = save_checkpoint(tmp_path / "train.pt", model,
+                             train_state={"step": 3, "history": [{"epoch": 1, "loss": 2.0}]})
+    out = tmp_path / "deploy.pt"
+    assert main(["export", str(source), str(out), "--half"]) == 0
+    assert "RoadBEV-mono" in capsys.readouterr().out
+    payload = read_checkpoint(out)
+    assert "train_state" not in payload and payload["meta"]["final_epoch"]["loss"] == 2.0
+    assert payload["state_dict"]["head.classify.weight"].dtype == torch.float16
+    assert main(["export", str(tmp_path / "missing.pt"), str(out)]) == 2
