@@ -152,7 +152,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-robustness", action="store_true", help="skip the robustness sweep")
     parser.add_argument("--out", default=str(RESULTS), help="results folder")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    parser.add_argument(
+        "--torch-threads", type=int, default=None, help="torch intra-op threads (default: torch's, = cores)"
+    )
     args = parser.parse_args(argv)
+    if args.torch_threads is not None:
+        if args.torch_threads < 1:
+            parser.error("--torch-threads must be >= 1")
+        torch.set_num_threads(args.torch_threads)
     frames = args.frames or (QUICK_FRAMES if args.quick else DEFAULT_FRAMES)
     if frames < 2:
         parser.error("--frames must be >= 2 (the first frame is the timing warm-up)")

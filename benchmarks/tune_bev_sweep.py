@@ -28,11 +28,11 @@ TUNING_SEED_BASE = 200_000
 # name, backend, options: one change at a time around the defaults, plus the references.
 CONFIGS: list[tuple[str, str, dict[str, Any]]] = [
     ("defaults", "bev_sweep", {}),
-    ("one window size (15)", "bev_sweep", {"far_aggregation_cells": 15}),
+    ("one window size (15)", "bev_sweep", {"far_aggregation_cells": 15, "near_aggregation_cells": 15}),
+    ("near window 7", "bev_sweep", {"near_aggregation_cells": 7}),
     ("no occlusion test", "bev_sweep", {"occlusion_clearance": 0.0}),
     ("no outlier test", "bev_sweep", {"max_deviation": 0.0}),
-    ("aggregation 5 / 5", "bev_sweep", {"aggregation_cells": 5, "far_aggregation_cells": 5}),
-    ("aggregation 9 / 9", "bev_sweep", {"aggregation_cells": 9, "far_aggregation_cells": 9}),
+    ("one window size (5)", "bev_sweep", {"aggregation_cells": 5, "far_aggregation_cells": 5, "near_aggregation_cells": 5}),
     ("min_score 0.90", "bev_sweep", {"min_score": 0.90}),
     ("min_score 0.97", "bev_sweep", {"min_score": 0.97}),
     ("shiftable windows", "bev_sweep", {"shiftable_windows": True}),
@@ -50,7 +50,7 @@ CONFIGS: list[tuple[str, str, dict[str, Any]]] = [
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.tune_bev_sweep", description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=8, help="tuning frames (default 8)")
+    parser.add_argument("--frames", type=int, default=16, help="tuning frames (default 16)")
     args = parser.parse_args(argv)
     from roadbev_core.synth import make_sample
 

@@ -616,9 +616,6 @@ def main(args: Sequence[str] | None = None) -> int:
     """
     from roadbev_ros.dds import init_ros
 
-    # The executor thread (callbacks) and the inference worker share the GIL; a short switch
-    # interval keeps the worker from waiting up to 5 ms (the default) each time it needs it back.
-    sys.setswitchinterval(0.0005)
     rclpy = init_ros(list(sys.argv if args is None else args))
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 

@@ -38,7 +38,7 @@ from roadbev_core.metrics import MetricAccumulator
 from roadbev_ros.dds import child_env, init_ros
 from roadbev_ros.replay import header_stamp_ns, replay_bag
 
-__all__ = ["OnlineEvalError", "OnlineResult", "evaluate_online", "node_command"]
+__all__ = ["OnlineEvalError", "OnlineResult", "evaluate_online", "format_online", "node_command"]
 
 GT_TOPIC = "/ground_truth/elevation"
 ELEVATION_TOPIC = "/roadbev/elevation"
@@ -325,13 +325,3 @@ def format_online(metrics: Mapping[str, Any]) -> str:
         f"{metrics['gt_0p5cm_pct']:.1f} %, coverage {metrics['coverage_pct']:.1f} %, "
         f"{metrics['fps']:.2f} fps, missing {online.get('frames_without_output', 0)}"
     )
-
-
-def _main(argv: Sequence[str]) -> int:  # pragma: no cover - a developer's shortcut
-    result = evaluate_online(argv[0], argv[1], backend=argv[2] if len(argv) > 2 else "bev_sweep")
-    print(format_online(result.metrics))
-    return 0
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(_main(sys.argv[1:]))

@@ -74,6 +74,8 @@ class SweepParams:
         far_aggregation_cells: the box filter's side (odd) for the farthest ``far_fraction`` of
             the rows, where a height step moves the match least.
         far_fraction: share of the rows (from the far end) using ``far_aggregation_cells``.
+        near_aggregation_cells, near_fraction: the same for the nearest share of the rows, where
+            cells hold many pixels and a smaller window keeps detail.
         shiftable_windows: per cell, use the best of the centred aggregation window and four
             windows shifted by half its size (sharp steps and bump edges instead of smears).
         max_deviation: cells further than this (m) from the median of their confident
@@ -96,6 +98,8 @@ class SweepParams:
     occlusion_clearance: float = 0.3
     far_aggregation_cells: int = 25
     far_fraction: float = 0.33
+    near_aggregation_cells: int = 9
+    near_fraction: float = 0.33
     shiftable_windows: bool = False
     max_deviation: float = 0.01
     max_sigma: float = 0.1
@@ -106,12 +110,12 @@ class SweepParams:
         value = self.subsamples
         if not (isinstance(value, tuple) and len(value) == 2 and all(_is_int(v) and v >= 1 for v in value)):
             raise ConfigError(f"subsamples must be two positive integers (x, y), got {value!r}")
-        for name in ("patch_cells", "aggregation_cells", "far_aggregation_cells"):
+        for name in ("patch_cells", "aggregation_cells", "far_aggregation_cells", "near_aggregation_cells"):
             value = getattr(self, name)
             if not _is_int(value) or value < 1 or value % 2 == 0:
                 raise ConfigError(f"{name} must be an odd positive integer (a centred window), got {value!r}")
         non_negative = ("peak_exclusion", "min_texture", "blur_sigma", "highpass_sigma", "occlusion_clearance")
-        non_negative += ("max_deviation", "far_fraction")
+        non_negative += ("max_deviation", "far_fraction", "near_fraction")
         for name in (*non_negative, "min_score", "min_margin", "temperature", "max_sigma"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
@@ -466,10 +470,15 @@ class BevSweep:
             planes = self._z[:, None, None]  # [Z, 1, 1]
             zncc, texture = self._zncc(images, self._coarse, planes, frame, clock)
             aggregated = _box(zncc, p.aggregation_cells)
+            n_rows = self.grid.n_rows
             if p.far_aggregation_cells != p.aggregation_cells:
                 # Far rows: a 1 cm step moves the match by ~0.15 px only; a larger window.
-                far = slice(0, int(round(self.grid.n_rows * p.far_fraction)))
+                far = slice(0, int(round(n_rows * p.far_fraction)))
                 aggregated[:, far] = _box(zncc, p.far_aggregation_cells)[:, far]
+            if p.near_aggregation_cells != p.aggregation_cells:
+                # Near rows: many pixels per cell, ~0.5 px per cm; a smaller window keeps detail.
+                near = slice(n_rows - int(round(n_rows * p.near_fraction)), n_rows)
+                aggregated[:, near] = _box(zncc, p.near_aggregation_cells)[:, near]
             score = torch.where(valid, aggregated, torch.full_like(zncc, _WORST))
             if p.shiftable_windows:
                 score = _best_shifted_window(score, p.aggregation_cells // 2)

@@ -29,7 +29,7 @@ from roadbev_core.models.fpn import PyramidFusion
 from roadbev_core.models.heads import MonoHead, StereoHead
 from roadbev_core.models.loss import soft_argmin
 from roadbev_core.models.presets import ModelConfig
-from roadbev_core.models.voxel_query import batch_lookup, query_voxels
+from roadbev_core.models.voxel_query import batch_lookup, query_voxels, window_zncc
 
 __all__ = ["ModelInputError", "Prediction", "RoadBEV", "prepare_image"]
 
@@ -71,7 +71,7 @@ class RoadBEV(nn.Module):
         self.fusion = PyramidFusion(self.backbone.out_channels, self.backbone.strides,
                                     config.channels, config.feature_stride)
         if config.kind == "stereo":
-            self.head: nn.Module = StereoHead(config.channels, config.head_width)
+            self.head: nn.Module = StereoHead(config.channels + int(config.photometric), config.head_width)
         else:
             self.head = MonoHead(config.channels * self.inner.n_z, config.head_width, grid.n_classes)
         self.register_buffer("centres", torch.tensor(grid.class_centres(), dtype=torch.float32), persistent=False)
@@ -82,10 +82,12 @@ class RoadBEV(nn.Module):
     def is_stereo(self) -> bool:
         return self.config.kind == "stereo"
 
-    def _lookups(self, cameras: list[StereoCamera], attitudes: list[Attitude], right: bool):  # type: ignore[no-untyped-def]
+    def _lookups(self, cameras: list[StereoCamera], attitudes: list[Attitude], right: bool,
+                 stride: int | None = None, sampling: str | None = None):  # type: ignore[no-untyped-def]
         cfg = self.config
         cams = [c.resized(cfg.input_width, cfg.input_height) for c in cameras]
-        lookup = batch_lookup(self.inner, cams, attitudes, cfg.feature_stride, right, cfg.sampling)
+        lookup = batch_lookup(self.inner, cams, attitudes, stride or cfg.feature_stride, right,
+                              sampling or cfg.sampling)
         device = self.centres.device
         return type(lookup)(lookup.coords.to(device), lookup.mask.to(device))
 
@@ -129,6 +131,8 @@ class RoadBEV(nn.Module):
             look_r = self._lookups(cameras, attitudes, right=True)
             vox_r = query_voxels(fused[b:], look_r, cfg.sampling)
             volume = vox_l * vox_r if cfg.volume == "product" else vox_l - vox_r
+            if cfg.photometric:  # [B, C + 1, Nz, Ny, Nx]: + ZNCC of the input images (presets.py)
+                volume = torch.cat([volume, self._photometric(x, cameras, attitudes)[:, None]], dim=1)
             score = self.head(volume)  # [B, Nz, Ny, Nx]
             logits = F.interpolate(score[:, None], size=(grid.n_classes, *size),
                                    mode="trilinear", align_corners=False)[:, 0]
@@ -141,6 +145,18 @@ class RoadBEV(nn.Module):
         observed = F.interpolate(seen[:, None].float(), size=size, mode="nearest")[:, 0] > 0.5
         # The padding rows / columns lie beyond x_max / y_max, i.e. before row 0 / column 0.
         return logits[..., pad_rows:, pad_cols:], observed[..., pad_rows:, pad_cols:]
+
+    def _photometric(
+        self, images: torch.Tensor, cameras: list[StereoCamera], attitudes: list[Attitude]
+    ) -> torch.Tensor:
+        """[B, Nz, Ny, Nx] ZNCC of the grey left/right inputs [2B, 3, h, w] at the voxel centres."""
+        b = images.shape[0] // 2
+        grey = images.mean(dim=1, keepdim=True) * 255.0  # [2B, 1, h, w]
+        look_l = self._lookups(cameras, attitudes, right=False, stride=1, sampling="bilinear")
+        look_r = self._lookups(cameras, attitudes, right=True, stride=1, sampling="bilinear")
+        left = query_voxels(grey[:b], look_l, "bilinear")[:, 0]
+        right = query_voxels(grey[b:], look_r, "bilinear")[:, 0]
+        return window_zncc(left, right, self.config.zncc_window) * (look_l.mask & look_r.mask)
 
     def predict(
         self,

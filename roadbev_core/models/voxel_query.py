@@ -25,7 +25,7 @@ import torch.nn.functional as F
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.geometry import Attitude, project_voxels
 
-__all__ = ["VoxelLookup", "batch_lookup", "query_voxels", "voxel_lookup"]
+__all__ = ["VoxelLookup", "batch_lookup", "query_voxels", "voxel_lookup", "window_zncc"]
 
 
 class VoxelLookup(NamedTuple):
@@ -91,3 +91,27 @@ def query_voxels(features: torch.Tensor, lookup: VoxelLookup, sampling: str) -> 
     n_z, n_y, n_x = lookup.mask.shape[1:]
     volume = sampled.view(b, c, n_z, n_y, n_x)  # [B, C, Nz, Ny, Nx]
     return volume * lookup.mask[:, None].to(volume.dtype)
+
+
+def window_zncc(left: torch.Tensor, right: torch.Tensor, window: int, eps: float = 1e-3) -> torch.Tensor:
+    """Zero-mean normalised cross-correlation of two voxel volumes over a BEV window per layer.
+
+    Args:
+        left, right: [B, Nz, Ny, Nx] samples (e.g. grey levels 0..255 at the voxel centres).
+        window: odd BEV window size (cells); windows are cut at the grid border.
+        eps: added to the variance product (grey-level units) so flat texture gives ~0.
+
+    Returns:
+        [B, Nz, Ny, Nx] in [-1, 1].
+    """
+    shape = left.shape
+    a, b = left.flatten(0, 1)[:, None], right.flatten(0, 1)[:, None]  # [B*Nz, 1, Ny, Nx]
+
+    def mean(t: torch.Tensor) -> torch.Tensor:
+        return F.avg_pool2d(t, window, stride=1, padding=window // 2, count_include_pad=False)
+
+    mean_a, mean_b = mean(a), mean(b)
+    cov = mean(a * b) - mean_a * mean_b
+    var_a = (mean(a * a) - mean_a * mean_a).clamp_min(0)
+    var_b = (mean(b * b) - mean_b * mean_b).clamp_min(0)
+    return (cov / torch.sqrt(var_a * var_b + eps)).view(shape)

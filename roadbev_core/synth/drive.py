@@ -65,6 +65,7 @@ RSRD_ATTITUDE = {
 FRONT_AXLE = 0.6
 WHEELBASE = 2.7
 HALF_TRACK = 0.8
+PITCH_PER_ACCEL = 0.003  # body pitch (rad) per m/s^2 of braking: about 1.7 deg per g
 
 
 class ImuSample(NamedTuple):
@@ -389,15 +390,17 @@ class SyntheticDrive:
         self.frame_stamps_ns = [config.start_stamp_ns + int(round(t * 1e9)) for t in frame_t]
         self.imu_stamps_ns = [config.start_stamp_ns + int(round(t * 1e9)) for t in imu_t]
 
-        length = config.speed_mps * imu_t[-1]
-        self.scene = build_scene(config.road, config.seed, (-4.0, length + LOOK_AHEAD_M + 2.0))
-        # Trajectory: constant speed, slow lateral wander inside the lane.
-        x = config.speed_mps * imu_t
+        # Trajectory: the speed drifts by a few per cent around the set speed (throttle, gentle
+        # braking), the car wanders slowly inside its lane.
+        speed = config.speed_mps * np.maximum(1.0 + _smooth_process(n_imu, imu_dt, 2.0, 0.05, rng), 0.0)
+        x = np.concatenate([[0.0], np.cumsum((speed[1:] + speed[:-1]) / 2 * imu_dt)])
+        self.scene = build_scene(config.road, config.seed, (-4.0, float(x[-1]) + LOOK_AHEAD_M + 2.0))
         lane_offset = rng.uniform(-0.4, 0.4)
         wander = _smooth_process(n_imu, imu_dt, 3.0, 0.08, rng)
         y = lane_offset + wander
-        yaw = np.gradient(y, imu_dt) / max(config.speed_mps, 0.5) if n_imu > 1 else np.zeros(1)
+        yaw = np.gradient(y, imu_dt) / np.maximum(speed, 0.5) if n_imu > 1 else np.zeros(1)
         yaw = np.clip(yaw, -0.05, 0.05)
+        accel = np.gradient(speed, imu_dt) if n_imu > 1 else np.zeros(1)
         # Body on the suspension: filtered road input plus a slow random part.
         front, rear, left, right = _wheel_heights(self.scene, x, y, yaw)
         road_pitch = np.arctan2(rear - front, WHEELBASE)
@@ -410,6 +413,7 @@ class SyntheticDrive:
         body_roll = _second_order(road_roll, imu_dt, 1.8, 0.3) - float(np.mean(road_roll))
         heave = _second_order(road_heave, imu_dt, 1.2, 0.3)
         body_pitch += np.radians(_smooth_process(n_imu, imu_dt, 0.6, a["pitch_std_in_drive"] * 0.8, rng))
+        body_pitch -= PITCH_PER_ACCEL * accel  # the nose dives when braking
         body_roll += np.radians(_smooth_process(n_imu, imu_dt, 0.6, a["roll_std_in_drive"] * 0.8, rng))
         heave += _smooth_process(n_imu, imu_dt, 0.4, 0.004, rng)
         mount_roll, mount_pitch = draw_mount_attitude(rng, in_drive=True)
@@ -418,7 +422,7 @@ class SyntheticDrive:
         roll = np.radians(mount_roll) + body_roll
         pitch = np.radians(mount_pitch) + body_pitch
         z = heave + config.grid.base_height + height_offset
-        self._x, self._y, self._z, self._yaw = x, y, z, yaw
+        self._x, self._y, self._z, self._yaw, self._speed = x, y, z, yaw, speed
         self._heading = heading
         self._R = [
             rotation_from_rpy(float(r), float(p), float(heading + w)) for r, p, w in zip(roll, pitch, yaw, strict=True)
@@ -428,10 +432,14 @@ class SyntheticDrive:
             if self._q[k] @ self._q[k - 1] < 0:
                 self._q[k] = -self._q[k]
         # Specific force: R^T (a_world + g z).
-        acc = np.zeros((n_imu, 3))
+        acc = np.zeros((n_imu, 3))  # in the road's world axes, then turned to ENU by the heading
         if n_imu > 2:
+            acc[:, 0] = accel
             acc[:, 1] = np.gradient(np.gradient(y, imu_dt), imu_dt)
             acc[:, 2] = np.gradient(np.gradient(z, imu_dt), imu_dt)
+        acc[:, :2] = acc[:, :2] @ np.array(
+            [[math.cos(heading), math.sin(heading)], [-math.sin(heading), math.cos(heading)]]
+        )
         acc[:, 2] += GRAVITY
         self._acc_body = np.einsum("kji,kj->ki", np.array(self._R), acc)
         self._acc_body += rng.normal(0.0, config.accel_noise, self._acc_body.shape)
@@ -472,6 +480,23 @@ class SyntheticDrive:
         rng = np.random.default_rng(int(self._frame_seeds[index]))
         c = self.config
         return render_sample(self.scene, pose, c.camera, c.grid, c.lidar, rng, self.frame_stamps_ns[index], attitude)
+
+    def trajectory(self) -> dict[str, np.ndarray]:
+        """The left camera's path at the IMU stamps (road world frame: x along the road).
+
+        Returns:
+            ``stamp_ns`` [K] int64, ``x``, ``y``, ``z`` [K] (m), ``yaw`` [K] (rad, w.r.t. the
+            road), ``speed`` [K] (m/s), ``heading`` (rad, the road's direction in ENU).
+        """
+        return {
+            "stamp_ns": np.array(self.imu_stamps_ns, dtype=np.int64),
+            "x": self._x.copy(),
+            "y": self._y.copy(),
+            "z": self._z.copy(),
+            "yaw": self._yaw.copy(),
+            "speed": self._speed.copy(),
+            "heading": np.array(self._heading),
+        }
 
     def imu_samples(self) -> list[ImuSample]:
         """The IMU stream (covers every frame stamp with samples on both sides)."""

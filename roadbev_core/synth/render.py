@@ -559,8 +559,9 @@ def sensor_image(
     lin = np.clip(img * scale, 0.0, 1.0)
     dn = 255.0 * lin ** (1 / 2.2)
     if noise_sigma > 0:
-        shot = np.sqrt(np.maximum(dn, 0.0) / 255.0) * noise_sigma
-        dn = dn + rng.standard_normal(dn.shape).astype(np.float32) * np.sqrt(noise_sigma**2 + shot**2)
+        # read noise plus shot noise (variance grows with the signal): sigma^2 (1 + dn / 255)
+        sigma = np.float32(noise_sigma) * np.sqrt(np.float32(1.0) + np.maximum(dn, 0.0) * np.float32(1 / 255))
+        dn = dn + rng.standard_normal(dn.shape, dtype=np.float32) * sigma
     out = np.clip(np.rint(dn), 0, 255).astype(np.uint8)
     if jpeg_quality is not None:
         ok, buf = cv2.imencode(".jpg", out[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from roadbev_core.config import GridSpec, StereoCamera
-from roadbev_core.geometry import attitude_from_quaternion, rsrd_camera_attitude
+from roadbev_core.geometry import attitude_from_quaternion, quaternion_to_rotation, rsrd_camera_attitude
 from roadbev_core.synth import (
     RSRD_ATTITUDE,
     DriveConfig,
@@ -93,9 +93,15 @@ def test_attitudes_and_camera_height_are_realistic() -> None:
     att = np.degrees([attitude_from_quaternion(*s.orientation_xyzw).pitch for s in imu])
     roll = np.degrees([attitude_from_quaternion(*s.orientation_xyzw).roll for s in imu])
     a = RSRD_ATTITUDE
-    assert a["pitch_min"] - 1.0 < att.min() and att.max() < a["pitch_max"] + 1.0
+    # humps and bumps tip the car by a few degrees beyond the spread of the real (mostly
+    # bump-free) RSRD drives, not more
+    assert a["pitch_min"] - 2.5 < att.min() and att.max() < a["pitch_max"] + 2.5
     assert a["roll_min"] - 1.0 < roll.min() and roll.max() < a["roll_max"] + 1.0
-    assert 0.1 < att.std() < 1.2 and 0.1 < roll.std() < 1.2  # moves on the suspension
+    assert 0.1 < att.std() < 1.5 and 0.1 < roll.std() < 1.2  # moves on the suspension
+    # on a road with no discrete features the attitude stays in the real range
+    plain = SyntheticDrive(DriveConfig(frames=40, seed=5, camera=SMALL, road=RoadConfig(road_class="C", features=())))
+    pitch = np.degrees([attitude_from_quaternion(*s.orientation_xyzw).pitch for s in plain.imu_samples()])
+    assert a["pitch_min"] - 0.5 < pitch.min() and pitch.max() < a["pitch_max"] + 0.5
     deflection = []
     for i in range(len(drive)):
         pose, _ = drive.pose(i)
@@ -266,3 +272,21 @@ def test_mono_rig_other_grid_and_standing_vehicle() -> None:
     drive = SyntheticDrive(DriveConfig(frames=2, speed_mps=0.0, camera=SMALL.scaled(0.5)))
     assert drive.pose(0)[0].x == drive.pose(1)[0].x
     assert drive[1].truth.mask.all()
+
+
+def test_accelerometer_reports_the_trajectory_plus_gravity() -> None:
+    drive = SyntheticDrive(DriveConfig(frames=30, seed=3, camera=SMALL, accel_noise=0.0, gyro_noise=0.0))
+    path = drive.trajectory()
+    dt = 0.01
+    heading = float(path["heading"])
+    c, s = math.cos(heading), math.sin(heading)
+    force = []
+    for sample in drive.imu_samples():  # body specific force -> ENU -> road axes
+        f = quaternion_to_rotation(*sample.orientation_xyzw) @ np.array(sample.linear_acceleration)
+        force.append([c * f[0] + s * f[1], -s * f[0] + c * f[1], f[2]])
+    force = np.array(force)[5:-5]
+    ax = np.gradient(np.gradient(path["x"], dt), dt)[5:-5]
+    az = np.gradient(np.gradient(path["z"], dt), dt)[5:-5]
+    np.testing.assert_allclose(force[:, 0], ax, atol=1e-3)
+    np.testing.assert_allclose(force[:, 2], az + 9.80665, atol=1e-3)
+    assert 0.9 < path["speed"].mean() / 5.0 < 1.1 and path["speed"].std() > 0.01  # speed drifts

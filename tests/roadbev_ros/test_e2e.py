@@ -20,7 +20,7 @@ from roadbev_core.config import StereoCamera
 from roadbev_core.evaluation import evaluate
 from roadbev_core.synth import DriveConfig, SyntheticDrive
 from roadbev_ros.dds import child_env
-from roadbev_ros.online_eval import evaluate_online
+from roadbev_ros.online_eval import evaluate_online, format_online
 
 FRAMES = 6
 METRIC_KEYS = ("frames", "cells", "abs_err_cm", "rmse_cm", "gt_0p5cm_pct", "coverage_pct")
@@ -68,6 +68,7 @@ def test_online_metrics_match_offline(ros: object, drive_bag: Path, tmp_path: Pa
     assert topics["/roadbev/preview"].count == FRAMES
     assert topics["/diagnostics"].count >= 1
     assert result.diagnostics["backend"] == backend
+    assert format_online(online).startswith(f"{backend} (lockstep): frames {FRAMES}")
     assert int(result.diagnostics["outputs"]) == FRAMES
 
 

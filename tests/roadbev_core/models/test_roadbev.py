@@ -9,7 +9,7 @@ import torch
 from roadbev_core.config import ConfigError, GridSpec, StereoCamera
 from roadbev_core.geometry import Attitude, project_voxels
 from roadbev_core.models import ModelInputError, RoadBEV, model_config
-from roadbev_core.models.voxel_query import batch_lookup, query_voxels
+from roadbev_core.models.voxel_query import batch_lookup, query_voxels, window_zncc
 
 CAMERA = StereoCamera.rsrd_half()
 ATTITUDE = Attitude.from_degrees(0.8, 18.6)
@@ -23,6 +23,7 @@ def test_presets_follow_the_paper_and_the_cpu_sizing() -> None:
     lite = model_config("lite", "stereo")
     inner = lite.internal_grid(GridSpec())
     assert (inner.n_z, inner.n_rows, inner.n_cols) == (40, 82, 32) and lite.sampling == "bilinear"
+    assert lite.photometric and not paper.photometric  # the photometric channel is a CPU-model addition
     tiny = model_config("tiny", "mono").internal_grid(GridSpec())
     assert (tiny.n_z, tiny.n_rows, tiny.n_cols) == (10, 41, 16)
     with pytest.raises(ConfigError, match="backbone"):
@@ -81,3 +82,14 @@ def test_bad_inputs_are_refused() -> None:
         model(torch.zeros(1, 3, 64, 64), None, [CAMERA], [ATTITUDE])
     with pytest.raises(ModelInputError, match="cameras"):
         model(images, images, [CAMERA, CAMERA], [ATTITUDE])
+
+
+def test_window_zncc_scores_matching_texture_high() -> None:
+    gen = torch.Generator().manual_seed(0)
+    texture = torch.rand(1, 3, 9, 7, generator=gen) * 255
+    same = window_zncc(texture, texture * 0.5 + 20.0, 3)  # gain and offset do not matter
+    assert torch.allclose(same, torch.ones_like(same), atol=1e-3)
+    flipped = window_zncc(texture, 255.0 - texture, 3)
+    assert torch.allclose(flipped, -torch.ones_like(flipped), atol=1e-3)
+    flat = window_zncc(texture, torch.full_like(texture, 7.0), 3)
+    assert float(flat.abs().max()) < 0.02  # float32 cancellation in E[x^2] - E[x]^2
