@@ -36,7 +36,6 @@ setup(
     package_data={"roadbev_core": ["data/*"], "roadbev_ros": ["data/*"]},
     data_files=_data_files(),
     install_requires=["numpy", "torch", "opencv-python-headless", "mcap", "rosbags", "pyyaml"],
-    tests_require=["pytest"],
     zip_safe=False,
     entry_points={
         "console_scripts": [

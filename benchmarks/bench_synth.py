@@ -58,6 +58,13 @@ def main() -> None:
         _, w, c = _timed(lambda i=i: drive[i])
         frame_wall.append(w)
         frame_cpu.append(c)
+    # One thread: its CPU time is what the wall time is on an idle core (load-independent).
+    import cv2
+
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    single_cpu = [_timed(lambda i=i: drive[i])[2] for i in range(1, args.frames + 1)]
+    cv2.setNumThreads(threads)
     sample_wall, sample_cpu = [], []
     for seed in range(args.samples):
         _, w, c = _timed(lambda seed=seed: make_sample(1000 + seed, camera=camera))
@@ -75,7 +82,9 @@ def main() -> None:
         "stereo_render_cpu_s": _stats(render_cpu),
         "drive_frame_wall_s": _stats(frame_wall),
         "drive_frame_cpu_s": _stats(frame_cpu),
-        "drive_frame_note": "drive[i]: stereo render + sensor model + LiDAR-like points + labels",
+        "drive_frame_cpu_1thread_s": _stats(single_cpu),
+        "drive_frame_note": "drive[i]: stereo render + sensor model + LiDAR-like points + labels; "
+        "the 1-thread CPU time is the wall time on an idle core",
         "drive_setup_wall_s": round(setup_wall, 3),
         "drive_setup_cpu_s": round(setup_cpu, 3),
         "drive_frames": args.frames + 1,
@@ -88,7 +97,8 @@ def main() -> None:
     print(
         f"stereo frame {camera.width}x{camera.height}: render {result['stereo_render_wall_s']['median']:.3f} s wall "
         f"({result['stereo_render_cpu_s']['median']:.3f} s CPU), whole frame "
-        f"{result['drive_frame_wall_s']['median']:.3f} s wall ({result['drive_frame_cpu_s']['median']:.3f} s CPU); "
+        f"{result['drive_frame_wall_s']['median']:.3f} s wall ({result['drive_frame_cpu_s']['median']:.3f} s CPU, "
+        f"{result['drive_frame_cpu_1thread_s']['median']:.3f} s CPU on one thread); "
         f"make_sample {result['make_sample_wall_s']['median']:.3f} s wall; load {info['load_average_at_start']}"
     )
 

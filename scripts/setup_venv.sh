@@ -13,11 +13,13 @@ if [[ -f "$stamp" && "$(cat "$stamp")" == "$inputs" ]]; then
 fi
 echo "[setup] creating $venv (torch CPU, ROS 2 Jazzy wheels, interface packages)" >&2
 python3 -m venv "$venv"
-"$venv/bin/python" -m pip install -q --disable-pip-version-check --upgrade pip setuptools wheel
-"$venv/bin/python" -m pip install -q --disable-pip-version-check -r "$root/requirements.txt"
+# This machine's pip.conf lists local find-links folders that may not exist; drop that noise.
+quiet() { { grep -v 'is neither a file nor a directory' || true; } >&2; }
+"$venv/bin/python" -m pip install -q --disable-pip-version-check --upgrade pip setuptools wheel 2>&1 | quiet
+"$venv/bin/python" -m pip install -q --disable-pip-version-check -r "$root/requirements.txt" 2>&1 | quiet
 if [[ -x "$root/scripts/build_interfaces.sh" ]]; then
   "$root/scripts/build_interfaces.sh" "$venv"
 fi
-"$venv/bin/python" -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e "$root"
+"$venv/bin/python" -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e "$root" 2>&1 | quiet
 echo "$inputs" > "$stamp"
 echo "[setup] done" >&2

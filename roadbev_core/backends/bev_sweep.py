@@ -53,13 +53,16 @@ class SweepParams:
     """Tuning of the sweep (defaults chosen by measurement, see ``benchmarks/tune_bev_sweep.py``).
 
     Attributes:
-        z_step: height step of the coarse sweep (m); None = the grid's voxel size.
-        subsamples: samples per cell (along x = rows, along y = columns) in the coarse pass.
+        z_step: height step of the sweep (m); None = the grid's voxel size (the parabola refines
+            below it; 0.5 cm steps measured no better).
+        subsamples: samples per cell (along x = rows, along y = columns).
             Across the road a 3 cm cell spans 4-13 pixels, along it (foreshortened) 1-6.
         patch_cells: side of the ZNCC window in cells (odd), both passes.
-        aggregation_cells: side of the coarse pass's box filter over the BEV plane (odd; 1 = none).
-        min_score: cells whose best coarse aggregated ZNCC is below this are NaN.
-        min_margin: a cell is NaN when a second coarse peak (more than ``peak_exclusion`` from
+        aggregation_cells: side (cells, odd; 1 = none) of the box filter of the ZNCC volume over
+            the BEV plane per height, for the rows between the near and far zones.
+        min_score: cells whose best aggregated ZNCC is below this are NaN (the strongest single
+            discriminator of wrong cells in the tuning sweep).
+        min_margin: a cell is NaN when a second peak (more than ``peak_exclusion`` from
             the best) scores within this margin of the best (ambiguous, e.g. repetitive texture).
         peak_exclusion: half-width (m) around the best height ignored when looking for a second peak.
         min_texture: std (grey levels of the filtered image) of the left patch below which a
@@ -80,7 +83,10 @@ class SweepParams:
             windows shifted by half its size (sharp steps and bump edges instead of smears).
         max_deviation: cells further than this (m) from the median of their confident
             neighbours (5 x 5 cells) are NaN: isolated wrong peaks (0 = no check).
-        max_sigma: cells whose coarse softmax spread (1-sigma, m) exceeds this are NaN: a flat
+        threads: torch intra-op threads while estimating (the previous setting is restored
+            after). One thread: on a shared 2-core CPU a second thread mostly waits for the busy
+            core, which measured several times slower under load; 0 = leave torch's setting.
+        max_sigma: cells whose softmax spread (1-sigma, m) exceeds this are NaN: a flat
             or multi-modal score curve.
     """
 
@@ -103,6 +109,7 @@ class SweepParams:
     shiftable_windows: bool = False
     max_deviation: float = 0.01
     max_sigma: float = 0.1
+    threads: int = 1
 
     def __post_init__(self) -> None:
         if self.z_step is not None and not (isinstance(self.z_step, (int, float)) and self.z_step > 0):
@@ -124,6 +131,10 @@ class SweepParams:
                 raise ConfigError(f"{name} must be >= 0, got {value}")
         if self.temperature <= 0 or self.max_sigma <= 0:
             raise ConfigError("temperature and max_sigma must be positive")
+        if not _is_int(self.threads) or self.threads < 0:
+            raise ConfigError(f"threads must be a non-negative integer, got {self.threads!r}")
+        if self.far_fraction + self.near_fraction > 1.0:
+            raise ConfigError("far_fraction + near_fraction must not exceed 1 (the zones would overlap)")
         if not isinstance(self.shiftable_windows, bool):
             raise ConfigError(f"shiftable_windows must be true or false, got {self.shiftable_windows!r}")
 
@@ -270,7 +281,7 @@ class BevSweep:
                 "into at least 3 levels"
             )
         self.z_step = step
-        self._coarse = _sample_positions(grid, *p.subsamples)
+        self._samples = _sample_positions(grid, *p.subsamples)
         self._cells = _sample_positions(grid, 1, 1)
         self._z = torch.tensor(grid.z_min + (np.arange(n_levels) + 0.5) * step, dtype=torch.float32)
 
@@ -459,6 +470,15 @@ class BevSweep:
             raise FrameError("bev_sweep needs a stereo frame (the right image is missing)")
         if frame.camera.baseline <= 0:
             raise FrameError("bev_sweep needs a stereo rig with a positive baseline")
+        previous = torch.get_num_threads()
+        if self.params.threads:
+            torch.set_num_threads(self.params.threads)
+        try:
+            return self._estimate(frame)
+        finally:
+            torch.set_num_threads(previous)
+
+    def _estimate(self, frame: Frame) -> Estimate:
         clock = StageClock()
         p = self.params
         greys = np.stack([grey_image(im, p.blur_sigma, p.highpass_sigma) for im in (frame.left, frame.right)])
@@ -468,7 +488,7 @@ class BevSweep:
         with torch.no_grad():
             valid = self._valid_levels(frame.camera, frame.attitude)  # [Z, R, C]
             planes = self._z[:, None, None]  # [Z, 1, 1]
-            zncc, texture = self._zncc(images, self._coarse, planes, frame, clock)
+            zncc, texture = self._zncc(images, self._samples, planes, frame, clock)
             aggregated = _box(zncc, p.aggregation_cells)
             n_rows = self.grid.n_rows
             if p.far_aggregation_cells != p.aggregation_cells:
@@ -483,16 +503,16 @@ class BevSweep:
             if p.shiftable_windows:
                 score = _best_shifted_window(score, p.aggregation_cells // 2)
             clock.lap("aggregation")
-            coarse = self._decide(score, planes, self.z_step)
+            decision = self._decide(score, planes, self.z_step)
             confident = (
-                (coarse.best >= p.min_score)
-                & (coarse.best - coarse.second >= p.min_margin)
-                & coarse.interior
-                & (texture.gather(0, coarse.index[None])[0] >= p.min_texture)
+                (decision.best >= p.min_score)
+                & (decision.best - decision.second >= p.min_margin)
+                & decision.interior
+                & (texture.gather(0, decision.index[None])[0] >= p.min_texture)
                 & valid.all(dim=0)
-                & (coarse.sigma <= p.max_sigma)
+                & (decision.sigma <= p.max_sigma)
             )
-            elevation, sigma = coarse.elevation, coarse.sigma
+            elevation, sigma = decision.elevation, decision.sigma
             if p.max_deviation > 0:
                 confident &= ~_outliers(elevation, confident, p.max_deviation)
             if p.occlusion_clearance > 0:

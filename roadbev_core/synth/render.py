@@ -30,6 +30,7 @@ from roadbev_core.synth.texture import build_pyramid, remap_points, sample_mip, 
 __all__ = [
     "CameraPose",
     "RenderedView",
+    "ViewCrop",
     "ego_shadow",
     "ray_directions",
     "render_stereo",
@@ -111,7 +112,9 @@ def ray_directions(camera: StereoCamera, pose: CameraPose) -> np.ndarray:
     return (rows[:, None, :] + cols[None, :, :]).reshape(-1, 3)
 
 
-class _Crop(NamedTuple):
+class ViewCrop(NamedTuple):
+    """The scene rasters one view needs, with their shading pyramid and displacement bounds."""
+
     heights: np.ndarray  # [n, m] float32 displacement rows along x
     shade: list[np.ndarray]  # pyramid of [n, m, 4] (dz/dx, dz/dy, albedo, light)
     bounds: list[tuple[float, float, np.ndarray, np.ndarray]]  # (cell m, radius m, max, min) fine first
@@ -146,7 +149,7 @@ def _local_bounds(h: np.ndarray, res: float, cell_m: float, dilate: int) -> tupl
     )
 
 
-def _crop(scene: Scene, x_lo: float, x_hi: float) -> _Crop:
+def _crop(scene: Scene, x_lo: float, x_hi: float) -> ViewCrop:
     """The rasters between world x_lo and x_hi, with a shading pyramid (gradients, albedo, light)."""
     c = scene.canvas
     i0 = max(int(math.floor((x_lo - c.x0) / c.resolution)), 0)
@@ -168,7 +171,7 @@ def _crop(scene: Scene, x_lo: float, x_hi: float) -> _Crop:
     for cell_m, dilate in BOUND_LEVELS:
         hi, lo = _local_bounds(h, c.resolution, cell_m, dilate)
         bounds.append((cell_m, dilate * cell_m - 0.02, hi, lo))
-    return _Crop(h, build_pyramid(shade, 7), bounds, x0, c.y0, c.resolution)
+    return ViewCrop(h, build_pyramid(shade, 7), bounds, x0, c.y0, c.resolution)
 
 
 class _Rays(NamedTuple):
@@ -182,7 +185,7 @@ class _Rays(NamedTuple):
     dcol: np.ndarray
     df: np.ndarray
 
-    def above(self, crop: _Crop, s: np.ndarray, sel: np.ndarray) -> np.ndarray:
+    def above(self, crop: ViewCrop, s: np.ndarray, sel: np.ndarray) -> np.ndarray:
         """Height of the ray above the surface at depth ``s`` (float32; > 0 above)."""
         row = np.clip(self.row0 + s * self.drow[sel], -2.0, crop.heights.shape[0] + 1.0)
         col = np.clip(self.col0 + s * self.dcol[sel], -2.0, crop.heights.shape[1] + 1.0)
@@ -191,7 +194,7 @@ class _Rays(NamedTuple):
 
 
 def _intersect(
-    scene: Scene, crop: _Crop, origin: np.ndarray, dirs: np.ndarray, pixel_angle: float
+    scene: Scene, crop: ViewCrop, origin: np.ndarray, dirs: np.ndarray, pixel_angle: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Depth (optical z) of the first surface crossing of each ray; inf for rays that miss.
 
@@ -356,7 +359,7 @@ def ego_shadow(scene: Scene, pose: CameraPose, x: np.ndarray, y: np.ndarray, z: 
 
 def _shade_ground(
     scene: Scene,
-    crop: _Crop,
+    crop: ViewCrop,
     camera: StereoCamera,
     pose: CameraPose,
     origin: np.ndarray,
@@ -468,17 +471,23 @@ def _shade_sky(scene: Scene, dirs: np.ndarray) -> np.ndarray:
     tl = scene.treeline[np.floor((az + math.pi) / (2 * math.pi) * n_tl).astype(np.int64) % n_tl]
     t = np.clip(elev / 0.5, 0.0, 1.0)[:, None]
     col = scene.sky_horizon * (1 - t) + scene.sky_zenith * t
-    trees = np.array([0.10, 0.13, 0.08]) * (1 + 0.3 * np.sin(az * 300.0))[:, None]
+    # foliage: a fixed random pattern over (azimuth, elevation), hazy with distance
+    leaves = _FOLIAGE[(np.floor(az * 900.0).astype(np.int64) % 251), (np.floor(elev * 900.0).astype(np.int64) % 251)]
+    trees = np.array([0.10, 0.13, 0.08]) * (0.6 + 0.8 * leaves)[:, None]
+    trees = 0.6 * trees + 0.4 * scene.sky_horizon
     return np.where((elev < tl)[:, None], trees, col).astype(np.float32)
 
 
-def view_crop(scene: Scene, pose: CameraPose) -> _Crop:
+_FOLIAGE = cv2.GaussianBlur(np.random.default_rng(7).random((251, 251)).astype(np.float32), (0, 0), 1.0)
+
+
+def view_crop(scene: Scene, pose: CameraPose) -> ViewCrop:
     """The scene rasters a view from ``pose`` needs (share it between the left and right views)."""
     return _crop(scene, pose.x - 1.0, pose.x + LOOK_AHEAD_M)
 
 
 def render_view(
-    scene: Scene, camera: StereoCamera, pose: CameraPose, *, right: bool = False, crop: _Crop | None = None
+    scene: Scene, camera: StereoCamera, pose: CameraPose, *, right: bool = False, crop: ViewCrop | None = None
 ) -> RenderedView:
     """Render the left (or right) view of ``scene`` from the stereo rig at ``pose``.
 
