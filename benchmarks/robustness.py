@@ -164,11 +164,11 @@ def plot(results: dict[str, Any], names: list[str], path: Path, frames: int) -> 
             axes[row, col].grid(True, alpha=0.3)
             if labels:
                 axes[row, col].set_xticks(xs, labels)
+        axes[0, col].set_ylim(bottom=0)
+        axes[1, col].set_ylim(0, 102)  # same coverage scale everywhere: no exaggerated dips
         axes[1, col].set_xlabel(entry["unit"], fontsize=9)
     axes[0, 0].set_ylabel("mean abs. error (cm)")
     axes[1, 0].set_ylabel("coverage (%)")
-    axes[0, 0].set_ylim(bottom=0)
-    axes[1, 0].set_ylim(0, 100)
     axes[0, 0].legend(fontsize=8)
     fig.suptitle(f"Robustness: one perturbation at a time ({frames} synthetic frames)", fontsize=11)
     fig.tight_layout()

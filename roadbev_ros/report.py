@@ -23,7 +23,7 @@ import html
 import json
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -236,9 +236,7 @@ def _residual_limit_cm(residuals: Sequence[np.ndarray]) -> float:
 
 
 def _cmap(name: str) -> mcolors.Colormap:
-    cmap = matplotlib.colormaps[name].copy()
-    cmap.set_bad(_NO_DATA_COLOUR)
-    return cmap
+    return matplotlib.colormaps[name].with_extremes(bad=_NO_DATA_COLOUR)
 
 
 # --------------------------------------------------------------------------------------------
@@ -355,7 +353,7 @@ def plot_surface(frame: FrameView, grid: GridSpec, path: str | Path) -> Path:
     yy, xx = np.meshgrid(grid.y_centres(), grid.x_centres())  # [R, C]
     lo, hi = _elevation_limits_cm([frame.truth if frame.truth is not None else frame.estimate])
     fig = plt.figure(figsize=(8.0, 6.0), dpi=_DPI)
-    ax = fig.add_axes((0.0, 0.0, 0.86, 0.93), projection="3d")
+    ax = fig.add_axes((0.0, 0.02, 0.84, 0.9), projection="3d")
     surf = ax.plot_surface(
         yy, xx, np.ma.masked_invalid(est_cm), cmap=_cmap(_ELEVATION_CMAP), vmin=lo, vmax=hi,
         rstride=1, cstride=1, linewidth=0, antialiased=False,
@@ -363,17 +361,18 @@ def plot_surface(frame: FrameView, grid: GridSpec, path: str | Path) -> Path:
     z_span = max(hi - lo, 2.0)
     z_box = 0.35 * grid.length_y  # the elevation axis gets 35 % of the width
     exaggeration = z_box / (z_span / 100.0)
-    ax.set_box_aspect((grid.length_y, grid.length_x, z_box), zoom=1.25)
+    ax.set_box_aspect((grid.length_y, grid.length_x, z_box), zoom=1.0)
     ax.set_xlim(grid.y_max, grid.y_min)  # left on the left when seen from behind the car
     ax.set_ylim(grid.x_min, grid.x_max)
     ax.set_zlim(lo, hi)
     ax.set_xticks([1.0, 0.5, 0.0, -0.5])
+    ax.zaxis.set_major_locator(matplotlib.ticker.MaxNLocator(4))
     ax.view_init(elev=32, azim=-118)
     ax.set_xlabel("lateral y (m, + left)", fontsize=8, labelpad=6)
     ax.set_ylabel("distance ahead x (m)", fontsize=8, labelpad=8)
     ax.set_zlabel("elevation (cm)", fontsize=8, labelpad=4)
     ax.tick_params(labelsize=7)
-    cbar = fig.colorbar(surf, ax=ax, shrink=0.55, pad=0.02)
+    cbar = fig.colorbar(surf, cax=fig.add_axes((0.87, 0.25, 0.025, 0.5)))
     cbar.set_label("elevation (cm)", fontsize=8)
     cbar.ax.tick_params(labelsize=7)
     fig.suptitle(f"Estimated road surface, frame {frame.index} "
@@ -395,7 +394,7 @@ def plot_preview(frames: Sequence[FrameView], path: str | Path) -> Path:
             if t.name not in names:
                 names.append(t.name)
     fig, axes = plt.subplots(len(rows), len(names), figsize=(5.0 * len(names), 2.6 * len(rows) + 0.6),
-                             dpi=_DPI, squeeze=False, sharex=True)
+                             dpi=_DPI, squeeze=False, sharex=True, sharey=True)
     for i, frame in enumerate(rows):
         est = {t.name: t for t in frame.tracks}
         gt = {t.name: t for t in frame.truth_tracks}
@@ -463,7 +462,7 @@ def plot_timing(timing: TimingTrace, path: str | Path) -> Path:
     med = float(np.median(timing.latency_ms))
     ax_l.axhline(med, color="tab:blue", ls=":", lw=1.0, label=f"median {med:.0f} ms")
     ax_l.set_ylabel("latency (ms)", fontsize=9)
-    ax_l.set_ylim(bottom=0.0)
+    ax_l.set_ylim(0.0, 1.2 * float(np.nanmax(timing.latency_ms)) + 1.0)
     ax_l.set_title("Latency: input image published -> /roadbev/elevation received", fontsize=10)
     ax_l.legend(fontsize=8)
     ax_l.grid(True, alpha=0.3)
@@ -475,11 +474,11 @@ def plot_timing(timing: TimingTrace, path: str | Path) -> Path:
         span = timing.receive_s[-1] - timing.receive_s[0]
         mean_rate = (timing.receive_s.size - 1) / span if span > 0 else float("nan")
         ax_r.axhline(mean_rate, color="tab:green", ls=":", lw=1.0, label=f"mean {mean_rate:.1f} Hz")
-        ax_r.legend(fontsize=8)
+        ax_r.legend(fontsize=8, loc="lower right")
+        ax_r.set_ylim(0.0, 1.25 * float(np.nanmax(rate)))
     ax_r.set_ylabel("output rate (Hz)", fontsize=9)
-    ax_r.set_ylim(bottom=0.0)
     ax_r.set_xlabel("time since the first input was published (s)", fontsize=9)
-    ax_r.set_title("Output rate", fontsize=10)
+    ax_r.set_title("Output rate (lockstep: each image is sent when the previous answer arrived)", fontsize=10)
     ax_r.grid(True, alpha=0.3)
     fig.tight_layout()
     out = Path(path)
@@ -594,8 +593,15 @@ figcaption {{ font-size: 0.9em; color: #444; }}
 """
 
 
-def write_report(data: ReportData, out_dir: str | Path) -> dict[str, Path]:
+def write_report(
+    data: ReportData, out_dir: str | Path, *, progress: Callable[[str], Any] | None = None
+) -> dict[str, Path]:
     """Draw every figure the data allows and write ``index.html`` and ``report.json``.
+
+    Args:
+        data: what to show.
+        out_dir: the report folder (created).
+        progress: called with each file's name before it is drawn.
 
     Returns:
         File name -> path of everything written.
@@ -605,18 +611,24 @@ def write_report(data: ReportData, out_dir: str | Path) -> dict[str, Path]:
     if not data.frames:
         raise ReportError("the report needs at least one frame")
     written: dict[str, Path] = {}
+    tell = progress or (lambda name: None)
+    tell("frames.png")
     written["frames.png"] = plot_frames(data.frames, data.grid, out / "frames.png")
     # The 3D render shows the frame with the most relief in its ground truth (else the first).
     relief = [
         float(np.nanmax(f.truth) - np.nanmin(f.truth)) if f.truth is not None and np.isfinite(f.truth).any() else -1.0
         for f in data.frames
     ]
+    tell("surface.png")
     written["surface.png"] = plot_surface(data.frames[int(np.argmax(relief))], data.grid, out / "surface.png")
     if any(f.tracks or f.truth_tracks for f in data.frames):
+        tell("preview.png")
         written["preview.png"] = plot_preview(data.frames, out / "preview.png")
     if data.runs:
+        tell("band_error.png")
         written["band_error.png"] = plot_band_error(data.runs, data.grid, out / "band_error.png")
     if data.timing is not None and data.timing.receive_s.size:
+        tell("timing.png")
         written["timing.png"] = plot_timing(data.timing, out / "timing.png")
     figures = [name for name in FIGURE_NAMES if name in written]
     payload = {

@@ -1,0 +1,49 @@
+"""``roadbev demo``: the main job, end to end over ROS 2, leaving a report folder.
+
+Writes (or reuses from ``./.cache/roadbev``) a synthetic drive bag with ground truth, runs the
+node on it over DDS, records its outputs, scores them, checks them against the offline
+evaluation (``roadbev eval``) and writes ``DIR/index.html`` with the figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+HELP = "the main job: synthetic drive -> node over ROS 2 -> recorded outputs -> report"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``roadbev demo``."""
+    from roadbev_ros.demo import DEFAULT_FRAMES, DEFAULT_OUT
+
+    parser.add_argument("--frames", type=int, default=DEFAULT_FRAMES, metavar="N",
+                        help=f"frames of the synthetic drive (default {DEFAULT_FRAMES}; ignored with --bag)")
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, metavar="DIR",
+                        help=f"report folder (default ./{DEFAULT_OUT})")
+    parser.add_argument("--backend", default="bev_sweep", metavar="B",
+                        help="elevation backend of the node (default bev_sweep; stereo/mono need checkpoints)")
+    parser.add_argument("--bag", type=Path, default=None, metavar="BAG",
+                        help="any contract evaluation bag (rosbag2 directory or .mcap) instead of the synthetic drive")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic drive (default 0)")
+    parser.add_argument("--cache", type=Path, default=None, metavar="DIR",
+                        help="cache of synthetic bags (default ./.cache/roadbev)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the demo; a failed stage ends with a one-line reason (non-zero exit)."""
+    from roadbev_core.backends import available
+    from roadbev_ros.demo import DemoOptions, run_demo, summary_lines
+
+    # DemoError is a RuntimeError and bad options raise ValueError: the CLI prints either as one
+    # line. (Not CommandError: under `python -m roadbev_ros.cli`, as `make demo` runs it, the CLI
+    # module is __main__ and catches its own CommandError class, not roadbev_ros.cli's.)
+    if args.backend not in available():
+        raise ValueError(f"unknown backend {args.backend!r}; choose from {', '.join(available())}")
+    options = DemoOptions(frames=args.frames, out_dir=args.out, backend=args.backend, bag=args.bag,
+                          cache_dir=args.cache, seed=args.seed, progress=not args.no_progress)
+    result = run_demo(options)
+    for line in summary_lines(result):
+        print(line)
+    return 0
