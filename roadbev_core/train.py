@@ -179,6 +179,7 @@ def train(
     out: str | Path,
     *,
     resume: str | Path | None = None,
+    init: str | Path | None = None,
     pretrained: str | Path | None = None,
     progress: bool = True,
     log: Callable[[str], None] | None = None,
@@ -192,6 +193,8 @@ def train(
         config: optimisation settings.
         out: checkpoint path.
         resume: continue from this checkpoint (weights, optimizer, schedule, position).
+        init: start from this checkpoint's weights (and model config) with a fresh schedule, e.g.
+            to fine-tune synthetic-trained weights on RSRD or to train a finished run further.
         pretrained: ImageNet EfficientNet weights (torchvision or lukemelas layout) for a fresh run.
         progress: show a tqdm bar (rank 0 only).
         log: receives one summary line per epoch (rank 0 only).
@@ -201,6 +204,8 @@ def train(
         torch.set_num_threads(config.threads)
     torch.set_flush_denormal(True)
     state: dict[str, Any] | None = None
+    if resume is not None and init is not None:
+        raise TrainError("give either resume (same run) or init (new run from weights), not both")
     if resume is not None:
         payload = read_checkpoint(resume)
         if "train_state" not in payload:
@@ -209,6 +214,9 @@ def train(
         if GridSpec.from_dict(payload["grid"]) != grid:
             raise TrainError(f"{resume} was trained on another grid")
         state = payload["train_state"]
+    elif init is not None:
+        payload = read_checkpoint(init)
+        model_config = ModelConfig.from_dict(payload["model_config"])
     if config.batch_size % env.world:
         raise TrainError(f"global batch {config.batch_size} does not split over {env.world} processes")
     dataset = ModelInputs(data, model_config, grid)
@@ -217,9 +225,9 @@ def train(
         raise TrainError(f"{len(dataset)} frames are fewer than one batch of {config.batch_size}")
     total_steps = batches_per_epoch * config.epochs
 
-    model = build_model(model_config, grid, seed=config.seed, pretrained=None if state else pretrained)
-    if state is not None:
-        model.load_state_dict(payload["state_dict"])
+    model = build_model(model_config, grid, seed=config.seed, pretrained=None if state or init else pretrained)
+    if state is not None or init is not None:
+        model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in payload["state_dict"].items()})
     model.to(env.device).train()
     net: nn.Module = model
     if env.world > 1:
@@ -230,8 +238,9 @@ def train(
         )
     lr = config.lr or DEFAULT_LR[model_config.kind]
     optimizer = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=config.weight_decay)
+    # One step more than taken, so that the rate after the last step is still >= 0.
     scheduler = torch.optim.lr_scheduler.OneCycleLR(
-        optimizer, max_lr=lr, total_steps=total_steps, pct_start=config.pct_start, anneal_strategy="linear"
+        optimizer, max_lr=lr, total_steps=total_steps + 1, pct_start=config.pct_start, anneal_strategy="linear"
     )
     step, start_epoch, start_batch, history = 0, 0, 0, []
     if state is not None:
@@ -254,7 +263,8 @@ def train(
             "stopped_early": stopped,
         }
         return save_checkpoint(out, model, train_state=train_state,
-                               meta={"steps": step, "frames": len(dataset), "world_size": env.world})
+                               meta={"steps": step, "frames": len(dataset), "world_size": env.world,
+                                     "init": str(init) if init else ""})
 
     deadline = time.monotonic() + 60 * config.max_minutes if config.max_minutes else math.inf
     per_rank = config.batch_size // env.world

@@ -359,7 +359,7 @@ def plot_surface(frame: FrameView, grid: GridSpec, path: str | Path) -> Path:
         rstride=1, cstride=1, linewidth=0, antialiased=False,
     )
     z_span = max(hi - lo, 2.0)
-    z_box = 0.35 * grid.length_y  # the elevation axis gets 35 % of the width
+    z_box = 0.5 * grid.length_y  # the elevation axis gets half the width
     exaggeration = z_box / (z_span / 100.0)
     ax.set_box_aspect((grid.length_y, grid.length_x, z_box), zoom=1.0)
     ax.set_xlim(grid.y_max, grid.y_min)  # left on the left when seen from behind the car
@@ -614,13 +614,18 @@ def write_report(
     tell = progress or (lambda name: None)
     tell("frames.png")
     written["frames.png"] = plot_frames(data.frames, data.grid, out / "frames.png")
-    # The 3D render shows the frame with the most relief in its ground truth (else the first).
-    relief = [
-        float(np.nanmax(f.truth) - np.nanmin(f.truth)) if f.truth is not None and np.isfinite(f.truth).any() else -1.0
-        for f in data.frames
-    ]
+    # The 3D render shows a frame with much relief in its ground truth and few holes in its
+    # estimate (a hole-riddled surface reads badly in 3D): relief (cm) x coverage^3.
+    def render_score(f: FrameView) -> float:
+        coverage = float(np.isfinite(f.estimate).mean())
+        if f.truth is None or not np.isfinite(f.truth).any():
+            return coverage
+        lo, hi = np.nanpercentile(f.truth, [0.5, 99.5])
+        return float(hi - lo) * 100.0 * coverage**3
+
+    render = max(data.frames, key=render_score)
     tell("surface.png")
-    written["surface.png"] = plot_surface(data.frames[int(np.argmax(relief))], data.grid, out / "surface.png")
+    written["surface.png"] = plot_surface(render, data.grid, out / "surface.png")
     if any(f.tracks or f.truth_tracks for f in data.frames):
         tell("preview.png")
         written["preview.png"] = plot_preview(data.frames, out / "preview.png")

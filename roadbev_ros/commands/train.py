@@ -23,6 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     model.add_argument("--out", type=Path, required=True, help="checkpoint to write (.pt)")
     model.add_argument("--pretrained", type=Path, help="ImageNet EfficientNet weights (torchvision/lukemelas)")
     model.add_argument("--resume", type=Path, help="continue from this checkpoint")
+    model.add_argument("--init", type=Path, help="start from this checkpoint's weights with a fresh schedule")
     data = parser.add_argument_group("data (any combination)")
     data.add_argument("--synth", type=int, default=0, metavar="N", help="N synthetic training scenes")
     data.add_argument("--synth-seed", type=int, default=0, help="first synthetic scene seed (default 0)")
@@ -82,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
                 handle.write(line + "\n")
 
     result = train(model_config(args.preset, args.kind), grid, data, config, args.out,
-                   resume=args.resume, pretrained=args.pretrained, progress=not args.quiet, log=log)
+                   resume=args.resume, init=args.init, pretrained=args.pretrained, progress=not args.quiet, log=log)
     if result.checkpoint is not None:
         last = result.history[-1] if result.history else {}
         loss, err = last.get("loss", float("nan")), last.get("abs_err_cm", float("nan"))
