@@ -9,7 +9,7 @@ setup:
 	@scripts/setup_venv.sh
 
 demo: setup
-	$(PY) -m roadbev_ros.cli demo
+	.venv/bin/roadbev demo
 
 test: setup
 	$(PY) -m pytest -q tests

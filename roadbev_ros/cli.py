@@ -78,4 +78,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # Run through the imported module, not this __main__ copy, so that the CommandError raised by
+    # commands (roadbev_ros.cli.CommandError) is the class caught above.
+    from roadbev_ros.cli import main as _main
+
+    sys.exit(_main())

@@ -21,6 +21,7 @@ import os
 import random
 import shutil
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -162,7 +163,7 @@ def ensure_demo_bag(
     partial = cache_dir / f".partial-{os.getpid()}-{path.name}"
     try:
         write_eval_bag(partial, SyntheticDrive(config), progress=progress)
-        os.replace(partial, path)
+        partial.replace(path)
     finally:
         if partial.exists():
             partial.unlink() if partial.is_file() else shutil.rmtree(partial)
@@ -177,6 +178,38 @@ def _private_domain() -> None:
     if "ROS_DOMAIN_ID" not in os.environ:
         os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 100))
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+
+@contextmanager
+def _interruptible_ros() -> Iterator[None]:
+    """rclpy initialised without its own signal handlers, SIGTERM turned into KeyboardInterrupt.
+
+    rclpy's SIGINT handler shuts the context down from under the online evaluation's threads
+    and the demo would carry on; with Python's handlers Ctrl-C raises KeyboardInterrupt in the
+    main thread, the evaluation's ``finally`` stops the node process and closes the recording,
+    and the CLI exits 130. rclpy is shut down at the end only when it was initialised here.
+    """
+    import signal
+
+    import rclpy
+
+    from roadbev_ros.dds import init_ros
+
+    owned = not rclpy.ok()
+    init_ros(handle_signals=False)
+
+    def terminate(signum: int, _frame: Any) -> None:
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, terminate) if in_main else None
+    try:
+        yield
+    finally:
+        if in_main:
+            signal.signal(signal.SIGTERM, previous)
+        if owned:
+            rclpy.try_shutdown()
 
 
 @contextmanager
@@ -214,7 +247,8 @@ def _node_failure(metrics: dict[str, Any], log_tail: str) -> str | None:
     online = metrics.get("online", {})
     if online.get("outputs_matched", 1) == 0:
         tail = " | ".join(line.strip() for line in log_tail.strip().splitlines()[-6:] if line.strip())
-        return f"the node produced no output for any of {online.get('frames_published', 0)} frames; node log: {tail or '(empty)'}"
+        sent = online.get("frames_published", 0)
+        return f"the node produced no output for any of {sent} frames; node log: {tail or '(empty)'}"
     return None
 
 
@@ -316,7 +350,8 @@ def _agreement(online: dict[str, Any], offline: dict[str, Any]) -> dict[str, flo
     bands_a = np.asarray([math.nan if v is None else v for v in online.get("band_abs_err_cm", [])], float)
     bands_b = np.asarray([math.nan if v is None else v for v in offline.get("band_abs_err_cm", [])], float)
     if bands_a.size and bands_a.shape == bands_b.shape:
-        out["band_abs_err_cm_max"] = float(np.nanmax(np.abs(bands_a - bands_b))) if np.isfinite(bands_a - bands_b).any() else math.nan
+        diff = np.abs(bands_a - bands_b)
+        out["band_abs_err_cm_max"] = float(np.nanmax(diff)) if np.isfinite(diff).any() else math.nan
     return out
 
 
@@ -328,9 +363,10 @@ def _agreement_note(agreement: dict[str, float], online: dict[str, Any]) -> str:
                 f"missing (coverage); the largest difference in a cm metric is {worst:.4f} cm.")
     if agreement.get("cells", 0) == 0 and math.isfinite(worst) and worst < 1e-6:
         return ("The ROS 2 run (node process, DDS, recorded MCAP) and the offline evaluation "
-                "(`roadbev eval`, no DDS) agree exactly: same frames, same cells, every metric "
-                "equal (largest difference {:.1e} cm). Both run the same backend code on the same "
-                "decoded frames; the elevation travels as float32 both ways.".format(worst))
+                "(`roadbev eval`, no DDS) agree: same frames, same cells compared, every metric equal "
+                f"to within {worst:.1e} cm (float rounding). Lockstep replay means the node processes "
+                "every frame, with the same backend code on the same images and attitude; the "
+                "elevation map travels as float32 both ways.")
     return (f"The ROS 2 run and the offline evaluation differ by up to {worst:.4f} cm and "
             f"{agreement.get('cells', math.nan):.0f} cells: the node sees the attitude from its own IMU "
             "buffer and synchroniser, the offline path from the bag reader's interpolation.")
@@ -390,7 +426,7 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
             bar.update(1)
 
         try:
-            with _timed_replay(on_image, left_topic):
+            with _interruptible_ros(), _timed_replay(on_image, left_topic):
                 result = evaluate_online(bag_path, out_dir, backend=options.backend)
         except OnlineEvalError as exc:
             raise DemoError(f"ROS 2 stage failed: {' '.join(str(exc).split())}") from exc
@@ -431,7 +467,9 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
             continue
         preview = recorded.previews.get(frame.stamp_ns)
         tracks = _profiles_to_report(preview) if preview is not None else ()
-        truth_tracks = _truth_profiles(truths[i], grid, preview) if preview is not None and truths[i] is not None else ()
+        truth_tracks = ()
+        if preview is not None and truths[i] is not None:
+            truth_tracks = _truth_profiles(truths[i], grid, preview)
         views.append(FrameView(i, frame.stamp_ns, frame.left, frame.camera, frame.attitude, truths[i],
                                estimate, tracks, truth_tracks))
     if not views:

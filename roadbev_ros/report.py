@@ -188,10 +188,10 @@ def roi_outline_px(
         (grid.x_min, grid.y_min),
     ]
     pts = []
-    for (xa, ya), (xb, yb) in zip(corners, corners[1:] + corners[:1]):
+    for (xa, ya), (xb, yb) in zip(corners, corners[1:] + corners[:1], strict=False):
         t = np.linspace(0.0, 1.0, samples, endpoint=False)
         pts.append(np.stack([xa + (xb - xa) * t, ya + (yb - ya) * t, np.full_like(t, z)], axis=1))
-    road = np.concatenate(pts + [pts[0][:1]], axis=0)  # [4*samples+1, 3]
+    road = np.concatenate([*pts, pts[0][:1]], axis=0)  # [4*samples+1, 3]
     u, v, depth = project_points(road_to_camera(road, attitude, grid.base_height), camera)
     uv = np.stack([u, v], axis=1)
     uv[depth <= 0] = np.nan
@@ -405,7 +405,8 @@ def plot_preview(frames: Sequence[FrameView], path: str | Path) -> Path:
                 ax.plot(t.distance_m, t.elevation_m * 100.0, color="black", lw=1.4, label="ground truth")
             if name in est:
                 t = est[name]
-                ax.plot(t.distance_m, t.elevation_m * 100.0, color="tab:red", lw=1.2, label="estimate (/roadbev/preview)")
+                ax.plot(t.distance_m, t.elevation_m * 100.0, color="tab:red", lw=1.2,
+                        label="estimate (/roadbev/preview)")
                 if t.sigma_m is not None and np.isfinite(t.sigma_m).any():
                     ax.fill_between(t.distance_m, (t.elevation_m - t.sigma_m) * 100.0,
                                     (t.elevation_m + t.sigma_m) * 100.0, color="tab:red", alpha=0.2,
@@ -437,8 +438,9 @@ def plot_band_error(runs: Sequence[RunSummary], grid: GridSpec, path: str | Path
         if bands.size == 0:
             continue
         centres = band_centres_m(grid, bands.size)
-        ax.plot(centres, bands, marker=markers[k % len(markers)], ms=4, lw=1.3,
-                ls="-" if k % 2 == 0 else "--", label=run.label)
+        # earlier runs get larger hollow markers so that coinciding runs stay visible
+        ax.plot(centres, bands, marker=markers[k % len(markers)], ms=max(9 - 3 * k, 4), mfc="none",
+                mew=1.2, lw=1.3, ls="-" if k % 2 == 0 else "--", label=run.label)
     ax.set_xlabel("distance ahead x (m), band centre", fontsize=9)
     ax.set_ylabel("mean absolute error (cm)", fontsize=9)
     ax.set_title(f"Error against distance ({len(band_centres_m(grid))} bands of "

@@ -56,6 +56,15 @@ def test_resume_continues_the_schedule_and_checkpoints_carry_config(frames: Synt
     with pytest.raises(TrainError, match="already finished"):
         train(_tiny("mono"), GRID, frames, TrainConfig(epochs=1, batch_size=1, lr=1e-3, seed=3), tmp_path / "x.pt",
               resume=out, progress=False)
+    with pytest.raises(TrainError, match="not both"):
+        train(_tiny("mono"), GRID, frames, cfg, tmp_path / "x.pt", resume=out, init=out, progress=False)
+    warm = train(_tiny("stereo"), GRID, frames, TrainConfig(epochs=1, batch_size=2, lr=1e-9), tmp_path / "warm.pt",
+                 init=out, progress=False)  # init takes the checkpoint's model (mono), weights kept
+    warm_payload = read_checkpoint(warm.checkpoint)
+    assert warm_payload["model_config"]["kind"] == "mono" and warm_payload["meta"]["init"] == str(out)
+    before = read_checkpoint(out)["state_dict"]
+    torch.testing.assert_close(warm_payload["state_dict"]["head.classify.weight"], before["head.classify.weight"],
+                               atol=1e-6, rtol=0)
     payload = torch.load(out, weights_only=True)
     assert payload["model_config"]["kind"] == "mono" and GridSpec.from_dict(payload["grid"]) == GRID
     assert payload["train_state"]["step"] == 2

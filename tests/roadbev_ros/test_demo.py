@@ -14,6 +14,7 @@ from matplotlib import image as mpimg
 from msg_bridge import bag
 from msg_bridge.grid_map import grid_map_to_arrays
 from roadbev_core.metrics import MetricAccumulator
+from roadbev_ros.dds import child_env
 from roadbev_ros.demo import (
     DemoError,
     DemoOptions,
@@ -24,7 +25,6 @@ from roadbev_ros.demo import (
     run_demo,
     summary_lines,
 )
-from roadbev_ros.dds import child_env
 
 FRAMES = 4
 SCALE = 0.25  # 240 x 132 images: the whole demo in seconds
@@ -51,12 +51,13 @@ def _recorded_metrics(recorded: Path, bag_path: Path, grid) -> dict:  # type: ig
         estimates[d.stamp_ns] = d.layers["elevation"]
     acc = MetricAccumulator(grid)
     for stamp, truth in sorted(truths.items()):
-        acc.add(np.asarray(estimates.get(stamp, np.full(grid.shape, np.nan)), np.float32), np.asarray(truth, np.float32))
+        estimate = estimates.get(stamp, np.full(grid.shape, np.nan))
+        acc.add(np.asarray(estimate, np.float32), np.asarray(truth, np.float32))
     return acc.result().to_dict()
 
 
 def test_demo_writes_the_report_with_every_figure(demo) -> None:  # type: ignore[no-untyped-def]
-    result, options = demo
+    _result, options = demo
     out = options.out_dir
     for name in (*FIGURES, "index.html", "report.json", "online.mcap", "node.log"):
         assert (out / name).is_file(), name

@@ -37,7 +37,8 @@ def _frame(index: int, rng: np.random.Generator) -> FrameView:
     estimate[-2:] = np.nan
     distance = GRID.x_centres()[::-1].copy()
     col = int(np.argmin(np.abs(GRID.y_centres() - 0.8)))
-    est_track = TrackProfile("left", 0.8, distance, estimate[::-1, col].astype(np.float64), np.full(distance.size, 0.003))
+    sigma = np.full(distance.size, 0.003)
+    est_track = TrackProfile("left", 0.8, distance, estimate[::-1, col].astype(np.float64), sigma)
     gt_track = TrackProfile("left", 0.8, distance, truth[::-1, col].astype(np.float64))
     left = rng.integers(0, 255, (CAMERA.height, CAMERA.width, 3), dtype=np.uint8)
     return FrameView(index, index * 200_000_000, left, CAMERA, ATTITUDE, truth, estimate, (est_track,), (gt_track,))

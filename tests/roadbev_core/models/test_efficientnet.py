@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from roadbev_core.models.efficientnet import (
+    ConvBnAct,
     EfficientNetFeatures,
     WeightLoadError,
     _key_map,
@@ -102,3 +103,13 @@ def test_folding_batchnorm_keeps_the_output() -> None:
         after = fold_batchnorm(net)(x)[-1]
     assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in net.modules())
     torch.testing.assert_close(after, before, rtol=1e-4, atol=1e-4)
+
+
+def test_inference_3d_conv_path_matches_the_autograd_path() -> None:
+    torch.manual_seed(0)
+    block = ConvBnAct(8, 16, 3, 2, act="relu", dims=3).eval()
+    x = torch.randn(1, 8, 10, 21, 8)
+    reference = block(x)  # autograd path: nn.Conv3d
+    with torch.no_grad():
+        fast = block(x)  # oneDNN called directly
+    torch.testing.assert_close(fast, reference.detach(), rtol=1e-4, atol=1e-5)
