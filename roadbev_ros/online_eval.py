@@ -206,6 +206,11 @@ def evaluate_online(
     extra.update(node_params or {})
     if eval_bag.compressed:
         extra["image_transport"] = "compressed"
+    if rate is None:
+        # Lockstep: the IMU samples after a frame's stamp go out only after its images, and on a
+        # loaded machine they can take longer than the default 50 ms to arrive. Waiting for them
+        # keeps the node's attitude (slerp between two samples) equal to the offline one.
+        extra.setdefault("imu_wait_s", 1.0)
     command = node_command(backend, grid.to_dict(), Path(params_file) if params_file else None, extra)
     log_path = out_dir / "node.log"
     rclpy = init_ros()
