@@ -48,6 +48,7 @@ SCALING: dict[str, tuple[float, float]] = {
     "b4": (1.4, 1.8), "b5": (1.6, 2.2), "b6": (1.8, 2.6), "b7": (2.0, 3.1),
 }
 PYRAMID_STAGES = 4  # stages 1..4: strides 2, 4, 8, 16
+_ONEDNN = torch.backends.mkldnn.is_available()
 
 
 def _round_channels(channels: float, divisor: int = 8) -> int:
@@ -99,7 +100,8 @@ class ConvBnAct(nn.Module):
 
     def _conv(self, x: torch.Tensor) -> torch.Tensor:
         conv = self.conv
-        if x.dim() == 5 and x.device.type == "cpu" and x.dtype == torch.float32 and not torch.is_grad_enabled():
+        if (x.dim() == 5 and x.device.type == "cpu" and x.dtype == torch.float32 and not torch.is_grad_enabled()
+                and _ONEDNN):
             # torch's heuristic sends batch-1 3-D convs on small volumes (the hourglasses' inner
             # levels) to a reference kernel ~20x slower than oneDNN's: call oneDNN directly.
             return torch.ops.aten.mkldnn_convolution(

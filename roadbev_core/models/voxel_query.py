@@ -23,7 +23,7 @@ import torch
 import torch.nn.functional as F
 
 from roadbev_core.config import GridSpec, StereoCamera
-from roadbev_core.geometry import Attitude, project_voxels
+from roadbev_core.geometry import Attitude, ProjectedVoxels, project_voxels
 
 __all__ = ["VoxelLookup", "batch_lookup", "query_voxels", "voxel_lookup", "window_zncc"]
 
@@ -40,15 +40,30 @@ class VoxelLookup(NamedTuple):
     mask: torch.Tensor
 
 
+@lru_cache(maxsize=16)
+def _pixel_projection(grid: GridSpec, camera: StereoCamera, attitude: Attitude, right: bool) -> ProjectedVoxels:
+    """Voxel centres in one image's pixel coordinates (stride 1), shared by every feature stride."""
+    return project_voxels(grid, camera, attitude, stride=1, right=right)
+
+
 @lru_cache(maxsize=32)
 def voxel_lookup(
     grid: GridSpec, camera: StereoCamera, attitude: Attitude, stride: int, right: bool, sampling: str
 ) -> VoxelLookup:
     """The (cached) lookup of ``grid``'s voxels in a feature map of ``stride`` of ``camera``'s image."""
-    proj = project_voxels(grid, camera, attitude, stride=stride, right=right)
     if sampling == "bilinear":
+        # The feature coordinate is an affine function of the pixel coordinate (geometry's
+        # convention: (u - (s - 1) / 2) / s), so one projection per eye serves every stride.
+        pixel = _pixel_projection(grid, camera, attitude, right)
+        proj = pixel._replace(
+            u=(pixel.u - (stride - 1) / 2.0) / stride,
+            v=(pixel.v - (stride - 1) / 2.0) / stride,
+            width=-(-camera.width // stride),
+            height=-(-camera.height // stride),
+        )
         u, v = proj.u.astype(np.float64), proj.v.astype(np.float64)
     elif sampling == "integer":
+        proj = project_voxels(grid, camera, attitude, stride=stride, right=right)
         u, v = proj.iu.astype(np.float64), proj.iv.astype(np.float64)
     else:
         raise ValueError(f"sampling must be 'bilinear' or 'integer', got {sampling!r}")
