@@ -151,6 +151,7 @@ def replay_bag(
     stop: threading.Event | None = None,
     progress: Callable[[int], None] | None = None,
     before_publish: Callable[[str, int, bytes], None] | None = None,
+    linger_s: float = 0.5,
 ) -> ReplayStats:
     """Publish the bag through ``node``'s publishers with the original timing.
 
@@ -170,6 +171,8 @@ def replay_bag(
         before_publish: called ``(topic, log_time_ns, data)`` just before each publication; it
             may block (the online evaluation holds each image back until the node has answered
             the previous one).
+        linger_s: how long the publishers stay up after the last message, so that best-effort
+            subscribers still receive it.
 
     Raises:
         ReplayError: unreadable bag, or none of the asked topics can be published.
@@ -268,6 +271,12 @@ def replay_bag(
         for publisher in publishers.values():
             # reliable subscribers may still be fetching the last samples
             publisher.wait_for_all_acked(Duration(seconds=1.0))
+        if stats.messages and not stop.is_set():
+            # Best-effort subscribers (sensor-data QoS, as the node's) send no acks, and a writer
+            # destroyed right after its last publish can take those samples with it: measured as
+            # the bag's last stereo set never completing in about 1 of 6 lockstep replays.
+            time.sleep(linger_s)
+        for publisher in publishers.values():
             node.destroy_publisher(publisher)
         if clock_pub is not None:
             node.destroy_publisher(clock_pub)
