@@ -24,6 +24,7 @@ before it is accepted, otherwise it is rejected with the reason.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import sys
@@ -248,6 +249,21 @@ def set_inference_threads(threads: int) -> int:
     if "torch" in sys.modules:  # only when a backend uses torch: never import it for bm/sgbm
         sys.modules["torch"].set_num_threads(n)
     return n
+
+
+def _warm_up(backend: Backend) -> None:
+    """Run the backend once on a blank frame before the first real one.
+
+    The first call of a backend pays one-time costs (torch kernel and thread-pool set-up, OpenCV
+    buffers): measured about 30 ms on bev_sweep, more on the networks. Paying them at start-up
+    keeps them out of the first frame's latency. The rig is a stand-in (the real one comes with
+    the first CameraInfo); a backend that cannot run on it is simply not warmed.
+    """
+    camera = StereoCamera.rsrd_half().scaled(0.5)
+    blank = np.zeros((camera.height, camera.width, 3), np.uint8)
+    frame = Frame(blank, blank if backend.needs_stereo else None, camera, Attitude.from_degrees(0.0, 19.0))
+    with contextlib.suppress(Exception):  # a warm-up failure must never stop the node
+        backend.estimate(frame)
 
 
 class RoadBevNode(Node):
@@ -505,6 +521,9 @@ class RoadBevNode(Node):
     def _work(self) -> None:
         if "torch" in sys.modules:  # the flag is per thread; backends set it in theirs
             sys.modules["torch"].set_flush_denormal(True)
+        with self._lock:
+            backend = self.backend
+        _warm_up(backend)
         while True:
             with self._lock:
                 while self._pending is None and not self._stop:
