@@ -116,15 +116,7 @@ def stereo_camera_from_camera_info(left: Any, right: Any | None = None) -> Stere
                 "positive (the right camera lies to the right of the left one)"
             )
     try:
-        return StereoCamera(
-            fx=float(P_left[0, 0]),
-            fy=float(P_left[1, 1]),
-            cx=float(P_left[0, 2]),
-            cy=float(P_left[1, 2]),
-            baseline=float(baseline),
-            width=width,
-            height=height,
-        )
+        return StereoCamera.from_K(P_left[:, :3], baseline, width, height)
     except ConfigError as exc:
         raise MessageError(f"CameraInfo: {exc}") from None
 
