@@ -152,6 +152,7 @@ def replay_bag(
     progress: Callable[[int], None] | None = None,
     before_publish: Callable[[str, int, bytes], None] | None = None,
     linger_s: float = 0.5,
+    settle_s: float = 0.5,
 ) -> ReplayStats:
     """Publish the bag through ``node``'s publishers with the original timing.
 
@@ -173,6 +174,8 @@ def replay_bag(
             the previous one).
         linger_s: how long the publishers stay up after the last message, so that best-effort
             subscribers still receive it.
+        settle_s: with ``wait_for_subscribers``, how long to wait once every topic has a
+            subscriber, so that the subscribers have matched the new publishers too.
 
     Raises:
         ReplayError: unreadable bag, or none of the asked topics can be published.
@@ -218,6 +221,10 @@ def replay_bag(
         deadline = time.monotonic() + wait_for_subscribers
         while time.monotonic() < deadline and not stop.is_set():
             if all(p.get_subscription_count() > 0 for p in publishers.values()):
+                # Discovery is two-sided: the writer seeing a reader does not mean that reader
+                # has matched the writer yet, and best-effort samples sent before it has are
+                # lost (measured: the first 3 of 6 frames of a 10 Hz replay, now and then).
+                time.sleep(settle_s)
                 break
             time.sleep(0.02)
     per_topic: Counter[str] = Counter()
