@@ -168,3 +168,31 @@ def test_isolated_wrong_peaks_are_outliers() -> None:
     confident = torch.ones(GRID.shape, dtype=torch.bool)
     out = _outliers(elevation, confident, 0.01)
     assert out[40, 16] and out.sum() == 1
+
+
+def test_sampling_zones_join_without_seams(samples: list[tuple[Frame, np.ndarray]]) -> None:
+    """With one sampling density in every zone, the zoned ZNCC equals a single pass over the grid."""
+    from roadbev_core.backends.bev_sweep import _sample_positions, grey_image
+    from roadbev_core.backends.common import StageClock
+
+    same = {f"{zone}subsamples": (1, 2) for zone in ("", "far_", "near_")}
+    sweep = BevSweep(GRID, SweepParams(**same))
+    assert len(sweep._zones) == 3
+    frame = samples[0][0]
+    greys = np.stack([grey_image(im, 1.0, 4.0) for im in (frame.left, frame.right)])
+    images = torch.from_numpy(greys - greys.mean(axis=(1, 2), keepdims=True))[:, None]
+    planes = sweep._z[:, None, None]
+    zoned, zoned_texture = sweep._zncc_zones(images, planes, frame, StageClock())
+    single, single_texture = sweep._zncc(images, _sample_positions(GRID, 1, 2), planes, frame, StageClock())
+    assert zoned.shape == single.shape == (planes.shape[0], *GRID.shape)
+    assert torch.allclose(zoned, single, atol=1e-4)
+    assert torch.allclose(zoned_texture, single_texture, atol=1e-3)
+
+
+def test_default_sweep_step_fits_any_height_range() -> None:
+    """z_step None: about 2 cm, always a whole number of steps over the grid's height range."""
+    assert BevSweep(GRID).z_step == pytest.approx(0.02)
+    odd = replace(GRID, z_min=-0.15, z_max=0.12)  # 27 cm: 14 steps of 1.93 cm
+    sweep = BevSweep(odd)
+    assert sweep._z.numel() == 14
+    assert sweep._z[-1] + sweep.z_step / 2 == pytest.approx(0.12, abs=1e-6)
