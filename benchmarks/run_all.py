@@ -28,7 +28,7 @@ import torch
 from benchmarks.common import EVAL_SEED_BASE, RESULTS, available_backends, eval_samples, machine_info, write_json
 from roadbev_core.backends import create
 from roadbev_core.config import GridSpec
-from roadbev_core.evaluation import evaluate, format_table
+from roadbev_core.evaluation import common_cell_errors, evaluate, format_table
 from roadbev_core.metrics import N_BANDS
 
 torch.set_flush_denormal(True)
@@ -77,6 +77,42 @@ def check_targets(rows: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
+def common_cell_comparison(elevations: dict[str, list[Any]], truths: list[Any]) -> dict[str, Any]:
+    """bev_sweep against each image-view backend on the cells both estimated (coverage-neutral)."""
+    out: dict[str, Any] = {}
+    if "bev_sweep" not in elevations:
+        return out
+    for other in ("sgbm", "bm"):
+        if other not in elevations:
+            continue
+        cells, sweep_cm, other_cm = common_cell_errors(elevations["bev_sweep"], elevations[other], truths)
+        out[other] = {
+            "cells": cells,
+            "bev_sweep_abs_err_cm": sweep_cm,
+            f"{other}_abs_err_cm": other_cm,
+            "abs_err_reduction_pct": 100.0 * (1.0 - sweep_cm / other_cm) if cells else None,
+        }
+    return out
+
+
+def common_cell_markdown(comparison: dict[str, Any]) -> str:
+    """The common-cell comparison as a markdown table (empty when there is none)."""
+    if not comparison:
+        return ""
+    lines = [
+        "| bev_sweep vs | common cells | bev_sweep abs. err. (cm) | other abs. err. (cm) | reduction (%) |",
+        "|---|---|---|---|---|",
+    ]
+    for other, c in comparison.items():
+        if not c["cells"]:
+            continue
+        lines.append(
+            f"| {other} | {c['cells']} | {c['bev_sweep_abs_err_cm']:.3f} | {c[f'{other}_abs_err_cm']:.3f} "
+            f"| {c['abs_err_reduction_pct']:.1f} |"
+        )
+    return "\n".join(lines)
+
+
 def plot_bands(rows: list[dict[str, Any]], grid_x: tuple[float, float], path: Path, title: str) -> None:
     """Abs. error per distance band, one line per backend (the paper's Fig. 9)."""
     import matplotlib
@@ -116,16 +152,20 @@ def run_table(frames: int, names: list[str], *, out_dir: Path, quiet: bool = Fal
         samples = eval_samples(frames, grid=grid, progress=bar.update)
     render_s = time.perf_counter() - t0
     rows = []
+    elevations: dict[str, list[Any]] = {}
     for name in names:
         backend = create(name, grid)
         with tqdm(total=frames, desc=name, unit="frame", disable=quiet, file=sys.stderr) as bar:
-            result = evaluate(backend, samples, progress=bar.update)
+            result = evaluate(backend, samples, progress=bar.update, keep_estimates=True)
         metrics = result.to_dict()
         if hasattr(backend, "describe"):
             metrics["parameters"] = backend.describe()
         rows.append(metrics)
+        elevations[name] = [e.elevation for e in result.estimates or []]
     table = format_table(rows)
     targets = check_targets(rows)
+    truths = [s.truth.elevation for s in samples]
+    targets["common_cells"] = common_cell_comparison(elevations, truths)
     record = {
         "command": " ".join(["python -m benchmarks.run_all", *sys.argv[1:]]),
         "machine": machine_info(),
@@ -136,7 +176,8 @@ def run_table(frames: int, names: list[str], *, out_dir: Path, quiet: bool = Fal
         "targets": targets,
     }
     write_json(out_dir / "table1.json", record)
-    (out_dir / "table1.md").write_text(markdown_table(rows) + "\n")
+    common = common_cell_markdown(targets["common_cells"])
+    (out_dir / "table1.md").write_text(markdown_table(rows) + "\n" + (f"\n{common}\n" if common else ""))
     title = f"Abs. error vs distance, {frames} synthetic frames"
     plot_bands(rows, (grid.x_min, grid.x_max), out_dir / "band_error.png", title)
     print(table)

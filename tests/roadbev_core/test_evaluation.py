@@ -10,7 +10,14 @@ import numpy as np
 import pytest
 
 from roadbev_core.config import GridSpec, StereoCamera
-from roadbev_core.evaluation import CONTRACT_KEYS, EvaluationError, evaluate, format_table, stage_group
+from roadbev_core.evaluation import (
+    CONTRACT_KEYS,
+    EvaluationError,
+    common_cell_errors,
+    evaluate,
+    format_table,
+    stage_group,
+)
 from roadbev_core.frame import Estimate, Frame
 from roadbev_core.geometry import Attitude
 
@@ -129,3 +136,18 @@ def test_bad_input() -> None:
         evaluate(backend, [42])
     with pytest.raises(EvaluationError, match="max_frames"):
         evaluate(backend, samples, max_frames=0)
+
+
+def test_common_cell_errors_compare_on_the_cells_both_estimated() -> None:
+    truth = np.zeros((2, 3), np.float32)
+    truth[0, 0] = np.nan  # unlabelled: never counted
+    first = np.full((2, 3), 0.01, np.float32)  # 1 cm everywhere
+    second = np.full((2, 3), np.nan, np.float32)
+    second[1, :] = -0.03  # 3 cm, only on row 1
+    second[0, 0] = 0.0  # estimated but unlabelled
+    cells, first_cm, second_cm = common_cell_errors([first, first], [second, second], [truth, None])
+    assert cells == 3  # row 1 of the first frame; the second frame has no truth
+    assert first_cm == pytest.approx(1.0, abs=1e-4) and second_cm == pytest.approx(3.0, abs=1e-4)
+    assert np.isnan(common_cell_errors([first], [np.full((2, 3), np.nan)], [truth])[1])
+    with pytest.raises(ValueError):
+        common_cell_errors([first], [first, first], [truth])
