@@ -83,6 +83,9 @@ class EvalResult:
     Attributes:
         metrics: contract keys (:data:`CONTRACT_KEYS`) plus ``labelled_cells``,
             ``frames_with_truth``, ``timed_frames``, ``pipeline_ms`` (mean per timed frame),
+            the calibration of the uncertainty (``sigma_cells`` with a finite uncertainty,
+            ``within_1sigma_pct`` / ``within_2sigma_pct`` of them with the error inside 1 / 2
+            sigma; NaN without any),
             ``stage_ms`` (the four groups + ``other``) and ``backend_stage_ms`` (the backend's own
             stage names).
         per_frame: one dict per frame: ``stamp_ns``, ``abs_err_cm``, ``coverage_pct`` (NaN
@@ -197,6 +200,7 @@ def evaluate(
     accumulator = MetricAccumulator(grid)
     per_frame: list[dict[str, float]] = []
     estimates: list[Estimate] = []
+    calibration = np.zeros(3, np.int64)  # cells with a finite uncertainty; of those, |err| <= 1 sigma, <= 2 sigma
     stage_timings: list[dict[str, float]] = []
     iterator = iter(samples)
     frames = 0
@@ -228,6 +232,7 @@ def evaluate(
                 record["abs_err_cm"] = float(np.abs(estimate.elevation[both] - truth[both]).mean() * 100.0)
             record["coverage_pct"] = 100.0 * float(both.sum()) / max(int(labelled.sum()), 1)
             accumulator.add(estimate.elevation, truth)
+            calibration += _sigma_counts(estimate, truth)
         per_frame.append(record)
         stage_timings.append(dict(estimate.timings_ms))
         if keep_estimates:
@@ -242,11 +247,26 @@ def evaluate(
     for timings in stage_timings[first_timed:]:
         for stage, ms in timings.items():
             stage_sums[stage] = stage_sums.get(stage, 0.0) + ms
+    metrics = _metrics(backend.name, accumulator, per_frame, per_frame[first_timed:], stage_sums)
+    # Calibration of the reported 1-sigma uncertainty: a Gaussian would put 68.3 % / 95.4 % inside.
+    with_sigma = int(calibration[0])
+    metrics["sigma_cells"] = with_sigma
+    metrics["within_1sigma_pct"] = 100.0 * calibration[1] / with_sigma if with_sigma else math.nan
+    metrics["within_2sigma_pct"] = 100.0 * calibration[2] / with_sigma if with_sigma else math.nan
     return EvalResult(
-        metrics=_metrics(backend.name, accumulator, per_frame, per_frame[first_timed:], stage_sums),
+        metrics=metrics,
         per_frame=per_frame,
         estimates=estimates if keep_estimates else None,
     )
+
+
+def _sigma_counts(estimate: Estimate, truth: np.ndarray) -> np.ndarray:
+    """[3] int: labelled cells with an estimate and a finite uncertainty; of those, how many have
+    |error| within 1 sigma and within 2 sigma."""
+    sigma = estimate.uncertainty
+    usable = np.isfinite(truth) & np.isfinite(estimate.elevation) & np.isfinite(sigma)  # [R, C]
+    error = np.abs(estimate.elevation[usable] - truth[usable])
+    return np.array([usable.sum(), (error <= sigma[usable]).sum(), (error <= 2.0 * sigma[usable]).sum()], np.int64)
 
 
 def _metrics(

@@ -47,6 +47,7 @@ torch.set_flush_denormal(True)
 
 _WORST = -2.0  # below any ZNCC: levels outside the image never win
 _OCCLUSION_SAMPLES = 16  # points per line of sight in the occlusion test
+_MIN_SIGMA = 0.001  # m: the smallest uncertainty reported
 DEFAULT_Z_STEP = 0.02  # m: the sweep step when SweepParams.z_step is None (see there)
 
 
@@ -78,7 +79,10 @@ class SweepParams:
         peak_exclusion: half-width (m) around the best height ignored when looking for a second peak.
         min_texture: std (grey levels of the filtered image) of the left patch below which a
             cell is texture-less (NaN).
-        temperature: softmax temperature on the aggregated ZNCC for the uncertainty.
+        temperature: softmax temperature on the aggregated ZNCC for the uncertainty. 0.005
+            measured on the tuning frames: 82 % of the errors within 1 sigma, 93 % within 2
+            (the errors are heavier-tailed than a Gaussian; 0.01 with the sweep step's
+            quantisation added gave 94 % / 98 %, too cautious to be useful).
         blur_sigma: Gaussian pre-smoothing of the images (pixels; 0 = none).
         highpass_sigma: the images minus their Gaussian blur of this sigma (pixels; 0 = none):
             removes shading and exposure gradients that correlate at every height.
@@ -111,7 +115,7 @@ class SweepParams:
     min_margin: float = 0.02
     peak_exclusion: float = 0.04
     min_texture: float = 0.5
-    temperature: float = 0.01
+    temperature: float = 0.005
     blur_sigma: float = 1.0
     highpass_sigma: float = 4.0
     occlusion_clearance: float = 0.3
@@ -441,7 +445,8 @@ class BevSweep:
         """Best level per cell of a score volume [K, R, C] over heights ``levels`` ([K, R, C] or [K, 1, 1]).
 
         The best level is refined by a parabola through it and its neighbours; the uncertainty is
-        the spread of the softmax over the levels with the step's quantisation as a floor.
+        the spread of the softmax over the levels (at least 1 mm: the parabola refines below the
+        step, so the step's quantisation is not a floor).
         """
         p = self.params
         n_k = score.shape[0]
@@ -461,7 +466,7 @@ class BevSweep:
         second = torch.where(far & local_max, score, torch.full_like(score, _WORST)).max(dim=0).values
         prob = torch.softmax(score / p.temperature, dim=0)
         spread = (prob * (levels - elevation[None]).square()).sum(dim=0)
-        sigma = torch.sqrt(spread + step * step / 12.0)
+        sigma = spread.sqrt().clamp_min(_MIN_SIGMA)
         interior = (idx > 0) & (idx < n_k - 1)
         return _Decision(elevation, sigma, best, idx, second, interior)
 

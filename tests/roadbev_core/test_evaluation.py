@@ -151,3 +151,14 @@ def test_common_cell_errors_compare_on_the_cells_both_estimated() -> None:
     assert np.isnan(common_cell_errors([first], [np.full((2, 3), np.nan)], [truth])[1])
     with pytest.raises(ValueError):
         common_cell_errors([first], [first, first], [truth])
+
+
+def test_uncertainty_calibration_counts_errors_inside_one_and_two_sigma() -> None:
+    samples, truths = _frames(2)  # the backend reports 1 cm everywhere
+    inside = evaluate(OffsetBackend(truths, 0.004), samples).metrics
+    assert inside["within_1sigma_pct"] == 100.0 and inside["within_2sigma_pct"] == 100.0
+    between = evaluate(OffsetBackend(truths, -0.015, holes=4), samples).metrics
+    assert between["within_1sigma_pct"] == 0.0 and between["within_2sigma_pct"] == 100.0
+    assert between["sigma_cells"] == 2 * (GRID.n_rows - 4) * (GRID.n_cols - 1)
+    unscored = evaluate(OffsetBackend(truths, 0.0), [_Labelled(s.frame, None) for s in samples]).metrics
+    assert unscored["sigma_cells"] == 0 and math.isnan(unscored["within_1sigma_pct"])
