@@ -517,9 +517,9 @@ class BevSweep:
         # Normalised grid_sample coordinates of (px, py) on the [R, C] map (cell centres):
         # row from px (shared), column from py (per camera), written in place.
         coords = torch.empty(1, _OCCLUSION_SAMPLES * n_rows, n_cols, 2)
-        row_norm = ((grid.x_max - px) / grid.resolution - 0.5) * (2.0 / (n_rows - 1)) - 1.0  # [F, R, 1]
+        row_norm = ((grid.x_max - px) / grid.resolution - 0.5) * (2.0 / max(n_rows - 1, 1)) - 1.0  # [F, R, 1]
         coords[0, :, :, 1] = row_norm.reshape(-1, 1)
-        col_scale = 2.0 / (grid.resolution * (n_cols - 1))
+        col_scale = 2.0 / (grid.resolution * max(n_cols - 1, 1))  # a one-cell axis: border padding
         hidden = torch.zeros(n_rows, n_cols, dtype=torch.bool)
         for origin_y in (0.0, -baseline):
             py = origin_y + fractions * (y - origin_y)  # [F, R, C]

@@ -196,3 +196,18 @@ def test_default_sweep_step_fits_any_height_range() -> None:
     sweep = BevSweep(odd)
     assert sweep._z.numel() == 14
     assert sweep._z[-1] + sweep.z_step / 2 == pytest.approx(0.12, abs=1e-6)
+
+
+@pytest.mark.parametrize("shape", [(1, 32), (82, 1), (2, 2)])
+def test_degenerate_grids_run(samples: list[tuple[Frame, np.ndarray]], shape: tuple[int, int]) -> None:
+    """A grid of one row or one column (a wheel-track strip) is estimated, not a division by zero."""
+    rows, cols = shape
+    grid = replace(
+        GRID, x_min=GRID.x_max - rows * GRID.resolution, y_min=GRID.y_max - cols * GRID.resolution
+    )
+    assert grid.shape == shape
+    estimate = BevSweep(grid).estimate(samples[0][0])
+    assert estimate.elevation.shape == shape
+    finite = np.isfinite(estimate.elevation)
+    assert np.array_equal(finite, np.isfinite(estimate.uncertainty))
+    assert (np.abs(estimate.elevation[finite]) < 0.2).all()
