@@ -1,0 +1,151 @@
+"""What limits ``bev_sweep``'s accuracy: window smoothing and relief, against ``bm``.
+
+Two measurements on the same frames:
+
+* the smoothing floor: the ground truth itself averaged over ``bev_sweep``'s aggregation windows
+  (per zone: far / middle / near rows), scored against the ground truth on the cells
+  ``bev_sweep`` answers. No matcher that averages over those windows can do better on a surface
+  that is not flat within them.
+* error by local relief (max - min of the ground truth within 5 x 5 cells): where the road is
+  smooth and where bumps, kerbs and potholes are, for ``bev_sweep`` and ``bm``.
+
+Run (from the repository root)::
+
+    .venv/bin/python -m benchmarks.bev_sweep_limits            # the Table I frames (24)
+    .venv/bin/python -m benchmarks.bev_sweep_limits --tuning   # the tuning frames (16)
+
+Writes ``benchmarks/results/bev_sweep_limits[_tuning].json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import sys
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+
+from benchmarks.common import EVAL_SEED_BASE, RESULTS, machine_info, write_json
+from benchmarks.tune_bev_sweep import TUNING_SEED_BASE
+from roadbev_core.backends import create
+from roadbev_core.backends.bev_sweep import BevSweep
+from roadbev_core.config import GridSpec
+from roadbev_core.evaluation import evaluate
+
+torch.set_flush_denormal(True)
+
+RELIEF_BINS_CM = (0.0, 1.0, 2.0, 4.0, 8.0, float("inf"))
+RELIEF_CELLS = 5
+
+
+def zone_smoothed(truth: np.ndarray, sweep: BevSweep) -> np.ndarray:
+    """[R, C] ground truth box-averaged over the sweep's aggregation window of each row's zone
+    (labelled cells only; windows shrink at the grid's border, as in the sweep)."""
+    p = sweep.params
+    labelled = np.isfinite(truth).astype(np.float32)
+    values = np.where(labelled > 0, truth, 0.0).astype(np.float32)
+
+    def box(size: int) -> np.ndarray:
+        def total(a: np.ndarray) -> np.ndarray:
+            return cv2.boxFilter(a, -1, (size, size), normalize=False, borderType=cv2.BORDER_CONSTANT)
+
+        return total(values) / np.maximum(total(labelled), 1e-6)
+
+    mid_start, near_start = sweep._zone_rows()
+    out = box(p.aggregation_cells)
+    out[:mid_start] = box(p.far_aggregation_cells)[:mid_start]
+    out[near_start:] = box(p.near_aggregation_cells)[near_start:]
+    return out
+
+
+def local_relief_cm(truth: np.ndarray) -> np.ndarray:
+    """[R, C] max - min (cm) of the labelled ground truth within RELIEF_CELLS x RELIEF_CELLS cells."""
+    kernel = np.ones((RELIEF_CELLS, RELIEF_CELLS), np.uint8)
+    high = cv2.dilate(np.where(np.isfinite(truth), truth, -np.inf).astype(np.float32), kernel)
+    low = cv2.erode(np.where(np.isfinite(truth), truth, np.inf).astype(np.float32), kernel)
+    return (high - low) * 100.0
+
+
+def measure(samples: list[Any], grid: GridSpec) -> dict[str, Any]:
+    """The smoothing floor and the relief table for bev_sweep and bm on ``samples``."""
+    sweep = create("bev_sweep", grid)
+    assert isinstance(sweep, BevSweep)
+    truths = [s.truth.elevation for s in samples]
+    estimates = {
+        name: [e.elevation for e in evaluate(backend, samples, keep_estimates=True).estimates or []]
+        for name, backend in (("bev_sweep", sweep), ("bm", create("bm", grid)))
+    }
+    floor, actual = [], []
+    for truth, estimate in zip(truths, estimates["bev_sweep"], strict=True):
+        answered = np.isfinite(truth) & np.isfinite(estimate)
+        floor.append(np.abs(zone_smoothed(truth, sweep) - truth)[answered])
+        actual.append(np.abs(estimate - truth)[answered])
+    record: dict[str, Any] = {
+        "smoothing_floor_cm": float(np.concatenate(floor).mean() * 100.0),
+        "bev_sweep_abs_err_cm": float(np.concatenate(actual).mean() * 100.0),
+        "relief_cells": RELIEF_CELLS,
+        "relief": [],
+    }
+    reliefs = [local_relief_cm(t) for t in truths]
+    totals = {
+        name: sum(float(np.nansum(np.abs(e - t))) for e, t in zip(est, truths, strict=True))
+        for name, est in estimates.items()
+    }
+    for lo, hi in itertools.pairwise(RELIEF_BINS_CM):
+        row: dict[str, Any] = {"relief_cm": [lo, hi]}
+        for name, est in estimates.items():
+            labelled = answered = 0
+            error = 0.0
+            for e, t, r in zip(est, truths, reliefs, strict=True):
+                in_bin = np.isfinite(t) & (r >= lo) & (r < hi)
+                hit = in_bin & np.isfinite(e)
+                labelled += int(in_bin.sum())
+                answered += int(hit.sum())
+                error += float(np.abs(e[hit] - t[hit]).sum())
+            row[name] = {
+                "coverage_pct": 100.0 * answered / labelled if labelled else None,
+                "abs_err_cm": 100.0 * error / answered if answered else None,
+                "share_of_error_pct": 100.0 * error / totals[name] if totals[name] else None,
+            }
+        record["relief"].append(row)
+    return record
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.bev_sweep_limits", description=__doc__.splitlines()[0])
+    parser.add_argument("--tuning", action="store_true", help="the 16 tuning frames instead of the 24 Table I frames")
+    parser.add_argument("--frames", type=int, default=None)
+    args = parser.parse_args(argv)
+    from roadbev_core.synth import make_sample
+
+    base = TUNING_SEED_BASE if args.tuning else EVAL_SEED_BASE
+    frames = args.frames or (16 if args.tuning else 24)
+    grid = GridSpec()
+    samples = [make_sample(base + i, grid=grid) for i in range(frames)]
+    record = {
+        "command": " ".join(["python -m benchmarks.bev_sweep_limits", *sys.argv[1:]]),
+        "machine": machine_info(),
+        "seeds": [base, base + frames - 1],
+        **measure(samples, grid),
+    }
+    print(
+        f"smoothing floor {record['smoothing_floor_cm']:.3f} cm on the cells bev_sweep answers "
+        f"(its error there {record['bev_sweep_abs_err_cm']:.3f} cm)"
+    )
+    for row in record["relief"]:
+        lo, hi = row["relief_cm"]
+        cells = "  ".join(
+            f"{name} cov {row[name]['coverage_pct'] or 0:5.1f} % err {row[name]['abs_err_cm'] or 0:.3f} cm "
+            f"({row[name]['share_of_error_pct'] or 0:4.1f} % of its error)"
+            for name in ("bev_sweep", "bm")
+        )
+        print(f"relief {lo:g}-{hi:g} cm: {cells}")
+    write_json(RESULTS / f"bev_sweep_limits{'_tuning' if args.tuning else ''}.json", record)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
