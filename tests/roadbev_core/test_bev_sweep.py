@@ -211,3 +211,13 @@ def test_degenerate_grids_run(samples: list[tuple[Frame, np.ndarray]], shape: tu
     finite = np.isfinite(estimate.elevation)
     assert np.array_equal(finite, np.isfinite(estimate.uncertainty))
     assert (np.abs(estimate.elevation[finite]) < 0.2).all()
+
+
+def test_window_check_drops_cells_where_a_small_window_disagrees(samples: list[tuple[Frame, np.ndarray]]) -> None:
+    frame = samples[0][0]
+    unchecked = np.isfinite(BevSweep(GRID, SweepParams(max_disagreement=0.0)).estimate(frame).elevation)
+    strict = np.isfinite(BevSweep(GRID, SweepParams(max_disagreement=0.002)).estimate(frame).elevation)
+    assert not (strict & ~unchecked).any()  # the check only removes cells
+    assert strict.sum() < 0.9 * unchecked.sum()
+    with pytest.raises(ConfigError, match="check_cells"):
+        SweepParams(check_cells=4)
