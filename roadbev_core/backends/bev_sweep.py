@@ -68,7 +68,7 @@ class SweepParams:
             zones. On the tuning frames (1, 2) far, (1, 3) middle, (2, 4) near measured 0.363 cm
             against 0.384 cm for (1, 2) everywhere and 0.369 cm for (2, 4) everywhere (which
             costs more time: far cells are narrower than a pixel along x).
-        patch_cells: side of the ZNCC window in cells (odd), both passes.
+        patch_cells: side of the ZNCC window in cells (odd).
         aggregation_cells: side (cells, odd; 1 = none) of the box filter of the ZNCC volume over
             the BEV plane per height, for the rows between the near and far zones.
         min_score: cells whose best aggregated ZNCC is below this are NaN (the strongest single
@@ -571,7 +571,7 @@ class BevSweep:
             aggregated = _box(zncc, p.aggregation_cells)
             mid_start, near_start = self._zone_rows()
             if p.far_aggregation_cells != p.aggregation_cells:
-                # Far rows: a 1 cm step moves the match by ~0.15 px only; a larger window.
+                # Far rows: 1 cm of elevation moves the match by ~0.15 px only; a larger window.
                 aggregated[:, :mid_start] = _box(zncc, p.far_aggregation_cells)[:, :mid_start]
             if p.near_aggregation_cells != p.aggregation_cells:
                 # Near rows: many pixels per cell, ~0.5 px per cm; a smaller window keeps detail.
