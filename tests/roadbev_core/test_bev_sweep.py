@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from roadbev_core.backends import BackendError, create
-from roadbev_core.backends.bev_sweep import BevSweep, SweepParams, _box, _outliers
+from roadbev_core.backends.bev_sweep import BevSweep, SweepParams, _outliers
 from roadbev_core.config import ConfigError, GridSpec, StereoCamera
 from roadbev_core.evaluation import evaluate
 from roadbev_core.frame import Frame, FrameError
@@ -136,16 +136,6 @@ def test_options_are_validated() -> None:
         SweepParams(temperature=0.0)
     with pytest.raises(ConfigError, match="z_step"):
         BevSweep(GRID, SweepParams(z_step=0.03))  # 0.40 m is not a whole number of 3 cm steps
-
-
-def test_box_filter_is_the_mean_over_the_cells_inside_the_grid() -> None:
-    volume = torch.rand(40, 82, 32) * 2.0 - 1.0
-    for size in (3, 15, 25):
-        reference = torch.nn.functional.avg_pool2d(
-            volume[:, None], size, stride=1, padding=size // 2, count_include_pad=False
-        )[:, 0]
-        assert torch.allclose(_box(volume, size), reference, atol=1e-5)
-    assert _box(volume, 1) is volume
 
 
 def test_occlusion_behind_a_bump() -> None:

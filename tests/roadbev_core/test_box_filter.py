@@ -1,0 +1,20 @@
+"""The BEV window mean shared by the sweep's cost aggregation and the models' photometric channel."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from roadbev_core.box_filter import box_mean
+
+
+def test_box_mean_is_the_mean_over_the_cells_inside_the_grid() -> None:
+    volume = torch.rand(40, 82, 32) * 2.0 - 1.0
+    for size in (3, 15, 25):
+        reference = torch.nn.functional.avg_pool2d(
+            volume[:, None], size, stride=1, padding=size // 2, count_include_pad=False
+        )[:, 0]
+        assert torch.allclose(box_mean(volume, size), reference, atol=1e-5)
+    assert box_mean(volume, 1) is volume
+    with pytest.raises(ValueError, match="odd"):
+        box_mean(volume, 4)
