@@ -28,7 +28,7 @@ from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.frame import Frame
 from roadbev_core.geometry import Attitude
 from roadbev_core.models.presets import ModelConfig
-from roadbev_core.models.roadbev import prepare_image
+from roadbev_core.models.roadbev import needs_full_grey, prepare_grey, prepare_image
 
 __all__ = [
     "TEST_SEED_START",
@@ -159,7 +159,8 @@ class ModelInputs(Dataset):
     """Tensors for a model from a frame source; prepared images are kept in memory if asked.
 
     Items are dicts: ``left``/``right`` uint8 [3, h, w] (right absent for mono), ``elevation``
-    float32 [n_rows, n_cols] (NaN = no label), ``camera``, ``attitude``.
+    float32 [n_rows, n_cols] (NaN = no label), ``camera``, ``attitude``, and ``grey`` uint8
+    [2, H, W] (the full-resolution grey frames) for models that read them (``needs_full_grey``).
     """
 
     def __init__(
@@ -189,6 +190,8 @@ class ModelInputs(Dataset):
             if frame.right is None:
                 raise DatasetError("RoadBEV-stereo needs stereo frames; this source has no right images")
             item["right"] = torch.from_numpy(prepare_image(frame.right, self.config))
+            if needs_full_grey(self.config):
+                item["grey"] = torch.from_numpy(prepare_grey(frame.left, frame.right))
         if self.keep:
             self._memo[index] = item
         return item
@@ -197,7 +200,7 @@ class ModelInputs(Dataset):
 def collate(items: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """Stack tensors; keep cameras and attitudes as lists."""
     batch: dict[str, Any] = {"camera": [i["camera"] for i in items], "attitude": [i["attitude"] for i in items]}
-    for key in ("left", "right", "elevation"):
+    for key in ("left", "right", "grey", "elevation"):
         if key in items[0]:
             batch[key] = torch.stack([i[key] for i in items])
     return batch

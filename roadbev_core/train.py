@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -180,6 +180,7 @@ def train(
     *,
     resume: str | Path | None = None,
     init: str | Path | None = None,
+    model_overrides: Mapping[str, Any] | None = None,
     pretrained: str | Path | None = None,
     progress: bool = True,
     log: Callable[[str], None] | None = None,
@@ -195,6 +196,9 @@ def train(
         resume: continue from this checkpoint (weights, optimizer, schedule, position).
         init: start from this checkpoint's weights (and model config) with a fresh schedule, e.g.
             to fine-tune synthetic-trained weights on RSRD or to train a finished run further.
+        model_overrides: ModelConfig fields to change in ``model_config`` or, with ``init``, in
+            the checkpoint's config (e.g. a sharper photometric channel for the same weights);
+            the weights must still fit. Not with ``resume``.
         pretrained: ImageNet EfficientNet weights (torchvision or lukemelas layout) for a fresh run.
         progress: show a tqdm bar (rank 0 only).
         log: receives one summary line per epoch (rank 0 only).
@@ -206,6 +210,9 @@ def train(
     state: dict[str, Any] | None = None
     if resume is not None and init is not None:
         raise TrainError("give either resume (same run) or init (new run from weights), not both")
+    overrides = dict(model_overrides or {})
+    if resume is not None and overrides:
+        raise TrainError("a resumed run keeps its model; model overrides need init or a fresh run")
     if resume is not None:
         payload = read_checkpoint(resume)
         if "train_state" not in payload:
@@ -217,6 +224,8 @@ def train(
     elif init is not None:
         payload = read_checkpoint(init)
         model_config = ModelConfig.from_dict(payload["model_config"])
+    if overrides:
+        model_config = ModelConfig.from_dict({**model_config.to_dict(), **overrides})
     if config.batch_size % env.world:
         raise TrainError(f"global batch {config.batch_size} does not split over {env.world} processes")
     dataset = ModelInputs(data, model_config, grid)
@@ -227,7 +236,12 @@ def train(
 
     model = build_model(model_config, grid, seed=config.seed, pretrained=None if state or init else pretrained)
     if state is not None or init is not None:
-        model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in payload["state_dict"].items()})
+        try:
+            model.load_state_dict({k: v.float() if v.is_floating_point() else v
+                                   for k, v in payload["state_dict"].items()})
+        except RuntimeError as exc:
+            raise TrainError(f"{init or resume}: weights do not fit the model {model_config}: "
+                             f"{str(exc).splitlines()[0]}") from exc
     model.to(env.device).train()
     net: nn.Module = model
     if env.world > 1:
@@ -320,8 +334,9 @@ def _step(
     """One optimisation step; returns the global loss, abs. error (cm) and labelled cells."""
     left = batch["left"].to(env.device)
     right = batch["right"].to(env.device) if "right" in batch else None
+    grey = batch["grey"].to(env.device) if "grey" in batch else None
     elevation = batch["elevation"].to(env.device)
-    logits, _ = net(left, right, batch["camera"], batch["attitude"])
+    logits, _ = net(left, right, batch["camera"], batch["attitude"], grey)
     target, mask = class_targets(elevation, model.grid, model.config.label)
     local = torch.tensor([float(mask.sum())], device=env.device)
     with torch.no_grad():

@@ -24,7 +24,7 @@ from roadbev_core.checkpoint import CheckpointError, load_model
 from roadbev_core.config import GridSpec
 from roadbev_core.frame import Estimate, Frame, FrameError
 from roadbev_core.models.efficientnet import fold_batchnorm
-from roadbev_core.models.roadbev import prepare_image
+from roadbev_core.models.roadbev import needs_full_grey, prepare_grey, prepare_image
 
 __all__ = ["DEFAULT_CHECKPOINT_DIR", "LearnedBackend", "default_checkpoint"]
 
@@ -74,11 +74,12 @@ class LearnedBackend:
         t0 = time.perf_counter()
         left = torch.from_numpy(prepare_image(frame.left, self.config))[None]
         right = torch.from_numpy(prepare_image(frame.right, self.config))[None] if self.needs_stereo else None
+        grey = torch.from_numpy(prepare_grey(frame.left, frame.right))[None] if needs_full_grey(self.config) else None
         t1 = time.perf_counter()
         pred = self.model.predict(
             left.contiguous(memory_format=torch.channels_last),
             None if right is None else right.contiguous(memory_format=torch.channels_last),
-            [frame.camera], [frame.attitude],
+            [frame.camera], [frame.attitude], grey,
         )
         t2 = time.perf_counter()
         seen = pred.observed[0].numpy()

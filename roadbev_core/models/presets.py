@@ -42,6 +42,12 @@ class ModelConfig:
             0.04-0.13 feature pixels; the input-resolution channel gives the head a matching cue
             from the first step (shared/design/cpu-sizing.md: this cue alone reaches ~0.3 cm).
         zncc_window: BEV window (cells of the internal grid, odd) of the photometric channel.
+        zncc_full_resolution: the photometric channel reads the grey frames at their original
+            size (``RoadBEV.forward``'s ``grey``) instead of the resized model input. At 7 m, 1 cm
+            of elevation moves the match 0.15 px at 960 px width, half that at the input size.
+        zncc_subsamples: the photometric channel samples each internal cell at ``n x n`` points
+            (a grid ``n`` times finer) and correlates them all over the window, instead of one
+            sample at the cell centre that undersamples the texture of a 6 cm cell.
     """
 
     kind: str = "stereo"
@@ -58,6 +64,8 @@ class ModelConfig:
     label: str = "two_hot"
     photometric: bool = False
     zncc_window: int = 5
+    zncc_full_resolution: bool = False
+    zncc_subsamples: int = 1
 
     def __post_init__(self) -> None:
         checks = {
@@ -74,7 +82,8 @@ class ModelConfig:
             raise ConfigError(f"zncc_window must be a positive odd number, got {self.zncc_window}")
         if self.feature_stride not in (1, 2, 4, 8, 16):
             raise ConfigError(f"feature_stride must be a power of two <= 16, got {self.feature_stride}")
-        for name in ("input_width", "input_height", "channels", "grid_factor", "z_factor", "head_width"):
+        for name in ("input_width", "input_height", "channels", "grid_factor", "z_factor", "head_width",
+                     "zncc_subsamples"):
             if int(getattr(self, name)) < 1:
                 raise ConfigError(f"model {name} must be >= 1, got {getattr(self, name)}")
 
@@ -122,13 +131,15 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
     },
     # CPU model (shared/design/cpu-sizing.md): B0 on 480x264, C = 16, bilinear sampling,
     # 40 x 82 x 32 internal voxels upsampled to the output grid; a 3-D head 8 wide keeps stereo
-    # above 5 Hz on 2 cores; stereo adds the photometric ZNCC channel (see ModelConfig).
+    # above 5 Hz on 2 cores; stereo adds the photometric ZNCC channel (see ModelConfig), read from
+    # the full-resolution frames at 2 x 2 points per internal cell (the output grid's cells).
     "lite": {
         "common": {
             "backbone": "b0", "input_width": 480, "input_height": 264, "channels": 16,
             "sampling": "bilinear", "grid_factor": 2, "z_factor": 1, "label": "two_hot",
         },
-        "stereo": {"feature_stride": 2, "head_width": 8, "photometric": True, "zncc_window": 5},
+        "stereo": {"feature_stride": 2, "head_width": 8, "photometric": True, "zncc_window": 5,
+                   "zncc_full_resolution": True, "zncc_subsamples": 2},
         "mono": {"feature_stride": 4, "head_width": 64},
     },
     # Tests: 224x128 input, C = 8, 10 x 41 x 16 internal voxels; a training step well under 1 s.
@@ -137,7 +148,8 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
             "backbone": "b0", "input_width": 224, "input_height": 128, "channels": 8,
             "sampling": "bilinear", "grid_factor": 4, "z_factor": 4, "label": "two_hot",
         },
-        "stereo": {"feature_stride": 2, "head_width": 8, "photometric": True, "zncc_window": 3},
+        "stereo": {"feature_stride": 2, "head_width": 8, "photometric": True, "zncc_window": 3,
+                   "zncc_full_resolution": True, "zncc_subsamples": 2},
         "mono": {"feature_stride": 4, "head_width": 32},
     },
 }

@@ -14,6 +14,7 @@ grid, so callers always see the :class:`GridSpec` they asked for.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import NamedTuple
 
 import cv2
@@ -31,7 +32,7 @@ from roadbev_core.models.loss import soft_argmin
 from roadbev_core.models.presets import ModelConfig
 from roadbev_core.models.voxel_query import batch_lookup, query_voxels, window_zncc
 
-__all__ = ["ModelInputError", "Prediction", "RoadBEV", "prepare_image"]
+__all__ = ["ModelInputError", "Prediction", "RoadBEV", "needs_full_grey", "prepare_grey", "prepare_image"]
 
 _MEAN = (0.485, 0.456, 0.406)  # ImageNet statistics (pretrained backbones expect them)
 _STD = (0.229, 0.224, 0.225)
@@ -57,6 +58,19 @@ def prepare_image(image: np.ndarray, config: ModelConfig) -> np.ndarray:
     if image.shape[1::-1] != size:
         image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
     return np.ascontiguousarray(image.transpose(2, 0, 1))
+
+
+def needs_full_grey(config: ModelConfig) -> bool:
+    """Whether the model's forward takes the full-resolution grey frames (``grey``)."""
+    return config.kind == "stereo" and config.photometric and config.zncc_full_resolution
+
+
+def prepare_grey(left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """RGB (or grey) uint8 [H, W(, 3)] left and right -> uint8 [2, H, W] grey at their own size."""
+    planes = [image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) for image in (left, right)]
+    if planes[0].shape != planes[1].shape:
+        raise ModelInputError(f"left and right images differ in size: {planes[0].shape} vs {planes[1].shape}")
+    return np.stack(planes)
 
 
 class RoadBEV(nn.Module):
@@ -97,6 +111,7 @@ class RoadBEV(nn.Module):
         right: torch.Tensor | None,
         cameras: list[StereoCamera],
         attitudes: list[Attitude],
+        grey: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Class logits of a batch.
 
@@ -105,6 +120,8 @@ class RoadBEV(nn.Module):
                 ``right`` is required for stereo and ignored for mono.
             cameras: B rigs of the ORIGINAL images (rescaled to the input size here).
             attitudes: B camera attitudes.
+            grey: [B, 2, H, W] uint8 grey left / right frames at the ORIGINAL size
+                (:func:`prepare_grey`); required when :func:`needs_full_grey`, ignored otherwise.
 
         Returns:
             logits [B, Nc, n_rows, n_cols] on the output grid, observed [B, n_rows, n_cols] bool.
@@ -119,6 +136,13 @@ class RoadBEV(nn.Module):
             raise ModelInputError(f"need {b} cameras and attitudes, got {len(cameras)} and {len(attitudes)}")
         if self.is_stereo and (right is None or right.shape != left.shape):
             raise ModelInputError("RoadBEV-stereo needs a right image of the left image's shape")
+        if needs_full_grey(cfg):
+            size = (cameras[0].height, cameras[0].width)
+            if grey is None or grey.shape != (b, 2, *size) or any((c.height, c.width) != size for c in cameras):
+                raise ModelInputError(
+                    f"this model reads the full-resolution grey frames: grey must be [B, 2, {size[0]}, {size[1]}] "
+                    f"(prepare_grey), got {None if grey is None else tuple(grey.shape)}"
+                )
         images = torch.cat([left, right]) if self.is_stereo else left  # [B or 2B, 3, h, w]
         x = images.float() / 255.0 if images.dtype == torch.uint8 else images.float()
         fused = self.fusion(self.backbone((x - self.mean) / self.std), x.shape[-2:])  # [., C, h/s, w/s]
@@ -132,7 +156,9 @@ class RoadBEV(nn.Module):
             vox_r = query_voxels(fused[b:], look_r, cfg.sampling)
             volume = vox_l * vox_r if cfg.volume == "product" else vox_l - vox_r
             if cfg.photometric:  # [B, C + 1, Nz, Ny, Nx]: + ZNCC of the input images (presets.py)
-                volume = torch.cat([volume, self._photometric(x, cameras, attitudes)[:, None]], dim=1)
+                seen_both = look_l.mask & look_r.mask  # [B, Nz, Ny, Nx]
+                photometric = self._photometric(x, grey, cameras, attitudes) * seen_both
+                volume = torch.cat([volume, photometric[:, None]], dim=1)
             score = self.head(volume)  # [B, Nz, Ny, Nx]
             logits = F.interpolate(score[:, None], size=(grid.n_classes, *size),
                                    mode="trilinear", align_corners=False)[:, 0]
@@ -147,16 +173,31 @@ class RoadBEV(nn.Module):
         return logits[..., pad_rows:, pad_cols:], observed[..., pad_rows:, pad_cols:]
 
     def _photometric(
-        self, images: torch.Tensor, cameras: list[StereoCamera], attitudes: list[Attitude]
+        self, images: torch.Tensor, grey: torch.Tensor | None, cameras: list[StereoCamera], attitudes: list[Attitude]
     ) -> torch.Tensor:
-        """[B, Nz, Ny, Nx] ZNCC of the grey left/right inputs [2B, 3, h, w] at the voxel centres."""
-        b = images.shape[0] // 2
-        grey = images.mean(dim=1, keepdim=True) * 255.0  # [2B, 1, h, w]
-        look_l = self._lookups(cameras, attitudes, right=False, stride=1, sampling="bilinear")
-        look_r = self._lookups(cameras, attitudes, right=True, stride=1, sampling="bilinear")
-        left = query_voxels(grey[:b], look_l, "bilinear")[:, 0]
-        right = query_voxels(grey[b:], look_r, "bilinear")[:, 0]
-        return window_zncc(left, right, self.config.zncc_window) * (look_l.mask & look_r.mask)
+        """[B, Nz, Ny, Nx] ZNCC of the grey left / right images at the voxels (ModelConfig.photometric).
+
+        Reads the full-resolution ``grey`` [B, 2, H, W] or, without ``zncc_full_resolution``, the
+        mean of the model inputs ``images`` [2B, 3, h, w]; ``zncc_subsamples`` points per cell side.
+        Voxels outside an image are the caller's to mask.
+        """
+        cfg = self.config
+        n = cfg.zncc_subsamples
+        fine = replace(self.inner, resolution=self.inner.resolution / n)  # same extent, n x n cells per cell
+        if cfg.zncc_full_resolution and grey is not None:
+            planes = grey.transpose(0, 1).float()  # [2, B, H, W]
+            left_grey, right_grey, rigs = planes[0][:, None], planes[1][:, None], cameras
+        else:
+            b = images.shape[0] // 2
+            mean = images.mean(dim=1, keepdim=True) * 255.0  # [2B, 1, h, w]
+            left_grey, right_grey = mean[:b], mean[b:]
+            rigs = [c.resized(cfg.input_width, cfg.input_height) for c in cameras]
+        device = self.centres.device
+        looks = [batch_lookup(fine, rigs, attitudes, 1, eye, "bilinear") for eye in (False, True)]
+        looks = [type(look)(look.coords.to(device), look.mask.to(device)) for look in looks]
+        left = query_voxels(left_grey, looks[0], "bilinear")[:, 0]  # [B, Nz, n*Ny, n*Nx]
+        right = query_voxels(right_grey, looks[1], "bilinear")[:, 0]
+        return window_zncc(left, right, cfg.zncc_window, subsamples=n)  # [B, Nz, Ny, Nx]
 
     def predict(
         self,
@@ -164,8 +205,9 @@ class RoadBEV(nn.Module):
         right: torch.Tensor | None,
         cameras: list[StereoCamera],
         attitudes: list[Attitude],
+        grey: torch.Tensor | None = None,
     ) -> Prediction:
         """Soft-argmin elevation and the bin distribution's standard deviation."""
-        logits, observed = self(left, right, cameras, attitudes)
+        logits, observed = self(left, right, cameras, attitudes, grey)
         elevation, uncertainty = soft_argmin(logits, self.centres)
         return Prediction(elevation, uncertainty, observed)

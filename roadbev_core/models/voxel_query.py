@@ -22,8 +22,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from roadbev_core.box_filter import box_mean
 from roadbev_core.config import GridSpec, StereoCamera
-from roadbev_core.geometry import Attitude, ProjectedVoxels, project_voxels
+from roadbev_core.geometry import Attitude, project_voxels
+from roadbev_core.image_sampling import sample_coordinates
 
 __all__ = ["VoxelLookup", "batch_lookup", "query_voxels", "voxel_lookup", "window_zncc"]
 
@@ -40,33 +42,32 @@ class VoxelLookup(NamedTuple):
     mask: torch.Tensor
 
 
-@lru_cache(maxsize=16)
-def _pixel_projection(grid: GridSpec, camera: StereoCamera, attitude: Attitude, right: bool) -> ProjectedVoxels:
-    """Voxel centres in one image's pixel coordinates (stride 1), shared by every feature stride."""
-    return project_voxels(grid, camera, attitude, stride=1, right=right)
-
-
 @lru_cache(maxsize=32)
 def voxel_lookup(
     grid: GridSpec, camera: StereoCamera, attitude: Attitude, stride: int, right: bool, sampling: str
 ) -> VoxelLookup:
     """The (cached) lookup of ``grid``'s voxels in a feature map of ``stride`` of ``camera``'s image."""
     if sampling == "bilinear":
-        # The feature coordinate is an affine function of the pixel coordinate (geometry's
-        # convention: (u - (s - 1) / 2) / s), so one projection per eye serves every stride.
-        pixel = _pixel_projection(grid, camera, attitude, right)
-        proj = pixel._replace(
-            u=(pixel.u - (stride - 1) / 2.0) / stride,
-            v=(pixel.v - (stride - 1) / 2.0) / stride,
-            width=-(-camera.width // stride),
-            height=-(-camera.height // stride),
-        )
-        u, v = proj.u.astype(np.float64), proj.v.astype(np.float64)
-    elif sampling == "integer":
-        proj = project_voxels(grid, camera, attitude, stride=stride, right=right)
-        u, v = proj.iu.astype(np.float64), proj.iv.astype(np.float64)
-    else:
+        # Float32 separable projection (the per-frame hot path: a new attitude every frame). The
+        # feature coordinate is an affine function of the pixel coordinate (geometry's
+        # convention: (u - (s - 1) / 2) / s), so one projection serves every stride.
+        heights = torch.from_numpy(grid.z_centres()).float()[:, None, None]
+        x, y = torch.from_numpy(grid.x_centres()), torch.from_numpy(grid.y_centres())
+        projected = sample_coordinates(x, y, heights, camera, attitude, grid.base_height)
+        image = projected.coords[int(right)]  # [Nz, Ny, Nx, 2] normalised over the whole image
+        size = torch.tensor([camera.width, camera.height], dtype=torch.float32)
+        slack = 1.0 + 1.0 / (size - 1.0)  # half a pixel beyond the outer pixel centres
+        inside = (projected.inv_depth > 0) & (image.abs() <= slack).all(dim=-1)  # [Nz, Ny, Nx]
+        features = -(-size // stride)  # the feature map's (width, height)
+        pixel = (image + 1.0) * (0.5 * (size - 1.0))
+        xy = ((pixel - (stride - 1) / 2.0) / stride) / (features - 1.0).clamp_min(1.0) * 2.0 - 1.0
+        xy = torch.where(inside[..., None], xy, torch.zeros_like(xy))
+        n_z, n_y, n_x = inside.shape
+        return VoxelLookup(coords=xy.reshape(n_z * n_y, n_x, 2).contiguous(), mask=inside)
+    if sampling != "integer":
         raise ValueError(f"sampling must be 'bilinear' or 'integer', got {sampling!r}")
+    proj = project_voxels(grid, camera, attitude, stride=stride, right=right)
+    u, v = proj.iu.astype(np.float64), proj.iv.astype(np.float64)
     x = u / max(proj.width - 1, 1) * 2.0 - 1.0  # [Nz, Ny, Nx]
     y = v / max(proj.height - 1, 1) * 2.0 - 1.0
     inside = proj.inside
@@ -108,25 +109,39 @@ def query_voxels(features: torch.Tensor, lookup: VoxelLookup, sampling: str) -> 
     return volume * lookup.mask[:, None].to(volume.dtype)
 
 
-def window_zncc(left: torch.Tensor, right: torch.Tensor, window: int, eps: float = 1e-3) -> torch.Tensor:
+def window_zncc(
+    left: torch.Tensor, right: torch.Tensor, window: int, eps: float = 1e-3, *, subsamples: int = 1
+) -> torch.Tensor:
     """Zero-mean normalised cross-correlation of two voxel volumes over a BEV window per layer.
 
     Args:
-        left, right: [B, Nz, Ny, Nx] samples (e.g. grey levels 0..255 at the voxel centres).
-        window: odd BEV window size (cells); windows are cut at the grid border.
+        left, right: [B, Nz, n * Ny, n * Nx] samples (e.g. grey levels 0..255 at the voxel
+            centres of a grid ``n = subsamples`` times finer than the output).
+        window: odd BEV window size in output cells; windows are cut at the grid border.
         eps: added to the variance product (grey-level units) so flat texture gives ~0.
+        subsamples: n, fine samples per output cell side; all n * n * window * window samples
+            of a window enter one correlation.
 
     Returns:
         [B, Nz, Ny, Nx] in [-1, 1].
     """
-    shape = left.shape
-    a, b = left.flatten(0, 1)[:, None], right.flatten(0, 1)[:, None]  # [B*Nz, 1, Ny, Nx]
-
-    def mean(t: torch.Tensor) -> torch.Tensor:
-        return F.avg_pool2d(t, window, stride=1, padding=window // 2, count_include_pad=False)
-
-    mean_a, mean_b = mean(a), mean(b)
-    cov = mean(a * b) - mean_a * mean_b
-    var_a = (mean(a * a) - mean_a * mean_a).clamp_min(0)
-    var_b = (mean(b * b) - mean_b * mean_b).clamp_min(0)
-    return (cov / torch.sqrt(var_a * var_b + eps)).view(shape)
+    n = subsamples
+    b, n_z, fine_y, fine_x = left.shape
+    if fine_y % n or fine_x % n:
+        raise ValueError(f"a {fine_y} x {fine_x} sample grid does not split into {n} x {n} cells")
+    a, c = left.reshape(b * n_z, fine_y, fine_x), right.reshape(b * n_z, fine_y, fine_x)
+    moments = torch.stack((a, c, a * a, c * c, a * c)).reshape(5 * b * n_z, fine_y, fine_x)
+    if n > 1:  # per-cell means of the n x n samples (strided slices added: cheap)
+        cells = moments[:, 0::n, 0::n].clone()
+        for i in range(n):
+            for j in range(n):
+                if i or j:
+                    cells += moments[:, i::n, j::n]
+        moments = cells * (1.0 / (n * n))
+    # Window means of equal-sized cells = the mean over all the window's samples.
+    means = box_mean(moments.float().contiguous(), window)  # [5 * B * Nz, Ny, Nx]
+    mean_a, mean_c, mean_aa, mean_cc, mean_ac = means.reshape(5, b * n_z, fine_y // n, fine_x // n)
+    cov = mean_ac - mean_a * mean_c
+    var_a = (mean_aa - mean_a * mean_a).clamp_min(0)
+    var_c = (mean_cc - mean_c * mean_c).clamp_min(0)
+    return (cov / torch.sqrt(var_a * var_c + eps)).view(b, n_z, fine_y // n, fine_x // n)

@@ -8,8 +8,10 @@ batch, split over the processes). Checkpoints load with ``torch.load(weights_onl
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
+from typing import Any
 
 HELP = "train RoadBEV-mono / RoadBEV-stereo"
 DEFAULT_CACHE = Path(".cache") / "roadbev"
@@ -24,6 +26,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     model.add_argument("--pretrained", type=Path, help="ImageNet EfficientNet weights (torchvision/lukemelas)")
     model.add_argument("--resume", type=Path, help="continue from this checkpoint")
     model.add_argument("--init", type=Path, help="start from this checkpoint's weights with a fresh schedule")
+    model.add_argument("--model-option", action="append", default=[], metavar="FIELD=VALUE",
+                       help="change a ModelConfig field of the preset or of the --init checkpoint's model, "
+                            "e.g. zncc_subsamples=2 (repeatable; values are JSON: true, 3, 0.5, or text)")
     data = parser.add_argument_group("data (any combination)")
     data.add_argument("--synth", type=int, default=0, metavar="N", help="N synthetic training scenes")
     data.add_argument("--synth-seed", type=int, default=0, help="first synthetic scene seed (default 0)")
@@ -82,8 +87,10 @@ def run(args: argparse.Namespace) -> int:
             with args.log.open("a") as handle:
                 handle.write(line + "\n")
 
-    result = train(model_config(args.preset, args.kind), grid, data, config, args.out,
-                   resume=args.resume, init=args.init, pretrained=args.pretrained, progress=not args.quiet, log=log)
+    overrides = parse_model_options(args.model_option)
+    result = train(model_config(args.preset, args.kind), grid, data, config, args.out, resume=args.resume,
+                   init=args.init, model_overrides=overrides, pretrained=args.pretrained,
+                   progress=not args.quiet, log=log)
     if result.checkpoint is not None:
         last = result.history[-1] if result.history else {}
         loss, err = last.get("loss", float("nan")), last.get("abs_err_cm", float("nan"))
@@ -91,3 +98,17 @@ def run(args: argparse.Namespace) -> int:
               f"last-epoch train loss {loss:.4f}, abs. err. {err:.3f} cm"
               + (" (stopped at the time cap)" if result.stopped_early else ""))
     return 0
+
+
+def parse_model_options(options: list[str]) -> dict[str, Any]:
+    """``["zncc_subsamples=2", "sampling=integer"]`` -> ``{"zncc_subsamples": 2, "sampling": "integer"}``."""
+    parsed: dict[str, Any] = {}
+    for option in options:
+        name, sep, text = option.partition("=")
+        if not sep or not name.strip():
+            raise ValueError(f"--model-option takes FIELD=VALUE, got {option!r}")
+        try:
+            parsed[name.strip()] = json.loads(text)
+        except json.JSONDecodeError:
+            parsed[name.strip()] = text
+    return parsed

@@ -44,8 +44,10 @@ def test_model_inputs_resize_and_batch(tmp_path: Path) -> None:
     assert len(items) == 2
     item = items[1]
     assert item["left"].shape == item["right"].shape == (3, 128, 224) and item["left"].dtype == torch.uint8
+    assert item["grey"].shape == (2, CAMERA.height, CAMERA.width)  # the photometric channel's full-size frames
     batch = collate([items[0], items[1]])
     assert batch["left"].shape == (2, 3, 128, 224) and batch["elevation"].shape == (2, *GRID.shape)
+    assert batch["grey"].shape == (2, 2, CAMERA.height, CAMERA.width) and batch["grey"].dtype == torch.uint8
     assert batch["attitude"] == [source[0][0].attitude] * 2
     with pytest.raises(DatasetError, match="grid"):
         ModelInputs(source, config, GridSpec())
@@ -65,5 +67,5 @@ def test_evaluation_bags_feed_the_models() -> None:
     source = BagSet(bag)
     assert len(source) > 0 and source.grid.shape == (164, 64)
     item = ModelInputs(source, model_config("tiny", "mono"), source.grid)[0]
-    assert item["left"].shape == (3, 128, 224) and "right" not in item
+    assert item["left"].shape == (3, 128, 224) and "right" not in item and "grey" not in item
     assert torch.isfinite(item["elevation"]).float().mean() > 0.5

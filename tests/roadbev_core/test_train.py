@@ -127,3 +127,24 @@ def test_bad_settings_fail_clearly(frames: SyntheticSet, tmp_path: Path) -> None
         train(_tiny("mono"), GRID, frames, TrainConfig(epochs=1, batch_size=3), tmp_path / "a.pt", progress=False)
     with pytest.raises(TrainError, match=">= 1"):
         TrainConfig(epochs=0)
+
+
+def test_model_overrides_change_an_init_checkpoints_model_but_not_its_weights(
+    frames: SyntheticSet, tmp_path: Path
+) -> None:
+    base = model_config("tiny", "stereo", grid_factor=1, zncc_full_resolution=False, zncc_subsamples=1)
+    out = tmp_path / "base.pt"
+    train(base, GRID, frames, TrainConfig(epochs=1, batch_size=2, lr=1e-3, seed=2), out, progress=False)
+    sharper = train(base, GRID, frames, TrainConfig(epochs=1, batch_size=2, lr=1e-9), tmp_path / "sharp.pt", init=out,
+                    model_overrides={"zncc_full_resolution": True, "zncc_subsamples": 2}, progress=False)
+    payload = read_checkpoint(sharper.checkpoint)
+    assert payload["model_config"]["zncc_full_resolution"] is True and payload["model_config"]["zncc_subsamples"] == 2
+    before = read_checkpoint(out)["state_dict"]
+    key = "head.out.1.weight"
+    torch.testing.assert_close(payload["state_dict"][key], before[key], atol=1e-6, rtol=0)
+    with pytest.raises(TrainError, match="do not fit"):  # a wider network cannot take these weights
+        train(base, GRID, frames, TrainConfig(epochs=1, batch_size=2), tmp_path / "x.pt", init=out,
+              model_overrides={"channels": 12}, progress=False)
+    with pytest.raises(TrainError, match="resumed run keeps its model"):
+        train(base, GRID, frames, TrainConfig(epochs=2, batch_size=2), tmp_path / "x.pt", resume=out,
+              model_overrides={"zncc_subsamples": 2}, progress=False)
