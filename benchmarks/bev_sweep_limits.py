@@ -8,6 +8,9 @@ Two measurements on the same frames:
   that is not flat within them.
 * error by local relief (max - min of the ground truth within 5 x 5 cells): where the road is
   smooth and where bumps, kerbs and potholes are, for ``bev_sweep`` and ``bm``.
+* the error's tail, per backend: median, 95th percentile, the share of the summed error carried
+  by the worst 5 % of cells, where the cells off by more than 1.5 cm lie (farthest third of the
+  rows; patches of at least 20 connected cells), and the error of every frame.
 
 Run (from the repository root)::
 
@@ -38,6 +41,8 @@ from roadbev_core.evaluation import evaluate
 torch.set_flush_denormal(True)
 
 RELIEF_BINS_CM = (0.0, 1.0, 2.0, 4.0, 8.0, float("inf"))
+TAIL_CM = 1.5  # a "tail" cell: off by more than this
+PATCH_CELLS = 20  # tail cells in a connected patch at least this large are a failed region, not noise
 RELIEF_CELLS = 5
 
 
@@ -69,6 +74,31 @@ def local_relief_cm(truth: np.ndarray) -> np.ndarray:
     return (high - low) * 100.0
 
 
+def tail_stats(estimates: list[np.ndarray], truths: list[np.ndarray]) -> dict[str, Any]:
+    """How much of one backend's error sits in few cells, and where those cells are."""
+    errors = [np.abs(e - t) * 100.0 for e, t in zip(estimates, truths, strict=True)]  # [R, C] cm, NaN = none
+    every = np.sort(np.concatenate([err[np.isfinite(err)] for err in errors]))
+    worst = every[int(0.95 * every.size):]
+    tail = [np.nan_to_num(err, nan=0.0) > TAIL_CM for err in errors]
+    n_tail = sum(int(t.sum()) for t in tail)
+    far_rows = tail[0].shape[0] // 3
+    in_patches = 0
+    for t in tail:
+        _, _, stats, _ = cv2.connectedComponentsWithStats(t.astype(np.uint8), connectivity=8)
+        areas = stats[1:, cv2.CC_STAT_AREA]
+        in_patches += int(areas[areas >= PATCH_CELLS].sum())
+    return {
+        "median_cm": float(np.median(every)),
+        "p95_cm": float(np.quantile(every, 0.95)),
+        "worst_5pct_share_of_error_pct": float(100.0 * worst.sum() / every.sum()),
+        "tail_cm": TAIL_CM,
+        "tail_cells_pct": float(100.0 * n_tail / every.size),
+        "tail_in_far_third_pct": float(100.0 * sum(int(t[:far_rows].sum()) for t in tail) / max(n_tail, 1)),
+        "tail_in_patches_pct": float(100.0 * in_patches / max(n_tail, 1)),
+        "per_frame_abs_err_cm": [float(np.nanmean(err)) for err in errors],
+    }
+
+
 def measure(samples: list[Any], grid: GridSpec) -> dict[str, Any]:
     """The smoothing floor and the relief table for bev_sweep and bm on ``samples``."""
     sweep = create("bev_sweep", grid)
@@ -88,6 +118,7 @@ def measure(samples: list[Any], grid: GridSpec) -> dict[str, Any]:
         "bev_sweep_abs_err_cm": float(np.concatenate(actual).mean() * 100.0),
         "relief_cells": RELIEF_CELLS,
         "relief": [],
+        "tail": {name: tail_stats(est, truths) for name, est in estimates.items()},
     }
     reliefs = [local_relief_cm(t) for t in truths]
     totals = {
@@ -143,6 +174,18 @@ def main(argv: list[str] | None = None) -> int:
             for name in ("bev_sweep", "bm")
         )
         print(f"relief {lo:g}-{hi:g} cm: {cells}")
+    for name, tail in record["tail"].items():
+        print(
+            f"{name}: median {tail['median_cm']:.3f} cm, p95 {tail['p95_cm']:.2f} cm; the worst 5 % of cells carry "
+            f"{tail['worst_5pct_share_of_error_pct']:.0f} % of the error; {tail['tail_cells_pct']:.1f} % of cells "
+            f"off by > {TAIL_CM:g} cm, {tail['tail_in_far_third_pct']:.0f} % of them in the farthest third of rows, "
+            f"{tail['tail_in_patches_pct']:.0f} % in patches of >= {PATCH_CELLS} cells"
+        )
+    sweep_frames = record["tail"]["bev_sweep"]["per_frame_abs_err_cm"]
+    bm_frames = record["tail"]["bm"]["per_frame_abs_err_cm"]
+    worse = [i for i, (a, b) in enumerate(zip(sweep_frames, bm_frames, strict=True)) if a > b]
+    print(f"bev_sweep is worse than bm on {len(worse)} of {len(sweep_frames)} frames: "
+          + ", ".join(f"seed {base + i} ({sweep_frames[i]:.2f} vs {bm_frames[i]:.2f} cm)" for i in worse))
     write_json(RESULTS / f"bev_sweep_limits{'_tuning' if args.tuning else ''}.json", record)
     return 0
 

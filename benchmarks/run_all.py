@@ -45,8 +45,8 @@ def markdown_table(rows: list[dict[str, Any]]) -> str:
 
     lines = [
         "| backend | abs. err. (cm) | RMSE (cm) | >0.5 cm (%) | coverage (%) | FPS | decode | projection | cost/network"
-        " | post (ms) | error within 1σ / 2σ (%) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        " | post (ms) | error within 1σ / 2σ (%) | median / p95 abs. err. (cm) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for m in rows:
         s = m["stage_ms"]
@@ -54,7 +54,8 @@ def markdown_table(rows: list[dict[str, Any]]) -> str:
             f"| {m['backend']} | {f(m['abs_err_cm'], 3)} | {f(m['rmse_cm'], 3)} | {f(m['gt_0p5cm_pct'], 1)} "
             f"| {f(m['coverage_pct'], 1)} | {f(m['fps'], 1)} | {f(s['decode'], 1)} | {f(s['projection'], 1)} "
             f"| {f(s['cost_network'], 1)} | {f(s['post'], 1)} "
-            f"| {f(m.get('within_1sigma_pct'), 0)} / {f(m.get('within_2sigma_pct'), 0)} |"
+            f"| {f(m.get('within_1sigma_pct'), 0)} / {f(m.get('within_2sigma_pct'), 0)} "
+            f"| {f(m.get('median_abs_err_cm'), 3)} / {f(m.get('p95_abs_err_cm'), 2)} |"
         )
     return "\n".join(lines)
 

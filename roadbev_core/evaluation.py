@@ -299,6 +299,8 @@ def _metrics(
         "band_abs_err_cm": scored.band_abs_err_cm,
         "fps": 1000.0 / pipeline_ms if pipeline_ms > 0 else math.inf,
         "coverage_pct": scored.coverage_pct if scored.labelled_cells else math.nan,
+        "median_abs_err_cm": scored.median_abs_err_cm,
+        "p95_abs_err_cm": scored.p95_abs_err_cm,
         "labelled_cells": scored.labelled_cells,
         "frames_with_truth": scored.frames,
         "timed_frames": n_timed,
@@ -317,14 +319,15 @@ def _fmt(value: Any, digits: int) -> str:
 def format_table(results: Iterable[dict[str, Any]]) -> str:
     """A plain-text table (the paper's Table I columns + coverage and stage times) of metrics dicts."""
     header = (
-        f"{'backend':<12} {'frames':>6} {'abs.err cm':>10} {'RMSE cm':>8} {'>0.5cm %':>9} "
+        f"{'backend':<12} {'frames':>6} {'abs.err cm':>10} {'median cm':>9} {'RMSE cm':>8} {'>0.5cm %':>9} "
         f"{'coverage %':>10} {'FPS':>6} | {'decode':>7} {'proj.':>7} {'cost/net':>8} {'post':>7} ms"
     )
     lines = [header, "-" * len(header)]
     for m in results:
         stages = m.get("stage_ms", {})
         lines.append(
-            f"{m['backend']:<12} {m['frames']:>6d} {_fmt(m['abs_err_cm'], 3):>10} {_fmt(m['rmse_cm'], 3):>8} "
+            f"{m['backend']:<12} {m['frames']:>6d} {_fmt(m['abs_err_cm'], 3):>10} "
+            f"{_fmt(m.get('median_abs_err_cm'), 3):>9} {_fmt(m['rmse_cm'], 3):>8} "
             f"{_fmt(m['gt_0p5cm_pct'], 1):>9} {_fmt(m['coverage_pct'], 1):>10} {_fmt(m['fps'], 1):>6} | "
             f"{_fmt(stages.get('decode'), 1):>7} {_fmt(stages.get('projection'), 1):>7} "
             f"{_fmt(stages.get('cost_network'), 1):>8} {_fmt(stages.get('post'), 1):>7}"

@@ -1,8 +1,10 @@
 """The paper's metrics, shared by ``roadbev eval``, the demo and the benchmarks.
 
 Over labelled cells only: absolute error (cm), RMSE (cm), share of cells with error > 0.5 cm (%),
-absolute error per distance band (15 bands along x, near to far). A labelled cell without an
-estimate is *missing*: it lowers ``coverage_pct`` and never counts as zero error.
+absolute error per distance band (15 bands along x, near to far), and the median and 95th
+percentile of the absolute error (a mean can be carried by a few per cent of cells: the
+percentiles say whether an estimator is broadly better or has a heavier tail). A labelled cell
+without an estimate is *missing*: it lowers ``coverage_pct`` and never counts as zero error.
 """
 
 from __future__ import annotations
@@ -17,6 +19,9 @@ from roadbev_core.config import GridSpec
 __all__ = ["N_BANDS", "MetricAccumulator", "Metrics"]
 
 N_BANDS = 15
+# Error histogram for the percentiles: 0.001 cm bins up to 100 cm (larger errors share the top bin).
+_HIST_STEP_CM = 0.001
+_HIST_BINS = 100_000
 
 
 @dataclass
@@ -31,6 +36,8 @@ class Metrics:
     band_abs_err_cm: list[float]
     coverage_pct: float
     labelled_cells: int
+    median_abs_err_cm: float = math.nan
+    p95_abs_err_cm: float = math.nan
 
     def to_dict(self) -> dict[str, object]:
         return {
@@ -42,6 +49,8 @@ class Metrics:
             "gt_0p5cm_pct": self.gt_0p5cm_pct,
             "band_abs_err_cm": self.band_abs_err_cm,
             "coverage_pct": self.coverage_pct,
+            "median_abs_err_cm": self.median_abs_err_cm,
+            "p95_abs_err_cm": self.p95_abs_err_cm,
         }
 
 
@@ -60,8 +69,10 @@ class MetricAccumulator:
     _band_sum: np.ndarray = field(init=False)
     _band_cnt: np.ndarray = field(init=False)
     _band_of_row: np.ndarray = field(init=False)
+    _hist: np.ndarray = field(init=False)
 
     def __post_init__(self) -> None:
+        self._hist = np.zeros(_HIST_BINS, dtype=np.int64)
         self._band_sum = np.zeros(self.n_bands)
         self._band_cnt = np.zeros(self.n_bands, dtype=np.int64)
         self._band_of_row = self.grid.band_of_rows(self.n_bands)
@@ -90,6 +101,16 @@ class MetricAccumulator:
         bands = self._band_of_row[rows]
         self._band_sum += np.bincount(bands, weights=err, minlength=self.n_bands)
         self._band_cnt += np.bincount(bands, minlength=self.n_bands)
+        bins = np.minimum((err / _HIST_STEP_CM).astype(np.int64), _HIST_BINS - 1)
+        self._hist += np.bincount(bins, minlength=_HIST_BINS)
+
+    def _percentile(self, share: float) -> float:
+        """The absolute error (cm) below which ``share`` of the compared cells lie (bin centre, +-5 um)."""
+        if not self._cells:
+            return math.nan
+        rank = max(1, math.ceil(share * self._cells))
+        index = int(np.searchsorted(np.cumsum(self._hist), rank))
+        return (index + 0.5) * _HIST_STEP_CM
 
     def result(self) -> Metrics:
         n = max(self._cells, 1)
@@ -105,4 +126,6 @@ class MetricAccumulator:
             band_abs_err_cm=[float(b) for b in bands],
             coverage_pct=100.0 * self._cells / max(self._labelled, 1),
             labelled_cells=self._labelled,
+            median_abs_err_cm=self._percentile(0.5),
+            p95_abs_err_cm=self._percentile(0.95),
         )

@@ -42,7 +42,13 @@ def test_accumulates_over_frames_and_checks_shapes() -> None:
         e = t + rng.normal(0, 0.005, G.shape).astype(np.float32)
         acc.add(e, t)
         errs.append(np.abs(e - t).ravel() * 100)
-    assert acc.result().abs_err_cm == pytest.approx(np.concatenate(errs).mean(), rel=1e-4)
+    every = np.concatenate(errs)
+    m = acc.result()
+    assert m.abs_err_cm == pytest.approx(every.mean(), rel=1e-4)
+    # percentiles from the 0.001 cm histogram: within half a bin of numpy's order statistics
+    assert m.median_abs_err_cm == pytest.approx(np.quantile(every, 0.5, method="inverted_cdf"), abs=6e-4)
+    assert m.p95_abs_err_cm == pytest.approx(np.quantile(every, 0.95, method="inverted_cdf"), abs=6e-4)
+    assert m.to_dict()["median_abs_err_cm"] == m.median_abs_err_cm
     with pytest.raises(ValueError, match="must match grid"):
         acc.add(np.zeros((3, 3)), np.zeros((3, 3)))
 
@@ -52,3 +58,20 @@ def test_no_estimates_gives_nan_not_zero() -> None:
     acc.add(np.full(G.shape, np.nan), np.zeros(G.shape))
     m = acc.result()
     assert math.isnan(m.abs_err_cm) and m.coverage_pct == 0.0
+    assert math.isnan(m.median_abs_err_cm) and math.isnan(m.p95_abs_err_cm)
+
+
+def test_percentiles_see_a_heavy_tail_that_the_mean_mixes_in() -> None:
+    truth = np.zeros(G.shape, dtype=np.float32)
+    est = np.full(G.shape, 0.001, dtype=np.float32)  # 0.1 cm everywhere ...
+    est[:8] = 0.5  # ... and 50 cm (more than the histogram holds) on 8 of 164 rows (4.9 %)
+    acc = MetricAccumulator(G)
+    acc.add(est, truth)
+    m = acc.result()
+    assert m.median_abs_err_cm == pytest.approx(0.1, abs=6e-4)
+    assert m.p95_abs_err_cm == pytest.approx(0.1, abs=6e-4)
+    assert m.abs_err_cm > 2.0
+    est[:9] = 1.5  # 150 cm: beyond the histogram's range, counted in its top bin
+    acc = MetricAccumulator(G)
+    acc.add(est, truth)
+    assert acc.result().p95_abs_err_cm > 99.0
