@@ -24,6 +24,7 @@ message building and publishing; waiting for the IMU is reported apart). Writes
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 import tempfile
@@ -68,12 +69,14 @@ def _float(values: dict[str, str], key: str) -> float:
         return math.nan
 
 
-def run_one(bag: Path, backend: str, mode: str, work: Path) -> dict[str, Any]:
+def run_one(
+    bag: Path, backend: str, mode: str, work: Path, node_params: dict[str, Any] | None = None
+) -> dict[str, Any]:
     """One backend in one mode: throughput, latency, node figures and accuracy."""
     from roadbev_ros.online_eval import evaluate_online
 
     rate = 1.0 if mode == "5hz" else None
-    result = evaluate_online(bag, work / f"{backend}_{mode}", backend=backend, rate=rate)
+    result = evaluate_online(bag, work / f"{backend}_{mode}", backend=backend, rate=rate, node_params=node_params)
     m = result.metrics
     online = m["online"]
     node = online["node"]
@@ -180,7 +183,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=20)
     parser.add_argument("--scale", type=float, default=1.0, help="image scale of the 960x528 rig")
     parser.add_argument("--out", type=Path, default=RESULTS / "node.json")
+    parser.add_argument("--node-param", action="append", default=[], metavar="NAME=VALUE",
+                        help="a node parameter for every run, e.g. inference_threads=2 (repeatable)")
     args = parser.parse_args(argv)
+    node_params = {}
+    for item in args.node_param:
+        name, sep, text = item.partition("=")
+        if not sep:
+            parser.error(f"--node-param takes NAME=VALUE, got {item!r}")
+        try:
+            node_params[name] = json.loads(text)  # 2, 0.5, true; anything else is text
+        except json.JSONDecodeError:
+            node_params[name] = text
 
     import torch
 
@@ -197,7 +211,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"skip {backend}: {skipped[backend]}", file=sys.stderr)
                 continue
             for mode in args.modes:
-                row = run_one(bag, backend, mode, Path(tmp))
+                row = run_one(bag, backend, mode, Path(tmp), node_params)
                 rows.append(row)
                 lat = row["latency_ms"]
                 steady = row["latency_after_first_ms"]
@@ -214,6 +228,7 @@ def main(argv: list[str] | None = None) -> int:
     record = {
         "what": "node throughput and end-to-end latency over DDS (replay -> node process -> record)",
         "bag": {"frames": args.frames, "scale": args.scale, "frame_rate_hz": 5.0},
+        "node_params": node_params,
         "machine": machine_info(),
         "rows": rows,
         "pipeline_overhead_ms": overhead,
