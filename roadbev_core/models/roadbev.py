@@ -155,7 +155,7 @@ class RoadBEV(nn.Module):
             look_r = self._lookups(cameras, attitudes, right=True)
             vox_r = query_voxels(fused[b:], look_r, cfg.sampling)
             volume = vox_l * vox_r if cfg.volume == "product" else vox_l - vox_r
-            if cfg.photometric:  # [B, C + 1, Nz, Ny, Nx]: + ZNCC of the input images (presets.py)
+            if cfg.photometric:  # [B, C + 1, Nz, Ny, Nx]: + the photometric ZNCC channel (ModelConfig)
                 seen_both = look_l.mask & look_r.mask  # [B, Nz, Ny, Nx]
                 photometric = self._photometric(x, grey, cameras, attitudes) * seen_both
                 volume = torch.cat([volume, photometric[:, None]], dim=1)

@@ -18,3 +18,12 @@ def test_box_mean_is_the_mean_over_the_cells_inside_the_grid() -> None:
     assert box_mean(volume, 1) is volume
     with pytest.raises(ValueError, match="odd"):
         box_mean(volume, 4)
+
+
+def test_box_mean_keeps_gradients_with_the_same_result() -> None:
+    volume = torch.rand(3, 20, 12)
+    leaf = volume.clone().requires_grad_(True)
+    pooled = box_mean(leaf, 5)
+    torch.testing.assert_close(pooled, box_mean(volume, 5), atol=1e-5, rtol=0)
+    pooled.sum().backward()
+    assert leaf.grad is not None and float(leaf.grad.abs().sum()) > 0
