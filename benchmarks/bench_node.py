@@ -24,7 +24,6 @@ message building and publishing; waiting for the IMU is reported apart). Writes
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import tempfile
@@ -33,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.common import RESULTS, available_backends, machine_info, write_json
+from roadbev_ros.params import parse_assignments
 
 REPO = Path(__file__).resolve().parents[1]
 CACHE = REPO / ".cache"
@@ -186,15 +186,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--node-param", action="append", default=[], metavar="NAME=VALUE",
                         help="a node parameter for every run, e.g. inference_threads=2 (repeatable)")
     args = parser.parse_args(argv)
-    node_params = {}
-    for item in args.node_param:
-        name, sep, text = item.partition("=")
-        if not sep:
-            parser.error(f"--node-param takes NAME=VALUE, got {item!r}")
-        try:
-            node_params[name] = json.loads(text)  # 2, 0.5, true; anything else is text
-        except json.JSONDecodeError:
-            node_params[name] = text
+    try:
+        node_params = parse_assignments(args.node_param, "--node-param")
+    except ValueError as exc:
+        parser.error(str(exc))
 
     import torch
 

@@ -13,8 +13,9 @@ Used three ways, with no rclpy import at module level so the offline tools can u
 
 from __future__ import annotations
 
+import json
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -35,6 +36,7 @@ __all__ = [
     "grid_from_params",
     "is_backend_option",
     "load_params_file",
+    "parse_assignments",
     "validate",
     "validate_one",
 ]
@@ -110,6 +112,24 @@ def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, 
             raise ParamError(f"params file {path}: {key!r} ros__parameters must be a mapping")
         merged.update(_flatten(params))
     return merged
+
+
+def parse_assignments(items: Iterable[str], option: str) -> dict[str, Any]:
+    """Command-line ``NAME=VALUE`` items -> ``{NAME: value}``; values read as JSON (2, 0.5, true), else text.
+
+    Raises:
+        ParamError: an item without ``=`` or a name, naming the command-line ``option``.
+    """
+    parsed: dict[str, Any] = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        if not sep or not name.strip():
+            raise ParamError(f"{option} takes NAME=VALUE, got {item!r}")
+        try:
+            parsed[name.strip()] = json.loads(text)
+        except json.JSONDecodeError:
+            parsed[name.strip()] = text
+    return parsed
 
 
 def _flatten(params: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:

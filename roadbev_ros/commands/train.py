@@ -8,10 +8,8 @@ batch, split over the processes). Checkpoints load with ``torch.load(weights_onl
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
-from typing import Any
 
 HELP = "train RoadBEV-mono / RoadBEV-stereo"
 DEFAULT_CACHE = Path(".cache") / "roadbev"
@@ -58,7 +56,9 @@ def run(args: argparse.Namespace) -> int:
     from roadbev_core.datasets import TEST_SEED_START, BagSet, ConcatSource, SyntheticSet
     from roadbev_core.models.presets import model_config
     from roadbev_core.train import TrainConfig, train
+    from roadbev_ros.params import parse_assignments
 
+    overrides = parse_assignments(args.model_option, "--model-option")  # before any data is read
     sources = []
     if args.synth:
         last = args.synth_seed + args.synth
@@ -87,7 +87,6 @@ def run(args: argparse.Namespace) -> int:
             with args.log.open("a") as handle:
                 handle.write(line + "\n")
 
-    overrides = parse_model_options(args.model_option)
     result = train(model_config(args.preset, args.kind), grid, data, config, args.out, resume=args.resume,
                    init=args.init, model_overrides=overrides, pretrained=args.pretrained,
                    progress=not args.quiet, log=log)
@@ -99,16 +98,3 @@ def run(args: argparse.Namespace) -> int:
               + (" (stopped at the time cap)" if result.stopped_early else ""))
     return 0
 
-
-def parse_model_options(options: list[str]) -> dict[str, Any]:
-    """``["zncc_subsamples=2", "sampling=integer"]`` -> ``{"zncc_subsamples": 2, "sampling": "integer"}``."""
-    parsed: dict[str, Any] = {}
-    for option in options:
-        name, sep, text = option.partition("=")
-        if not sep or not name.strip():
-            raise ValueError(f"--model-option takes FIELD=VALUE, got {option!r}")
-        try:
-            parsed[name.strip()] = json.loads(text)
-        except json.JSONDecodeError:
-            parsed[name.strip()] = text
-    return parsed

@@ -130,3 +130,12 @@ def test_validate_checks_the_grid_as_a_whole_and_coerces() -> None:
     assert "foreign" not in validate({"foreign": 1}, strict=False)
     with pytest.raises(ParamError, match="unknown"):
         validate({"foreign": 1})
+
+
+def test_command_line_assignments_parse_json_values_and_fall_back_to_text() -> None:
+    from roadbev_ros.params import ParamError, parse_assignments
+
+    assert parse_assignments(["zncc_subsamples=2", "zncc_full_resolution=true", "sampling=integer"], "-o") == {
+        "zncc_subsamples": 2, "zncc_full_resolution": True, "sampling": "integer"}
+    with pytest.raises(ParamError, match="--model-option takes NAME=VALUE"):
+        parse_assignments(["zncc_subsamples"], "--model-option")

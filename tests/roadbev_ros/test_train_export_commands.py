@@ -37,11 +37,3 @@ def test_export_drops_training_state_and_can_halve(tmp_path: Path, capsys: pytes
     assert payload["state_dict"]["head.classify.weight"].dtype == torch.float16
     assert main(["export", str(tmp_path / "missing.pt"), str(out)]) == 2
 
-
-def test_model_options_parse_json_values_and_fall_back_to_text() -> None:
-    from roadbev_ros.commands.train import parse_model_options
-
-    assert parse_model_options(["zncc_subsamples=2", "zncc_full_resolution=true", "sampling=integer"]) == {
-        "zncc_subsamples": 2, "zncc_full_resolution": True, "sampling": "integer"}
-    with pytest.raises(ValueError, match="FIELD=VALUE"):
-        parse_model_options(["zncc_subsamples"])
