@@ -26,6 +26,14 @@ class SampleCoordinates(NamedTuple):
     coords: torch.Tensor
     inv_depth: torch.Tensor
 
+    def inside(self, camera: StereoCamera) -> torch.Tensor:
+        """[2, K, Rs, Cs] bool: in front of the camera and within half a pixel of the image
+        (as ``geometry.project_voxels``), per image (left, right)."""
+        slack_u = 1.0 + 1.0 / (camera.width - 1)  # half a pixel beyond the outer pixel centres
+        slack_v = 1.0 + 1.0 / (camera.height - 1)
+        within = (self.coords[..., 0].abs() <= slack_u) & (self.coords[..., 1].abs() <= slack_v)
+        return within & (self.inv_depth > 0)
+
 
 def sample_coordinates(
     x: torch.Tensor,

@@ -343,15 +343,10 @@ class BevSweep:
         return sample_coordinates(samples.x, samples.y, heights, camera, attitude, self.grid.base_height).coords
 
     def _valid_levels(self, camera: StereoCamera, attitude: Attitude) -> torch.Tensor:
-        """[Z, R, C] bool: the cell centre at that height projects inside both images.
-
-        The window never reaches behind the camera (x_min > 0 and z_max < base_height), so only
-        the image bounds are checked, with half a pixel of slack as ``geometry.project_voxels``.
-        """
-        coords = self._normalised_coordinates(self._cells, self._z[:, None, None], camera, attitude)
-        inside_u = coords[..., 0].abs() <= 1.0 + 1.0 / (camera.width - 1)
-        inside_v = coords[..., 1].abs() <= 1.0 + 1.0 / (camera.height - 1)
-        inside = inside_u & inside_v  # [2, Z, R, C]
+        """[Z, R, C] bool: the cell centre at that height projects inside both images."""
+        cells = self._cells
+        inside = sample_coordinates(cells.x, cells.y, self._z[:, None, None], camera, attitude,
+                                    self.grid.base_height).inside(camera)  # [2, Z, R, C]
         return inside[0] & inside[1]
 
     # --- matching ------------------------------------------------------------------------------

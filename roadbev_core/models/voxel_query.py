@@ -55,9 +55,8 @@ def voxel_lookup(
         x, y = torch.from_numpy(grid.x_centres()), torch.from_numpy(grid.y_centres())
         projected = sample_coordinates(x, y, heights, camera, attitude, grid.base_height)
         image = projected.coords[int(right)]  # [Nz, Ny, Nx, 2] normalised over the whole image
+        inside = projected.inside(camera)[int(right)]  # [Nz, Ny, Nx]
         size = torch.tensor([camera.width, camera.height], dtype=torch.float32)
-        slack = 1.0 + 1.0 / (size - 1.0)  # half a pixel beyond the outer pixel centres
-        inside = (projected.inv_depth > 0) & (image.abs() <= slack).all(dim=-1)  # [Nz, Ny, Nx]
         features = -(-size // stride)  # the feature map's (width, height)
         pixel = (image + 1.0) * (0.5 * (size - 1.0))
         xy = ((pixel - (stride - 1) / 2.0) / stride) / (features - 1.0).clamp_min(1.0) * 2.0 - 1.0

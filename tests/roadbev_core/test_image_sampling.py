@@ -24,6 +24,7 @@ def test_separable_projection_matches_project_voxels_in_both_images() -> None:
         pixels = (projected.coords[eye] + 1.0) * 0.5 * torch.tensor([CAMERA.width - 1.0, CAMERA.height - 1.0])
         np.testing.assert_allclose(pixels[..., 0].numpy(), reference.u, atol=2e-3)
         np.testing.assert_allclose(pixels[..., 1].numpy(), reference.v, atol=2e-3)
+        assert np.array_equal(projected.inside(CAMERA)[eye].numpy(), reference.inside)
     assert bool((projected.inv_depth > 0).all())
     # a surface [K, Rs, Cs] is the same as the planes it is made of
     surface = heights.expand(-1, grid.n_rows, grid.n_cols).contiguous()
