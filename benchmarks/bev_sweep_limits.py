@@ -35,6 +35,7 @@ from benchmarks.common import EVAL_SEED_BASE, RESULTS, machine_info, write_json
 from benchmarks.tune_bev_sweep import TUNING_SEED_BASE
 from roadbev_core.backends import create
 from roadbev_core.backends.bev_sweep import BevSweep
+from roadbev_core.box_filter import WindowSize, window_shape
 from roadbev_core.config import GridSpec
 from roadbev_core.evaluation import evaluate
 
@@ -53,9 +54,11 @@ def zone_smoothed(truth: np.ndarray, sweep: BevSweep) -> np.ndarray:
     labelled = np.isfinite(truth).astype(np.float32)
     values = np.where(labelled > 0, truth, 0.0).astype(np.float32)
 
-    def box(size: int) -> np.ndarray:
+    def box(size: WindowSize) -> np.ndarray:
+        rows, cols = window_shape(size)
+
         def total(a: np.ndarray) -> np.ndarray:
-            return cv2.boxFilter(a, -1, (size, size), normalize=False, borderType=cv2.BORDER_CONSTANT)
+            return cv2.boxFilter(a, -1, (cols, rows), normalize=False, borderType=cv2.BORDER_CONSTANT)
 
         return total(values) / np.maximum(total(labelled), 1e-6)
 

@@ -211,3 +211,8 @@ def test_window_check_drops_cells_where_a_small_window_disagrees(samples: list[t
     assert strict.sum() < 0.9 * unchecked.sum()
     with pytest.raises(ConfigError, match="check_cells"):
         SweepParams(check_cells=4)
+    with pytest.raises(ConfigError, match="aggregation_cells"):
+        SweepParams(aggregation_cells=(21, 8))
+    # Windows are one side or (rows, columns); lists from YAML / JSON become tuples.
+    assert create("bev_sweep", GRID, far_aggregation_cells=[25, 9]).params.far_aggregation_cells == (25, 9)
+    assert SweepParams(near_aggregation_cells=9).near_aggregation_cells == 9
