@@ -35,7 +35,7 @@ from benchmarks.common import EVAL_SEED_BASE, RESULTS, machine_info, write_json
 from benchmarks.tune_bev_sweep import TUNING_SEED_BASE
 from roadbev_core.backends import create
 from roadbev_core.backends.bev_sweep import BevSweep
-from roadbev_core.box_filter import WindowSize, window_shape
+from roadbev_core.box_filter import WindowSize, box_mean
 from roadbev_core.config import GridSpec
 from roadbev_core.evaluation import evaluate
 
@@ -51,16 +51,14 @@ def zone_smoothed(truth: np.ndarray, sweep: BevSweep) -> np.ndarray:
     """[R, C] ground truth box-averaged over the sweep's aggregation window of each row's zone
     (labelled cells only; windows shrink at the grid's border, as in the sweep)."""
     p = sweep.params
-    labelled = np.isfinite(truth).astype(np.float32)
-    values = np.where(labelled > 0, truth, 0.0).astype(np.float32)
+    labelled = np.isfinite(truth)
+    # [2, R, C]: the labelled heights (0 elsewhere) and the labelled mask; the ratio of their
+    # window means is the mean over the labelled cells (the sweep's own box filter).
+    planes = torch.from_numpy(np.stack([np.where(labelled, truth, 0.0), labelled]).astype(np.float32))
 
     def box(size: WindowSize) -> np.ndarray:
-        rows, cols = window_shape(size)
-
-        def total(a: np.ndarray) -> np.ndarray:
-            return cv2.boxFilter(a, -1, (cols, rows), normalize=False, borderType=cv2.BORDER_CONSTANT)
-
-        return total(values) / np.maximum(total(labelled), 1e-6)
+        values, weight = box_mean(planes, size).numpy()
+        return values / np.maximum(weight, 1e-6)
 
     mid_start, near_start = sweep._zone_rows()
     out = box(p.aggregation_cells)
