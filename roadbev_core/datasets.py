@@ -31,6 +31,7 @@ from roadbev_core.models.presets import ModelConfig
 from roadbev_core.models.roadbev import needs_full_grey, prepare_grey, prepare_image
 
 __all__ = [
+    "SCENE_VERSION",
     "TEST_SEED_START",
     "BagSet",
     "ConcatSource",
@@ -58,9 +59,19 @@ class FrameSource(Protocol):
     def __getitem__(self, index: int) -> tuple[Frame, np.ndarray]: ...
 
 
+# What ``roadbev_core.synth.make_sample`` renders for a seed. Bump it with any change to the
+# generator's output (tests/roadbev_core/test_synth_drive.py pins a fingerprint of one seed and
+# says so when it moves): caches of an older generator then sit in another folder instead of
+# being read as if they were current.
+SCENE_VERSION = 1
+
+
 def _cache_folder(root: Path, camera: StereoCamera, grid: GridSpec) -> Path:
-    """A sub-folder per (camera, grid): a cache never mixes scenes of different rigs or grids."""
+    """A sub-folder per (generator version, camera, grid): a cache never mixes scenes of
+    different generators, rigs or grids."""
     key = json.dumps({"camera": camera.to_dict(), "grid": grid.to_dict()}, sort_keys=True)
+    if SCENE_VERSION != 1:  # version 1 keeps the folder names of the caches written before it
+        key += f"/scenes-v{SCENE_VERSION}"
     return root / f"synth-{hashlib.sha1(key.encode()).hexdigest()[:10]}"
 
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+import roadbev_core.datasets as datasets
 import roadbev_core.synth as synth
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.datasets import ConcatSource, DatasetError, ModelInputs, SyntheticSet, collate
@@ -69,3 +70,16 @@ def test_evaluation_bags_feed_the_models() -> None:
     item = ModelInputs(source, model_config("tiny", "mono"), source.grid)[0]
     assert item["left"].shape == (3, 128, 224) and "right" not in item and "grey" not in item
     assert torch.isfinite(item["elevation"]).float().mean() > 0.5
+
+
+def test_scenes_of_another_generator_version_are_not_read(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    SyntheticSet(tmp_path, [100_012], camera=CAMERA, grid=GRID)
+
+    def no_render(*args: object, **kwargs: object) -> None:
+        raise AssertionError("rendered again")
+
+    monkeypatch.setattr(synth, "make_sample", no_render)
+    assert SyntheticSet(tmp_path, [100_012], camera=CAMERA, grid=GRID).render_missing() == 0
+    monkeypatch.setattr(datasets, "SCENE_VERSION", datasets.SCENE_VERSION + 1)
+    with pytest.raises(AssertionError, match="rendered again"):
+        SyntheticSet(tmp_path, [100_012], camera=CAMERA, grid=GRID)

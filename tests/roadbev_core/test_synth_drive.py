@@ -290,3 +290,17 @@ def test_accelerometer_reports_the_trajectory_plus_gravity() -> None:
     np.testing.assert_allclose(force[:, 0], ax, atol=1e-3)
     np.testing.assert_allclose(force[:, 2], az + 9.80665, atol=1e-3)
     assert 0.9 < path["speed"].mean() / 5.0 < 1.1 and path["speed"].std() > 0.01  # speed drifts
+
+
+def test_a_seed_renders_the_scene_the_caches_hold() -> None:
+    """A fingerprint of one seed. When the generator changes on purpose, bump
+    ``roadbev_core.datasets.SCENE_VERSION`` (scene caches of the old generator are then not read)
+    and put the new values here."""
+    sample = make_sample(100_000, camera=SMALL)
+    elevation = sample.truth.elevation
+    assert int(np.isfinite(elevation).sum()) == 10_496
+    fingerprint = (float(np.nanmean(elevation)), float(np.nanstd(elevation)),
+                   float(sample.frame.left.mean()), float(sample.frame.right.mean()),
+                   sample.frame.attitude.roll, sample.frame.attitude.pitch)
+    expected = (-0.0245085, 0.0615136, 125.05898, 121.98169, -0.00138201, 0.32167007)
+    assert fingerprint == pytest.approx(expected, rel=1e-5, abs=1e-7), "the generator changed: bump SCENE_VERSION"
