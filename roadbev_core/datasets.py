@@ -62,7 +62,8 @@ class FrameSource(Protocol):
 # What ``roadbev_core.synth.make_sample`` renders for a seed. Bump it with any change to the
 # generator's output (tests/roadbev_core/test_synth_drive.py pins a fingerprint of one seed and
 # says so when it moves): caches of an older generator then sit in another folder instead of
-# being read as if they were current.
+# being read as if they were current. (The demo's one cached bag hashes the generator's source
+# instead; a training cache holds thousands of scenes that an edited comment should not re-render.)
 SCENE_VERSION = 1
 
 
