@@ -25,6 +25,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from roadbev_core.errors import RoadbevError
+
 __all__ = [
     "MessageError",
     "MessageFactory",
@@ -37,7 +39,7 @@ __all__ = [
 ]
 
 
-class MessageError(ValueError):
+class MessageError(RoadbevError, ValueError):
     """A ROS message that cannot be converted; the text says which field is wrong and why."""
 
 

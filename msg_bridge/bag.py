@@ -29,6 +29,7 @@ from types import TracebackType
 from typing import Any, NamedTuple
 
 from msg_bridge._common import MessageError
+from roadbev_core.errors import RoadbevError
 
 __all__ = [
     "CUSTOM_PACKAGES",
@@ -47,7 +48,7 @@ CUSTOM_PACKAGES = ("grid_map_msgs", "roadbev_msgs")
 COMPRESSIONS = ("zstd", "none")
 
 
-class BagError(ValueError):
+class BagError(RoadbevError, ValueError):
     """A bag that cannot be read or written; names the file and what went wrong."""
 
 

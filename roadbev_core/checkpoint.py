@@ -14,6 +14,7 @@ from typing import Any
 import torch
 
 from roadbev_core.config import ConfigError, GridSpec
+from roadbev_core.errors import RoadbevError
 from roadbev_core.models.presets import ModelConfig
 from roadbev_core.models.roadbev import RoadBEV
 
@@ -22,7 +23,7 @@ __all__ = ["FORMAT", "CheckpointError", "load_model", "read_checkpoint", "save_c
 FORMAT = "roadbev-checkpoint/1"
 
 
-class CheckpointError(ValueError):
+class CheckpointError(RoadbevError, ValueError):
     """A checkpoint that is missing, unreadable, or does not fit the requested model."""
 
 

@@ -18,12 +18,14 @@ from typing import Any
 
 import numpy as np
 
+from roadbev_core.errors import RoadbevError
+
 __all__ = ["GRID_PRESETS", "ConfigError", "GridSpec", "StereoCamera", "grid_preset"]
 
 _EPS = 1e-6
 
 
-class ConfigError(ValueError):
+class ConfigError(RoadbevError, ValueError):
     """A grid, rig or model configuration that cannot work, with the reason."""
 
 

@@ -25,6 +25,7 @@ import torch
 from torch.utils.data import Dataset
 
 from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Frame
 from roadbev_core.geometry import Attitude
 from roadbev_core.models.presets import ModelConfig
@@ -45,7 +46,7 @@ __all__ = [
 TEST_SEED_START = 100_000  # synthetic test scenes use seeds >= this; training seeds stay below
 
 
-class DatasetError(ValueError):
+class DatasetError(RoadbevError, ValueError):
     """A data source that cannot be read or does not fit the model's grid."""
 
 

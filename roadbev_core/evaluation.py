@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from roadbev_core.backends import Backend
+from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Estimate, Frame
 from roadbev_core.metrics import MetricAccumulator
 
@@ -64,7 +65,7 @@ STAGE_GROUPS: dict[str, tuple[str, ...]] = {
 }
 
 
-class EvaluationError(ValueError):
+class EvaluationError(RoadbevError, ValueError):
     """Samples that cannot be evaluated (none at all, or truth on another grid)."""
 
 

@@ -17,13 +17,14 @@ import numpy as np
 from matplotlib.collections import LineCollection
 
 from roadbev_core.config import GridSpec
+from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Frame
 from roadbev_core.geometry import project_points, road_to_camera
 
 __all__ = ["FigureError", "elevation_figure", "voxel_column_segments", "voxel_columns_figure"]
 
 
-class FigureError(ValueError):
+class FigureError(RoadbevError, ValueError):
     """Input a figure cannot be drawn from."""
 
 

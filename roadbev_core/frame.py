@@ -7,12 +7,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.errors import RoadbevError
 from roadbev_core.geometry import Attitude
 
 __all__ = ["Estimate", "Frame", "FrameError"]
 
 
-class FrameError(ValueError):
+class FrameError(RoadbevError, ValueError):
     """A frame whose images or calibration cannot be processed."""
 
 

@@ -23,6 +23,7 @@ from typing import NamedTuple
 import numpy as np
 
 from roadbev_core.config import ConfigError, GridSpec, StereoCamera
+from roadbev_core.errors import RoadbevError
 
 __all__ = [
     "R_BODY_FROM_OPTICAL",
@@ -43,7 +44,7 @@ __all__ = [
 ]
 
 
-class GeometryError(ValueError):
+class GeometryError(RoadbevError, ValueError):
     """An attitude, quaternion or projection input that makes no geometric sense."""
 
 

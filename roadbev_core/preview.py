@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from roadbev_core.config import GridSpec
+from roadbev_core.errors import RoadbevError
 
 __all__ = [
     "DEFAULT_TRACK_NAMES",
@@ -39,7 +40,7 @@ DEFAULT_TRACK_OFFSETS_M: tuple[float, ...] = (0.8, -0.8)
 DEFAULT_TRACK_NAMES: tuple[str, ...] = ("left", "right")
 
 
-class PreviewError(ValueError):
+class PreviewError(RoadbevError, ValueError):
     """Preview settings or inputs that cannot give a profile (track off the grid, bad spacing)."""
 
 

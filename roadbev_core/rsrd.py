@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 from roadbev_core.config import RSRD_CROP_TOP, GridSpec, StereoCamera
+from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Frame
 from roadbev_core.geometry import Attitude, rsrd_camera_attitude
 from roadbev_core.labels import elevation_map_from_camera
@@ -53,7 +54,7 @@ _PCD_TYPES = {("F", 4): "<f4", ("F", 8): "<f8", ("I", 1): "<i1", ("I", 2): "<i2"
               ("I", 8): "<i8", ("U", 1): "<u1", ("U", 2): "<u2", ("U", 4): "<u4", ("U", 8): "<u8"}
 
 
-class RsrdError(ValueError):
+class RsrdError(RoadbevError, ValueError):
     """An RSRD file that is missing, malformed or inconsistent with the others."""
 
 

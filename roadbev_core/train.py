@@ -26,6 +26,7 @@ from torch import nn
 from roadbev_core.checkpoint import read_checkpoint, save_checkpoint
 from roadbev_core.config import GridSpec
 from roadbev_core.datasets import FrameSource, ModelInputs, collate
+from roadbev_core.errors import RoadbevError
 from roadbev_core.models.efficientnet import load_imagenet_weights
 from roadbev_core.models.loss import class_targets, masked_cross_entropy, soft_argmin
 from roadbev_core.models.presets import ModelConfig
@@ -36,7 +37,7 @@ __all__ = ["DEFAULT_LR", "CpuSyncBatchNorm", "TrainConfig", "TrainError", "Train
 DEFAULT_LR = {"mono": 8e-4, "stereo": 5e-4}
 
 
-class TrainError(RuntimeError):
+class TrainError(RoadbevError, RuntimeError):
     """Training cannot start or continue (bad settings, incompatible resume checkpoint)."""
 
 

@@ -13,6 +13,8 @@ import importlib
 import sys
 from collections.abc import Sequence
 
+from roadbev_core.errors import RoadbevError
+
 __all__ = ["COMMANDS", "main"]
 
 # name -> one-line help (the module docstring says more)
@@ -29,7 +31,7 @@ COMMANDS: dict[str, str] = {
 }
 
 
-class CommandError(Exception):
+class CommandError(RoadbevError):
     """A command refused its input; the message is the one-line reason shown to the user."""
 
 

@@ -17,6 +17,8 @@ from collections.abc import Mapping, MutableMapping
 from pathlib import Path
 from typing import Any
 
+from roadbev_core.errors import RoadbevError
+
 __all__ = [
     "PROFILE_ENV_VARS",
     "DdsError",
@@ -31,7 +33,7 @@ PROFILE_ENV_VARS: tuple[str, ...] = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_
 PROFILE_NAME = "fastdds.xml"
 
 
-class DdsError(RuntimeError):
+class DdsError(RoadbevError, RuntimeError):
     """The shipped DDS profile cannot be found."""
 
 

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from roadbev_core.errors import RoadbevError
 from roadbev_ros.report import FrameView, ReportData, RunSummary, TimingTrace, TrackProfile, write_report
 
 __all__ = [
@@ -55,7 +56,7 @@ PREVIEW_TOPIC = "/roadbev/preview"
 _RECIPE_VERSION = 1
 
 
-class DemoError(RuntimeError):
+class DemoError(RoadbevError, RuntimeError):
     """A demo stage failed; the message is the one-line reason."""
 
 

@@ -34,6 +34,7 @@ import numpy as np
 from msg_bridge import bag
 from msg_bridge.evalbag import read_eval_bag
 from msg_bridge.grid_map import grid_map_to_arrays
+from roadbev_core.errors import RoadbevError
 from roadbev_core.metrics import MetricAccumulator
 from roadbev_ros.dds import child_env, init_ros
 from roadbev_ros.replay import header_stamp_ns, replay_bag
@@ -45,7 +46,7 @@ ELEVATION_TOPIC = "/roadbev/elevation"
 OUTPUT_TOPICS = (ELEVATION_TOPIC, "/roadbev/preview", "/diagnostics")
 
 
-class OnlineEvalError(RuntimeError):
+class OnlineEvalError(RoadbevError, RuntimeError):
     """The online evaluation could not run (node did not start, no ground truth...)."""
 
 

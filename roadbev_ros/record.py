@@ -17,12 +17,13 @@ from pathlib import Path
 from typing import Any
 
 from msg_bridge.bag import BagWriter
+from roadbev_core.errors import RoadbevError
 from roadbev_ros.dds import DdsError, message_class
 
 __all__ = ["RecordError", "Recorder"]
 
 
-class RecordError(RuntimeError):
+class RecordError(RoadbevError, RuntimeError):
     """A recording that cannot start (output exists, no topics)."""
 
 

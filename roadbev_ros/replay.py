@@ -23,12 +23,13 @@ from queue import Empty, Full, Queue
 from typing import Any
 
 from msg_bridge import bag
+from roadbev_core.errors import RoadbevError
 from roadbev_ros.dds import DdsError, message_class
 
 __all__ = ["ReplayError", "ReplayStats", "header_stamp_ns", "replay_bag", "restamp_cdr", "starts_with_header"]
 
 
-class ReplayError(RuntimeError):
+class ReplayError(RoadbevError, RuntimeError):
     """A bag that cannot be replayed (missing, unreadable, no publishable topic)."""
 
 

@@ -40,6 +40,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 from matplotlib import colors as mcolors
 
+from roadbev_core.errors import RoadbevError
+
 __all__ = [
     "FIGURE_NAMES",
     "FrameView",
@@ -65,7 +67,7 @@ _RESIDUAL_CMAP = "RdBu_r"
 _NO_DATA_COLOUR = "#d9d9d9"
 
 
-class ReportError(ValueError):
+class ReportError(RoadbevError, ValueError):
     """Report input that cannot be drawn (no frames, mismatched shapes), with the reason."""
 
 

@@ -30,10 +30,12 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from roadbev_core.errors import RoadbevError
+
 __all__ = ["ApproximateTimeSync", "DropReason", "SyncError"]
 
 
-class SyncError(ValueError):
+class SyncError(RoadbevError, ValueError):
     """A synchroniser configuration or message that cannot be used."""
 
 

@@ -12,12 +12,13 @@ from collections.abc import Callable
 from typing import Any, Protocol, runtime_checkable
 
 from roadbev_core.config import GridSpec
+from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Estimate, Frame
 
 __all__ = ["Backend", "BackendError", "available", "create", "register"]
 
 
-class BackendError(RuntimeError):
+class BackendError(RoadbevError, RuntimeError):
     """A backend that cannot be created (unknown name, missing checkpoint, bad option)."""
 
 

@@ -23,6 +23,8 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from roadbev_core.errors import RoadbevError
+
 __all__ = [
     "SCALING",
     "ConvBnAct",
@@ -37,7 +39,7 @@ __all__ = [
 ]
 
 
-class WeightLoadError(ValueError):
+class WeightLoadError(RoadbevError, ValueError):
     """A pretrained-weights file that does not fit the backbone (missing keys, wrong shapes)."""
 
 

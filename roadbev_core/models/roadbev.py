@@ -24,6 +24,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.errors import RoadbevError
 from roadbev_core.geometry import Attitude
 from roadbev_core.models.efficientnet import EfficientNetFeatures, input_normalisation
 from roadbev_core.models.fpn import PyramidFusion
@@ -35,7 +36,7 @@ from roadbev_core.models.voxel_query import batch_lookup, query_voxels, window_z
 __all__ = ["ModelInputError", "Prediction", "RoadBEV", "needs_full_grey", "prepare_grey", "prepare_image"]
 
 
-class ModelInputError(ValueError):
+class ModelInputError(RoadbevError, ValueError):
     """Images or calibration that do not fit the model (size, missing right image)."""
 
 

@@ -24,6 +24,8 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from roadbev_core.errors import RoadbevError
+
 __all__ = [
     "FEATURE_NAMES",
     "ISO8608_GD0",
@@ -45,7 +47,7 @@ __all__ = [
 ]
 
 
-class SynthError(ValueError):
+class SynthError(RoadbevError, ValueError):
     """A synthetic-data configuration or request that cannot be honoured, with the reason."""
 
 
