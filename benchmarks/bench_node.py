@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.common import RESULTS, available_backends, machine_info, write_json
-from roadbev_ros.params import parse_assignments
+from roadbev_core.config import parse_assignments
 
 REPO = Path(__file__).resolve().parents[1]
 CACHE = REPO / ".cache"
@@ -108,20 +108,22 @@ def run_one(
 def pipeline_overhead(scale: float, repeats: int = 30) -> dict[str, float]:
     """The node's own per-frame work, single-threaded and without DDS or contention.
 
-    Times :func:`roadbev_ros.node.images_from_messages` (image and CameraInfo conversion), the
-    Frame, and :func:`roadbev_ros.node.output_messages` (preview profiles, GridMap and
+    Times :func:`msg_bridge.pipeline_io.camera_input` (image and CameraInfo conversion), the
+    Frame, the preview profiles and :func:`msg_bridge.pipeline_io.output_messages` (GridMap and
     RoadPreview messages; the PointCloud2 apart, it is only built for a listening viewer) on
     messages of the benchmark's image size and the default grid.
     """
     import numpy as np
 
-    from msg_bridge._common import RclpyFactory
+    from msg_bridge import RclpyFactory
     from msg_bridge.camera_info import camera_info_from_stereo
     from msg_bridge.image import array_to_image
-    from roadbev_core.config import StereoCamera
+    from msg_bridge.pipeline_io import camera_input, output_messages
+    from roadbev_core.config import RoadbevConfig, StereoCamera
     from roadbev_core.frame import Estimate, Frame
     from roadbev_core.geometry import Attitude
-    from roadbev_ros.node import NodeConfig, images_from_messages, output_messages
+    from roadbev_core.pipeline import PipelineOutput
+    from roadbev_core.preview import wheel_track_profiles
 
     camera = StereoCamera.rsrd_half()
     if scale != 1.0:
@@ -135,18 +137,24 @@ def pipeline_overhead(scale: float, repeats: int = 30) -> dict[str, float]:
         camera_info_from_stereo(camera, factory, stamp_ns=1),
         camera_info_from_stereo(camera, factory, right=True, stamp_ns=1),
     )
-    config = NodeConfig.from_values({})
+    config = RoadbevConfig()
+    p = config.preview
     elevation = rng.normal(0.0, 0.02, config.grid.shape).astype(np.float32)
     estimate = Estimate(elevation, np.full_like(elevation, 0.01))
     times: dict[str, list[float]] = {"inputs_ms": [], "outputs_ms": [], "points_ms": []}
     for _ in range(repeats + 1):
         t0 = time.perf_counter()
-        images = images_from_messages(msgs, "raw")
-        Frame(images.left, images.right, images.camera, Attitude(), images.stamp_ns)
+        inputs = camera_input(msgs, "raw")
+        frame = Frame(inputs.left, inputs.right, inputs.camera, Attitude(), inputs.stamp_ns)
         t1 = time.perf_counter()
-        output_messages(estimate, config, images.stamp_ns, 5.0, with_points=False)
+        preview = wheel_track_profiles(
+            estimate.elevation, estimate.uncertainty, config.grid, track_offsets_m=p.track_offsets_m,
+            tyre_width_m=p.tyre_width_m, spacing_m=p.spacing_m, vehicle_speed=5.0,
+        )
+        output = PipelineOutput(frame, estimate, preview)
+        output_messages(output, config, factory, with_points=False)
         t2 = time.perf_counter()
-        output_messages(estimate, config, images.stamp_ns, 5.0, with_points=True)
+        output_messages(output, config, factory, with_points=True)
         t3 = time.perf_counter()
         times["inputs_ms"].append((t1 - t0) * 1e3)
         times["outputs_ms"].append((t2 - t1) * 1e3)

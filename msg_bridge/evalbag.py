@@ -21,8 +21,10 @@ topic                                  type                            per
 a pure function of the drive (byte-identical when regenerated).
 
 :func:`read_eval_bag` reads such bags and bags from elsewhere: it pairs left/right images and
-CameraInfos by exact stamp, interpolates the IMU attitude to the image stamp (slerp), and takes
-the horizontal grid from the ground-truth GridMap's ``info``. ``base_height`` and the vertical
+CameraInfos by exact stamp, collects the IMU orientations (the attitude at an image stamp is
+:class:`roadbev_core.attitude.ImuBuffer`'s, as in the node: :func:`roadbev_core.pipeline.replay`
+feeds them to the pipeline in time order), and takes the horizontal grid from the ground-truth
+GridMap's ``info``. ``base_height`` and the vertical
 fields come from the parameters, else from ``/roadbev/grid_config``, else the contract defaults.
 """
 
@@ -42,15 +44,18 @@ from msg_bridge.bag import BagError, BagWriter, bag_topics, read_messages, types
 from msg_bridge.camera_info import camera_info_from_stereo, stereo_camera_from_camera_info
 from msg_bridge.grid_map import ROAD_FRAME, grid_map_message, grid_map_to_arrays
 from msg_bridge.image import array_to_compressed, array_to_image, compressed_to_rgb, image_to_rgb
-from msg_bridge.imu import imu_message, imu_orientation, interpolate_orientation
+from msg_bridge.imu import imu_message, imu_orientation
+from roadbev_core.attitude import ImuBuffer, ImuSample, ImuStale
 from roadbev_core.config import ConfigError, GridSpec, StereoCamera
 from roadbev_core.frame import Frame
-from roadbev_core.geometry import Attitude, GeometryError, attitude_from_quaternion
+from roadbev_core.pipeline import CameraInput
 
 __all__ = [
     "DEFAULT_TOPICS",
     "EvalBag",
     "EvalSample",
+    "LabelledFrame",
+    "bag_frames",
     "read_eval_bag",
     "write_eval_bag",
 ]
@@ -192,7 +197,14 @@ def write_eval_bag(
 
 
 class EvalSample(NamedTuple):
-    """One frame of an evaluation bag and its ground truth ([n_rows, n_cols] metres or None)."""
+    """One camera set of an evaluation bag and its ground truth ([n_rows, n_cols] metres or None)."""
+
+    inputs: CameraInput
+    truth: np.ndarray | None
+
+
+class LabelledFrame(NamedTuple):
+    """A frame with its attitude and its ground truth (training data)."""
 
     frame: Frame
     truth: np.ndarray | None
@@ -201,19 +213,19 @@ class EvalSample(NamedTuple):
 class _FrameIndex(NamedTuple):
     stamp_ns: int
     camera: StereoCamera
-    attitude: Attitude
 
 
 class EvalBag:
-    """An evaluation bag, indexed: ``len(bag)`` frames, iterating :class:`EvalSample`.
+    """An evaluation bag, indexed: ``len(bag)`` camera sets, iterating :class:`EvalSample`.
 
     Attributes:
         path: the bag.
         grid: the evaluation grid (horizontal from the ground truth's info).
         camera: the rig of the first frame.
         stereo: whether the bag has right images.
+        imu: the IMU orientations in stamp order (for :func:`roadbev_core.pipeline.replay`).
         topics: parameter name -> topic actually read (image topics with ``/compressed``).
-        skipped: reason -> number of left images that could not become frames.
+        skipped: reason -> number of left images that could not become camera sets.
         notes: remarks on how the bag was interpreted.
     """
 
@@ -223,6 +235,7 @@ class EvalBag:
         grid: GridSpec,
         frames: list[_FrameIndex],
         truths: dict[int, np.ndarray],
+        imu: list[ImuSample],
         topics: dict[str, str],
         compressed: bool,
         stereo: bool,
@@ -233,6 +246,7 @@ class EvalBag:
         self.grid = grid
         self._frames = frames
         self._truths = truths
+        self.imu = imu
         self.topics = topics
         self.compressed = compressed
         self.stereo = stereo
@@ -267,15 +281,28 @@ class EvalBag:
             if len(images) < len(wanted):
                 continue
             del pending[stamp]
-            index = by_stamp[stamp]
-            frame = Frame(
+            inputs = CameraInput(
                 left=images[left_topic],
                 right=images.get(right_topic) if self.stereo else None,
-                camera=index.camera,
-                attitude=index.attitude,
+                camera=by_stamp[stamp].camera,
                 stamp_ns=stamp,
             )
-            yield EvalSample(frame, self._truths.get(stamp))
+            yield EvalSample(inputs, self._truths.get(stamp))
+
+    def labelled_frames(self, buffer: ImuBuffer) -> Iterator[LabelledFrame]:
+        """Frames with their attitude from ``buffer``'s rules (filled with every IMU sample of the
+        bag; its horizon should be ``math.inf``), for readers that need whole frames (training).
+        Frames without a trustworthy attitude are left out and counted in ``skipped``."""
+        for sample in self.imu:
+            buffer.add(sample.stamp_ns, sample.orientation_xyzw)
+        for inputs, truth in self:
+            try:
+                attitude = buffer.attitude_at(inputs.stamp_ns)
+            except ImuStale as exc:
+                reason = f"no IMU attitude ({exc})"
+                self.skipped[reason] = self.skipped.get(reason, 0) + 1
+                continue
+            yield LabelledFrame(Frame(inputs.left, inputs.right, inputs.camera, attitude, inputs.stamp_ns), truth)
 
 
 def _grid_params(params: Mapping[str, Any]) -> dict[str, float]:
@@ -288,8 +315,7 @@ class _Collected(NamedTuple):
     right: set[int]
     left_info: dict[int, Any]
     right_info: dict[int, Any]
-    imu_stamps: np.ndarray
-    imu_quats: np.ndarray
+    imu: list[ImuSample]
     truths: dict[int, Any]
     grid_config: dict[str, Any] | None
     bad_imu: int
@@ -332,9 +358,8 @@ def _collect(path: Path, topics: dict[str, str]) -> _Collected:
         elif topic == topics["ground_truth_topic"]:
             truths[stamp] = msg
     imu.sort(key=lambda s: s[0])
-    stamps = np.array([s for s, _ in imu], dtype=np.int64)
-    quats = np.array([q for _, q in imu], dtype=np.float64).reshape(-1, 4)
-    return _Collected(left, right, left_info, right_info, stamps, quats, truths, grid_config, bad_imu)
+    samples = [ImuSample(stamp, (float(q[0]), float(q[1]), float(q[2]), float(q[3]))) for stamp, q in imu]
+    return _Collected(left, right, left_info, right_info, samples, truths, grid_config, bad_imu)
 
 
 def _info_at(infos: dict[int, Any], stamp: int) -> Any | None:
@@ -352,11 +377,10 @@ def read_eval_bag(path: str | os.PathLike[str], params: Mapping[str, Any] | None
 
     Args:
         path: a rosbag2 directory or an ``.mcap`` file.
-        params: roadbev node parameters (``roadbev_ros.params.load_params_file``): grid fields
-            (``base_height``, ``z_min``...; horizontal ones only where the bag has no ground
-            truth), topic names (``left_image_topic``..., ``ground_truth_topic``),
-            ``image_transport`` (preferred when both exist), ``imu_to_camera_rpy_deg`` and
-            ``imu_max_age_s`` (how far beyond the IMU's time span a frame may lie; 0.1 s).
+        params: the node parameters the user gave (validated, e.g. from
+            :func:`roadbev_core.config.load_params_file`): grid fields (``base_height``,
+            ``z_min``...; horizontal ones only where the bag has no ground truth), topic names
+            (``left_image_topic``...) and ``image_transport`` (preferred when both exist).
 
     Raises:
         BagError: unreadable bag, no left images or CameraInfo, ground-truth maps on
@@ -420,12 +444,9 @@ def read_eval_bag(path: str | os.PathLike[str], params: Mapping[str, Any] | None
             raise BagError(f"{path}: the grid parameters are invalid: {exc}") from None
         notes.append("no ground truth in the bag: samples carry truth=None")
 
-    rpy = tuple(float(v) for v in params.get("imu_to_camera_rpy_deg", (0.0, 0.0, 0.0)))
-    max_age_ns = int(float(params.get("imu_max_age_s", 0.1)) * 1e9)
     skipped: dict[str, int] = {}
     frames: list[_FrameIndex] = []
     cameras: dict[tuple[int, int], StereoCamera] = {}
-    stamps_imu, quats = collected.imu_stamps, collected.imu_quats
 
     def skip(reason: str) -> None:
         skipped[reason] = skipped.get(reason, 0) + 1
@@ -445,26 +466,30 @@ def read_eval_bag(path: str | os.PathLike[str], params: Mapping[str, Any] | None
                 cameras[key] = stereo_camera_from_camera_info(left_info, right_info)
             except MessageError as exc:
                 raise BagError(f"{path}: CameraInfo for the frame at {stamp} ns: {exc}") from None
-        if stamps_imu.size == 0:
-            skip("no IMU orientation")
-            continue
-        i = int(np.searchsorted(stamps_imu, stamp))
-        if i == 0 or i == stamps_imu.size:
-            nearest = 0 if i == 0 else stamps_imu.size - 1
-            if abs(int(stamps_imu[nearest]) - stamp) > max_age_ns:
-                skip("outside the IMU's time span")
-                continue
-            q = quats[nearest]
-        else:
-            q = interpolate_orientation(
-                int(stamps_imu[i - 1]), quats[i - 1], int(stamps_imu[i]), quats[i], stamp
-            )
-        try:
-            attitude = attitude_from_quaternion(*(float(v) for v in q), imu_to_camera_rpy_deg=rpy)
-        except GeometryError:
-            skip("IMU attitude unusable")
-            continue
-        frames.append(_FrameIndex(stamp, cameras[key], attitude))
+        frames.append(_FrameIndex(stamp, cameras[key]))
     if not frames:
         raise BagError(f"{path}: no usable frames ({skipped or 'no left images'})")
-    return EvalBag(path, grid, frames, truths, topics, compressed, stereo, skipped, notes)
+    if not collected.imu:
+        notes.append("no IMU orientation in the bag: every frame needs require_imu false and a default attitude")
+    return EvalBag(path, grid, frames, truths, collected.imu, topics, compressed, stereo, skipped, notes)
+
+
+def bag_frames(
+    path: str | os.PathLike[str], params: Mapping[str, Any] | None = None
+) -> tuple[GridSpec, list[LabelledFrame]]:
+    """The grid and the labelled frames of an evaluation bag, each with its attitude from the IMU
+    under the one attitude rule set (:class:`roadbev_core.attitude.ImuBuffer`, whole history).
+
+    Args:
+        params: as :func:`read_eval_bag`; ``imu_max_age_s`` and ``imu_to_camera_rpy_deg`` as the
+            node reads them.
+    """
+    import math
+
+    from roadbev_core.config import RoadbevConfig
+
+    bag = read_eval_bag(path, params)
+    imu = RoadbevConfig.from_params({k: v for k, v in (params or {}).items() if k.startswith("imu_")}).imu
+    buffer = ImuBuffer(max_age_s=imu.max_age_s, max_gap_s=imu.max_age_s, horizon_s=math.inf,
+                       imu_to_camera_rpy_deg=imu.imu_to_camera_rpy_deg)
+    return bag.grid, list(bag.labelled_frames(buffer))

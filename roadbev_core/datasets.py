@@ -5,7 +5,8 @@ metres on the source's grid (NaN = no label):
 
 * :class:`SyntheticSet`: random synthetic scenes (``roadbev_core.synth.make_sample``), rendered
   once per seed and cached to disk as ``.npz`` (rendering costs up to ~1 s a frame);
-* :class:`BagSet`: the frames of an MCAP evaluation bag (contract, ``msg_bridge.evalbag``);
+* :class:`LabelledFrames`: frames already decoded, e.g. an evaluation bag's
+  (``msg_bridge.evalbag.bag_frames``);
 * :class:`roadbev_core.rsrd.RsrdSet`: the real RSRD layout.
 
 :class:`ModelInputs` turns any of them into tensors at a model's input size and :func:`collate`
@@ -34,10 +35,10 @@ from roadbev_core.models.roadbev import needs_full_grey, prepare_grey, prepare_i
 __all__ = [
     "SCENE_VERSION",
     "TEST_SEED_START",
-    "BagSet",
     "ConcatSource",
     "DatasetError",
     "FrameSource",
+    "LabelledFrames",
     "ModelInputs",
     "SyntheticSet",
     "collate",
@@ -148,18 +149,21 @@ class SyntheticSet:
         return frame, truth
 
 
-class BagSet:
-    """The labelled frames of an evaluation bag (rosbag2 MCAP, contract), held in memory."""
+class LabelledFrames:
+    """Decoded frames with labels, held in memory (for example an evaluation bag's, read by
+    :func:`msg_bridge.evalbag.bag_frames`: roadbev_core reads no bags itself).
 
-    def __init__(self, path: str | Path, params: dict[str, Any] | None = None) -> None:
-        # Imported lazily: the bag reader pulls in rosbags.
-        from msg_bridge.evalbag import read_eval_bag
+    Raises:
+        DatasetError: no frame has a label.
+    """
 
-        bag = read_eval_bag(path, params)
-        self.grid: GridSpec = bag.grid
-        self.samples = [(s.frame, s.truth) for s in bag if s.truth is not None]
+    def __init__(
+        self, grid: GridSpec, samples: Iterable[tuple[Frame, np.ndarray | None]], what: str = "frames"
+    ) -> None:
+        self.grid = grid
+        self.samples = [(frame, truth) for frame, truth in samples if truth is not None]
         if not self.samples:
-            raise DatasetError(f"bag {path} has no frames with /ground_truth/elevation")
+            raise DatasetError(f"{what}: no frame has ground truth")
 
     def __len__(self) -> int:
         return len(self.samples)

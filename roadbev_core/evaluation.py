@@ -1,9 +1,11 @@
-"""Run a backend over frames with ground truth and report the paper's metrics and the timing.
+"""Run the pipeline over frames with ground truth and report the paper's metrics and the timing.
 
 Shared by ``roadbev eval``, the demo and the benchmarks, so a number in one is the number in
-all. Accuracy comes from :class:`roadbev_core.metrics.MetricAccumulator` (labelled cells only; a
-labelled cell without an estimate lowers ``coverage_pct`` and never counts as zero error). Time
-is wall time on this machine:
+all: every frame goes through :class:`roadbev_core.pipeline.Pipeline` (recorded IMU samples
+through :class:`roadbev_core.pipeline.ImuFeed`, the node's attitude path). Accuracy comes from
+:class:`roadbev_core.metrics.MetricAccumulator` (labelled cells only; a labelled cell without an
+estimate lowers ``coverage_pct`` and never counts as zero error). Time is wall time on this
+machine:
 
 * ``decode``: getting the next sample from the iterable (reading and decoding a bag's messages)
   plus the backend's own image preparation (``preprocess``: colour conversion, tensors);
@@ -11,7 +13,7 @@ is wall time on this machine:
 * ``cost_network``: sampling, matching costs, aggregation, or the network;
 * ``post``: decisions, reprojection, binning, uncertainty.
 
-``fps`` is frames per second of the whole pipeline (decode + estimate). The first frame is a
+``fps`` is frames per second of the whole pipeline (decode + attitude + estimate + preview). The first frame is a
 warm-up (lazy initialisation, allocator growth): when more than one frame runs, it counts for the
 accuracy but not for the timing.
 """
@@ -26,10 +28,13 @@ from typing import Any
 
 import numpy as np
 
+from roadbev_core.attitude import ImuSample
 from roadbev_core.backends import Backend
+from roadbev_core.config import RoadbevConfig
 from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Estimate, Frame
 from roadbev_core.metrics import MetricAccumulator
+from roadbev_core.pipeline import CameraInput, ImuFeed, Pipeline, PipelineOutput
 
 __all__ = [
     "CONTRACT_KEYS",
@@ -41,6 +46,7 @@ __all__ = [
     "format_table",
     "json_safe",
     "stage_group",
+    "to_json",
 ]
 
 # Keys every metrics dict carries (contract, "Command line": roadbev eval --json).
@@ -92,11 +98,16 @@ class EvalResult:
         per_frame: one dict per frame: ``stamp_ns``, ``abs_err_cm``, ``coverage_pct`` (NaN
             without truth), ``decode_ms``, ``estimate_ms``.
         estimates: the backend's estimates, in order (only with ``keep_estimates``).
+        outputs: the pipeline's outputs (estimate + preview), in order (only with ``keep_estimates``).
+        refused: reason -> frames the pipeline refused (no attitude, a malformed frame); they
+            count as missing for the metrics.
     """
 
     metrics: dict[str, Any]
     per_frame: list[dict[str, float]] = field(default_factory=list)
     estimates: list[Estimate] | None = None
+    outputs: list[PipelineOutput] | None = None
+    refused: dict[str, int] = field(default_factory=dict)
 
     def to_dict(self, *, per_frame: bool = False) -> dict[str, Any]:
         """JSON-able metrics (NaN becomes null), optionally with the per-frame records."""
@@ -117,6 +128,14 @@ def json_safe(value: Any) -> Any:
     if isinstance(value, np.integer):
         return int(value)
     return value
+
+
+def to_json(value: Any) -> str:
+    """Strict JSON text of a result (NaN/inf as null, numpy scalars as numbers), indented: the one
+    serialiser of every result the project writes."""
+    import json
+
+    return json.dumps(json_safe(value), indent=2, default=str) + "\n"
 
 
 def common_cell_errors(
@@ -148,59 +167,81 @@ def common_cell_errors(
     return cells, 100.0 * sum_first / cells, 100.0 * sum_second / cells
 
 
-def _unpack(sample: Any) -> tuple[Frame, np.ndarray | None]:
-    """(frame, truth [n_rows, n_cols] or None) from a (frame, truth) pair or an object with
-    ``.frame`` and ``.truth`` (an ``EvalSample`` or a synthetic ``DriveSample``, whose truth is
-    an ``ElevationLabel``)."""
-    if hasattr(sample, "frame") and hasattr(sample, "truth"):
-        frame, truth = sample.frame, sample.truth
+def _unpack(sample: Any) -> tuple[CameraInput, Frame | None, np.ndarray | None]:
+    """(camera set, frame when its attitude is known, truth [n_rows, n_cols] or None) of a sample:
+    a (frame or camera set, truth) pair or an object with ``.frame``/``.inputs`` and ``.truth`` (an
+    ``EvalSample``, a synthetic ``DriveSample`` whose truth is an ``ElevationLabel``)."""
+    if hasattr(sample, "truth") and (hasattr(sample, "frame") or hasattr(sample, "inputs")):
+        item, truth = getattr(sample, "frame", None) or sample.inputs, sample.truth
     else:
         try:
-            frame, truth = sample
+            item, truth = sample
         except (TypeError, ValueError):
             raise EvaluationError(
                 f"a sample must be (frame, truth) or have .frame and .truth, got {type(sample).__name__}"
             ) from None
-    if not isinstance(frame, Frame):
-        raise EvaluationError(f"sample frame must be a Frame, got {type(frame).__name__}")
+    if isinstance(item, Frame):
+        frame: Frame | None = item
+        inputs = CameraInput(item.left, item.right, item.camera, item.stamp_ns)
+    elif isinstance(item, CameraInput):
+        frame, inputs = None, item
+    else:
+        raise EvaluationError(f"sample frame must be a Frame or CameraInput, got {type(item).__name__}")
     if truth is not None and hasattr(truth, "elevation"):
         truth = truth.elevation
     if truth is not None:
         truth = np.asarray(truth, dtype=np.float32)
-    return frame, truth
+    return inputs, frame, truth
+
+
+def pipeline_for(backend: Backend, config: RoadbevConfig | None = None) -> Pipeline:
+    """A pipeline around an already built backend (benchmarks and tests that build their own),
+    with ``config``'s other settings (the defaults when None) and the backend's grid."""
+    from dataclasses import replace
+
+    base = config or RoadbevConfig()
+    config = replace(base, grid=backend.grid, backend=replace(base.backend, name=backend.name))
+    return Pipeline(config, backend_factory=lambda *_args, **_options: backend, configure_process=False)
 
 
 def evaluate(
-    backend: Backend,
+    runner: Pipeline | Backend,
     samples: Iterable[Any],
     *,
+    imu: Iterable[ImuSample] | None = None,
     progress: Callable[[int], Any] | None = None,
     keep_estimates: bool = False,
     max_frames: int | None = None,
 ) -> EvalResult:
-    """Run ``backend`` on every sample and measure accuracy and speed.
+    """Run the pipeline on every sample and measure accuracy and speed.
 
     Args:
-        backend: any registered backend (``estimate(frame) -> Estimate`` on ``backend.grid``).
-        samples: (frame, truth) pairs or objects with ``.frame``/``.truth``; truth is
-            [n_rows, n_cols] metres with NaN = no label (or an ``ElevationLabel``, or None for a
-            frame without ground truth: it is timed but not scored).
+        runner: a :class:`Pipeline`, or a backend (wrapped by :func:`pipeline_for`).
+        samples: (frame or camera set, truth) pairs or objects with ``.frame``/``.inputs`` and
+            ``.truth``; truth is [n_rows, n_cols] metres with NaN = no label (or an
+            ``ElevationLabel``, or None for a frame without ground truth: it is timed but not
+            scored). A :class:`Frame` carries its attitude; a :class:`CameraInput` takes it from
+            ``imu``.
+        imu: IMU samples in stamp order, fed to the pipeline in time order with the frames.
         progress: called with 1 after each frame (e.g. ``tqdm.update``).
-        keep_estimates: keep every :class:`Estimate` in the result (memory!).
+        keep_estimates: keep every :class:`Estimate` and output in the result (memory!).
         max_frames: stop after this many frames (None = all).
 
     Returns:
         An :class:`EvalResult`.
 
     Raises:
-        EvaluationError: no samples, or truth/estimates not on the backend's grid.
+        EvaluationError: no samples, or truth/estimates not on the pipeline's grid.
     """
     if max_frames is not None and max_frames < 1:
         raise EvaluationError(f"max_frames must be >= 1, got {max_frames}")
-    grid = backend.grid
+    pipeline = runner if isinstance(runner, Pipeline) else pipeline_for(runner)
+    grid = pipeline.config.grid
+    feed = ImuFeed(imu or ())
     accumulator = MetricAccumulator(grid)
     per_frame: list[dict[str, float]] = []
-    estimates: list[Estimate] = []
+    outputs: list[PipelineOutput] = []
+    refused: dict[str, int] = {}
     calibration = np.zeros(3, np.int64)  # cells with a finite uncertainty; of those, |err| <= 1 sigma, <= 2 sigma
     stage_timings: list[dict[str, float]] = []
     iterator = iter(samples)
@@ -211,14 +252,26 @@ def evaluate(
             sample = next(iterator)
         except StopIteration:
             break
-        frame, truth = _unpack(sample)
+        inputs, frame, truth = _unpack(sample)
         decoded = time.perf_counter()
-        estimate = backend.estimate(frame)
+        try:
+            if frame is not None:
+                output = pipeline.process_frame(frame)
+            else:
+                feed.until(pipeline, inputs.stamp_ns)
+                output = pipeline.process(inputs)
+        except RoadbevError as exc:  # bad input: counted, the evaluation goes on
+            reason = f"{type(exc).__name__}: {exc}"
+            refused[reason] = refused.get(reason, 0) + 1
+            if progress is not None:
+                progress(1)
+            continue
+        except ValueError as exc:  # Estimate.check_grid: the backend answered on another grid
+            raise EvaluationError(f"pipeline {pipeline.backend.name}: {exc}") from None
         done = time.perf_counter()
-        if estimate.elevation.shape != grid.shape:
-            raise EvaluationError(f"backend {backend.name} returned {estimate.elevation.shape}, grid is {grid.shape}")
+        estimate = output.estimate
         record = {
-            "stamp_ns": int(frame.stamp_ns),
+            "stamp_ns": int(inputs.stamp_ns),
             "abs_err_cm": math.nan,
             "coverage_pct": math.nan,
             "decode_ms": 1000.0 * (decoded - start),
@@ -237,18 +290,19 @@ def evaluate(
         per_frame.append(record)
         stage_timings.append(dict(estimate.timings_ms))
         if keep_estimates:
-            estimates.append(estimate)
+            outputs.append(output)
         frames += 1
         if progress is not None:
             progress(1)
     if frames == 0:
-        raise EvaluationError("no frames to evaluate")
+        detail = f" (refused: {refused})" if refused else ""
+        raise EvaluationError(f"no frames to evaluate{detail}")
     first_timed = 1 if frames > 1 else 0  # frame 0 is the warm-up
     stage_sums: dict[str, float] = {}
     for timings in stage_timings[first_timed:]:
         for stage, ms in timings.items():
             stage_sums[stage] = stage_sums.get(stage, 0.0) + ms
-    metrics = _metrics(backend.name, accumulator, per_frame, per_frame[first_timed:], stage_sums)
+    metrics = _metrics(pipeline.backend.name, accumulator, per_frame, per_frame[first_timed:], stage_sums)
     # Calibration of the reported 1-sigma uncertainty: a Gaussian would put 68.3 % / 95.4 % inside.
     with_sigma = int(calibration[0])
     metrics["sigma_cells"] = with_sigma
@@ -257,7 +311,9 @@ def evaluate(
     return EvalResult(
         metrics=metrics,
         per_frame=per_frame,
-        estimates=estimates if keep_estimates else None,
+        estimates=[o.estimate for o in outputs] if keep_estimates else None,
+        outputs=outputs if keep_estimates else None,
+        refused=refused,
     )
 
 

@@ -32,6 +32,7 @@ __all__ = [
     "PreviewError",
     "PreviewProfiles",
     "TrackProfile",
+    "check_tracks",
     "wheel_track_profiles",
 ]
 
@@ -125,6 +126,20 @@ def _overlap(centres: np.ndarray, half_cell: float, lo: np.ndarray, hi: np.ndarr
     left = np.maximum(centres[None, :] - half_cell, lo[:, None])
     right = np.minimum(centres[None, :] + half_cell, hi[:, None])
     return np.clip(right - left, 0.0, None)
+
+
+def check_tracks(grid: GridSpec, track_offsets_m: Sequence[float], tyre_width_m: float, spacing_m: float) -> None:
+    """Refuse wheel tracks that cannot be sampled on ``grid`` (before any frame arrives).
+
+    Raises:
+        PreviewError: as :func:`wheel_track_profiles` would for these settings.
+    """
+    if len(track_offsets_m) != 2:
+        raise PreviewError(f"need the left and the right track offset, got {len(track_offsets_m)} values")
+    wheel_track_profiles(
+        np.full(grid.shape, np.nan, np.float32), None, grid,
+        track_offsets_m=track_offsets_m, tyre_width_m=tyre_width_m, spacing_m=spacing_m,
+    )
 
 
 def wheel_track_profiles(

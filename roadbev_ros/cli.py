@@ -3,7 +3,8 @@
 Each sub-command lives in ``roadbev_ros/commands/<name>.py`` with ``HELP`` (one line),
 ``add_arguments(parser)`` and ``run(args) -> int``; modules are imported only when their command
 runs, so ``roadbev --help`` stays fast and ``roadbev eval --backend bm`` never imports rclpy.
-Bad input ends with a non-zero exit and a one-line reason, never a traceback.
+Bad input (any :class:`roadbev_core.errors.RoadbevError`, or a file that cannot be opened) ends
+with exit 2 and a one-line reason; anything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -74,7 +75,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"roadbev {args.command}: interrupted", file=sys.stderr)
         return 130
-    except (CommandError, ValueError, OSError, RuntimeError) as exc:
+    except (RoadbevError, OSError) as exc:  # bad input; a programming error keeps its traceback
         print(f"roadbev {args.command}: {exc}", file=sys.stderr)
         return 2
 

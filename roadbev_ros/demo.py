@@ -213,36 +213,6 @@ def _interruptible_ros() -> Iterator[None]:
             rclpy.try_shutdown()
 
 
-@contextmanager
-def _timed_replay(on_image: Callable[[int, int], None], left_topic: str) -> Iterator[None]:
-    """Wrap the online evaluation's replay to learn when each left image went out.
-
-    ``evaluate_online`` reports latency summaries only; the report plots latency per frame, so
-    the replay's ``before_publish`` hook is chained with one that records the wall time (ns) of
-    each left image (its stamp, publication time). The image is published right after the hook
-    returns.
-    """
-    from roadbev_ros import online_eval
-    from roadbev_ros.replay import header_stamp_ns
-
-    original = online_eval.replay_bag
-
-    def replay(*args: Any, before_publish: Callable[[str, int, bytes], None] | None = None, **kwargs: Any) -> Any:
-        def hook(topic: str, log_time: int, data: bytes) -> None:
-            if before_publish is not None:
-                before_publish(topic, log_time, data)
-            if topic == left_topic:
-                on_image(header_stamp_ns(data), time.time_ns())
-
-        return original(*args, before_publish=hook, **kwargs)
-
-    online_eval.replay_bag = replay
-    try:
-        yield
-    finally:
-        online_eval.replay_bag = original
-
-
 def _node_failure(metrics: dict[str, Any], log_tail: str) -> str | None:
     """A one-line reason when the node answered no frame at all, else None."""
     online = metrics.get("online", {})
@@ -420,15 +390,14 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
 
     t0 = time.monotonic()
     sent_ns: dict[int, int] = {}
-    left_topic = eval_bag.topics.get("left_image_topic", "/stereo/left/image_rect")
     with _bar(n_frames, "ROS 2", options.progress) as bar:
         def on_image(stamp: int, now_ns: int) -> None:
             sent_ns.setdefault(stamp, now_ns)
             bar.update(1)
 
         try:
-            with _interruptible_ros(), _timed_replay(on_image, left_topic):
-                result = evaluate_online(bag_path, out_dir, backend=options.backend)
+            with _interruptible_ros():
+                result = evaluate_online(bag_path, out_dir, backend=options.backend, on_image_sent=on_image)
         except OnlineEvalError as exc:
             raise DemoError(f"ROS 2 stage failed: {' '.join(str(exc).split())}") from exc
     reason = _node_failure(result.metrics, result.node_log)
@@ -438,22 +407,25 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
     stage_s["ROS 2 (node, replay, record)"] = time.monotonic() - t0
 
     # 3. offline, exactly as `roadbev eval`
-    from roadbev_core.backends import create
+    from roadbev_core.config import RoadbevConfig
     from roadbev_core.evaluation import evaluate
+    from roadbev_core.pipeline import Pipeline
 
     t0 = time.monotonic()
     truths: list[np.ndarray | None] = []
-    lefts: list[Any] = []
+    stamps: list[int] = []
 
     def keep(samples: Any) -> Iterator[Any]:
         for sample in samples:
             truths.append(sample.truth)
-            lefts.append(sample.frame)
+            stamps.append(sample.inputs.stamp_ns)
             yield sample
 
-    backend = create(options.backend, grid)
+    pipeline = Pipeline(RoadbevConfig.from_params({"backend": options.backend, **grid.to_dict()}))
     with _bar(n_frames, "offline", options.progress) as bar:
-        offline = evaluate(backend, keep(eval_bag), progress=bar.update).to_dict()
+        offline_result = evaluate(pipeline, keep(eval_bag), imu=eval_bag.imu, progress=bar.update, keep_estimates=True)
+    offline = offline_result.to_dict()
+    frames = {o.frame.stamp_ns: o.frame for o in offline_result.outputs or []}
     stage_s["offline eval"] = time.monotonic() - t0
 
     # 4. report
@@ -462,7 +434,9 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
     shown = pick_frames(truths, options.report_frames)
     views = []
     for i in shown:
-        frame = lefts[i]
+        frame = frames.get(stamps[i])
+        if frame is None:  # refused by the pipeline offline
+            continue
         estimate = recorded.elevation.get(frame.stamp_ns)
         if estimate is None:
             continue

@@ -276,3 +276,13 @@ def to_diagnostic_array(snapshot: HealthSnapshot, stamp: Any, name: str = "roadb
 def level_name(level: int) -> str:
     """``OK``, ``WARN`` or ``ERROR``."""
     return _LEVEL_NAMES.get(level, str(level))
+
+
+def problem_kind(exc: Exception) -> str:
+    """The diagnostics kind under which a refused frame is counted and logged."""
+    from roadbev_core.attitude import ImuStale
+    from roadbev_core.frame import FrameError
+    from roadbev_core.preview import PreviewError
+
+    kinds = ((ImuStale, "imu stale"), (FrameError, "bad frame"), (PreviewError, "preview"))
+    return next((kind for cls, kind in kinds if isinstance(exc, cls)), "bad input")

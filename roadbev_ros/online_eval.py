@@ -24,7 +24,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -169,6 +169,7 @@ def evaluate_online(
     startup_timeout_s: float = 120.0,
     frame_timeout_s: float = 60.0,
     node_params: Mapping[str, Any] | None = None,
+    on_image_sent: Callable[[int, int], None] | None = None,
 ) -> OnlineResult:
     """Replay ``bag_path`` into a node process, record its outputs, and score them.
 
@@ -183,17 +184,19 @@ def evaluate_online(
         startup_timeout_s: how long the node may take to come up (imports, backend set-up).
         frame_timeout_s: how long one frame may take in lockstep before it counts as missing.
         node_params: further node parameters (``-p``).
+        on_image_sent: called ``(stamp ns, wall time ns)`` just before each left image is
+            published (the demo plots latency per frame from it).
 
     Raises:
         OnlineEvalError: the node did not start or exited, or the bag has no ground truth.
     """
-    from roadbev_ros.params import load_params_file
+    from roadbev_core.config import load_params_file
     from roadbev_ros.record import Recorder
 
     bag_path = Path(bag_path)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    all_params = dict(load_params_file(params_file)) if params_file else {}
+    all_params = dict(load_params_file(params_file).values) if params_file else {}
     all_params.update(params or {})
     eval_bag = read_eval_bag(bag_path, all_params)
     grid = eval_bag.grid
@@ -257,6 +260,8 @@ def evaluate_online(
             images_sent += 1
             last_stamp = header_stamp_ns(data)
             sent[last_stamp] = time.monotonic()  # published right after this returns
+            if on_image_sent is not None:
+                on_image_sent(last_stamp, time.time_ns())
 
         start = time.monotonic()
         replay_bag(io_node, bag_path, rate=0.0 if rate is None else rate, topics=input_topics,

@@ -15,7 +15,7 @@ from roadbev_core.config import GridSpec
 from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Estimate, Frame
 
-__all__ = ["Backend", "BackendError", "available", "create", "register"]
+__all__ = ["Backend", "BackendError", "available", "create", "register", "takes_checkpoint"]
 
 
 class BackendError(RoadbevError, RuntimeError):
@@ -45,6 +45,8 @@ _MODULES: dict[str, str] = {
     "stereo": "roadbev_core.backends.learned",
     "mono": "roadbev_core.backends.learned",
 }
+# Backends whose networks come from a checkpoint (the `checkpoint` parameter applies to them).
+_LEARNED = frozenset({"stereo", "mono"})
 
 
 def register(name: str) -> Callable[[Factory], Factory]:
@@ -60,6 +62,11 @@ def register(name: str) -> Callable[[Factory], Factory]:
 def available() -> list[str]:
     """Names of all known backends."""
     return sorted(_MODULES)
+
+
+def takes_checkpoint(name: str) -> bool:
+    """Whether backend ``name`` reads a checkpoint (the learned ones)."""
+    return name in _LEARNED
 
 
 def create(name: str, grid: GridSpec | None = None, **options: Any) -> Backend:

@@ -21,6 +21,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from roadbev_core.attitude import quaternion_from_rotation, slerp
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.frame import Frame
 from roadbev_core.geometry import Attitude, attitude_from_rotation, quaternion_to_rotation, rotation_from_rpy
@@ -176,40 +177,6 @@ class DriveConfig:
 
 
 # --- rotations ------------------------------------------------------------------------------
-def _quat_from_rotation(R: np.ndarray) -> np.ndarray:
-    """Unit quaternion (x, y, z, w) of a rotation matrix, w >= 0."""
-    m = np.asarray(R, np.float64)
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
-    if tr > 0:
-        s = 2.0 * math.sqrt(tr + 1.0)
-        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s]
-    else:
-        i = int(np.argmax([m[0, 0], m[1, 1], m[2, 2]]))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = 2.0 * math.sqrt(max(1.0 + m[i, i] - m[j, j] - m[k, k], 1e-12))
-        q = [0.0, 0.0, 0.0, (m[k, j] - m[j, k]) / s]
-        q[i] = 0.25 * s
-        q[j] = (m[j, i] + m[i, j]) / s
-        q[k] = (m[k, i] + m[i, k]) / s
-    q = np.array(q)
-    q /= np.linalg.norm(q)
-    return q if q[3] >= 0 else -q
-
-
-def slerp(q0: np.ndarray, q1: np.ndarray, t: float) -> np.ndarray:
-    """Spherical interpolation of unit quaternions (x, y, z, w) at fraction ``t``."""
-    q0 = np.asarray(q0, np.float64)
-    q1 = np.asarray(q1, np.float64)
-    dot = float(q0 @ q1)
-    if dot < 0:
-        q1, dot = -q1, -dot
-    if dot > 0.9999995:
-        q = q0 + t * (q1 - q0)
-        return q / np.linalg.norm(q)
-    theta = math.acos(min(dot, 1.0))
-    return (math.sin((1 - t) * theta) * q0 + math.sin(t * theta) * q1) / math.sin(theta)
-
-
 def _rotvec(R: np.ndarray) -> np.ndarray:
     """Rotation vector (axis * angle) of a rotation matrix (small angles are exact enough)."""
     angle = math.acos(max(-1.0, min(1.0, (np.trace(R) - 1.0) / 2.0)))
@@ -427,7 +394,7 @@ class SyntheticDrive:
         self._R = [
             rotation_from_rpy(float(r), float(p), float(heading + w)) for r, p, w in zip(roll, pitch, yaw, strict=True)
         ]
-        self._q = np.array([_quat_from_rotation(R) for R in self._R])
+        self._q = np.array([quaternion_from_rotation(R) for R in self._R])
         for k in range(1, n_imu):  # keep the quaternion sign continuous
             if self._q[k] @ self._q[k - 1] < 0:
                 self._q[k] = -self._q[k]

@@ -13,17 +13,16 @@ Backend options may be given in the params file as ``<backend>.<option>`` (for e
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from roadbev_core.errors import RoadbevError
 from roadbev_ros.cli import CommandError
 
 HELP = "run a backend over every frame of a bag (no DDS) and report the metrics"
 DEFAULT_BACKEND = "bev_sweep"
-LEARNED = ("stereo", "mono")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -50,28 +49,26 @@ def _check_bag_path(path: Path) -> None:
         raise CommandError(f"{path} is neither a rosbag2 directory nor an .mcap file")
 
 
-def _load_params(path: str | None) -> dict[str, Any]:
-    if path is None:
-        return {}
-    from roadbev_ros.params import load_params_file
+def _explicit_params(args: argparse.Namespace) -> dict[str, Any]:
+    """The parameters the user gave (params file, --backend, --checkpoint), checked by name and type."""
+    from roadbev_core.backends import takes_checkpoint
+    from roadbev_core.config import RoadbevConfig, load_params_file
 
-    try:
-        return load_params_file(path)
-    except ValueError as exc:  # YAML errors span lines: the CLI gives one
-        raise CommandError(" ".join(line.strip() for line in str(exc).splitlines() if line.strip())) from exc
-
-
-def _backend_options(name: str, params: dict[str, Any], checkpoint: str | None) -> dict[str, Any]:
-    """Options for backend ``name``: params named ``<name>.<option>``, plus the checkpoint."""
-    prefix = f"{name}."
-    options = {key[len(prefix) :]: value for key, value in params.items() if key.startswith(prefix)}
-    if name in LEARNED:
-        chosen = checkpoint or params.get("checkpoint") or None
-        if chosen:
-            options["checkpoint"] = chosen
-    elif checkpoint:
-        raise CommandError(f"--checkpoint applies to the learned backends ({', '.join(LEARNED)}), not {name!r}")
-    return options
+    explicit: dict[str, Any] = {}
+    if args.params is not None:
+        loaded = load_params_file(args.params)
+        if loaded.note():
+            print(f"roadbev eval: {loaded.note()}", file=sys.stderr)
+        explicit.update(loaded.values)
+    if args.backend:
+        explicit["backend"] = args.backend
+    name = explicit.get("backend", DEFAULT_BACKEND)
+    if args.checkpoint:
+        if not takes_checkpoint(str(name)):
+            raise CommandError(f"--checkpoint applies to the learned backends (stereo, mono), not {name!r}")
+        explicit["checkpoint"] = args.checkpoint
+    RoadbevConfig.from_params(explicit)  # unknown names, wrong types, ranges: refused here
+    return explicit
 
 
 def _read_failures(samples: Any, path: Path) -> Iterator[Any]:
@@ -89,30 +86,26 @@ def _read_failures(samples: Any, path: Path) -> Iterator[Any]:
 
 def run(args: argparse.Namespace) -> int:
     """Evaluate, print the table, write the JSON; non-zero exit (via CommandError) on bad input."""
-    from roadbev_core.backends import available, create
+    from msg_bridge.evalbag import read_eval_bag
+    from roadbev_core.config import RoadbevConfig
+    from roadbev_core.evaluation import evaluate, format_table, to_json
+    from roadbev_core.pipeline import Pipeline
 
     path = Path(args.bag)
     _check_bag_path(path)
     if args.frames is not None and args.frames < 1:
         raise CommandError(f"--frames must be >= 1, got {args.frames}")
-    params = _load_params(args.params)
-    name = args.backend or params.get("backend") or DEFAULT_BACKEND
-    if name not in available():
-        raise CommandError(f"unknown backend {name!r}; choose from {', '.join(available())}")
-    options = _backend_options(name, params, args.checkpoint)
+    explicit = _explicit_params(args)
     try:
-        from msg_bridge.evalbag import read_eval_bag
-    except ModuleNotFoundError as exc:
-        raise CommandError(f"reading evaluation bags needs msg_bridge.evalbag ({exc})") from None
-    try:
-        bag = read_eval_bag(path, params or None)
-    except (ValueError, OSError, CommandError):
+        bag = read_eval_bag(path, explicit)
+    except (RoadbevError, OSError):
         raise
-    except Exception as exc:  # a damaged bag: one line, no traceback
+    except Exception as exc:  # a damaged bag: rosbags/mcap raise many types; one line, no traceback
         raise CommandError(f"cannot read bag {path}: {type(exc).__name__}: {exc}") from exc
-    backend = create(name, bag.grid, **options)
-
-    from roadbev_core.evaluation import evaluate, format_table
+    # the horizontal grid comes from the ground truth's GridMap info (contract)
+    config = RoadbevConfig.from_params({**explicit, **bag.grid.to_dict()})
+    pipeline = Pipeline(config)
+    name = config.backend.name
 
     total = len(bag) if args.frames is None else min(len(bag), args.frames)
     if total == 0:
@@ -125,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
         bar = tqdm(total=total, unit="frame", desc=f"eval {name}", file=sys.stderr, leave=False)
         progress = bar.update
     try:
-        result = evaluate(backend, _read_failures(bag, path), progress=progress, max_frames=args.frames)
+        result = evaluate(pipeline, _read_failures(bag, path), imu=bag.imu, progress=progress,
+                          max_frames=args.frames)
     finally:
         if bar is not None:
             bar.close()
@@ -133,12 +127,15 @@ def run(args: argparse.Namespace) -> int:
     print(format_table([metrics]))
     bands = ", ".join("-" if b is None else f"{b:.3f}" for b in metrics["band_abs_err_cm"])
     print(f"abs. error per distance band (cm, near to far): {bands}")
+    for reason, count in sorted(result.refused.items()):
+        print(f"{count} frame(s) refused: {reason}", file=sys.stderr)
     if args.json:
-        record = {**metrics, "bag": str(path), "grid": bag.grid.to_dict(), "backend_options": options}
+        record = {**metrics, "bag": str(path), "grid": bag.grid.to_dict(),
+                  "backend_options": config.backend.options_of()}
         if args.params:
             record["params_file"] = str(args.params)
         out = Path(args.json)
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(record, indent=2) + "\n")
+        out.write_text(to_json(record))
         print(f"metrics written to {out}")
     return 0

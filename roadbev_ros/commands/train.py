@@ -52,11 +52,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from roadbev_core.config import GridSpec
-    from roadbev_core.datasets import TEST_SEED_START, BagSet, ConcatSource, SyntheticSet
+    from msg_bridge.evalbag import bag_frames
+    from roadbev_core.config import GridSpec, parse_assignments
+    from roadbev_core.datasets import TEST_SEED_START, ConcatSource, LabelledFrames, SyntheticSet
     from roadbev_core.models.presets import model_config
     from roadbev_core.train import TrainConfig, train
-    from roadbev_ros.params import parse_assignments
 
     overrides = parse_assignments(args.model_option, "--model-option")  # before any data is read
     sources = []
@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         if args.synth_seed < 0 or last > TEST_SEED_START:
             raise ValueError(f"training seeds must lie in [0, {TEST_SEED_START}) (test scenes use the rest)")
         sources.append(SyntheticSet(args.cache, range(args.synth_seed, last), progress=not args.quiet))
-    sources.extend(BagSet(bag) for bag in args.bag)
+    sources.extend(LabelledFrames(*bag_frames(bag), what=str(bag)) for bag in args.bag)
     if args.rsrd:
         from roadbev_core.rsrd import RsrdSet
 

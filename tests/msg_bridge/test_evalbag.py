@@ -14,7 +14,7 @@ from mcap_ros2.decoder import DecoderFactory
 
 from msg_bridge import BagError, BagWriter, bag_factory, bag_topics, read_messages
 from msg_bridge.camera_info import camera_info_from_stereo
-from msg_bridge.evalbag import read_eval_bag, write_eval_bag
+from msg_bridge.evalbag import bag_frames, read_eval_bag, write_eval_bag
 from msg_bridge.grid_map import grid_map_message
 from msg_bridge.image import array_to_image
 from msg_bridge.imu import imu_message
@@ -43,23 +43,51 @@ def test_raw_bag_round_trip(tmp_path: Path, fake_drive: FakeDrive) -> None:
     assert bag.skipped == {} and bag.notes == []
     originals = list(fake_drive)
     samples = list(bag)
-    assert [s.frame.stamp_ns for s in samples] == fake_drive.stamps()
-    for sample, original in zip(samples, originals, strict=True):
-        np.testing.assert_array_equal(sample.frame.left, original.frame.left)
-        np.testing.assert_array_equal(sample.frame.right, original.frame.right)
+    assert [s.inputs.stamp_ns for s in samples] == fake_drive.stamps()
+    _, frames = bag_frames(path)
+    for sample, (frame, _), original in zip(samples, frames, originals, strict=True):
+        np.testing.assert_array_equal(sample.inputs.left, original.frame.left)
+        np.testing.assert_array_equal(sample.inputs.right, original.frame.right)
         np.testing.assert_array_equal(sample.truth, original.truth.elevation)
-        assert sample.frame.attitude.roll == pytest.approx(original.frame.attitude.roll, abs=1e-9)
-        assert sample.frame.attitude.pitch == pytest.approx(original.frame.attitude.pitch, abs=1e-9)
+        assert frame.attitude.roll == pytest.approx(original.frame.attitude.roll, abs=1e-9)
+        assert frame.attitude.pitch == pytest.approx(original.frame.attitude.pitch, abs=1e-9)
 
 
 def test_imu_is_interpolated_to_stamps_between_samples(tmp_path: Path) -> None:
     # frames at 5 Hz starting 3 ms off the 100 Hz IMU grid: every attitude needs slerp
     drive = FakeDrive(replace(FakeConfig(), start_stamp_ns=1_700_000_000_003_000_000, frames=3))
     write_eval_bag(tmp_path / "d.mcap", drive)
-    for sample in read_eval_bag(tmp_path / "d.mcap"):
-        truth = drive.attitude_at(sample.frame.stamp_ns)
-        assert sample.frame.attitude.pitch == pytest.approx(truth.pitch, abs=2e-5)
-        assert sample.frame.attitude.roll == pytest.approx(truth.roll, abs=2e-5)
+    _, frames = bag_frames(tmp_path / "d.mcap")
+    assert len(frames) == 3
+    for frame, _ in frames:
+        truth = drive.attitude_at(frame.stamp_ns)
+        assert frame.attitude.pitch == pytest.approx(truth.pitch, abs=2e-5)
+        assert frame.attitude.roll == pytest.approx(truth.roll, abs=2e-5)
+    # the pipeline, fed the bag's IMU as live, computes the same attitudes
+    from roadbev_core.config import RoadbevConfig
+    from roadbev_core.evaluation import pipeline_for
+    from roadbev_core.pipeline import replay
+
+    bag = read_eval_bag(tmp_path / "d.mcap")
+
+    class Recorder:
+        name, needs_stereo, grid = "bm", True, bag.grid
+
+        def __init__(self) -> None:
+            self.attitudes: list[tuple[float, float]] = []
+
+        def estimate(self, frame):  # type: ignore[no-untyped-def]
+            from roadbev_core.frame import Estimate
+
+            self.attitudes.append((frame.attitude.roll, frame.attitude.pitch))
+            nan = np.full(bag.grid.shape, np.nan, np.float32)
+            return Estimate(nan, nan.copy())
+
+    backend = Recorder()
+    pipeline = pipeline_for(backend, RoadbevConfig())
+    for _ in replay(pipeline, bag, bag.imu, inputs_of=lambda s: s.inputs):
+        pass
+    assert backend.attitudes == [(f.attitude.roll, f.attitude.pitch) for f, _ in frames]
 
 
 def test_compressed_bag_and_grid_config(tmp_path: Path, fake_drive: FakeDrive) -> None:
@@ -70,7 +98,7 @@ def test_compressed_bag_and_grid_config(tmp_path: Path, fake_drive: FakeDrive) -
     bag = read_eval_bag(path)
     assert bag.compressed and bag.topics["left_image_topic"] == "/stereo/left/image_rect/compressed"
     sample = next(iter(bag))
-    assert sample.frame.left.shape == (48, 64, 3)
+    assert sample.inputs.left.shape == (48, 64, 3)
     config = json.loads(next(read_messages(path, ["/roadbev/grid_config"])).msg.data)
     assert config["grid"] == fake_drive.config.grid.to_dict()
     assert config["camera"]["baseline"] == pytest.approx(0.12)
@@ -93,7 +121,7 @@ def test_params_set_base_height_extrinsic_and_topics(tmp_path: Path, fake_drive:
     bag = read_eval_bag(tmp_path / "d.mcap", params)
     assert (bag.grid.base_height, bag.grid.z_min, bag.grid.n_rows) == (1.5, -0.3, 164)
     assert any("horizontal grid parameters ignored" in n for n in bag.notes)
-    first = next(iter(bag)).frame
+    first = bag_frames(tmp_path / "d.mcap", params)[1][0].frame
     assert first.attitude.degrees[1] == pytest.approx(np.degrees(0.03) + 2.0, abs=1e-6)
     with pytest.raises(BagError, match="no left images"):
         read_eval_bag(tmp_path / "d.mcap", {"left_image_topic": "/cam/left"})
@@ -141,11 +169,13 @@ def test_a_foreign_stereo_bag_with_another_window(tmp_path: Path) -> None:
     assert bag.skipped == {"no right image with the same stamp": 1}
     samples = list(bag)
     assert [s.truth is not None for s in samples] == [True, False, False, True]
-    assert samples[0].frame.left.ndim == 2  # mono8 images stay grey
+    assert samples[0].inputs.left.ndim == 2  # mono8 images stay grey
     assert samples[3].truth[0, 0] == pytest.approx(0.04)
-    assert samples[1].frame.attitude.pitch == pytest.approx(0.1, abs=1e-6)
-    strict = read_eval_bag(tmp_path / "f.mcap", {"imu_max_age_s": 0.05})
-    assert strict.skipped["outside the IMU's time span"] == 1
+    _, frames = bag_frames(tmp_path / "f.mcap")
+    assert len(frames) == 4 and frames[1].frame.attitude.pitch == pytest.approx(0.1, abs=1e-6)
+    # with a stricter age limit, the frame 100 ms after the last IMU sample has no attitude
+    _, strict = bag_frames(tmp_path / "f.mcap", {"imu_max_age_s": 0.05})
+    assert [f.frame.stamp_ns for f in strict] == [stamps[0], stamps[1], stamps[3]]
 
 
 def test_a_mono_bag_without_ground_truth(tmp_path: Path) -> None:
@@ -153,10 +183,27 @@ def test_a_mono_bag_without_ground_truth(tmp_path: Path) -> None:
     bag = read_eval_bag(tmp_path / "m.mcap", {"x_min": 3.0, "x_max": 6.0})
     assert not bag.stereo and len(bag) == 5 and bag.camera.baseline == 0.0
     assert (bag.grid.x_min, bag.grid.x_max) == (3.0, 6.0)
-    assert all(s.truth is None and s.frame.right is None for s in bag)
+    assert all(s.truth is None and s.inputs.right is None for s in bag)
 
 
-def test_a_bag_without_imu_has_no_usable_frames(tmp_path: Path) -> None:
+def test_a_bag_without_imu_has_no_frame_with_an_attitude(tmp_path: Path) -> None:
     _foreign_bag(tmp_path / "n.mcap", stereo=False, truth_grid=None, imu_span=(0, -1))
-    with pytest.raises(BagError, match=r"no usable frames.*no IMU orientation"):
-        read_eval_bag(tmp_path / "n.mcap")
+    bag = read_eval_bag(tmp_path / "n.mcap")
+    assert bag.imu == [] and any("no IMU orientation" in n for n in bag.notes)
+    _, frames = bag_frames(tmp_path / "n.mcap")
+    assert frames == []
+
+
+def test_evaluation_bags_feed_the_models() -> None:
+    import torch
+
+    from msg_bridge.evalbag import bag_frames
+    from roadbev_core.datasets import LabelledFrames, ModelInputs
+    from roadbev_core.models.presets import model_config
+
+    bag = Path(__file__).resolve().parents[2] / "bags" / "sample_drive.mcap"
+    source = LabelledFrames(*bag_frames(bag), what=str(bag))
+    assert len(source) == 20 and source.grid.shape == (164, 64)
+    item = ModelInputs(source, model_config("tiny", "mono"), source.grid)[0]
+    assert item["left"].shape == (3, 128, 224) and "right" not in item and "grey" not in item
+    assert torch.isfinite(item["elevation"]).float().mean() > 0.5

@@ -1,4 +1,7 @@
-"""Imu -> attitude with the extrinsic, slerp between samples, malformed orientations."""
+"""Imu -> orientation and attitude with the extrinsic, malformed orientations.
+
+Interpolation to an image stamp is tested in tests/roadbev_core/test_attitude.py.
+"""
 
 from __future__ import annotations
 
@@ -9,7 +12,7 @@ import pytest
 from _msg_bridge_fakes import quaternion_xyzw
 
 from msg_bridge import MessageError, bag_factory
-from msg_bridge.imu import attitude_at, attitude_from_imu, imu_message, imu_orientation, slerp
+from msg_bridge.imu import attitude_from_imu, imu_message, imu_orientation
 
 
 def _imu(factory, roll: float, pitch: float, yaw: float = 0.0, stamp_ns: int = 0):  # type: ignore[no-untyped-def]
@@ -26,26 +29,6 @@ def test_extrinsic_pitch_adds_to_the_imu_pitch(factory) -> None:  # type: ignore
     # Camera pitched 3 deg down relative to a level IMU: the camera's pitch is +3 deg.
     attitude = attitude_from_imu(_imu(factory, 0.0, 0.0), imu_to_camera_rpy_deg=(0.0, 3.0, 0.0))
     assert attitude.degrees == pytest.approx((0.0, 3.0), abs=1e-9)
-
-
-def test_slerp_endpoints_midpoint_and_short_arc() -> None:
-    q0 = np.array(quaternion_xyzw(0.0, 0.0))
-    q1 = np.array(quaternion_xyzw(0.0, 0.4))
-    np.testing.assert_allclose(slerp(q0, q1, 0.0), q0, atol=1e-15)
-    np.testing.assert_allclose(slerp(q0, q1, 1.0), q1, atol=1e-15)
-    np.testing.assert_allclose(slerp(q0, q1, 0.5), quaternion_xyzw(0.0, 0.2), atol=1e-12)
-    # -q1 is the same rotation: interpolation must not take the long way round
-    np.testing.assert_allclose(np.abs(slerp(q0, -q1, 0.5)), np.abs(quaternion_xyzw(0.0, 0.2)), atol=1e-12)
-    np.testing.assert_allclose(np.linalg.norm(slerp(q0, q1, 0.3)), 1.0)
-
-
-def test_attitude_interpolated_between_two_messages(factory) -> None:  # type: ignore[no-untyped-def]
-    before = _imu(factory, 0.0, 0.10, stamp_ns=1_000_000_000)
-    after = _imu(factory, 0.0, 0.20, stamp_ns=1_010_000_000)
-    attitude = attitude_at(before, after, 1_002_500_000)
-    assert attitude.pitch == pytest.approx(0.125, abs=1e-9)
-    with pytest.raises(MessageError, match="out of order"):
-        attitude_at(after, before, 1_002_500_000)
 
 
 @pytest.mark.parametrize(

@@ -59,19 +59,6 @@ def test_model_inputs_resize_and_batch(tmp_path: Path) -> None:
         SyntheticSet(tmp_path, [])
 
 
-def test_evaluation_bags_feed_the_models() -> None:
-    bag = Path(__file__).resolve().parents[2] / "bags" / "sample_drive.mcap"
-    if not bag.is_file():
-        pytest.skip("the sample bag is not built")
-    from roadbev_core.datasets import BagSet
-
-    source = BagSet(bag)
-    assert len(source) > 0 and source.grid.shape == (164, 64)
-    item = ModelInputs(source, model_config("tiny", "mono"), source.grid)[0]
-    assert item["left"].shape == (3, 128, 224) and "right" not in item and "grey" not in item
-    assert torch.isfinite(item["elevation"]).float().mean() > 0.5
-
-
 def test_scenes_of_another_generator_version_are_not_read(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     SyntheticSet(tmp_path, [100_012], camera=CAMERA, grid=GRID)
 

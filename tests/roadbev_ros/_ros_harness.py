@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from msg_bridge._common import RclpyFactory, stamp_from_header
+from msg_bridge import RclpyFactory, stamp_from_header
 from msg_bridge.camera_info import camera_info_from_stereo
 from msg_bridge.grid_map import grid_map_to_arrays
 from msg_bridge.image import array_to_compressed, array_to_image

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from _ros_harness import MS, START_NS, Harness, wait_for
 
-from msg_bridge._common import stamp_from_header
+from msg_bridge import stamp_from_header
 from msg_bridge.preview import preview_from_message
 
 FRAME_NS = 100 * MS  # 10 Hz

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from _ros_harness import wait_for
 
-from msg_bridge._common import TypestoreFactory
+from msg_bridge import TypestoreFactory
 from msg_bridge.bag import BagWriter, typestore
 from msg_bridge.imu import imu_message
 from roadbev_ros.replay import ReplayError, header_stamp_ns, replay_bag, restamp_cdr

@@ -1,4 +1,4 @@
-"""ImuBuffer: slerp to the image stamp, refusal when stale, gaps and bad samples."""
+"""The attitude at a stamp: slerp, quaternions from rotations, the buffer's refusals (stale, gaps, bad samples)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,15 @@ import math
 import numpy as np
 import pytest
 
-from roadbev_core.geometry import Attitude, rotation_from_rpy
-from roadbev_ros.imu_buffer import ImuBuffer, ImuError, ImuStale
+from roadbev_core.attitude import (
+    QUATERNION_NORM_TOL,
+    ImuBuffer,
+    ImuError,
+    ImuStale,
+    quaternion_from_rotation,
+    slerp,
+)
+from roadbev_core.geometry import Attitude, quaternion_to_rotation, rotation_from_rpy
 
 MS = 1_000_000
 
@@ -33,11 +40,41 @@ def quat_from_rpy(roll: float, pitch: float, yaw: float = 0.0) -> tuple[float, f
 
 
 def test_quat_helper_matches_geometry() -> None:
-    from roadbev_core.geometry import quaternion_to_rotation
-
     np.testing.assert_allclose(
         quaternion_to_rotation(*quat_from_rpy(0.1, -0.2, 0.3)), rotation_from_rpy(0.1, -0.2, 0.3), atol=1e-12
     )
+
+
+def test_slerp_endpoints_midpoint_and_short_arc() -> None:
+    q0 = np.array(quat_from_rpy(0.0, 0.0))
+    q1 = np.array(quat_from_rpy(0.0, 0.4))
+    np.testing.assert_allclose(slerp(q0, q1, 0.0), q0, atol=1e-15)
+    np.testing.assert_allclose(slerp(q0, q1, 1.0), q1, atol=1e-15)
+    np.testing.assert_allclose(slerp(q0, q1, 0.5), quat_from_rpy(0.0, 0.2), atol=1e-12)
+    # -q1 is the same rotation: interpolation must not take the long way round
+    np.testing.assert_allclose(np.abs(slerp(q0, -q1, 0.5)), np.abs(quat_from_rpy(0.0, 0.2)), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(slerp(q0, q1, 0.3)), 1.0)
+    # nearly parallel samples (a 100 Hz IMU) take the normalised-lerp branch: still on the arc
+    q2 = np.array(quat_from_rpy(0.0, 1e-4))
+    np.testing.assert_allclose(slerp(q0, q2, 0.5), quat_from_rpy(0.0, 5e-5), atol=1e-14)
+
+
+@pytest.mark.parametrize(
+    "rpy", [(0.0, 0.0, 0.0), (0.1, -0.2, 0.3), (3.0, 0.1, -2.0), (0.0, 0.0, math.pi), (1.5, 1.4, 0.2)]
+)
+def test_quaternion_from_rotation_inverts_quaternion_to_rotation(rpy: tuple[float, float, float]) -> None:
+    R = rotation_from_rpy(*rpy)
+    q = quaternion_from_rotation(R)
+    assert q[3] >= 0.0
+    np.testing.assert_allclose(quaternion_to_rotation(*q), R, atol=1e-12)
+
+
+def test_one_norm_tolerance_for_every_sample() -> None:
+    buf = ImuBuffer()
+    buf.add(1_000 * MS, (0.0, 0.0, 0.0, 1.0 + 0.5 * QUATERNION_NORM_TOL))  # float32 round-off passes
+    with pytest.raises(ImuError, match="not a unit quaternion"):
+        buf.add(1_010 * MS, (0.0, 0.0, 0.0, 1.0 + 2.0 * QUATERNION_NORM_TOL))
+    assert len(buf) == 1
 
 
 def test_interpolates_a_changing_attitude_to_the_image_stamp() -> None:

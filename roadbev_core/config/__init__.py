@@ -1,0 +1,58 @@
+"""Configuration: the grid and the rig (the one source of truth for each), the typed config tree
+of the pipeline and the node, and the params-file reader.
+
+* :class:`GridSpec` (``grid``): the BEV grid in the road frame;
+* :class:`StereoCamera` (``rig``): the rectified stereo rig;
+* :class:`RoadbevConfig` (``tree``): every setting, read from ROS parameters and validated once;
+* :func:`load_params_file` (``params_file``): a ROS 2 params YAML -> flat parameters.
+"""
+
+from roadbev_core.config.grid import GRID_PRESETS, ConfigError, GridSpec, grid_preset
+from roadbev_core.config.params_file import NODE_NAME, ParamError, ParamsFile, load_params_file, parse_assignments
+from roadbev_core.config.rig import RSRD_CROP_TOP, StereoCamera
+from roadbev_core.config.tree import (
+    GRID_PARAMS,
+    MAX_GRID_VOXELS,
+    MAX_IMAGE_PIXELS,
+    MAX_SYNC_SETS,
+    BackendConfig,
+    DiagnosticsConfig,
+    ImuConfig,
+    ParamSpec,
+    PreviewConfig,
+    RoadbevConfig,
+    SyncConfig,
+    TopicsConfig,
+    VehicleConfig,
+    check_image_size,
+    parameter_specs,
+)
+
+__all__ = [
+    "GRID_PARAMS",
+    "GRID_PRESETS",
+    "MAX_GRID_VOXELS",
+    "MAX_IMAGE_PIXELS",
+    "MAX_SYNC_SETS",
+    "NODE_NAME",
+    "RSRD_CROP_TOP",
+    "BackendConfig",
+    "ConfigError",
+    "DiagnosticsConfig",
+    "GridSpec",
+    "ImuConfig",
+    "ParamError",
+    "ParamSpec",
+    "ParamsFile",
+    "PreviewConfig",
+    "RoadbevConfig",
+    "StereoCamera",
+    "SyncConfig",
+    "TopicsConfig",
+    "VehicleConfig",
+    "check_image_size",
+    "grid_preset",
+    "load_params_file",
+    "parameter_specs",
+    "parse_assignments",
+]

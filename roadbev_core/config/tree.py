@@ -1,0 +1,473 @@
+"""The typed configuration tree: every setting of the pipeline and the node, validated once.
+
+:class:`RoadbevConfig` holds one frozen section per concern (backend, grid, topics, sync, IMU,
+preview, vehicle, diagnostics). Each field carries the ROS parameter it is read from, with its
+description, range, choices and whether it may change at run time (:func:`param`); the node's
+parameter table (:func:`parameter_specs`: ``ros2 param describe``, ranges, read-only), the
+shipped ``config/roadbev.params.yaml`` and every loader are generated from those fields, so
+adding a parameter is one edit here.
+
+Every entry point (node start-up, ``-p name:=value``, ``ros2 param set``, ``roadbev eval
+--params``, the demo, the benchmarks) builds its config with :meth:`RoadbevConfig.from_params`,
+which refuses an unknown name or a wrong type with the parameter's name, checks ranges, and
+checks the whole: the grid, the wheel tracks on it, and what the settings would cost
+(:data:`MAX_GRID_VOXELS`, :data:`MAX_SYNC_SETS`) before anything is allocated.
+
+Backend options are the open-ended parameters ``<backend>.<option>`` (for example
+``bev_sweep.patch_cells``); the backend itself checks their names and values when it is built.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, replace
+from functools import cache
+from typing import Any, ClassVar
+
+from roadbev_core.config.grid import ConfigError, GridSpec
+from roadbev_core.config.params_file import ParamError
+
+__all__ = [
+    "MAX_CAMERA_HZ",
+    "MAX_GRID_VOXELS",
+    "MAX_IMAGE_PIXELS",
+    "MAX_SYNC_SETS",
+    "BackendConfig",
+    "DiagnosticsConfig",
+    "ImuConfig",
+    "ParamSpec",
+    "PreviewConfig",
+    "RoadbevConfig",
+    "SyncConfig",
+    "TopicsConfig",
+    "VehicleConfig",
+    "check_image_size",
+    "check_name",
+    "is_backend_option",
+    "param",
+    "parameter_specs",
+]
+
+# Cost limits, checked before anything is allocated. The default grid has 419,840 voxels
+# (164 x 64 x 40); bev_sweep holds a few float32 volumes of that size, a learned model more.
+MAX_GRID_VOXELS = 4_000_000
+# Images larger than this are refused (4096 x 4096: a 50 MB rgb8 frame, inside the shipped
+# Fast DDS profile's 64 MB shared-memory segment).
+MAX_IMAGE_PIXELS = 4096 * 4096
+# The synchroniser tries every combination of candidate stamps within the slop for each new
+# message; candidates per topic are at most min(queue, 1 + 2 * slop * MAX_CAMERA_HZ).
+MAX_CAMERA_HZ = 60.0
+MAX_SYNC_SETS = 1_000_000
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One ROS parameter.
+
+    Attributes:
+        name: the ROS parameter name.
+        default: default value; its Python type is the parameter's type (bool, int, float, str,
+            list of float).
+        description: one line for ``ros2 param describe``.
+        low, high: inclusive numeric range (None = unbounded), also declared to ROS.
+        choices: allowed string values (None = any).
+        read_only: cannot change after start (topics, transports).
+    """
+
+    name: str
+    default: Any
+    description: str
+    low: float | None = None
+    high: float | None = None
+    choices: tuple[str, ...] | None = None
+    read_only: bool = False
+
+    def check(self, value: Any) -> Any:
+        """``value`` checked (type, range, choices) and coerced to the parameter's type.
+
+        Raises:
+            ParamError: naming the parameter.
+        """
+        value = _coerce(self, value)
+        if self.choices is not None and value not in self.choices:
+            raise ParamError(f"{self.name} must be one of {', '.join(self.choices)}; got {value!r}")
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            if self.low is not None and value < self.low:
+                raise ParamError(f"{self.name} = {value} is below its minimum {self.low}")
+            if self.high is not None and value > self.high:
+                raise ParamError(f"{self.name} = {value} is above its maximum {self.high}")
+        return value
+
+
+def _coerce(spec: ParamSpec, value: Any) -> Any:
+    kind = type(spec.default)
+    if kind is bool:
+        if not isinstance(value, bool):
+            raise ParamError(f"{spec.name} must be true or false, got {value!r}")
+        return value
+    if kind is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ParamError(f"{spec.name} must be an integer, got {value!r}")
+        return value
+    if kind is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ParamError(f"{spec.name} must be a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ParamError(f"{spec.name} must be finite, got {value!r}")
+        return float(value)
+    if kind is str:
+        if not isinstance(value, str):
+            raise ParamError(f"{spec.name} must be a string, got {value!r}")
+        return value
+    # a list of floats of fixed length
+    if not isinstance(value, (list, tuple)) or not all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value
+    ):
+        raise ParamError(f"{spec.name} must be a list of finite numbers, got {value!r}")
+    if len(value) != len(spec.default):
+        raise ParamError(f"{spec.name} needs {len(spec.default)} numbers, got {len(value)}")
+    return tuple(float(v) for v in value)
+
+
+def param(
+    name: str,
+    default: Any,
+    description: str,
+    low: float | None = None,
+    high: float | None = None,
+    *,
+    choices: tuple[str, ...] | None = None,
+    read_only: bool = False,
+) -> Any:
+    """A config field read from ROS parameter ``name`` (lists are stored as tuples)."""
+    spec = ParamSpec(name, list(default) if isinstance(default, tuple) else default, description,
+                     low, high, choices, read_only)
+    return field(default=default, metadata={"param": spec})
+
+
+def _specs_of(section: type) -> list[tuple[str, ParamSpec]]:
+    """(field name, spec) of every parameter field of a section class."""
+    return [(f.name, f.metadata["param"]) for f in fields(section) if "param" in f.metadata]
+
+
+# --- sections -----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class BackendConfig:
+    """What estimates the elevation."""
+
+    name: str = param("backend", "bev_sweep", "elevation backend (see roadbev_core.backends)")
+    checkpoint: str = param("checkpoint", "", "checkpoint file for the learned backends (stereo, mono); "
+                            "empty = the shipped one")
+    inference_threads: int = param("inference_threads", 0, "threads for the backend's torch/OpenCV work; "
+                                   "0 = one less than the CPU cores (a core stays free for the callbacks)", 0, 256)
+    # "<backend>.<option>" parameters, as given (the backend checks them when it is built)
+    options: Mapping[str, Any] = field(default_factory=dict)
+
+    def options_of(self, backend: str | None = None) -> dict[str, Any]:
+        """Keyword options for ``backend`` (default: the chosen one), with the checkpoint for
+        backends that take one."""
+        from roadbev_core.backends import takes_checkpoint
+
+        name = backend or self.name
+        prefix = f"{name}."
+        out = {key[len(prefix):]: value for key, value in self.options.items() if key.startswith(prefix)}
+        if takes_checkpoint(name) and self.checkpoint:
+            out["checkpoint"] = self.checkpoint
+        return out
+
+
+@dataclass(frozen=True)
+class TopicsConfig:
+    """Topic names, transports and the output frame (fixed after start)."""
+
+    image_transport: str = param("image_transport", "raw", "input image transport",
+                                 choices=("raw", "compressed"), read_only=True)
+    left_image: str = param("left_image_topic", "/stereo/left/image_rect", "left rectified image", read_only=True)
+    right_image: str = param("right_image_topic", "/stereo/right/image_rect", "right rectified image",
+                             read_only=True)
+    left_info: str = param("left_info_topic", "/stereo/left/camera_info", "left CameraInfo", read_only=True)
+    right_info: str = param("right_info_topic", "/stereo/right/camera_info", "right CameraInfo", read_only=True)
+    imu: str = param("imu_topic", "/imu/data", "IMU (orientation relative to ENU)", read_only=True)
+    speed: str = param("speed_topic", "", "vehicle speed (nav_msgs/Odometry or geometry_msgs/TwistStamped); "
+                       "empty = no time of arrival in the preview", read_only=True)
+    speed_type: str = param("speed_topic_type", "odometry", "message type of speed_topic",
+                            choices=("odometry", "twist_stamped"), read_only=True)
+    elevation: str = param("elevation_topic", "/roadbev/elevation", "GridMap output", read_only=True)
+    preview: str = param("preview_topic", "/roadbev/preview", "RoadPreview output", read_only=True)
+    points: str = param("points_topic", "/roadbev/points", "PointCloud2 output for viewers ('' = off)",
+                        read_only=True)
+    frame_id: str = param("frame_id", "roadbev_road", "frame of the outputs", read_only=True)
+
+
+@dataclass(frozen=True)
+class SyncConfig:
+    """Approximate-time pairing of the images and camera infos."""
+
+    queue_size: int = param("sync_queue_size", 10, "approximate-time synchroniser queue per topic", 1, 1000)
+    slop_s: float = param("sync_slop_s", 0.02, "largest stamp spread within a synchronised set (s)", 0.0, 1.0)
+
+    def sets_per_message(self, topics: int) -> float:
+        """Upper bound of the stamp combinations one new message makes the synchroniser try."""
+        candidates = min(float(self.queue_size), 1.0 + 2.0 * self.slop_s * MAX_CAMERA_HZ)
+        return candidates ** max(topics - 1, 0)
+
+
+@dataclass(frozen=True)
+class ImuConfig:
+    """The attitude at an image stamp (:class:`roadbev_core.attitude.ImuBuffer`'s rules)."""
+
+    max_age_s: float = param("imu_max_age_s", 0.1, "refuse the IMU attitude when the nearest sample is "
+                             "further from the image stamp (s); also the largest gap between two samples",
+                             0.001, 10.0)
+    buffer_s: float = param("imu_buffer_s", 2.0, "IMU history kept for interpolation (s)", 0.1, 60.0)
+    wait_s: float = param("imu_wait_s", 0.05, "how long a set may wait for an IMU sample after its stamp (s)",
+                          0.0, 1.0)
+    require: bool = param("require_imu", True, "drop frames without a fresh IMU attitude (else use "
+                          "default_roll_deg/default_pitch_deg)")
+    default_roll_deg: float = param("default_roll_deg", 0.0, "attitude used when require_imu is false and "
+                                    "no IMU", -45.0, 45.0)
+    default_pitch_deg: float = param("default_pitch_deg", 0.0, "attitude used when require_imu is false and "
+                                     "no IMU", -45.0, 45.0)
+    imu_to_camera_rpy_deg: tuple[float, float, float] = param(
+        "imu_to_camera_rpy_deg", (0.0, 0.0, 0.0), "roll, pitch, yaw (deg) of the camera body in the IMU body frame")
+
+
+@dataclass(frozen=True)
+class PreviewConfig:
+    """The wheel-track profiles."""
+
+    track_offsets_m: tuple[float, float] = param("preview.track_offsets_m", (0.8, -0.8),
+                                                 "lateral offsets of the left, right wheel tracks (m, y left)")
+    tyre_width_m: float = param("preview.tyre_width_m", 0.2, "tyre width averaged across (m)", 0.0, 2.0)
+    spacing_m: float = param("preview.spacing_m", 0.03, "spacing of the profile samples (m)", 0.001, 1.0)
+    reference_distance_m: float = param("preview.reference_distance_m", 0.0, "x of the point the times of "
+                                        "arrival refer to (e.g. the front axle; m ahead of the camera)",
+                                        -20.0, 50.0)
+
+
+@dataclass(frozen=True)
+class VehicleConfig:
+    """The vehicle body, ``base_link`` at the rear-axle centre on the road (contract, "Vehicle")."""
+
+    wheelbase_m: float = param("vehicle.wheelbase_m", 2.80, "distance from the rear to the front axle (m)",
+                               0.5, 10.0)
+    track_width_m: float = param("vehicle.track_width_m", 1.60, "distance between the left and right tyre "
+                                 "contacts (m)", 0.5, 4.0)
+    camera_position_m: tuple[float, float, float] = param(
+        "vehicle.camera_position_m", (1.60, 0.0, 1.10), "x, y, z of the left camera's optical centre in "
+        "base_link (m); /tf_static base_link -> camera frame wins when present")
+
+
+@dataclass(frozen=True)
+class DiagnosticsConfig:
+    """``/diagnostics`` and logging."""
+
+    period_s: float = param("diagnostics_period_s", 1.0, "diagnostics publication period (s)", 0.05, 60.0)
+    log_throttle_s: float = param("log_throttle_s", 5.0, "minimum period between repeated warnings (s)",
+                                  0.0, 3600.0)
+
+
+# Grid parameters are GridSpec's fields under their own names (GridSpec validates the whole).
+_G = GridSpec()
+GRID_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("base_height", _G.base_height, "camera height above the road reference plane (m)", 0.1, 10.0),
+    ParamSpec("x_min", _G.x_min, "grid near edge (m ahead)", 0.0, 100.0),
+    ParamSpec("x_max", _G.x_max, "grid far edge (m ahead)", 0.0, 200.0),
+    ParamSpec("y_min", _G.y_min, "grid right edge (m, y left)", -50.0, 50.0),
+    ParamSpec("y_max", _G.y_max, "grid left edge (m, y left)", -50.0, 50.0),
+    ParamSpec("resolution", _G.resolution, "grid cell size (m)", 0.001, 1.0),
+    ParamSpec("z_min", _G.z_min, "lowest elevation (m)", -5.0, 0.0),
+    ParamSpec("z_max", _G.z_max, "highest elevation (m)", 0.0, 5.0),
+    ParamSpec("z_resolution", _G.z_resolution, "voxel height (m)", 0.0001, 1.0),
+    ParamSpec("class_resolution", _G.class_resolution, "elevation class bin (m)", 0.0001, 1.0),
+)
+
+
+@dataclass(frozen=True)
+class RoadbevConfig:
+    """Everything the pipeline and the node are configured with (validated: build it with
+    :meth:`from_params`, or :meth:`with_params` for a change)."""
+
+    SECTIONS: ClassVar[tuple[str, ...]] = ("backend", "topics", "sync", "imu", "preview", "vehicle", "diagnostics")
+
+    backend: BackendConfig = field(default_factory=BackendConfig)
+    grid: GridSpec = field(default_factory=GridSpec)
+    topics: TopicsConfig = field(default_factory=TopicsConfig)
+    sync: SyncConfig = field(default_factory=SyncConfig)
+    imu: ImuConfig = field(default_factory=ImuConfig)
+    preview: PreviewConfig = field(default_factory=PreviewConfig)
+    vehicle: VehicleConfig = field(default_factory=VehicleConfig)
+    diagnostics: DiagnosticsConfig = field(default_factory=DiagnosticsConfig)
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any], *, base: RoadbevConfig | None = None) -> RoadbevConfig:
+        """A validated config from flat ROS parameters (missing names keep ``base``'s values,
+        the defaults when None).
+
+        Raises:
+            ParamError: an unknown name, a wrong type, a value out of range, or settings that do
+                not work together (grid, wheel tracks, cost limits), naming the parameter.
+        """
+        base = base or cls()
+        specs = {spec.name: spec for spec in parameter_specs()}
+        values = {name: specs[name].check(v) if name in specs else v for name, v in base.to_params().items()}
+        for name, value in params.items():
+            if name in specs:
+                values[name] = specs[name].check(value)
+            else:
+                check_name(name)
+                values[name] = value
+        return cls._build(values)
+
+    def with_params(self, params: Mapping[str, Any]) -> RoadbevConfig:
+        """This config with some parameters changed (validated as a whole)."""
+        return type(self).from_params(params, base=self)
+
+    @classmethod
+    def _build(cls, values: Mapping[str, Any]) -> RoadbevConfig:
+        sections: dict[str, Any] = {}
+        for section_name in cls.SECTIONS:
+            section_type = {f.name: f.type for f in fields(cls)}[section_name]
+            kind = _SECTION_TYPES[str(section_type)]
+            sections[section_name] = kind(**{attr: values[spec.name] for attr, spec in _specs_of(kind)})
+        options = {k: v for k, v in values.items() if is_backend_option(k)}
+        sections["backend"] = replace(sections["backend"], options=options)
+        try:
+            grid = GridSpec().with_overrides(**{spec.name: values[spec.name] for spec in GRID_PARAMS})
+        except ConfigError as exc:
+            raise ParamError(f"grid parameters do not form a valid grid: {exc}") from None
+        config = cls(grid=grid, **sections)
+        config._check()
+        return config
+
+    def _check(self) -> None:
+        """Checks across parameters: backend name, cost limits, the wheel tracks on the grid."""
+        from roadbev_core.backends import available
+        from roadbev_core.preview import PreviewError, check_tracks
+
+        if self.backend.name not in available():
+            raise ParamError(f"backend must be one of {', '.join(available())}; got {self.backend.name!r}")
+        grid = self.grid
+        voxels = grid.n_rows * grid.n_cols * max(grid.n_z, grid.n_classes)
+        if voxels > MAX_GRID_VOXELS:
+            raise ParamError(
+                f"the grid {grid.n_rows} x {grid.n_cols} cells x {max(grid.n_z, grid.n_classes)} levels has "
+                f"{voxels:,} voxels, more than the limit of {MAX_GRID_VOXELS:,} (coarser resolution, "
+                "z_resolution or class_resolution, or a smaller window)"
+            )
+        sets = self.sync.sets_per_message(4)
+        if sets > MAX_SYNC_SETS:
+            raise ParamError(
+                f"sync_queue_size {self.sync.queue_size} with sync_slop_s {self.sync.slop_s} would make the "
+                f"synchroniser try up to {sets:,.0f} stamp combinations per message (limit {MAX_SYNC_SETS:,}): "
+                "lower one of them"
+            )
+        try:
+            check_tracks(grid, self.preview.track_offsets_m, self.preview.tyre_width_m, self.preview.spacing_m)
+        except PreviewError as exc:
+            raise ParamError(f"preview settings do not fit the grid: {exc}") from None
+
+    def to_params(self) -> dict[str, Any]:
+        """Flat ROS parameters (lists as lists), backend options included."""
+        out: dict[str, Any] = {}
+        for section_name in self.SECTIONS:
+            section = getattr(self, section_name)
+            for attr, spec in _specs_of(type(section)):
+                value = getattr(section, attr)
+                out[spec.name] = list(value) if isinstance(value, tuple) else value
+        for spec in GRID_PARAMS:
+            out[spec.name] = float(getattr(self.grid, spec.name))
+        out.update(self.backend.options)
+        return out
+
+
+_SECTION_TYPES: dict[str, type] = {
+    cls.__name__: cls
+    for cls in (BackendConfig, TopicsConfig, SyncConfig, ImuConfig, PreviewConfig, VehicleConfig, DiagnosticsConfig)
+}
+
+
+def is_backend_option(name: str) -> bool:
+    """Whether ``name`` is a backend option ``<backend>.<option>`` of a known backend."""
+    from roadbev_core.backends import available
+
+    head, dot, tail = name.partition(".")
+    return bool(dot and tail) and head in available()
+
+
+def check_name(name: str) -> None:
+    """Refuse a parameter name the config does not know (a backend option of a known backend is
+    known; the backend checks the option itself).
+
+    Raises:
+        ParamError: naming it, with the closest known name.
+    """
+    import difflib
+
+    known = [spec.name for spec in parameter_specs()]
+    if name in known or is_backend_option(name):
+        return
+    close = difflib.get_close_matches(name, known, n=1)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    raise ParamError(f"unknown parameter {name!r}{hint}")
+
+
+@cache
+def parameter_specs() -> tuple[ParamSpec, ...]:
+    """Every ROS parameter of the node, in the order of the config tree (backend choices from the
+    backend registry)."""
+    from roadbev_core.backends import available
+
+    out: list[ParamSpec] = []
+    for kind in _SECTION_TYPES.values():
+        for _, spec in _specs_of(kind):
+            if spec.name == "backend":
+                spec = replace(spec, choices=tuple(available()))
+            out.append(spec)
+    out.extend(GRID_PARAMS)
+    return tuple(out)
+
+
+def check_image_size(width: int, height: int, what: str = "image") -> None:
+    """Refuse an image larger than :data:`MAX_IMAGE_PIXELS` before it is decoded or processed.
+
+    Raises:
+        ConfigError: with the size and the limit.
+    """
+    if width * height > MAX_IMAGE_PIXELS:
+        raise ConfigError(
+            f"{what} of {width} x {height} pixels is larger than the limit of {MAX_IMAGE_PIXELS:,} pixels"
+        )
+
+
+def params_yaml() -> str:
+    """The text of ``config/roadbev.params.yaml``: every parameter at its default, with its
+    description and range (regenerate it with ``python -m roadbev_core.config`` after adding a
+    parameter; a test checks the shipped file equals this)."""
+    import json
+
+    lines = [
+        "# RoadBEV node parameters (a standard ROS 2 params YAML), generated from the config tree",
+        "# (roadbev_core/config/tree.py: `python -m roadbev_core.config > config/roadbev.params.yaml`).",
+        "# Use it with",
+        "#   roadbev node --params config/roadbev.params.yaml",
+        "#   ros2 run roadbev_ros roadbev_node --ros-args --params-file config/roadbev.params.yaml",
+        "# Values here are the declared defaults. A `/**:` section would apply to every node; `roadbev:`",
+        "# applies to the node named roadbev. Backend options go in as <backend>.<option>, for example",
+        "# `bev_sweep.patch_cells: 5` or `bm.block_size: 9` (the same keys `roadbev eval --params` reads).",
+        "# Unknown names and wrong types are refused by the node, `roadbev eval` and the demo alike.",
+        "roadbev:",
+        "  ros__parameters:",
+    ]
+    for spec in parameter_specs():
+        notes = []
+        if spec.choices:
+            notes.append(f"({' | '.join(spec.choices)})")
+        if spec.low is not None and spec.high is not None:
+            notes.append(f"[{spec.low:g}, {spec.high:g}]")
+        if spec.read_only:
+            notes.append("(read-only)")
+        lines.append(f"    # {' '.join([spec.description, *notes])}")
+        lines.append(f"    {spec.name}: {json.dumps(spec.default)}")
+    return "\n".join(lines) + "\n"

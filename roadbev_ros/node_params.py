@@ -1,0 +1,111 @@
+"""The node's ROS parameters, generated from the typed config tree (:mod:`roadbev_core.config`).
+
+:func:`declare_parameters` declares every parameter of :func:`parameter_specs` with its
+description, range and read-only flag (``ros2 param describe``) plus the backend options given at
+start; :func:`config_of` builds the validated :class:`RoadbevConfig` from the declared values;
+:func:`check_overrides` refuses ``-p`` / ``--params-file`` names the node does not know, as
+:meth:`RoadbevConfig.from_params` refuses them everywhere else.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.exceptions import InvalidParameterValueException
+from rclpy.node import Node
+
+from roadbev_core.config import ParamError, ParamSpec, RoadbevConfig, load_params_file, parameter_specs
+from roadbev_core.config.tree import check_name, is_backend_option
+
+# Parameters every rclpy node has (not the config's).
+ROS_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service"})
+
+__all__ = ["check_overrides", "check_params_files", "config_of", "declare_parameters", "descriptor", "plain"]
+
+
+def descriptor(spec: ParamSpec) -> ParameterDescriptor:
+    """The ROS descriptor of one parameter (description, range, choices, read-only)."""
+    d = ParameterDescriptor(name=spec.name, description=spec.description, read_only=spec.read_only)
+    if spec.choices:
+        d.additional_constraints = "one of: " + ", ".join(spec.choices)
+    if isinstance(spec.default, (float, list)):
+        d.dynamic_typing = True  # accept 1 for 1.0 and [0, 0, 5]; the config coerces
+        if isinstance(spec.default, float) and spec.low is not None and spec.high is not None:
+            d.floating_point_range = [
+                FloatingPointRange(from_value=float(spec.low), to_value=float(spec.high), step=0.0)
+            ]
+    elif isinstance(spec.default, int) and not isinstance(spec.default, bool) and spec.low is not None \
+            and spec.high is not None:
+        d.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high), step=1)]
+    return d
+
+
+def plain(value: Any) -> Any:
+    """A parameter value as plain Python (rclpy hands arrays as array.array / lists)."""
+    if isinstance(value, (list, tuple)) or type(value).__name__ == "array":
+        return list(value)
+    return value
+
+
+def check_overrides(names: Iterable[str]) -> None:
+    """Refuse start-up overrides (``-p``, ``--params-file``) of parameters the node does not have.
+
+    Raises:
+        ParamError: naming the first unknown one.
+    """
+    for name in names:
+        if name not in ROS_PARAMETERS:
+            check_name(name)
+
+
+def check_params_files(argv: Sequence[str], node_name: str) -> list[str]:
+    """Read every ``--params-file`` of ``argv`` as the node will: a file that applies nothing to
+    this node is an error; sections for other nodes are returned as notes (logged, not silent).
+
+    Raises:
+        ParamError: a file that cannot be read or has no section for this node.
+    """
+    notes = []
+    for i, arg in enumerate(argv):
+        if arg == "--params-file" and i + 1 < len(argv):
+            note = load_params_file(argv[i + 1], node_name).note()
+            if note:
+                notes.append(f"{argv[i + 1]}: {note}")
+    return notes
+
+
+def declare_parameters(node: Node) -> None:
+    """Declare every parameter, and the backend options (``<backend>.<option>``) given at start.
+
+    Raises:
+        ParamError: a start-up value of the wrong type.
+    """
+    for spec in parameter_specs():
+        try:
+            node.declare_parameter(spec.name, spec.default, descriptor(spec))
+        except InvalidParameterValueException as exc:
+            raise ParamError(f"parameter {spec.name}: {exc}") from None
+    overrides: Mapping[str, Any] = node._parameter_overrides  # what -p / --params-file gave
+    check_overrides(overrides)
+    for name, override in overrides.items():
+        if is_backend_option(name) and not node.has_parameter(name):
+            d = ParameterDescriptor(name=name, description=f"option of the {name.split('.', 1)[0]} backend",
+                                    dynamic_typing=True)
+            node.declare_parameter(name, override.value, d)
+
+
+def config_of(node: Node, base: RoadbevConfig | None = None) -> RoadbevConfig:
+    """The validated config of the node's declared parameters.
+
+    Raises:
+        ParamError: see :meth:`RoadbevConfig.from_params`.
+    """
+    known = {spec.name for spec in parameter_specs()}
+    values = {
+        name: plain(p.value)
+        for name, p in node.get_parameters_by_prefix("").items()
+        if name in known or is_backend_option(name)
+    }
+    return RoadbevConfig.from_params(values, base=base)

@@ -1,0 +1,165 @@
+"""The typed config tree and the params-file reader: names, types, ranges, the whole, cost limits."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from roadbev_core.config import (
+    MAX_GRID_VOXELS,
+    GridSpec,
+    ParamError,
+    RoadbevConfig,
+    check_image_size,
+    load_params_file,
+    parameter_specs,
+    parse_assignments,
+)
+from roadbev_core.config.grid import ConfigError
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "params.yaml"
+    path.write_text(text)
+    return path
+
+
+def test_wildcard_first_then_node_section_and_other_sections_are_reported(tmp_path: Path) -> None:
+    path = write(
+        tmp_path,
+        """
+/**:
+  ros__parameters:
+    base_height: 1.5
+    resolution: 0.06
+other_node:
+  ros__parameters:
+    base_height: 9.0
+/roadbev:
+  ros__parameters:
+    base_height: 1.3
+    preview:
+      tyre_width_m: 0.25
+""",
+    )
+    loaded = load_params_file(path)
+    assert loaded.values == {"base_height": 1.3, "resolution": 0.06, "preview.tyre_width_m": 0.25}
+    assert loaded.other_sections == ("other_node",) and "other_node" in (loaded.note() or "")
+    assert load_params_file(path, node_name="other_node").values["base_height"] == 9.0
+    assert load_params_file(path, node_name="/vehicle/roadbev").values["base_height"] == 1.3
+
+
+@pytest.mark.parametrize(
+    "text, reason",
+    [("roadbev: [1, 2\n", "not valid YAML"), ("- 1\n", "must map"), ("roadbev:\n  x: 1\n", "ros__parameters"),
+     ("other:\n  ros__parameters: {a: 1}\n", "no section for node 'roadbev'")],
+)
+def test_bad_params_files(tmp_path: Path, text: str, reason: str) -> None:
+    with pytest.raises(ParamError, match=reason):
+        load_params_file(write(tmp_path, text))
+    with pytest.raises(ParamError, match="cannot read"):
+        load_params_file(tmp_path / "missing.yaml")
+
+
+def test_empty_file_gives_no_parameters(tmp_path: Path) -> None:
+    assert load_params_file(write(tmp_path, "")).values == {}
+
+
+def test_shipped_params_file_is_generated_from_the_tree() -> None:
+    from roadbev_core.config.tree import params_yaml
+
+    assert (REPO / "config" / "roadbev.params.yaml").read_text() == params_yaml(), (
+        "regenerate: python -m roadbev_core.config > config/roadbev.params.yaml")
+
+
+def test_shipped_params_file_lists_every_parameter_at_its_default() -> None:
+    values = load_params_file(REPO / "config" / "roadbev.params.yaml").values
+    defaults = RoadbevConfig().to_params()
+    assert set(values) == set(defaults), "config/roadbev.params.yaml and the config tree differ"
+    for name, value in values.items():
+        assert value == pytest.approx(defaults[name]), f"shipped {name} differs from the declared default"
+    assert RoadbevConfig.from_params(values) == RoadbevConfig.from_params({})
+
+
+def test_every_parameter_has_a_description_a_valid_default_and_one_name() -> None:
+    names = [s.name for s in parameter_specs()]
+    assert len(names) == len(set(names))
+    for spec in parameter_specs():
+        assert spec.description
+        spec.check(spec.default)
+    assert {"base_height", "x_min", "resolution", "class_resolution", "vehicle.wheelbase_m"} <= set(names)
+    backend = next(s for s in parameter_specs() if s.name == "backend")
+    assert backend.choices == ("bev_sweep", "bm", "mono", "sgbm", "stereo")  # from the backend registry
+
+
+def test_round_trip_and_typed_sections() -> None:
+    config = RoadbevConfig.from_params({"base_height": 1.3, "sync_slop_s": 0, "bev_sweep.patch_cells": 5,
+                                        "imu_to_camera_rpy_deg": [0, 1, 2]})
+    assert config.grid == GridSpec(base_height=1.3)
+    assert config.sync.slop_s == 0.0 and isinstance(config.sync.slop_s, float)
+    assert config.imu.imu_to_camera_rpy_deg == (0.0, 1.0, 2.0)
+    assert config.backend.options_of() == {"patch_cells": 5}
+    assert RoadbevConfig.from_params(config.to_params()) == config
+    learned = RoadbevConfig.from_params({"backend": "stereo", "checkpoint": "x.pt", "stereo.runtime": "torch"})
+    assert learned.backend.options_of() == {"runtime": "torch", "checkpoint": "x.pt"}
+    assert learned.backend.options_of("bm") == {}
+
+
+@pytest.mark.parametrize(
+    "params, reason",
+    [
+        ({"base_hieght": 1.2}, "unknown parameter 'base_hieght' \\(did you mean 'base_height'\\?\\)"),
+        ({"bev_swep.patch_cells": 5}, "unknown parameter 'bev_swep.patch_cells'"),
+        ({"backend": "magic"}, "must be one of"),
+        ({"sync_slop_s": -0.1}, "below its minimum"),
+        ({"sync_queue_size": 5000}, "above its maximum"),
+        ({"sync_queue_size": 2.5}, "integer"),
+        ({"imu_max_age_s": float("nan")}, "finite"),
+        ({"require_imu": 1}, "true or false"),
+        ({"base_height": "high"}, "must be a number"),
+        ({"imu_to_camera_rpy_deg": [0.0, 1.0]}, "needs 3"),
+        ({"imu_to_camera_rpy_deg": [0.0, "a", 1.0]}, "list of finite"),
+        ({"resolution": 0.07}, "whole number"),
+        ({"z_max": 2.0}, "below the camera"),
+        ({"preview.track_offsets_m": [3.0, -0.8]}, "preview settings do not fit the grid"),
+        ({"preview.tyre_width_m": 0.0}, "preview settings"),
+    ],
+)
+def test_nonsense_is_refused_with_the_parameters_name(params: dict, reason: str) -> None:
+    with pytest.raises(ParamError, match=reason):
+        RoadbevConfig.from_params(params)
+
+
+def test_costly_settings_are_refused_before_anything_is_allocated() -> None:
+    with pytest.raises(ParamError, match="voxels, more than the limit"):
+        RoadbevConfig.from_params({"resolution": 0.001, "x_max": 200.0})  # crashed the node before
+    with pytest.raises(ParamError, match="voxels, more than the limit"):
+        RoadbevConfig.from_params({"resolution": 0.001})  # took bev_sweep past 8 GB before
+    with pytest.raises(ParamError, match="stamp combinations per message"):
+        RoadbevConfig.from_params({"sync_slop_s": 1.0, "sync_queue_size": 1000})  # froze the executor before
+    # each alone is fine: a deep queue with a tight slop, a wide slop with a short queue
+    RoadbevConfig.from_params({"sync_slop_s": 0.02, "sync_queue_size": 1000})
+    RoadbevConfig.from_params({"sync_slop_s": 1.0, "sync_queue_size": 50})
+    default = GridSpec()
+    assert default.n_rows * default.n_cols * default.n_classes < MAX_GRID_VOXELS
+    with pytest.raises(ConfigError, match="larger than the limit"):
+        check_image_size(8000, 8000)
+    check_image_size(1920, 1080)
+
+
+def test_with_params_changes_and_revalidates() -> None:
+    config = RoadbevConfig()
+    changed = config.with_params({"backend": "bm"})
+    assert changed.backend.name == "bm" and changed.grid == config.grid
+    with pytest.raises(ParamError):
+        changed.with_params({"resolution": 0.001})
+
+
+def test_command_line_assignments_parse_json_values_and_fall_back_to_text() -> None:
+    assert parse_assignments(["zncc_subsamples=2", "zncc_full_resolution=true", "sampling=integer"], "-o") == {
+        "zncc_subsamples": 2, "zncc_full_resolution": True, "sampling": "integer"}
+    with pytest.raises(ParamError, match="--model-option takes NAME=VALUE"):
+        parse_assignments(["zncc_subsamples"], "--model-option")
