@@ -110,9 +110,9 @@ def build_backend(config: RoadbevConfig, factory: BackendFactory | None = None) 
     name = config.backend.name
     try:
         return (factory or create)(name, config.grid, **config.backend.options_of())
-    except BackendError:
-        raise
-    except Exception as exc:  # any failure of a backend constructor is a refusal
+    except RoadbevError as exc:
+        raise BackendError(f"backend {name!r} cannot run: {exc}") from exc
+    except Exception as exc:  # any failure of a backend constructor is a refusal, never a crash
         raise BackendError(f"backend {name!r} cannot run: {type(exc).__name__}: {exc}") from exc
 
 

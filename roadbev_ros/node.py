@@ -41,7 +41,7 @@ from roadbev_core.config import ParamError, RoadbevConfig
 from roadbev_core.errors import RoadbevError
 from roadbev_core.pipeline import BackendFactory, Pipeline
 from roadbev_ros.diagnostics import Health, ThrottledLog, problem_kind, to_diagnostic_array
-from roadbev_ros.node_params import check_params_files, config_of, declare_parameters, plain
+from roadbev_ros.node_params import check_params_files, config_of, declare_parameters, plain, value_error
 from roadbev_ros.publishers import OutputPublishers
 from roadbev_ros.sync import ApproximateTimeSync, DropReason
 
@@ -100,6 +100,7 @@ class RoadBevNode(Node):
         self._out = OutputPublishers(self, OUTPUT_QOS, topics)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", OUTPUT_QOS)
         self._diag_timer = self.create_timer(self.config.diagnostics.period_s, self._publish_diagnostics)
+        self.add_pre_set_parameters_callback(self._report_bad_values)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._worker = threading.Thread(target=self._work, name="roadbev-inference", daemon=True)
         self._worker.start()
@@ -182,7 +183,18 @@ class RoadBevNode(Node):
             self._problem("bad speed", str(exc))
 
     # --- parameters ------------------------------------------------------------------------------
+    def _report_bad_values(self, parameters: list[Any]) -> list[Any]:
+        """Runs before rclpy's own range checks, so a value rclpy refuses is in the diagnostics too."""
+        for p in parameters:
+            error = value_error(p.name, plain(p.value))
+            if error:
+                self._problem("parameter", f"rejected: {error}")
+        return parameters
+
     def _on_set_parameters(self, parameters: Sequence[Any]) -> SetParametersResult:
+        error = next(filter(None, (value_error(p.name, plain(p.value)) for p in parameters)), None)
+        if error:  # already reported by _report_bad_values
+            return SetParametersResult(successful=False, reason=error)
         try:
             config = self.config.with_params({p.name: plain(p.value) for p in parameters if p.name != "use_sim_time"})
             self.pipeline.reconfigure(config)  # builds a new backend first; the old one runs on failure

@@ -22,7 +22,9 @@ from roadbev_core.config.tree import check_name, is_backend_option
 # Parameters every rclpy node has (not the config's).
 ROS_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service"})
 
-__all__ = ["check_overrides", "check_params_files", "config_of", "declare_parameters", "descriptor", "plain"]
+__all__ = [
+    "check_overrides", "check_params_files", "config_of", "declare_parameters", "descriptor", "plain", "value_error",
+]
 
 
 def descriptor(spec: ParamSpec) -> ParameterDescriptor:
@@ -58,6 +60,19 @@ def check_overrides(names: Iterable[str]) -> None:
     for name in names:
         if name not in ROS_PARAMETERS:
             check_name(name)
+
+
+def value_error(name: str, value: Any) -> str | None:
+    """Why a value of one of the config's parameters is refused on its own (type, range,
+    choices), or None (a good value, a backend option or a parameter that is not the config's)."""
+    spec = next((s for s in parameter_specs() if s.name == name), None)
+    if spec is None:
+        return None
+    try:
+        spec.check(value)
+    except ParamError as exc:
+        return str(exc)
+    return None
 
 
 def check_params_files(argv: Sequence[str], node_name: str) -> list[str]:

@@ -191,16 +191,47 @@ def test_nonsense_parameters_are_rejected_with_a_reason(harness: Harness) -> Non
         assert not result.successful, (name, value)
         assert reason in result.reason, result.reason
     assert node.health.problems["parameter"] == 6  # each rejection is in the diagnostics
+
     # a read-only parameter cannot change
     assert not set_param("image_transport", "compressed").successful
     # good changes are applied; a grid change rebuilds the backend on the new grid
     assert set_param("sync_slop_s", 0.03).successful
     assert node.sync.slop_ns == 30 * MS
     assert set_param("x_max", 3.06).successful
-    assert node.backend.grid.x_max == pytest.approx(3.06)
+    assert node.pipeline.backend.grid.x_max == pytest.approx(3.06)
     stamp = feed(harness, 0)
     msg = harness.wait_output(stamp)
     assert msg.data[0].layout.dim[0].size * msg.data[0].layout.dim[1].size == 30 * 64
+
+
+def test_costly_or_crashing_parameter_changes_are_rejected_and_the_node_keeps_running(ros: Any) -> None:
+    """Changes that crashed or froze the node before: each is a rejection with the reason, and the
+    old backend keeps answering."""
+    from rclpy.parameter import Parameter
+
+    def factory(name: str, grid: Any, **options: Any) -> Any:
+        from _ros_harness import PitchBackend
+
+        if name == "mono":  # a checkpoint whose config asks for 10^6 channels
+            raise RuntimeError("[enforce fail] could not allocate 4000000000000 bytes")
+        return PitchBackend(grid)
+
+    h = Harness(ros, backend_factory=factory)
+    try:
+        node = h.node
+        backend = node.pipeline.backend
+        for params, reason in [
+            ([Parameter("resolution", value=0.001), Parameter("x_max", value=200.0)], "voxels, more than the limit"),
+            ([Parameter("resolution", value=0.001)], "voxels, more than the limit"),
+            ([Parameter("sync_slop_s", value=1.0), Parameter("sync_queue_size", value=1000)], "stamp combinations"),
+            ([Parameter("backend", value="mono")], "RuntimeError"),
+        ]:
+            result = node.set_parameters_atomically(params)
+            assert not result.successful and reason in result.reason, result.reason
+            assert node.pipeline.backend is backend and node.config.backend.name == "bev_sweep"
+        h.wait_output(feed(h, 0))  # still answering with the old backend
+    finally:
+        h.close()
 
 
 @pytest.mark.parametrize(
@@ -223,8 +254,10 @@ def test_speed_topic_gives_times_of_arrival_and_a_viewer_gets_points(harness: Ha
     assert wait_for(lambda: pub.get_subscription_count() > 0 and harness.node.count_subscribers("/roadbev/points") > 0)
     speed = msg_type()
     (speed.twist.twist if odometry else speed.twist).linear.x = 5.0
+    first = START_NS  # speeds are matched to frames by stamp (SPEED_MAX_AGE_S), as offline
+    speed.header.stamp.sec, speed.header.stamp.nanosec = divmod(first - 50_000_000, 1_000_000_000)
     pub.publish(speed)
-    assert wait_for(lambda: harness.node._speed is not None)
+    assert wait_for(lambda: harness.node.pipeline.speed_at(first) is not None)
     stamp = feed(harness, 0)
     harness.wait_output(stamp)
     assert wait_for(lambda: len(harness.previews) == 1)
