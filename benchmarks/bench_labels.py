@@ -7,7 +7,6 @@ Run: ``.venv/bin/python -m benchmarks.bench_labels [--points 1000000]``; writes
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import time
 from pathlib import Path
@@ -15,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from roadbev_core.config import GridSpec
+from roadbev_core.evaluation import to_json
 from roadbev_core.labels import elevation_map
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -73,8 +73,9 @@ def main() -> None:
         "machine": f"{platform.processor() or platform.machine()}, {__import__('os').cpu_count()} cores",
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "labels.json").write_text(json.dumps(result, indent=2) + "\n")
-    print(json.dumps(result, indent=2))
+    text = to_json(result)
+    (RESULTS / "labels.json").write_text(text)
+    print(text, end="")
     if max_diff > 1e-6 or not same_mask:
         raise SystemExit("vectorized labels differ from the per-point loop")
 

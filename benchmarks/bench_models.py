@@ -16,7 +16,6 @@ writes ``benchmarks/results/models.json``.
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import time
 from collections.abc import Iterable, Iterator
@@ -28,7 +27,7 @@ import torch
 from roadbev_core.backends import create
 from roadbev_core.config import GridSpec
 from roadbev_core.datasets import TEST_SEED_START, SyntheticSet, as_samples
-from roadbev_core.evaluation import evaluate, json_safe
+from roadbev_core.evaluation import evaluate, to_json
 from roadbev_core.frame import Frame
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -102,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
         "results": results,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(json_safe(payload), indent=2) + "\n")
+    args.out.write_text(to_json(payload))
     print(f"wrote {args.out}")
     return 0
 

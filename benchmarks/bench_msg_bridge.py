@@ -8,7 +8,6 @@ default 164x64 grid).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import time
@@ -25,6 +24,7 @@ from msg_bridge.image import array_to_compressed, array_to_image, compressed_to_
 from msg_bridge.point_cloud import elevation_point_cloud
 from msg_bridge.preview import road_preview_message
 from roadbev_core.config import GridSpec
+from roadbev_core.evaluation import to_json
 from roadbev_core.preview import wheel_track_profiles
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -89,8 +89,9 @@ def main() -> None:
         result["sample_bag_frames_per_s"] = frames / (time.perf_counter() - t0)
     result["machine"] = f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores"
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "msg_bridge.json").write_text(json.dumps(result, indent=2) + "\n")
-    print(json.dumps(result, indent=2))
+    text = to_json(result)
+    (RESULTS / "msg_bridge.json").write_text(text)
+    print(text, end="")
 
 
 if __name__ == "__main__":

@@ -39,8 +39,6 @@ from roadbev_core.box_filter import WindowSize, box_mean
 from roadbev_core.config import GridSpec
 from roadbev_core.evaluation import evaluate
 
-torch.set_flush_denormal(True)
-
 RELIEF_BINS_CM = (0.0, 1.0, 2.0, 4.0, 8.0, float("inf"))
 TAIL_CM = 1.5  # a "tail" cell: off by more than this
 PATCH_CELLS = 20  # tail cells in a connected patch at least this large are a failed region, not noise
@@ -147,6 +145,7 @@ def measure(samples: list[Any], grid: GridSpec) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    torch.set_flush_denormal(True)  # in inference (cpu-sizing.md); set here, not at import
     parser = argparse.ArgumentParser(prog="python -m benchmarks.bev_sweep_limits", description=__doc__.splitlines()[0])
     parser.add_argument("--tuning", action="store_true", help="the 16 tuning frames instead of the 24 Table I frames")
     parser.add_argument("--frames", type=int, default=None)

@@ -7,7 +7,6 @@ frames.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import platform
@@ -19,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from roadbev_core.config import GridSpec, StereoCamera
-from roadbev_core.evaluation import json_safe
+from roadbev_core.evaluation import to_json
 
 __all__ = [
     "EVAL_SEED_BASE",
@@ -109,4 +108,4 @@ def write_json(path: Path, data: dict[str, Any]) -> None:
     """Write strict JSON (NaN -> null)."""
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(json_safe(data), indent=2) + "\n")
+    path.write_text(to_json(data))

@@ -34,8 +34,6 @@ from roadbev_core.evaluation import evaluate
 from roadbev_core.frame import Frame
 from roadbev_core.geometry import Attitude
 
-torch.set_flush_denormal(True)
-
 # perturbation -> levels (the unperturbed level included)
 LEVELS: dict[str, list[float]] = {
     "noise_sigma": [0.0, 2.0, 4.0, 8.0],
@@ -142,13 +140,10 @@ def run_sweep(names: list[str], *, quick: bool, out_dir: Path = RESULTS, quiet: 
 
 def plot(results: dict[str, Any], names: list[str], path: Path, frames: int) -> None:
     """Abs. error (top) and coverage (bottom) vs each perturbation, one line per backend."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from roadbev_core.figures import new_figure
 
     kinds = list(results)
-    fig, axes = plt.subplots(2, len(kinds), figsize=(3.3 * len(kinds), 5.6), dpi=110)
+    fig, axes = new_figure(2, len(kinds), figsize=(3.3 * len(kinds), 5.6), dpi=110)
     markers = ["o", "s", "^", "D", "v"]
     for col, kind in enumerate(kinds):
         entry = results[kind]
@@ -174,10 +169,10 @@ def plot(results: dict[str, Any], names: list[str], path: Path, frames: int) -> 
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
-    plt.close(fig)
 
 
 def main(argv: list[str] | None = None) -> int:
+    torch.set_flush_denormal(True)  # in inference (cpu-sizing.md); set here, not at import
     parser = argparse.ArgumentParser(prog="python -m benchmarks.robustness", description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="2 frames, two levels per perturbation")
     parser.add_argument("--backends", default="bev_sweep,sgbm,bm", help="comma-separated backends")

@@ -31,8 +31,6 @@ from roadbev_core.config import GridSpec
 from roadbev_core.evaluation import common_cell_errors, evaluate, format_table
 from roadbev_core.metrics import N_BANDS
 
-torch.set_flush_denormal(True)
-
 DEFAULT_FRAMES = 24
 QUICK_FRAMES = 3
 
@@ -117,15 +115,12 @@ def common_cell_markdown(comparison: dict[str, Any]) -> str:
 
 def plot_bands(rows: list[dict[str, Any]], grid_x: tuple[float, float], path: Path, title: str) -> None:
     """Abs. error per distance band, one line per backend (the paper's Fig. 9)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from roadbev_core.figures import new_figure
 
     x_min, x_max = grid_x
     width = (x_max - x_min) / N_BANDS
     centres = [x_min + (i + 0.5) * width for i in range(N_BANDS)]
-    fig, ax = plt.subplots(figsize=(7.5, 4.2), dpi=120)
+    fig, ax = new_figure(figsize=(7.5, 4.2), dpi=120)
     markers = ["o", "s", "^", "D", "v", "P"]
     for i, m in enumerate(rows):
         values = [float("nan") if v is None else v for v in m["band_abs_err_cm"]]
@@ -141,7 +136,6 @@ def plot_bands(rows: list[dict[str, Any]], grid_x: tuple[float, float], path: Pa
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
-    plt.close(fig)
 
 
 def run_table(frames: int, names: list[str], *, out_dir: Path, quiet: bool = False) -> dict[str, Any]:
@@ -188,6 +182,7 @@ def run_table(frames: int, names: list[str], *, out_dir: Path, quiet: bool = Fal
 
 
 def main(argv: list[str] | None = None) -> int:
+    torch.set_flush_denormal(True)  # in inference (cpu-sizing.md); set here, not at import
     parser = argparse.ArgumentParser(prog="python -m benchmarks.run_all", description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=None, help=f"evaluation frames (default {DEFAULT_FRAMES})")
     parser.add_argument("--quick", action="store_true", help=f"smoke test: {QUICK_FRAMES} frames, short sweep")

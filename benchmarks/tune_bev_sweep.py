@@ -21,8 +21,6 @@ from benchmarks.common import RESULTS, machine_info, write_json
 from roadbev_core.backends import create
 from roadbev_core.evaluation import evaluate
 
-torch.set_flush_denormal(True)
-
 TUNING_SEED_BASE = 200_000
 
 # name, backend, options: one change at a time around the defaults, plus the references.
@@ -74,6 +72,7 @@ CONFIGS: list[tuple[str, str, dict[str, Any]]] = [
 
 
 def main(argv: list[str] | None = None) -> int:
+    torch.set_flush_denormal(True)  # in inference (cpu-sizing.md); set here, not at import
     parser = argparse.ArgumentParser(prog="python -m benchmarks.tune_bev_sweep", description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=16, help="tuning frames (default 16)")
     args = parser.parse_args(argv)

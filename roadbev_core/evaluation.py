@@ -33,7 +33,7 @@ from roadbev_core.backends import Backend
 from roadbev_core.config import RoadbevConfig
 from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Estimate, Frame
-from roadbev_core.metrics import MetricAccumulator
+from roadbev_core.metrics import MetricAccumulator, Metrics
 from roadbev_core.pipeline import CameraInput, ImuFeed, Pipeline, PipelineOutput
 
 __all__ = [
@@ -88,6 +88,7 @@ class EvalResult:
     """What :func:`evaluate` measured.
 
     Attributes:
+        accuracy: the accuracy metrics, typed (the same type the online evaluation reports).
         metrics: contract keys (:data:`CONTRACT_KEYS`) plus ``labelled_cells``,
             ``frames_with_truth``, ``timed_frames``, ``pipeline_ms`` (mean per timed frame),
             the calibration of the uncertainty (``sigma_cells`` with a finite uncertainty,
@@ -104,6 +105,7 @@ class EvalResult:
     """
 
     metrics: dict[str, Any]
+    accuracy: Metrics
     per_frame: list[dict[str, float]] = field(default_factory=list)
     estimates: list[Estimate] | None = None
     outputs: list[PipelineOutput] | None = None
@@ -118,11 +120,18 @@ class EvalResult:
 
 
 def json_safe(value: Any) -> Any:
-    """NaN/inf -> None, numpy scalars -> Python, recursively (strict JSON has no NaN)."""
+    """NaN/inf -> None, numpy scalars and arrays -> Python, paths -> text, recursively (strict JSON
+    has no NaN)."""
+    from pathlib import PurePath
+
     if isinstance(value, dict):
-        return {k: json_safe(v) for k, v in value.items()}
+        return {str(k): json_safe(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [json_safe(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return json_safe(value.tolist())
+    if isinstance(value, PurePath):
+        return str(value)
     if isinstance(value, (np.floating, float)):
         return float(value) if math.isfinite(value) else None
     if isinstance(value, np.integer):
@@ -302,7 +311,8 @@ def evaluate(
     for timings in stage_timings[first_timed:]:
         for stage, ms in timings.items():
             stage_sums[stage] = stage_sums.get(stage, 0.0) + ms
-    metrics = _metrics(pipeline.backend.name, accumulator, per_frame, per_frame[first_timed:], stage_sums)
+    accuracy = accumulator.result()
+    metrics = _metrics(pipeline.backend.name, accuracy, per_frame, per_frame[first_timed:], stage_sums)
     # Calibration of the reported 1-sigma uncertainty: a Gaussian would put 68.3 % / 95.4 % inside.
     with_sigma = int(calibration[0])
     metrics["sigma_cells"] = with_sigma
@@ -310,6 +320,7 @@ def evaluate(
     metrics["within_2sigma_pct"] = 100.0 * calibration[2] / with_sigma if with_sigma else math.nan
     return EvalResult(
         metrics=metrics,
+        accuracy=accuracy,
         per_frame=per_frame,
         estimates=[o.estimate for o in outputs] if keep_estimates else None,
         outputs=outputs if keep_estimates else None,
@@ -328,13 +339,12 @@ def _sigma_counts(estimate: Estimate, truth: np.ndarray) -> np.ndarray:
 
 def _metrics(
     name: str,
-    accumulator: MetricAccumulator,
+    scored: Metrics,
     per_frame: list[dict[str, float]],
     timed: list[dict[str, float]],
     stage_sums: dict[str, float],
 ) -> dict[str, Any]:
     """The metrics dict of :class:`EvalResult` from the accumulated numbers."""
-    scored = accumulator.result()
     n_timed = len(timed)
     decode_ms = sum(r["decode_ms"] for r in timed) / n_timed
     estimate_ms = sum(r["estimate_ms"] for r in timed) / n_timed

@@ -1,31 +1,38 @@
 """Figures: voxel columns over the left image (the paper's Fig. 4) and elevation maps in cm.
 
-Pure matplotlib (Agg, no display, no ROS). Every function draws into a new figure, saves a PNG
-and closes the figure, so it is safe in loops and in headless runs.
+Pure matplotlib through its object API (:class:`matplotlib.figure.Figure`, no pyplot): no backend
+is chosen and no global figure state is touched, so importing this module changes nothing, and
+every function draws into a figure of its own and saves a PNG (safe in loops and headless runs).
 """
 
 from __future__ import annotations
 
 import textwrap
 from pathlib import Path
+from typing import Any
 
 import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.collections import LineCollection
+from matplotlib.figure import Figure
 
 from roadbev_core.config import GridSpec
 from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Frame
 from roadbev_core.geometry import project_points, road_to_camera
 
-__all__ = ["FigureError", "elevation_figure", "voxel_column_segments", "voxel_columns_figure"]
+__all__ = ["FigureError", "elevation_figure", "new_figure", "voxel_column_segments", "voxel_columns_figure"]
 
 
 class FigureError(RoadbevError, ValueError):
     """Input a figure cannot be drawn from."""
+
+
+def new_figure(*grid: int, figsize: tuple[float, float], dpi: float, **subplot_kw: Any) -> tuple[Figure, Any]:
+    """A figure and its axes (``grid`` = rows, columns as for ``subplots``), outside pyplot: nothing
+    to close, no backend to choose. ``subplot_kw`` go to :meth:`Figure.subplots` (``sharex``...)."""
+    fig = Figure(figsize=figsize, dpi=dpi)
+    return fig, fig.subplots(*grid, **subplot_kw)
 
 
 def voxel_column_segments(
@@ -74,7 +81,7 @@ def voxel_columns_figure(
     segments, dist = voxel_column_segments(frame, grid, row_step=row_step, col_step=col_step)
     img = frame.left
     h, w = img.shape[:2]
-    fig, ax = plt.subplots(figsize=(w / dpi, h / dpi + 0.45), dpi=dpi)
+    fig, ax = new_figure(figsize=(w / dpi, h / dpi + 0.45), dpi=dpi)
     ax.imshow(img, cmap="gray" if img.ndim == 2 else None, interpolation="nearest")
     lines = LineCollection(segments, cmap="turbo", linewidths=1.4, alpha=0.95)
     lines.set_array(dist)
@@ -113,7 +120,6 @@ def voxel_columns_figure(
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=dpi)
-    plt.close(fig)
     return out
 
 
@@ -143,9 +149,9 @@ def elevation_figure(
             limits_cm = (-span, span)
         else:
             limits_cm = (-1.0, 1.0)
-    cmap = plt.get_cmap("RdBu_r").with_extremes(bad="0.6")
+    cmap = matplotlib.colormaps["RdBu_r"].with_extremes(bad="0.6")
     aspect = grid.length_x / grid.length_y
-    fig, ax = plt.subplots(figsize=(3.6, min(2.6 + 1.55 * aspect, 9.0)), dpi=dpi)
+    fig, ax = new_figure(figsize=(3.6, min(2.6 + 1.55 * aspect, 9.0)), dpi=dpi)
     extent = (grid.y_max, grid.y_min, grid.x_min, grid.x_max)  # left edge = +y (vehicle's left)
     im = ax.imshow(
         np.ma.masked_invalid(cm),
@@ -167,5 +173,4 @@ def elevation_figure(
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=dpi, bbox_inches="tight", pad_inches=0.1)
-    plt.close(fig)
     return out

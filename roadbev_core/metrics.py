@@ -16,7 +16,7 @@ import numpy as np
 
 from roadbev_core.config import GridSpec
 
-__all__ = ["N_BANDS", "MetricAccumulator", "Metrics"]
+__all__ = ["N_BANDS", "MetricAccumulator", "Metrics", "differences"]
 
 N_BANDS = 15
 # Error histogram for the percentiles: 0.001 cm bins up to 100 cm (larger errors share the top bin).
@@ -52,6 +52,22 @@ class Metrics:
             "median_abs_err_cm": self.median_abs_err_cm,
             "p95_abs_err_cm": self.p95_abs_err_cm,
         }
+
+
+def differences(a: Metrics, b: Metrics) -> dict[str, float]:
+    """|a - b| per metric, and the largest band difference (``band_abs_err_cm_max``): how far two
+    evaluations of the same frames (online over DDS and offline, say) are apart. NaN where either
+    is undefined."""
+    out: dict[str, float] = {}
+    for key in ("frames", "cells", "abs_err_cm", "rmse_cm", "gt_0p5cm_pct", "coverage_pct"):
+        x, y = float(getattr(a, key)), float(getattr(b, key))
+        out[key] = abs(x - y) if math.isfinite(x) and math.isfinite(y) else math.nan
+    bands_a = np.asarray(a.band_abs_err_cm, np.float64)
+    bands_b = np.asarray(b.band_abs_err_cm, np.float64)
+    if bands_a.size and bands_a.shape == bands_b.shape:
+        diff = np.abs(bands_a - bands_b)
+        out["band_abs_err_cm_max"] = float(np.nanmax(diff)) if np.isfinite(diff).any() else math.nan
+    return out
 
 
 @dataclass

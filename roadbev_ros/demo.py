@@ -32,6 +32,8 @@ from typing import Any
 import numpy as np
 
 from roadbev_core.errors import RoadbevError
+from roadbev_core.evaluation import to_json
+from roadbev_core.metrics import differences
 from roadbev_ros.report import FrameView, ReportData, RunSummary, TimingTrace, TrackProfile, write_report
 
 __all__ = [
@@ -309,23 +311,6 @@ def _bar(total: int | None, desc: str, enabled: bool) -> Any:
                 leave=True, dynamic_ncols=True)
 
 
-_COMPARED = ("frames", "cells", "abs_err_cm", "rmse_cm", "gt_0p5cm_pct", "coverage_pct")
-
-
-def _agreement(online: dict[str, Any], offline: dict[str, Any]) -> dict[str, float]:
-    """|online - offline| per metric (contract keys and the 15 bands)."""
-    out: dict[str, float] = {}
-    for key in _COMPARED:
-        a, b = online.get(key), offline.get(key)
-        out[key] = abs(float(a) - float(b)) if a is not None and b is not None else math.nan
-    bands_a = np.asarray([math.nan if v is None else v for v in online.get("band_abs_err_cm", [])], float)
-    bands_b = np.asarray([math.nan if v is None else v for v in offline.get("band_abs_err_cm", [])], float)
-    if bands_a.size and bands_a.shape == bands_b.shape:
-        diff = np.abs(bands_a - bands_b)
-        out["band_abs_err_cm_max"] = float(np.nanmax(diff)) if np.isfinite(diff).any() else math.nan
-    return out
-
-
 def _agreement_note(agreement: dict[str, float], online: dict[str, Any]) -> str:
     missing = online.get("online", {}).get("frames_without_output", 0)
     worst = max((v for k, v in agreement.items() if k.endswith("_cm") and math.isfinite(v)), default=math.nan)
@@ -459,7 +444,7 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
             receive_s=np.array([(recorded.receive_ns[s] - first_sent) * 1e-9 for s in stamps]),
         )
         online = {**online, "latency_ms_median": float(np.median(timing.latency_ms))}
-    agreement = _agreement(online, offline)
+    agreement = differences(result.accuracy, offline_result.accuracy)
     runs = [
         RunSummary(f"{options.backend} · ROS 2 node (recorded)", options.backend, "online", online),
         RunSummary(f"{options.backend} · offline (roadbev eval)", options.backend, "offline", offline),
@@ -492,9 +477,9 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
     report_json = files["report.json"]
     payload = json.loads(report_json.read_text())
     payload["stage_seconds"] = stage_s
-    payload["agreement"] = {k: (None if not math.isfinite(v) else v) for k, v in agreement.items()}
+    payload["agreement"] = dict(agreement)
     payload["bag"] = str(bag_path)
-    report_json.write_text(json.dumps(payload, indent=2))
+    report_json.write_text(to_json(payload))
     return DemoResult(bag_path, reused, out_dir, online, offline, agreement, files, stage_s)
 
 

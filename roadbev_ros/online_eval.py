@@ -35,7 +35,7 @@ from msg_bridge import bag
 from msg_bridge.evalbag import read_eval_bag
 from msg_bridge.grid_map import grid_map_to_arrays
 from roadbev_core.errors import RoadbevError
-from roadbev_core.metrics import MetricAccumulator
+from roadbev_core.metrics import MetricAccumulator, Metrics
 from roadbev_ros.dds import child_env, init_ros
 from roadbev_ros.replay import header_stamp_ns, replay_bag
 
@@ -55,6 +55,7 @@ class OnlineResult:
     """What :func:`evaluate_online` measured.
 
     Attributes:
+        accuracy: the accuracy metrics, typed (as the offline :class:`roadbev_core.evaluation.EvalResult`'s).
         metrics: the contract keys (as ``roadbev eval``) plus ``mode`` and ``online`` details:
             outputs, frames without output, ``latency_ms`` (left image published -> elevation
             map received, over DDS both ways) and the node's last diagnostics.
@@ -63,6 +64,7 @@ class OnlineResult:
     """
 
     metrics: dict[str, Any]
+    accuracy: Metrics
     recorded: Path
     node_log: str = ""
     diagnostics: dict[str, str] = field(default_factory=dict)
@@ -288,7 +290,8 @@ def evaluate_online(
             missing += 1
             estimate = np.full(grid.shape, np.nan, np.float32)
         acc.add(estimate, truths[stamp])
-    metrics: dict[str, Any] = {"backend": backend, **acc.result().to_dict()}
+    accuracy = acc.result()
+    metrics: dict[str, Any] = {"backend": backend, **accuracy.to_dict()}
     answered = len(truths) - missing
     metrics["fps"] = answered / elapsed if elapsed > 0 else math.nan
     metrics["mode"] = "lockstep" if rate is None else f"rate {rate}"
@@ -303,7 +306,7 @@ def evaluate_online(
         "wall_s": elapsed,
         "node": dict(watcher.diagnostics),
     }
-    return OnlineResult(metrics, recorded, _tail(log_path, 4000), dict(watcher.diagnostics))
+    return OnlineResult(metrics, accuracy, recorded, _tail(log_path, 4000), dict(watcher.diagnostics))
 
 
 def _summary(values: Sequence[float]) -> dict[str, float]:

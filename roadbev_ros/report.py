@@ -20,27 +20,22 @@ so ``imshow`` of the array as is, with the lateral axis running from +y (left) t
 from __future__ import annotations
 
 import html
-import json
 import math
-import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import matplotlib
 import numpy as np
+from matplotlib import colors as mcolors
+from matplotlib.figure import Figure
 
 from roadbev_core.config import GridSpec, StereoCamera
-from roadbev_core.geometry import Attitude, project_points, road_to_camera
-
-os.environ.setdefault("MPLBACKEND", "Agg")
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
-from matplotlib import colors as mcolors
-
 from roadbev_core.errors import RoadbevError
+from roadbev_core.evaluation import to_json
+from roadbev_core.figures import new_figure
+from roadbev_core.geometry import Attitude, project_points, road_to_camera
 
 __all__ = [
     "FIGURE_NAMES",
@@ -296,7 +291,7 @@ def plot_frames(frames: Sequence[FrameView], grid: GridSpec, path: str | Path) -
     fig_w = margin + w_img + gap_img + 3 * w_map + 2 * gap_map + 0.45
     row_h = title_h + h + ticks_h
     fig_h = 0.45 + row_h * len(frames) + bar_h + bar_label_h
-    fig = plt.figure(figsize=(fig_w, fig_h), dpi=_DPI)
+    fig = Figure(figsize=(fig_w, fig_h), dpi=_DPI)
 
     def axes_at(left_in: float, bottom_in: float, width_in: float, height_in: float) -> Any:
         return fig.add_axes((left_in / fig_w, bottom_in / fig_h, width_in / fig_w, height_in / fig_h))
@@ -341,7 +336,6 @@ def plot_frames(frames: Sequence[FrameView], grid: GridSpec, path: str | Path) -
              fontsize=8, va="top")
     out = Path(path)
     fig.savefig(out)
-    plt.close(fig)
     return out
 
 
@@ -354,7 +348,7 @@ def plot_surface(frame: FrameView, grid: GridSpec, path: str | Path) -> Path:
         raise ReportError(f"frame {frame.index}: the estimate is empty, nothing to render")
     yy, xx = np.meshgrid(grid.y_centres(), grid.x_centres())  # [R, C]
     lo, hi = _elevation_limits_cm([frame.truth if frame.truth is not None else frame.estimate])
-    fig = plt.figure(figsize=(8.0, 6.0), dpi=_DPI)
+    fig = Figure(figsize=(8.0, 6.0), dpi=_DPI)
     ax = fig.add_axes((0.0, 0.02, 0.84, 0.9), projection="3d")
     surf = ax.plot_surface(
         yy, xx, np.ma.masked_invalid(est_cm), cmap=_cmap(_ELEVATION_CMAP), vmin=lo, vmax=hi,
@@ -381,7 +375,6 @@ def plot_surface(frame: FrameView, grid: GridSpec, path: str | Path) -> Path:
                  f"(elevation exaggerated about {exaggeration:.0f}x)", fontsize=10, y=0.97)
     out = Path(path)
     fig.savefig(out)
-    plt.close(fig)
     return out
 
 
@@ -395,7 +388,7 @@ def plot_preview(frames: Sequence[FrameView], path: str | Path) -> Path:
         for t in (*f.tracks, *f.truth_tracks):
             if t.name not in names:
                 names.append(t.name)
-    fig, axes = plt.subplots(len(rows), len(names), figsize=(5.0 * len(names), 2.6 * len(rows) + 0.6),
+    fig, axes = new_figure(len(rows), len(names), figsize=(5.0 * len(names), 2.6 * len(rows) + 0.6),
                              dpi=_DPI, squeeze=False, sharex=True, sharey=True)
     for i, frame in enumerate(rows):
         est = {t.name: t for t in frame.tracks}
@@ -425,7 +418,6 @@ def plot_preview(frames: Sequence[FrameView], path: str | Path) -> Path:
     fig.tight_layout()
     out = Path(path)
     fig.savefig(out)
-    plt.close(fig)
     return out
 
 
@@ -433,7 +425,7 @@ def plot_band_error(runs: Sequence[RunSummary], grid: GridSpec, path: str | Path
     """Mean absolute error per distance band (15 bands, near to far), one line per run."""
     if not runs:
         raise ReportError("no runs to draw")
-    fig, ax = plt.subplots(figsize=(7.0, 3.6), dpi=_DPI)
+    fig, ax = new_figure(figsize=(7.0, 3.6), dpi=_DPI)
     markers = "osd^v<>"
     for k, run in enumerate(runs):
         bands = np.asarray(run.metrics.get("band_abs_err_cm", []), dtype=np.float64)
@@ -453,7 +445,6 @@ def plot_band_error(runs: Sequence[RunSummary], grid: GridSpec, path: str | Path
     fig.tight_layout()
     out = Path(path)
     fig.savefig(out)
-    plt.close(fig)
     return out
 
 
@@ -461,7 +452,7 @@ def plot_timing(timing: TimingTrace, path: str | Path) -> Path:
     """Latency per output and output rate over time (two panels)."""
     if timing.receive_s.size == 0:
         raise ReportError("no outputs were received: nothing to time")
-    fig, (ax_l, ax_r) = plt.subplots(2, 1, figsize=(7.0, 5.0), dpi=_DPI, sharex=True)
+    fig, (ax_l, ax_r) = new_figure(2, 1, figsize=(7.0, 5.0), dpi=_DPI, sharex=True)
     ax_l.plot(timing.receive_s, timing.latency_ms, marker="o", ms=3, lw=1.0, color="tab:blue")
     med = float(np.median(timing.latency_ms))
     ax_l.axhline(med, color="tab:blue", ls=":", lw=1.0, label=f"median {med:.0f} ms")
@@ -487,7 +478,6 @@ def plot_timing(timing: TimingTrace, path: str | Path) -> Path:
     fig.tight_layout()
     out = Path(path)
     fig.savefig(out)
-    plt.close(fig)
     return out
 
 
@@ -524,27 +514,6 @@ def _metrics_table(runs: Sequence[RunSummary]) -> str:
         cells = "".join(f"<td>{_fmt(run.metrics.get(k), p)}</td>" for k, _, p in _TABLE_KEYS)
         rows.append(f"<tr><th>{html.escape(run.label)}</th>{cells}</tr>")
     return f"<table><tr><th>run</th>{head}</tr>{''.join(rows)}</table>"
-
-
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
-
-
-def _clean(obj: Any) -> Any:
-    """NaN/inf -> None so the JSON stays standard."""
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    return obj
 
 
 _CAPTIONS: dict[str, str] = {
@@ -655,7 +624,7 @@ def write_report(
             "stamp_s": data.timing.stamp_s, "latency_ms": data.timing.latency_ms, "receive_s": data.timing.receive_s,
         }
     json_path = out / "report.json"
-    json_path.write_text(json.dumps(_clean(json.loads(json.dumps(payload, default=_json_default))), indent=2))
+    json_path.write_text(to_json(payload))
     written["report.json"] = json_path
     html_path = out / "index.html"
     html_path.write_text(_html_page(data, figures))

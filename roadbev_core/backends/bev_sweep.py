@@ -45,8 +45,6 @@ from roadbev_core.image_sampling import sample_coordinates
 
 __all__ = ["DEFAULT_Z_STEP", "BevSweep", "SweepParams", "grey_image"]
 
-torch.set_flush_denormal(True)
-
 _WORST = -2.0  # below any ZNCC: levels outside the image never win
 _OCCLUSION_SAMPLES = 16  # points per line of sight in the occlusion test
 _MIN_SIGMA = 0.001  # m: the smallest uncertainty reported
@@ -293,6 +291,9 @@ class BevSweep:
     needs_stereo = True
 
     def __init__(self, grid: GridSpec, params: SweepParams | None = None) -> None:
+        # the pipeline flushes denormals in the thread that runs the backend; this covers
+        # direct use in the constructing thread (tests, scripts)
+        torch.set_flush_denormal(True)
         self.grid = grid
         self.params = params or SweepParams()
         p = self.params

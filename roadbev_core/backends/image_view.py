@@ -29,8 +29,6 @@ from roadbev_core.labels import elevation_map
 
 __all__ = ["ImageViewParams", "ImageViewStereo", "MatchWindow", "match_window"]
 
-cv2.setNumThreads(2)
-
 _SGBM_MODES = {
     "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
     "3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY,

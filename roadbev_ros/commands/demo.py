@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from roadbev_ros.cli import CommandError
+
 HELP = "the main job: synthetic drive -> node over ROS 2 -> recorded outputs -> report"
 
 
@@ -36,11 +38,10 @@ def run(args: argparse.Namespace) -> int:
     from roadbev_core.backends import available
     from roadbev_ros.demo import DemoOptions, run_demo, summary_lines
 
-    # DemoError is a RuntimeError and bad options raise ValueError: the CLI prints either as one
-    # line. (Not CommandError: under `python -m roadbev_ros.cli`, as `make demo` runs it, the CLI
-    # module is __main__ and catches its own CommandError class, not roadbev_ros.cli's.)
+    # DemoError and CommandError are RoadbevErrors: the CLI prints either as one line (it catches
+    # the root class, so running as `python -m roadbev_ros.cli`, as `make demo` does, is no different)
     if args.backend not in available():
-        raise ValueError(f"unknown backend {args.backend!r}; choose from {', '.join(available())}")
+        raise CommandError(f"unknown backend {args.backend!r}; choose from {', '.join(available())}")
     options = DemoOptions(frames=args.frames, out_dir=args.out, backend=args.backend, bag=args.bag,
                           cache_dir=args.cache, seed=args.seed, progress=not args.no_progress)
     result = run_demo(options)

@@ -14,6 +14,8 @@ import threading
 import time
 from pathlib import Path
 
+from roadbev_ros.cli import CommandError
+
 HELP = "record topics to an MCAP bag"
 
 
@@ -34,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     if args.out.exists():
         raise OSError(f"{args.out} exists already; not overwriting it")
     if args.duration < 0 or args.max_messages < 0:
-        raise ValueError("--duration and --max-messages must be >= 0")
+        raise CommandError("--duration and --max-messages must be >= 0")
     rclpy = init_ros(handle_signals=False)
     from rclpy.executors import SingleThreadedExecutor
 

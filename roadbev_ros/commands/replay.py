@@ -7,11 +7,12 @@ the rate factor; the Fast DDS profile for large images is applied (``config/fast
 from __future__ import annotations
 
 import argparse
-import json
 import signal
 import sys
 import threading
 from pathlib import Path
+
+from roadbev_ros.cli import CommandError
 
 HELP = "publish a bag's topics over ROS 2 with their original timing"
 
@@ -32,11 +33,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from roadbev_core.evaluation import to_json
     from roadbev_ros.dds import init_ros
     from roadbev_ros.replay import replay_bag
 
     if args.rate < 0 or args.rate != args.rate:
-        raise ValueError(f"--rate must be >= 0, got {args.rate}")
+        raise CommandError(f"--rate must be >= 0, got {args.rate}")
     if not args.bag.exists():
         raise OSError(f"bag not found: {args.bag}")
     rclpy = init_ros(handle_signals=False)
@@ -76,5 +78,5 @@ def run(args: argparse.Namespace) -> int:
             f"max {stats.late_max_ms:.2f} ms)"
         )
     if args.json:
-        args.json.write_text(json.dumps(stats.to_dict(), indent=2))
+        args.json.write_text(to_json(stats.to_dict()))
     return 0

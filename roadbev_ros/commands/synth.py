@@ -14,6 +14,8 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+from roadbev_ros.cli import CommandError
+
 HELP = "write a synthetic evaluation/training bag (MCAP)"
 
 
@@ -49,11 +51,11 @@ def run(args: argparse.Namespace) -> int:
     from roadbev_core.synth import DriveConfig, RoadConfig, SyntheticDrive
 
     if args.frames < 1:
-        raise ValueError(f"--frames must be >= 1, got {args.frames}")
+        raise CommandError(f"--frames must be >= 1, got {args.frames}")
     if not 0 < args.image_scale <= 2:
-        raise ValueError(f"--image-scale must be in (0, 2], got {args.image_scale}")
+        raise CommandError(f"--image-scale must be in (0, 2], got {args.image_scale}")
     if not 1 <= args.jpeg_quality <= 100:
-        raise ValueError(f"--jpeg-quality must be in 1..100, got {args.jpeg_quality}")
+        raise CommandError(f"--jpeg-quality must be in 1..100, got {args.jpeg_quality}")
     if args.out.exists():
         raise OSError(f"{args.out} exists already; remove it first")
     road = RoadConfig(road_class=args.road_class, surface=args.surface)

@@ -11,6 +11,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from roadbev_ros.cli import CommandError
+
 HELP = "train RoadBEV-mono / RoadBEV-stereo"
 DEFAULT_CACHE = Path(".cache") / "roadbev"
 
@@ -63,17 +65,17 @@ def run(args: argparse.Namespace) -> int:
     if args.synth:
         last = args.synth_seed + args.synth
         if args.synth_seed < 0 or last > TEST_SEED_START:
-            raise ValueError(f"training seeds must lie in [0, {TEST_SEED_START}) (test scenes use the rest)")
+            raise CommandError(f"training seeds must lie in [0, {TEST_SEED_START}) (test scenes use the rest)")
         sources.append(SyntheticSet(args.cache, range(args.synth_seed, last), progress=not args.quiet))
     sources.extend(LabelledFrames(*bag_frames(bag), what=str(bag)) for bag in args.bag)
     if args.rsrd:
         from roadbev_core.rsrd import RsrdSet
 
         if not args.rsrd_info or not args.rsrd_calib:
-            raise ValueError("--rsrd needs --rsrd-info and --rsrd-calib files")
+            raise CommandError("--rsrd needs --rsrd-info and --rsrd-calib files")
         sources.append(RsrdSet(args.rsrd, args.rsrd_split, args.rsrd_info, args.rsrd_calib))
     if not sources:
-        raise ValueError("no training data: give --synth N, --bag BAG or --rsrd ROOT")
+        raise CommandError("no training data: give --synth N, --bag BAG or --rsrd ROOT")
     data = ConcatSource(sources)
     grid = data.grid if args.bag else GridSpec()
     config = TrainConfig(

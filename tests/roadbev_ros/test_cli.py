@@ -41,3 +41,25 @@ def test_console_entry_point_runs() -> None:
         [sys.executable, "-m", "roadbev_ros.cli", "--help"], capture_output=True, text=True, timeout=60
     )
     assert proc.returncode == 0 and "roadbev" in proc.stdout
+
+
+def test_bad_input_is_one_line_and_a_bug_keeps_its_traceback(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import types
+
+    from roadbev_core.errors import RoadbevError
+    from roadbev_ros import cli
+
+    def command(error: Exception) -> types.SimpleNamespace:
+        def run(_args: object) -> int:
+            raise error
+
+        return types.SimpleNamespace(add_arguments=lambda _parser: None, run=run)
+
+    monkeypatch.setattr(cli, "_load", lambda _name: command(RoadbevError("the bag has no frames")))
+    assert cli.main(["eval"]) == 2
+    assert capsys.readouterr().err == "roadbev eval: the bag has no frames\n"
+    monkeypatch.setattr(cli, "_load", lambda _name: command(ValueError("a bug")))
+    with pytest.raises(ValueError, match="a bug"):  # not hidden as "bad input"
+        cli.main(["eval"])

@@ -78,7 +78,7 @@ def test_corrupt_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None
 
 def test_unknown_backend(bag: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["eval", str(bag), "--backend", "magic"]) == 2
-    assert "unknown backend 'magic'" in _one_line_error(capsys)
+    assert "backend must be one of bev_sweep, bm, mono, sgbm, stereo; got 'magic'" in _one_line_error(capsys)
 
 
 def test_bad_params(bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -89,6 +89,36 @@ def test_bad_params(bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str
     params.write_text("roadbev:\n  ros__parameters:\n    bev_sweep.patch_cells: 4\n")
     assert main(["eval", str(bag), "--params", str(params), "--no-progress"]) == 2
     assert "odd" in _one_line_error(capsys)
+
+
+@pytest.mark.parametrize(
+    "section, reason",
+    [
+        ("base_hieght: 1.2", "unknown parameter 'base_hieght' (did you mean 'base_height'?)"),
+        ("base_height: high", "base_height must be a number"),
+        ("bev_swep.patch_cells: 5", "unknown parameter 'bev_swep.patch_cells'"),
+        ("resolution: 0.001", "voxels, more than the limit"),
+    ],
+)
+def test_a_typo_or_a_wrong_type_in_the_params_file_is_refused_by_name(
+    bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], section: str, reason: str
+) -> None:
+    params = tmp_path / "typo.yaml"
+    params.write_text(f"roadbev:\n  ros__parameters:\n    {section}\n")
+    assert main(["eval", str(bag), "--params", str(params), "--no-progress"]) == 2
+    assert reason in _one_line_error(capsys)
+
+
+def test_a_params_file_for_another_node_is_reported(
+    bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    params = tmp_path / "other.yaml"
+    params.write_text("camera_driver:\n  ros__parameters:\n    exposure: 3\n")
+    assert main(["eval", str(bag), "--params", str(params), "--no-progress"]) == 2
+    assert "no section for node 'roadbev'" in _one_line_error(capsys)
+    params.write_text("camera_driver:\n  ros__parameters: {exposure: 3}\nroadbev:\n  ros__parameters: {}\n")
+    assert main(["eval", str(bag), "--params", str(params), "--no-progress", "--backend", "bm"]) == 0
+    assert "sections for other nodes not applied: camera_driver" in capsys.readouterr().err
 
 
 def test_bad_frames_and_checkpoint(bag: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -31,3 +31,31 @@ def test_shortcuts_and_ros_arguments_are_passed_to_rclpy(tmp_path: Path) -> None
 def test_a_missing_params_file_is_refused(tmp_path: Path) -> None:
     with pytest.raises(OSError, match="params file not found"):
         node_command.ros_arguments(parse(["--params", str(tmp_path / "nope.yaml")]))
+
+
+@pytest.mark.parametrize(
+    "ros_args, reason",
+    [
+        (["-p", "base_hieght:=1.2"], "unknown parameter 'base_hieght' (did you mean 'base_height'?)"),
+        (["-p", "sync_slop_s:=fast"], "sync_slop_s"),
+        (["-p", "resolution:=0.001"], "voxels, more than the limit"),
+        (["--params-file", "{typo}"], "unknown parameter 'preview.tyre_width' (did you mean 'preview.tyre_width_m'?)"),
+        (["--params-file", "{other}"], "no section for node 'roadbev'"),
+    ],
+)
+def test_the_node_refuses_a_typo_or_a_wrong_type_at_start(tmp_path: Path, ros_args: list[str], reason: str) -> None:
+    """What `roadbev node`, `ros2 run` and the launch file's params file all end in: exit 2, the name."""
+    import subprocess
+    import sys
+
+    from roadbev_ros.dds import child_env
+
+    typo = tmp_path / "typo.yaml"
+    typo.write_text("roadbev:\n  ros__parameters:\n    preview:\n      tyre_width: 0.2\n")
+    other = tmp_path / "other.yaml"
+    other.write_text("camera_driver:\n  ros__parameters:\n    exposure: 3\n")
+    args = [a.format(typo=typo, other=other) for a in ros_args]
+    proc = subprocess.run([sys.executable, "-m", "roadbev_ros.cli", "node", "--ros-args", *args],
+                          capture_output=True, text=True, timeout=120, env=child_env())
+    assert proc.returncode == 2, proc.stderr
+    assert reason in proc.stderr
