@@ -18,6 +18,7 @@ import math
 from pathlib import Path
 from typing import NamedTuple
 
+import cv2
 import numpy as np
 
 from roadbev_core.config import GridSpec, StereoCamera
@@ -25,9 +26,11 @@ from roadbev_core.geometry import R_BODY_FROM_OPTICAL, Attitude
 from roadbev_core.lidar_labels import LabelConfig, LabelError, fit_road_plane
 
 __all__ = [
+    "KittiFrame",
     "RoadPose",
     "disparity_points",
     "fit_road_pose",
+    "load_frames",
     "read_calib",
     "stereo_camera",
     "velo_to_camera",
@@ -123,3 +126,104 @@ def fit_road_pose(points_cam: np.ndarray, grid: GridSpec, config: LabelConfig | 
     pitch = -math.asin(float(np.clip(up_body[0], -1.0, 1.0)))
     roll = math.atan2(float(up_body[1]), float(up_body[2]))
     return RoadPose(Attitude(roll, pitch), (h0 - plane.offset) / norm, plane.sigma, plane.inliers)
+
+
+class KittiFrame(NamedTuple):
+    """One real KITTI stereo frame of ``../shared/realdata/kitti`` with its ground truth.
+
+    Attributes:
+        name: short name of the frame.
+        left, right: rectified RGB images [H, W, 3] uint8.
+        camera: the rectified rig.
+        points: [N, 3] ground-truth points in the ``points_frame`` (Velodyne or left optical).
+        rotation, translation: ``points_frame`` -> left optical frame (identity for disparity GT).
+        points_frame: "velodyne" or "stereo_left_optical_frame".
+    """
+
+    name: str
+    left: np.ndarray
+    right: np.ndarray
+    camera: StereoCamera
+    points: np.ndarray
+    rotation: np.ndarray
+    translation: np.ndarray
+    points_frame: str
+
+
+def _rgb(path: Path) -> np.ndarray:
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise FileNotFoundError(f"cannot read image {path}")
+    return np.ascontiguousarray(image[:, :, ::-1])
+
+
+def _disparity(path: Path) -> np.ndarray:
+    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if raw is None:
+        raise FileNotFoundError(f"cannot read disparity {path}")
+    return raw.astype(np.float64) / 256.0
+
+
+def load_frames(root: str | Path) -> list[KittiFrame]:
+    """The three KITTI frames of ``root`` (``../shared/realdata/kitti``; see its SOURCES.md).
+
+    * ``kitti2015_000046``: colour pair, GT from ``disp_occ_0``; the calibration is the 2011_09_26
+      one that ``stereo_rcnn_demo/demo/calib.txt`` carries (SOURCES.md).
+    * ``kitti2012_000070``: the grey pair (the GT disparity belongs to cameras 0/1), P0/P1.
+    * ``kitti_object_lidar``: colour pair and one raw Velodyne scan, ``Tr_velo_to_cam``.
+    """
+    root = Path(root)
+    demo = root / "stereo_rcnn_demo" / "demo"
+    demo_calib = read_calib(demo / "calib.txt")
+    eye, zero = np.eye(3), np.zeros(3)
+    frames = []
+    k15 = root / "sttr_kitti2015" / "training"
+    left = _rgb(k15 / "image_2" / "000046_10.png")
+    camera = stereo_camera(demo_calib["P2"], demo_calib["P3"], left.shape[1], left.shape[0])
+    pts = disparity_points(_disparity(k15 / "disp_occ_0" / "000046_10.png"), camera)
+    frames.append(
+        KittiFrame(
+            "kitti2015_000046",
+            left,
+            _rgb(k15 / "image_3" / "000046_10.png"),
+            camera,
+            pts,
+            eye,
+            zero,
+            "stereo_left_optical_frame",
+        )
+    )
+    k12 = root / "rob501_kitti2012"
+    calib12 = read_calib(k12 / "calib" / "000070.txt")
+    left = _rgb(k12 / "image_0" / "000070_10.png")
+    camera = stereo_camera(calib12["P0"], calib12["P1"], left.shape[1], left.shape[0])
+    pts = disparity_points(_disparity(k12 / "disp_occ" / "000070_10.png"), camera)
+    frames.append(
+        KittiFrame(
+            "kitti2012_000070",
+            left,
+            _rgb(k12 / "image_1" / "000070_10.png"),
+            camera,
+            pts,
+            eye,
+            zero,
+            "stereo_left_optical_frame",
+        )
+    )
+    left = _rgb(demo / "left.png")
+    camera = stereo_camera(demo_calib["P2"], demo_calib["P3"], left.shape[1], left.shape[0])
+    velo = np.fromfile(demo / "lidar.bin", dtype=np.float32).reshape(-1, 4)
+    R, t = velo_to_camera(demo_calib)
+    frames.append(
+        KittiFrame(
+            "kitti_object_lidar",
+            left,
+            _rgb(demo / "right.png"),
+            camera,
+            velo[:, :3].astype(np.float64),
+            R,
+            t,
+            "velodyne",
+        )
+    )
+    return frames
