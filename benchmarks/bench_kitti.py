@@ -127,6 +127,7 @@ def run_backend(name: str, bag_path: Path) -> dict[str, Any]:
         return {"backend": name, "refused": f"{type(exc).__name__}: {exc}"}
     (estimate,) = result.estimates or []
     truth = samples[0].truth
+    assert truth is not None  # the bag was just labelled
     m = result.metrics
     keep = (
         "abs_err_cm",
@@ -159,6 +160,7 @@ def main(argv: list[str] | None = None) -> int:
             from msg_bridge.evalbag import read_eval_bag
 
             truth = next(iter(read_eval_bag(bag))).truth
+            assert truth is not None  # the bag was just labelled
             labelled = np.isfinite(truth)
             record: dict[str, Any] = {
                 "frame": frame.name,

@@ -63,6 +63,8 @@ SETTINGS: tuple[tuple[str, float, float | None, float | None], ...] = (
     ("texture x0.5, noise 2 DN", 0.5, None, 2.0),
     ("texture x0.5, blur 1.0 px, noise 2 DN", 0.5, 1.0, 2.0),
     ("noise 4.5 DN", 1.0, None, 4.5),
+    ("texture x0.5, noise 4.5 DN", 0.5, None, 4.5),
+    ("texture x0.3, noise 4.5 DN", 0.3, None, 4.5),
 )
 STATISTICS = ("gradient_energy", "smoothed_gradient_energy", "local_contrast", "noise_dn")
 ENERGY_TOLERANCE = 0.25
@@ -73,7 +75,8 @@ WINDOW_PX = 7
 def _energy(grey: np.ndarray) -> np.ndarray:
     gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3) / 8.0
     gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3) / 8.0
-    return cv2.boxFilter(gx * gx + gy * gy, -1, (WINDOW_PX, WINDOW_PX))
+    energy = np.asarray(gx * gx + gy * gy, dtype=np.float32)
+    return cv2.boxFilter(energy, -1, (WINDOW_PX, WINDOW_PX))
 
 
 _IMMERKAER = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
@@ -154,6 +157,7 @@ def real_statistics(workdir: Path) -> dict[str, Any]:
         bag_path, grid, _pose, _info = labelled_bag(frame, workdir)
         samples = list(read_eval_bag(bag_path))
         sample = samples[0]
+        assert sample.truth is not None  # the bag was just labelled
         pool.add(road_samples(sample.frame.left, sample.frame.camera, sample.frame.attitude, grid, sample.truth))
         for m in MATCHERS:
             coverage[m].append(_coverage(m, samples, grid))

@@ -142,8 +142,9 @@ def _attitude_at(imu: _Series, stamp: int, rpy: Sequence[float], max_age_ns: int
         q = imu.values[k]
     else:
         q = interpolate_orientation(int(s[i - 1]), imu.values[i - 1], int(s[i]), imu.values[i], stamp)
+    x, y, z, w = (float(v) for v in q)
     try:
-        return attitude_from_quaternion(*(float(v) for v in q), imu_to_camera_rpy_deg=tuple(rpy))  # type: ignore[arg-type]
+        return attitude_from_quaternion(x, y, z, w, imu_to_camera_rpy_deg=(float(rpy[0]), float(rpy[1]), float(rpy[2])))
     except GeometryError:
         return None
 

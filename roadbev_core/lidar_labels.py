@@ -149,8 +149,13 @@ class RoadPlane(NamedTuple):
     sigma: float  # 1.4826 * MAD of the inliers' residuals (m)
     inliers: int
 
-    def height(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        return self.offset + self.slope_x * np.asarray(x) + self.slope_y * np.asarray(y)
+    def height(self, x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray:
+        """Plane height at road-frame (x, y) (arrays of any shape, or scalars)."""
+        return (
+            self.offset
+            + self.slope_x * np.asarray(x, dtype=np.float64)
+            + self.slope_y * np.asarray(y, dtype=np.float64)
+        )
 
 
 class RoadSelection(NamedTuple):
