@@ -28,6 +28,7 @@ COMMANDS: dict[str, str] = {
     "node": "run the RoadBEV node",
     "train": "train RoadBEV-mono / RoadBEV-stereo",
     "export": "export a checkpoint for deployment",
+    "label": "label a recorded drive from its LiDAR: an evaluation/training bag with /ground_truth/elevation",
     "figures": "render the geometry and label figures (voxel columns, GT elevation map)",
 }
 

@@ -27,3 +27,14 @@ def rsrd_dir() -> Path:
     if not RSRD.is_dir():
         pytest.skip(f"real RSRD metadata not found at {RSRD}")
     return RSRD
+
+
+KITTI = SHARED / "realdata" / "kitti"
+
+
+@pytest.fixture(scope="session")
+def kitti_dir() -> Path:
+    """The three real KITTI frames (``../shared/realdata/kitti``, a test set: never tune on it)."""
+    if not (KITTI / "stereo_rcnn_demo" / "demo" / "lidar.bin").is_file():
+        pytest.skip(f"real KITTI frames not found at {KITTI}")
+    return KITTI

@@ -1,0 +1,337 @@
+"""Texture statistics of real road (KITTI) against the synthetic road seen by the same rig.
+
+Real: the three KITTI frames (a test set: nothing is tuned on them), the road cells of their
+labels (``benchmarks.bench_kitti.labelled_bag``: ``roadbev label`` on their ground truth) over the
+window x 6.5-18.5 m, y +-2 m, 0.1 m cells. Synthetic: scenes of the project's generator
+(``roadbev_core.synth``, its default random roads, seeds 300,000+) rendered with the KITTI rig
+(fx 721.5377, B 0.5327 m, 1242 x 375) from 1.65 m with roll = pitch = 0, over the same window.
+
+Per road cell the left image is sampled at the cell's centre (at its label height):
+
+* ``gradient_energy``: the 7 x 7 box mean of |grad I|^2 (Sobel / 8, grey in 8-bit DN), DN^2/px^2;
+* ``smoothed_gradient_energy``: the same after a Gaussian blur of 1 px: pixel noise (which no
+  matcher can match between the two cameras) mostly removed, the texture a matcher uses kept;
+* ``local_contrast``: the 7 x 7 standard deviation over the mean (dimensionless);
+* ``noise_dn``: Immerkaer's local noise estimate (7 x 7 mean |Laplacian-like mask| * sqrt(pi/2) / 6;
+  texture inflates it).
+
+Both are summarised per distance band (6.5-9.5, 9.5-12.5, 12.5-15.5, 15.5-18.5 m) by their
+quartiles, pooled over the frames. The matchers' cell coverage (``bm``, ``sgbm``,
+``bev_sweep``: labelled cells that got an estimate) comes from ``roadbev_core.evaluation``.
+
+Besides the generator as it is (``default``), weaker-texture *settings* are measured: the
+pavement texture contrast scaled by ``texture_scale`` (``Scene.texture_contrast``) and the optical
+blur set to ``blur_sigma_px`` (``RoadConfig.blur_sigma_px``) and the read noise to ``noise_sigma``
+(``RoadConfig.noise_sigma``). The generator's defaults are not
+changed here; the tolerances checked are each band's median gradient energy within +-25 % of the
+real one and StereoBM's coverage within a factor 1.5 of its real coverage.
+
+Run: ``python -m benchmarks.bench_texture [--scenes N]`` -> ``benchmarks/results/texture.json``
+and ``texture.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+
+from benchmarks.bench_kitti import KITTI, WINDOW, labelled_bag
+from benchmarks.common import RESULTS, machine_info, write_json
+from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.geometry import Attitude, project_points, road_to_camera
+
+KITTI_RIG = StereoCamera(721.5377, 721.5377, 609.5593, 172.854, 0.5327, 1242, 375)
+CAMERA_HEIGHT_M = 1.65
+BANDS_M = ((6.5, 9.5), (9.5, 12.5), (12.5, 15.5), (15.5, 18.5))
+MATCHERS = ("bm", "sgbm", "bev_sweep")
+SEED_BASE = 300_000
+# (name, texture_scale, blur_sigma_px, noise_sigma DN); None = the generator's own (drawn) value
+SETTINGS: tuple[tuple[str, float, float | None, float | None], ...] = (
+    ("default", 1.0, None, None),
+    ("texture x0.5", 0.5, None, None),
+    ("noise 2 DN", 1.0, None, 2.0),
+    ("texture x0.5, noise 2 DN", 0.5, None, 2.0),
+    ("texture x0.5, blur 1.0 px, noise 2 DN", 0.5, 1.0, 2.0),
+    ("noise 4.5 DN", 1.0, None, 4.5),
+    ("texture x0.5, noise 4.5 DN", 0.5, None, 4.5),
+    ("texture x0.3, noise 4.5 DN", 0.3, None, 4.5),
+)
+STATISTICS = ("gradient_energy", "smoothed_gradient_energy", "local_contrast", "noise_dn")
+ENERGY_TOLERANCE = 0.25
+BM_COVERAGE_FACTOR = 1.5
+WINDOW_PX = 7
+
+
+def _energy(grey: np.ndarray) -> np.ndarray:
+    gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3) / 8.0
+    gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+    energy = np.asarray(gx * gx + gy * gy, dtype=np.float32)
+    return cv2.boxFilter(energy, -1, (WINDOW_PX, WINDOW_PX))
+
+
+_IMMERKAER = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+
+
+def texture_maps(rgb: np.ndarray) -> dict[str, np.ndarray]:
+    """[H, W] maps of :data:`STATISTICS` of an RGB (or grey) image."""
+    grey = rgb.astype(np.float32) if rgb.ndim == 2 else cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    size = (WINDOW_PX, WINDOW_PX)
+    mean = cv2.boxFilter(grey, -1, size)
+    var = np.maximum(cv2.boxFilter(grey * grey, -1, size) - mean * mean, 0.0)
+    lap = np.abs(cv2.filter2D(grey, cv2.CV_32F, _IMMERKAER))
+    return {
+        "gradient_energy": _energy(grey),
+        "smoothed_gradient_energy": _energy(cv2.GaussianBlur(grey, (0, 0), 1.0)),
+        "local_contrast": np.sqrt(var) / np.maximum(mean, 1.0),
+        "noise_dn": cv2.boxFilter(lap, -1, size) * math.sqrt(math.pi / 2) / 6.0,
+    }
+
+
+def road_samples(
+    rgb: np.ndarray, camera: StereoCamera, attitude: Attitude, grid: GridSpec, truth: np.ndarray
+) -> dict[str, list[np.ndarray]]:
+    """Texture statistics at the labelled cells' centres: statistic -> [values per band]."""
+    maps = texture_maps(rgb)
+    x, y = np.meshgrid(grid.x_centres(), grid.y_centres(), indexing="ij")
+    labelled = np.isfinite(truth)
+    road = np.stack([x[labelled], y[labelled], truth[labelled]], axis=1)  # [N, 3]
+    u, v, _ = project_points(road_to_camera(road, attitude, grid.base_height), camera)
+    col, row = np.rint(u).astype(int), np.rint(v).astype(int)
+    inside = (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
+    out: dict[str, list[np.ndarray]] = {k: [] for k in STATISTICS}
+    for lo, hi in BANDS_M:
+        sel = inside & (road[:, 0] >= lo) & (road[:, 0] < hi)
+        for k in STATISTICS:
+            out[k].append(maps[k][row[sel], col[sel]])
+    return out
+
+
+def _quartiles(values: np.ndarray) -> dict[str, float]:
+    if values.size == 0:
+        return {"n": 0, "p25": math.nan, "median": math.nan, "p75": math.nan}
+    p25, p50, p75 = np.percentile(values, [25, 50, 75])
+    return {"n": int(values.size), "p25": float(p25), "median": float(p50), "p75": float(p75)}
+
+
+def _coverage(name: str, samples: list[Any], grid: GridSpec) -> float:
+    from roadbev_core.backends import create
+    from roadbev_core.evaluation import evaluate
+
+    result = evaluate(create(name, grid), samples)
+    return float(result.metrics["coverage_pct"])
+
+
+class _Pool:
+    """Pooled per-band samples of several frames."""
+
+    def __init__(self) -> None:
+        self.values: dict[str, list[list[np.ndarray]]] = {k: [[] for _ in BANDS_M] for k in STATISTICS}
+
+    def add(self, samples: dict[str, list[np.ndarray]]) -> None:
+        for k in STATISTICS:
+            for b in range(len(BANDS_M)):
+                self.values[k][b].append(samples[k][b])
+
+    def summary(self) -> dict[str, list[dict[str, float]]]:
+        return {k: [_quartiles(np.concatenate(v)) for v in bands] for k, bands in self.values.items()}
+
+
+def real_statistics(workdir: Path) -> dict[str, Any]:
+    from msg_bridge.evalbag import bag_frames
+    from roadbev_core.kitti import load_frames
+
+    pool = _Pool()
+    coverage: dict[str, list[float]] = {m: [] for m in MATCHERS}
+    names = []
+    for frame in load_frames(KITTI):
+        bag_path, grid, _pose, _info = labelled_bag(frame, workdir)
+        samples = bag_frames(bag_path)[1]  # frames with the attitude from the bag's IMU
+        sample = samples[0]
+        assert sample.truth is not None  # the bag was just labelled
+        pool.add(road_samples(sample.frame.left, sample.frame.camera, sample.frame.attitude, grid, sample.truth))
+        for m in MATCHERS:
+            coverage[m].append(_coverage(m, samples, grid))
+        names.append(frame.name)
+    return {"frames": names, **pool.summary(), "coverage_pct": coverage}
+
+
+def synthetic_scenes(n: int) -> list[tuple[Any, Any]]:
+    """``n`` scenes of the generator's random roads and the KITTI-like camera pose over them."""
+    from roadbev_core.synth.drive import _place_in_grid, _wheel_heights, random_road
+    from roadbev_core.synth.render import LOOK_AHEAD_M, CameraPose
+    from roadbev_core.synth.scene import build_scene
+
+    grid = WINDOW.with_overrides(base_height=CAMERA_HEIGHT_M)
+    out = []
+    for i in range(n):
+        seed = SEED_BASE + i
+        rng = np.random.default_rng(seed)
+        road = random_road(rng)
+        y_cam = float(rng.uniform(-0.5, 0.5))
+        scene = build_scene(road, seed, (-4.0, LOOK_AHEAD_M + 2.0), _place_in_grid(road.features, grid, y_cam, rng))
+        front, rear, _, _ = _wheel_heights(scene, np.zeros(1), np.full(1, y_cam), np.zeros(1))
+        pose = CameraPose(0.0, y_cam, float((front[0] + rear[0]) / 2) + CAMERA_HEIGHT_M, Attitude(0.0, 0.0))
+        out.append((scene, pose))
+    return out
+
+
+def synthetic_statistics(
+    scenes: list[tuple[Any, Any]], texture_scale: float, blur: float | None, noise: float | None
+) -> dict[str, Any]:
+    from roadbev_core.synth.drive import LidarConfig, render_sample
+
+    grid = WINDOW.with_overrides(base_height=CAMERA_HEIGHT_M)
+    pool = _Pool()
+    samples = []
+    for i, (scene, pose) in enumerate(scenes):
+        s = replace(scene, texture_contrast=scene.texture_contrast * texture_scale)
+        if blur is not None:
+            s = replace(s, config=replace(s.config, blur_sigma_px=blur))
+        if noise is not None:
+            s = replace(s, config=replace(s.config, noise_sigma=noise))
+        sample = render_sample(s, pose, KITTI_RIG, grid, LidarConfig(spacing_m=0.02), np.random.default_rng(i), 0)
+        truth = sample.truth.elevation
+        pool.add(road_samples(sample.frame.left, KITTI_RIG, sample.frame.attitude, grid, truth))
+        samples.append((sample.frame, truth))
+    coverage = {m: [_coverage(m, [smp], grid) for smp in samples] for m in MATCHERS}
+    return {**pool.summary(), "coverage_pct": coverage}
+
+
+def _ratios(real: dict[str, Any], synth: dict[str, Any], key: str) -> list[float]:
+    return [s["median"] / r["median"] if r["median"] else math.nan for s, r in zip(synth[key], real[key], strict=True)]
+
+
+def _check(real: dict[str, Any], synth: dict[str, Any]) -> dict[str, Any]:
+    ratios = _ratios(real, synth, "gradient_energy")
+    smoothed = _ratios(real, synth, "smoothed_gradient_energy")
+    bm_real = float(np.mean(real["coverage_pct"]["bm"]))
+    bm_synth = float(np.mean(synth["coverage_pct"]["bm"]))
+    factor = bm_synth / bm_real if bm_real > 0 else math.inf
+    energy_ok = all(abs(r - 1.0) <= ENERGY_TOLERANCE for r in ratios)
+    bm_ok = 1.0 / BM_COVERAGE_FACTOR <= factor <= BM_COVERAGE_FACTOR
+    return {
+        "energy_median_ratio_per_band": ratios,
+        "energy_within_25pct": energy_ok,
+        "smoothed_energy_median_ratio_per_band": smoothed,
+        "smoothed_energy_within_25pct": all(abs(r - 1.0) <= ENERGY_TOLERANCE for r in smoothed),
+        "bm_coverage_real_pct": bm_real,
+        "bm_coverage_synth_pct": bm_synth,
+        "bm_coverage_factor": factor,
+        "bm_within_factor_1p5": bm_ok,
+        "tolerances_met": energy_ok and bm_ok,
+    }
+
+
+def plot(data: dict[str, Any], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    centres = [0.5 * (lo + hi) for lo, hi in BANDS_M]
+    fig, (ax1, ax3, ax2) = plt.subplots(1, 3, figsize=(17, 4.8))
+    for ax, key, title in (
+        (ax1, "gradient_energy", "gradient energy"),
+        (ax3, "smoothed_gradient_energy", "gradient energy after a 1 px blur"),
+    ):
+        real = data["real"][key]
+        ax.errorbar(
+            centres,
+            [b["median"] for b in real],
+            yerr=[[b["median"] - b["p25"] for b in real], [b["p75"] - b["median"] for b in real]],
+            fmt="o-k",
+            lw=2,
+            capsize=4,
+            label="real (KITTI, 3 frames; bars: quartiles)",
+        )
+        for setting in data["synthetic"]:
+            ax.plot(centres, [b["median"] for b in setting[key]], "s--", label=f"synthetic: {setting['setting']}")
+        ax.set_yscale("log")
+        ax.set_xlabel("distance band centre (m)")
+        ax.set_ylabel("median over road cells (DN$^2$/px$^2$)")
+        ax.set_title(f"road {title}, 7x7 window", fontsize=10)
+    ax1.legend(fontsize=6)
+    labels = ["real"] + [s["setting"] for s in data["synthetic"]]
+    width = 0.25
+    for k, m in enumerate(MATCHERS):
+        values = [float(np.mean(data["real"]["coverage_pct"][m]))] + [
+            float(np.mean(s["coverage_pct"][m])) for s in data["synthetic"]
+        ]
+        ax2.bar(np.arange(len(labels)) + (k - 1) * width, values, width, label=m)
+    ax2.set_xticks(np.arange(len(labels)))
+    ax2.set_xticklabels(labels, rotation=20, ha="right", fontsize=7)
+    ax2.set_ylabel("cell coverage (%)")
+    ax2.set_title("matchers' coverage of the labelled cells")
+    ax2.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenes", type=int, default=4, help="synthetic scenes per setting (default 4)")
+    parser.add_argument("--out", type=Path, default=RESULTS / "texture.json")
+    args = parser.parse_args(argv)
+    if not KITTI.is_dir():
+        print(f"KITTI frames not found at {KITTI}", file=sys.stderr)
+        return 2
+    torch.set_flush_denormal(True)
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        real = real_statistics(Path(tmp))
+    print(f"real done ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+    scenes = synthetic_scenes(args.scenes)
+    synthetic = []
+    for name, scale, blur, noise in SETTINGS:
+        stats = synthetic_statistics(scenes, scale, blur, noise)
+        check = _check(real, stats)
+        synthetic.append(
+            {
+                "setting": name,
+                "texture_scale": scale,
+                "blur_sigma_px": blur,
+                "noise_sigma": noise,
+                **stats,
+                "check": check,
+            }
+        )
+        print(
+            f"{name}: energy ratios {np.round(check['energy_median_ratio_per_band'], 2)}, smoothed "
+            f"{np.round(check['smoothed_energy_median_ratio_per_band'], 2)}, "
+            f"BM coverage {check['bm_coverage_synth_pct']:.1f} % vs real {check['bm_coverage_real_pct']:.1f} %",
+            file=sys.stderr,
+        )
+    data = {
+        "benchmark": "road texture statistics, real KITTI frames vs the synthetic road with the KITTI rig",
+        "command": f"python -m benchmarks.bench_texture --scenes {args.scenes}",
+        "window": WINDOW.to_dict(),
+        "bands_m": [list(b) for b in BANDS_M],
+        "rig": KITTI_RIG.to_dict(),
+        "camera_height_m": CAMERA_HEIGHT_M,
+        "tolerances": {"energy_median_ratio": f"1 +- {ENERGY_TOLERANCE}", "bm_coverage_factor": BM_COVERAGE_FACTOR},
+        "note": "The generator's defaults are unchanged; the non-default settings scale Scene.texture_contrast "
+        "and set RoadConfig.blur_sigma_px / noise_sigma at render time only.",
+        "machine": machine_info(),
+        "wall_s": time.perf_counter() - t0,
+        "real": real,
+        "synthetic": synthetic,
+    }
+    write_json(args.out, data)
+    plot(data, args.out.with_suffix(".png"))
+    print(f"wrote {args.out} and {args.out.with_suffix('.png')}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,64 @@
+"""TF and Odometry conversions and the static transform tree (msg_bridge.tf)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from msg_bridge import bag_factory
+from msg_bridge.bag import deserialize, serialize
+from msg_bridge.point_cloud import array_point_cloud, point_cloud_xyz
+from msg_bridge.tf import (
+    StaticTransform,
+    TransformError,
+    TransformTree,
+    odometry_message,
+    odometry_pose,
+    tf_message,
+    transforms_from_tf,
+)
+from roadbev_core.geometry import rotation_from_rpy
+
+
+def test_tree_chains_through_the_common_parent() -> None:
+    R_cam = rotation_from_rpy(-math.pi / 2, 0.0, -math.pi / 2)
+    R_lidar = rotation_from_rpy(0.0, 0.05, 0.1)
+    tree = TransformTree(
+        [
+            StaticTransform("base_link", "camera", R_cam, np.array([1.6, 0.1, 1.1])),
+            StaticTransform("base_link", "lidar", R_lidar, np.array([1.0, 0.0, 1.8])),
+        ]
+    )
+    R, t = tree.lookup("camera", "lidar")
+    p_lidar = np.array([5.0, -1.0, -1.5])
+    p_base = R_lidar @ p_lidar + np.array([1.0, 0.0, 1.8])
+    expected = R_cam.T @ (p_base - np.array([1.6, 0.1, 1.1]))
+    np.testing.assert_allclose(R @ p_lidar + t, expected, atol=1e-12)
+    with pytest.raises(TransformError, match="no transform from 'radar'"):
+        tree.lookup("camera", "radar")
+
+
+def test_tf_and_odometry_messages_round_trip_through_cdr() -> None:
+    factory = bag_factory()
+    tf = StaticTransform("a", "b", rotation_from_rpy(0.1, -0.2, 0.3), np.array([1.0, 2.0, 3.0]))
+    msg = deserialize(serialize(tf_message([tf], factory, stamp_ns=5)), "tf2_msgs/msg/TFMessage")
+    (back,) = transforms_from_tf(msg)
+    assert (back.parent, back.child) == ("a", "b")
+    np.testing.assert_allclose(back.rotation, tf.rotation, atol=1e-9)
+    odom = odometry_message(factory, stamp_ns=7, xyz=(3.0, -1.0, 0.0), yaw=2.5)
+    pose = odometry_pose(deserialize(serialize(odom), "nav_msgs/msg/Odometry"))
+    assert (pose.stamp_ns, pose.x, pose.y, pose.frame_id, pose.child_frame_id) == (7, 3.0, -1.0, "odom", "base_link")
+    assert pose.yaw == pytest.approx(2.5)
+
+
+def test_point_cloud_xyz_reads_clouds_with_other_fields() -> None:
+    factory = bag_factory()
+    pts = np.array([[1.0, 2.0, 3.0, 9.0], [0.0, np.nan, 0.0, 1.0], [4.0, 5.0, 6.0, 2.0]])
+    msg = array_point_cloud(pts, ("intensity", "x", "y", "z"), factory, stamp_ns=0, frame_id="l")
+    # fields in another order; the NaN row is dropped
+    np.testing.assert_allclose(point_cloud_xyz(msg), [[2.0, 3.0, 9.0], [5.0, 6.0, 2.0]])
+    no_z = array_point_cloud(pts[:, :2], ("x", "y"), factory, stamp_ns=0, frame_id="l")
+    with pytest.raises(ValueError, match="no z field"):
+        point_cloud_xyz(no_z)
