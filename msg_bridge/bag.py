@@ -518,6 +518,8 @@ class ReadStats:
         lost_unknown: the bag breaks off or has unreadable stretches: more may be lost than
             ``lost`` says (what followed the cut is not known).
         unfinished: the bag was not closed by its writer (no footer, or a ``.recording`` marker).
+        unverified_chunks: chunks written without a CRC (rosbags' writer): only their structure
+            and message index can be checked, so damage inside their data may go unnoticed.
     """
 
     read: Counter[str] = field(default_factory=Counter)
@@ -526,6 +528,7 @@ class ReadStats:
     damage: list[str] = field(default_factory=list)
     lost_unknown: bool = False
     unfinished: bool = False
+    unverified_chunks: int = 0
 
     @property
     def complete(self) -> bool:
@@ -535,7 +538,7 @@ class ReadStats:
     def summary(self) -> str:
         """One line: delivered, lost (per topic), and why."""
         read = sum(self.read.values())
-        if self.complete and not self.unfinished:
+        if self.complete and not self.unfinished and not self.unverified_chunks:
             return f"{read} message(s) read, nothing lost"
         parts = [f"{read} message(s) read"]
         lost = self.lost + self.undecodable
@@ -546,6 +549,8 @@ class ReadStats:
             parts.append("the bag breaks off: what followed is unknown")
         elif self.unfinished:
             parts.append("the bag was not closed cleanly")
+        if self.unverified_chunks:
+            parts.append(f"{self.unverified_chunks} chunk(s) without CRC could not be verified")
         why = "; ".join(self.damage[:3]) + (f"; and {len(self.damage) - 3} more" if len(self.damage) > 3 else "")
         return ", ".join(parts) + (f" [{why}]" if why else "")
 
@@ -816,8 +821,13 @@ def read_messages(
         lines = [bag.describe(d)[0] for d in scan_damage if not d.kept]
         raise DamagedBagError(f"{path}: truncated or corrupt bag ({lines[0]}); {_salvage(bag)}; "
                               "`roadbev bag recover` copies what is readable", lines)
+    if on_damage == "raise" and not bag.closed:
+        why = "a .recording marker is left" if bag.marker else "it has no summary/footer"
+        line = f"{path}: the bag was not closed cleanly ({why}): its end may be missing"
+        raise DamagedBagError(f"{line}; {_salvage(bag)}; `roadbev bag recover` makes a complete copy", [line])
     for damage in scan_damage:
         _count_damage(bag, damage, stats, wanted)
+    stats.unverified_chunks += sum(1 for s in bag.scans for c in s.chunks if c.crc == 0 and not c.cut)
     store = typestore()
     registered: set[tuple[Path, int]] = set()
 
@@ -1049,6 +1059,8 @@ def recover_bag(
             stats.read[channel.topic] += 1
             if progress is not None:
                 progress(1)
+        if not stats.read:  # leaving the block with an error removes the empty copy
+            raise BagError(f"{path}: nothing readable to recover ({stats.summary()})")
     stats.unfinished = not bag.closed
     return stats
 

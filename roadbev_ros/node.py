@@ -44,13 +44,11 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from sensor_msgs.msg import Imu as ImuMsg
 
+from msg_bridge import outputs
 from msg_bridge._common import MessageError, RclpyFactory, stamp_from_header
 from msg_bridge.camera_info import stereo_camera_from_camera_info
-from msg_bridge.grid_map import elevation_grid_map
 from msg_bridge.image import compressed_to_rgb, image_to_rgb
 from msg_bridge.imu import imu_orientation
-from msg_bridge.point_cloud import elevation_point_cloud
-from msg_bridge.preview import road_preview_message
 from roadbev_core.backends import Backend, BackendError, create
 from roadbev_core.config import ConfigError, GridSpec, StereoCamera
 from roadbev_core.frame import Estimate, Frame, FrameError
@@ -177,24 +175,14 @@ def output_messages(
         ValueError: the estimate is not on the configured grid.
         PreviewError: the wheel tracks do not fit the grid.
     """
-    grid, frame_id, factory = config.grid, config["frame_id"], _FACTORY
-    estimate.check_grid(grid)
-    profiles = wheel_track_profiles(
-        estimate.elevation, estimate.uncertainty, grid,
-        track_offsets_m=config["preview.track_offsets_m"],
-        tyre_width_m=config["preview.tyre_width_m"], spacing_m=config["preview.spacing_m"],
-        vehicle_speed=vehicle_speed, reference_distance=config["preview.reference_distance_m"],
+    preview = outputs.PreviewSettings(
+        config["preview.track_offsets_m"], config["preview.tyre_width_m"], config["preview.spacing_m"],
+        config["preview.reference_distance_m"],
     )
-    elevation = elevation_grid_map(
-        estimate.elevation, estimate.uncertainty, grid, factory, stamp_ns=stamp_ns, frame_id=frame_id
+    return outputs.output_messages(
+        estimate, config.grid, _FACTORY, stamp_ns, preview=preview, frame_id=config["frame_id"],
+        vehicle_speed=vehicle_speed, with_points=with_points,
     )
-    preview = road_preview_message(profiles, factory, stamp_ns=stamp_ns, frame_id=frame_id)
-    points = None
-    if with_points:
-        points = elevation_point_cloud(
-            estimate.elevation, estimate.uncertainty, grid, factory, stamp_ns=stamp_ns, frame_id=frame_id
-        )
-    return elevation, preview, points
 
 
 _FACTORY = RclpyFactory()
