@@ -136,6 +136,22 @@ def _truths(path: Path, grid: Any) -> dict[int, np.ndarray]:
     return truths
 
 
+def _whole_frames(path: Path, eval_bag: Any) -> set[int]:
+    """Stamps of the frames the node can answer: every frame of a sound bag; in a damaged or
+    cut one, only those with every synchronised input (images, CameraInfos) at their stamp."""
+    stamps = set(eval_bag.stamps)
+    if eval_bag.read_stats.complete:
+        return stamps
+    keys = ("left_image_topic", "right_image_topic", "left_info_topic", "right_info_topic")
+    topics = [eval_bag.topics[k] for k in keys if eval_bag.stereo or k.startswith("left")]
+    seen: dict[str, set[int]] = {t: set() for t in topics}
+    for item in bag.read_messages(path, topics, raw=True, on_damage="skip"):
+        seen[item.topic].add(header_stamp_ns(bytes(item.msg)))
+    for found in seen.values():
+        stamps &= found
+    return stamps
+
+
 def _estimates(recorded: Path, grid: Any) -> dict[int, np.ndarray]:
     out = {}
     if not recorded.exists():
@@ -241,6 +257,7 @@ def evaluate_online(
             time.sleep(0.05)
         images_sent = 0
         last_stamp: int | None = None
+        usable = _whole_frames(bag_path, eval_bag)
         sent: dict[int, float] = {}  # stamp -> monotonic time the left image went out
         stop = threading.Event()
 
@@ -248,7 +265,9 @@ def evaluate_online(
             nonlocal images_sent, last_stamp
             if topic != left_topic:
                 return
-            if rate is None and images_sent:
+            # A frame that cannot complete (its other image lost in a damaged or cut bag) gets no
+            # answer: lockstep waits only for the frames the bag holds whole.
+            if rate is None and images_sent and last_stamp in usable:
                 watcher.wait(last_stamp, images_sent, frame_timeout_s)
             if proc.poll() is not None:
                 stop.set()
@@ -259,7 +278,8 @@ def evaluate_online(
         start = time.monotonic()
         replay_bag(io_node, bag_path, rate=0.0 if rate is None else rate, topics=input_topics,
                    wait_for_subscribers=30.0, stop=stop, before_publish=gate)
-        watcher.wait(last_stamp, images_sent, frame_timeout_s)
+        final = max((s for s in sent if s in usable), default=None)
+        watcher.wait(final, images_sent, frame_timeout_s if final is not None else 1.0)
         elapsed = time.monotonic() - start
         # one more diagnostics period so the final counts are in
         time.sleep(1.2)
@@ -275,9 +295,9 @@ def evaluate_online(
     estimates = _estimates(recorded, grid)
     acc = MetricAccumulator(grid)
     missing = 0
-    # The frames sent (a frame lost in a damaged bag never reached the node); without ground truth
-    # every frame sent is counted, with it every frame that has one.
-    frames = sorted(s for s in truths if s in sent) if truths else sorted(sent)
+    # The whole frames sent (a frame lost in a damaged bag never reached the node, or only half of
+    # it did): with ground truth those that have one, without it all of them.
+    frames = sorted(s for s in (truths or sent) if s in sent and s in usable)
     for stamp in frames:
         estimate = estimates.get(stamp)
         if estimate is None:
