@@ -1033,6 +1033,7 @@ def recover_bag(
     stats = ReadStats()
     for damage in (d for s in bag.scans for d in s.damage):
         _count_damage(bag, damage, stats, None)
+    stats.unverified_chunks = sum(1 for s in bag.scans for c in s.chunks if c.crc == 0 and not c.cut)
     ids: dict[tuple[Path, int], int] = {}
 
     def on_chunk_damage(damage: Damage) -> None:
