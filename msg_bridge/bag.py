@@ -308,8 +308,8 @@ class BagWriter:
         except FileExistsError:
             raise BagError(f"{self.file} exists already; not overwriting it") from None
         compression = CompressionType.ZSTD if self.compression == "zstd" else CompressionType.NONE
-        self._writer = Writer(self._stream, chunk_size=self.chunk_size, compression=compression,
-                              enable_crcs=True)
+        stream: Any = self._stream  # the writer needs write/tell/flush only
+        self._writer = Writer(stream, chunk_size=self.chunk_size, compression=compression, enable_crcs=True)
         self._writer.start(profile="ros2", library=_library())
 
     def _write_marker(self) -> None:

@@ -101,8 +101,9 @@ class _Recording:
     def __init__(self, backend: Any, outputs: Any) -> None:
         self._backend = backend
         self._outputs = outputs
-        self.name = backend.name
-        self.grid = backend.grid
+        self.name: str = backend.name
+        self.grid: Any = backend.grid
+        self.needs_stereo: bool = backend.needs_stereo
 
     def estimate(self, frame: Any) -> Any:
         estimate = self._backend.estimate(frame)
