@@ -5,11 +5,15 @@ messages (bags) and ``mcap_ros2`` decoded messages all work. Converters that bui
 a factory: :class:`RclpyFactory` (rclpy objects, imported lazily) or :class:`TypestoreFactory`
 (``TypestoreFactory(msg_bridge.bag.typestore())`` for bag writing). Every malformed message
 raises :class:`MessageError` (a ``ValueError``) saying what is wrong; damaged bags raise
-:class:`BagError`. No rclpy import happens at module level.
+:class:`BagError` (:class:`DamagedBagError` naming the damaged chunk), or are read as far as they
+are sound with ``on_damage="skip"`` and a :class:`ReadStats`. No rclpy import happens at module
+level.
 
 Modules: ``image`` (Image, CompressedImage), ``camera_info`` (CameraInfo <-> StereoCamera),
 ``imu`` (Imu -> Attitude, slerp), ``grid_map`` (GridMap <-> arrays + GridSpec), ``preview``
-(RoadPreview), ``point_cloud`` (PointCloud2), ``bag`` (MCAP bags), ``evalbag`` (evaluation bags).
+(RoadPreview), ``point_cloud`` (PointCloud2), ``bag`` (MCAP bags: write, read, info, recover),
+``mcap_file`` (the CRC-checked MCAP record reader under ``bag``), ``evalbag`` (evaluation bags),
+``outputs`` (the node's output messages, and a bag of them).
 """
 
 from __future__ import annotations
@@ -23,19 +27,37 @@ from msg_bridge._common import (
     stamp_from_header,
     stamp_to_ns,
 )
-from msg_bridge.bag import BagError, BagWriter, bag_topics, read_messages, typestore
+from msg_bridge.bag import (
+    BagError,
+    BagWriter,
+    DamagedBagError,
+    ReadStats,
+    bag_info,
+    bag_topics,
+    marker_path,
+    read_messages,
+    recover_bag,
+    serialize,
+    typestore,
+)
 
 __all__ = [
     "BagError",
     "BagWriter",
+    "DamagedBagError",
     "MessageError",
     "MessageFactory",
     "RclpyFactory",
+    "ReadStats",
     "TypestoreFactory",
     "bag_factory",
+    "bag_info",
     "bag_topics",
     "make_header",
+    "marker_path",
     "read_messages",
+    "recover_bag",
+    "serialize",
     "stamp_from_header",
     "stamp_to_ns",
     "typestore",

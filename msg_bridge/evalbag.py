@@ -26,6 +26,10 @@ CameraInfos by exact stamp, collects the IMU orientations (the attitude at an im
 feeds them to the pipeline in time order), and takes the horizontal grid from the ground-truth
 GridMap's ``info``. ``base_height`` and the vertical
 fields come from the parameters, else from ``/roadbev/grid_config``, else the contract defaults.
+
+A truncated, unfinished or partly damaged bag gives every frame that is readable: damaged chunks
+are skipped (:func:`msg_bridge.bag.read_messages` with ``on_damage="skip"``), an image that does
+not decode is a lost frame, and :meth:`EvalBag.losses` says how many frames were lost and why.
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from msg_bridge._common import MessageError, TypestoreFactory, stamp_from_header
-from msg_bridge.bag import BagError, BagWriter, bag_topics, read_messages, typestore
+from msg_bridge.bag import BagError, BagWriter, ReadStats, bag_topics, read_messages, typestore
 from msg_bridge.camera_info import camera_info_from_stereo, stereo_camera_from_camera_info
 from msg_bridge.grid_map import ROAD_FRAME, grid_map_message, grid_map_to_arrays
 from msg_bridge.image import array_to_compressed, array_to_image, compressed_to_rgb, image_to_rgb
@@ -225,8 +229,10 @@ class EvalBag:
         stereo: whether the bag has right images.
         imu: the IMU orientations in stamp order (for :func:`roadbev_core.pipeline.replay`).
         topics: parameter name -> topic actually read (image topics with ``/compressed``).
-        skipped: reason -> number of left images that could not become camera sets.
+        skipped: reason -> number of left images that could not become camera sets (while
+            iterating, also images that do not decode or do not fit the camera).
         notes: remarks on how the bag was interpreted.
+        read_stats: what reading the bag delivered and lost (damaged or cut chunks).
     """
 
     def __init__(
@@ -241,6 +247,7 @@ class EvalBag:
         stereo: bool,
         skipped: dict[str, int],
         notes: list[str],
+        read_stats: ReadStats | None = None,
     ) -> None:
         self.path = path
         self.grid = grid
@@ -252,6 +259,28 @@ class EvalBag:
         self.stereo = stereo
         self.skipped = skipped
         self.notes = notes
+        self.read_stats = read_stats if read_stats is not None else ReadStats()
+
+    def lost_frames(self) -> int:
+        """Frames of the bag that cannot be evaluated: incomplete or undecodable ones, and left
+        images lost in damaged chunks (frames after a cut are not known, so not counted)."""
+        return sum(self.skipped.values()) + self.read_stats.lost.get(self.topics["left_image_topic"], 0)
+
+    def losses(self) -> list[str]:
+        """Lines saying how many frames were lost and why (empty for a whole, sound bag)."""
+        lines = [f"{n} frame(s) lost: {reason}" for reason, n in sorted(self.skipped.items())]
+        left = self.read_stats.lost.get(self.topics["left_image_topic"], 0)
+        if left:
+            lines.append(f"{left} frame(s) lost: their left image is in a damaged part of the bag")
+        lines += [f"bag: {line}" for line in self.read_stats.damage]
+        if self.read_stats.lost_unknown:
+            lines.append("bag: it breaks off; frames after the cut are unknown")
+        elif self.read_stats.unfinished:
+            lines.append("bag: not closed cleanly (no summary); read to its last complete chunk")
+        if self.read_stats.unverified_chunks:
+            lines.append(f"bag: {self.read_stats.unverified_chunks} chunk(s) carry no CRC (an older writer): damage "
+                         "inside them cannot be detected; `roadbev bag recover` writes a copy with CRCs")
+        return lines
 
     @property
     def camera(self) -> StereoCamera:
@@ -272,22 +301,28 @@ class EvalBag:
         decode = compressed_to_rgb if self.compressed else image_to_rgb
         wanted = [left_topic, right_topic] if self.stereo else [left_topic]
         pending: dict[int, dict[str, np.ndarray]] = {}
-        for item in read_messages(self.path, wanted):
+        undecodable: set[int] = set()
+        for item in read_messages(self.path, wanted, on_damage="skip"):  # losses counted by the index
             stamp = stamp_from_header(item.msg)
-            if stamp not in by_stamp:
+            if stamp not in by_stamp or stamp in undecodable:
                 continue
             images = pending.setdefault(stamp, {})
-            images[item.topic] = decode(item.msg)
+            try:
+                images[item.topic] = decode(item.msg)
+            except MessageError:  # as the node: a frame that does not decode is dropped, counted
+                undecodable.add(stamp)
+                del pending[stamp]
+                self.skipped["an image does not decode"] = self.skipped.get("an image does not decode", 0) + 1
+                continue
             if len(images) < len(wanted):
                 continue
             del pending[stamp]
-            inputs = CameraInput(
-                left=images[left_topic],
-                right=images.get(right_topic) if self.stereo else None,
-                camera=by_stamp[stamp].camera,
-                stamp_ns=stamp,
-            )
-            yield EvalSample(inputs, self._truths.get(stamp))
+            camera = by_stamp[stamp].camera
+            left, right = images[left_topic], images.get(right_topic) if self.stereo else None
+            if any(img.shape[1::-1] != camera.size for img in (left, right) if img is not None):
+                self.skipped["images do not fit the camera"] = self.skipped.get("images do not fit the camera", 0) + 1
+                continue
+            yield EvalSample(CameraInput(left, right, camera, stamp), self._truths.get(stamp))
 
     def labelled_frames(self, buffer: ImuBuffer) -> Iterator[LabelledFrame]:
         """Frames with their attitude from ``buffer``'s rules (filled with every IMU sample of the
@@ -319,6 +354,7 @@ class _Collected(NamedTuple):
     truths: dict[int, Any]
     grid_config: dict[str, Any] | None
     bad_imu: int
+    read: ReadStats
 
 
 def _collect(path: Path, topics: dict[str, str]) -> _Collected:
@@ -330,7 +366,8 @@ def _collect(path: Path, topics: dict[str, str]) -> _Collected:
     truths: dict[int, Any] = {}
     grid_config = None
     bad_imu = 0
-    for item in read_messages(path, list(topics.values())):
+    read = ReadStats()
+    for item in read_messages(path, list(topics.values()), on_damage="skip", stats=read):
         topic, msg = item.topic, item.msg
         if topic == topics["grid_config_topic"]:
             try:
@@ -359,7 +396,7 @@ def _collect(path: Path, topics: dict[str, str]) -> _Collected:
             truths[stamp] = msg
     imu.sort(key=lambda s: s[0])
     samples = [ImuSample(stamp, (float(q[0]), float(q[1]), float(q[2]), float(q[3]))) for stamp, q in imu]
-    return _Collected(left, right, left_info, right_info, samples, truths, grid_config, bad_imu)
+    return _Collected(left, right, left_info, right_info, samples, truths, grid_config, bad_imu, read)
 
 
 def _info_at(infos: dict[int, Any], stamp: int) -> Any | None:
@@ -468,10 +505,12 @@ def read_eval_bag(path: str | os.PathLike[str], params: Mapping[str, Any] | None
                 raise BagError(f"{path}: CameraInfo for the frame at {stamp} ns: {exc}") from None
         frames.append(_FrameIndex(stamp, cameras[key]))
     if not frames:
-        raise BagError(f"{path}: no usable frames ({skipped or 'no left images'})")
+        damage = f"; {collected.read.summary()}" if not collected.read.complete else ""
+        raise BagError(f"{path}: no usable frames ({skipped or 'no left images'}){damage}")
     if not collected.imu:
         notes.append("no IMU orientation in the bag: every frame needs require_imu false and a default attitude")
-    return EvalBag(path, grid, frames, truths, collected.imu, topics, compressed, stereo, skipped, notes)
+    return EvalBag(path, grid, frames, truths, collected.imu, topics, compressed, stereo, skipped, notes,
+                   collected.read)
 
 
 def bag_frames(

@@ -221,6 +221,7 @@ def evaluate(
     progress: Callable[[int], Any] | None = None,
     keep_estimates: bool = False,
     max_frames: int | None = None,
+    on_output: Callable[[PipelineOutput], Any] | None = None,
 ) -> EvalResult:
     """Run the pipeline on every sample and measure accuracy and speed.
 
@@ -235,6 +236,7 @@ def evaluate(
         progress: called with 1 after each frame (e.g. ``tqdm.update``).
         keep_estimates: keep every :class:`Estimate` and output in the result (memory!).
         max_frames: stop after this many frames (None = all).
+        on_output: called with every output (e.g. to write what the node would publish).
 
     Returns:
         An :class:`EvalResult`.
@@ -278,6 +280,8 @@ def evaluate(
         except ValueError as exc:  # Estimate.check_grid: the backend answered on another grid
             raise EvaluationError(f"pipeline {pipeline.backend.name}: {exc}") from None
         done = time.perf_counter()
+        if on_output is not None:
+            on_output(output)
         estimate = output.estimate
         record = {
             "stamp_ns": int(inputs.stamp_ns),

@@ -25,6 +25,7 @@ COMMANDS: dict[str, str] = {
     "eval": "run a backend over every frame of a bag (no DDS) and report the metrics",
     "replay": "publish a bag's topics over ROS 2 with their original timing",
     "record": "record topics to an MCAP bag",
+    "bag": "what a bag holds (and whether it was closed cleanly); recover what is readable",
     "node": "run the RoadBEV node",
     "train": "train RoadBEV-mono / RoadBEV-stereo",
     "export": "export a checkpoint for deployment",

@@ -241,7 +241,7 @@ def _read_recorded(path: Path, grid: Any) -> _Recorded:
     from msg_bridge.preview import preview_from_message
 
     out = _Recorded({}, {}, {})
-    for item in bag.read_messages(path, [ELEVATION_TOPIC, PREVIEW_TOPIC]):
+    for item in bag.read_messages(path, [ELEVATION_TOPIC, PREVIEW_TOPIC], on_damage="skip"):
         if item.topic == ELEVATION_TOPIC:
             decoded = grid_map_to_arrays(item.msg, base=grid)
             out.elevation[decoded.stamp_ns] = np.asarray(decoded.layers["elevation"], dtype=np.float32)
@@ -367,6 +367,9 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
         raise DemoError(f"cannot read bag {bag_path}: {type(exc).__name__}: {exc}") from exc
     grid = eval_bag.grid
     n_frames = len(eval_bag)
+    losses = eval_bag.losses()  # a truncated or damaged bag: every readable frame, the rest counted
+    for line in losses:
+        log(f"lost: {line}")
     if n_frames == 0:
         raise DemoError(f"bag {bag_path} has no complete frames")
 
@@ -455,7 +458,11 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
         "previous answer arrived, so every frame is processed); offline row = backend pipeline "
         "frames per second on this machine without DDS.",
         f"Offline check: roadbev eval {bag_path} --backend {options.backend}",
+        *(f"Lost from the bag: {line}" for line in eval_bag.losses()),
     ]
+    if not any(t is not None for t in truths):
+        notes.insert(0, "The bag has no ground truth: nothing to score. The figures show what the node made "
+                        "of the drive (maps, previews, timing); the error columns stay empty.")
     settings = {
         "bag": str(bag_path) + (" (cached)" if reused and options.bag is None else ""),
         "frames": n_frames,
@@ -479,6 +486,8 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
     payload["stage_seconds"] = stage_s
     payload["agreement"] = dict(agreement)
     payload["bag"] = str(bag_path)
+    payload["lost_frames"] = eval_bag.lost_frames()
+    payload["losses"] = eval_bag.losses()
     report_json.write_text(to_json(payload))
     return DemoResult(bag_path, reused, out_dir, online, offline, agreement, files, stage_s)
 

@@ -131,20 +131,35 @@ class _Watcher:
 
 
 def _truths(path: Path, grid: Any) -> dict[int, np.ndarray]:
+    """The ground truth by stamp (empty for a bag without it: then nothing is scored)."""
     truths = {}
-    for item in bag.read_messages(path, [GT_TOPIC]):
+    for item in bag.read_messages(path, [GT_TOPIC], on_damage="skip"):  # partial bags: what is readable
         decoded = grid_map_to_arrays(item.msg, base=grid)
         truths[decoded.stamp_ns] = np.asarray(decoded.layers["elevation"], dtype=np.float32)
-    if not truths:
-        raise OnlineEvalError(f"{path} has no {GT_TOPIC}: nothing to compare with")
     return truths
+
+
+def _whole_frames(path: Path, eval_bag: Any) -> set[int]:
+    """Stamps of the frames the node can answer: every frame of a sound bag; in a damaged or
+    cut one, only those with every synchronised input (images, CameraInfos) at their stamp."""
+    stamps = set(eval_bag.stamps)
+    if eval_bag.read_stats.complete:
+        return stamps
+    keys = ("left_image_topic", "right_image_topic", "left_info_topic", "right_info_topic")
+    topics = [eval_bag.topics[k] for k in keys if eval_bag.stereo or k.startswith("left")]
+    seen: dict[str, set[int]] = {t: set() for t in topics}
+    for item in bag.read_messages(path, topics, raw=True, on_damage="skip"):
+        seen[item.topic].add(header_stamp_ns(bytes(item.msg)))
+    for found in seen.values():
+        stamps &= found
+    return stamps
 
 
 def _estimates(recorded: Path, grid: Any) -> dict[int, np.ndarray]:
     out = {}
     if not recorded.exists():
         return out
-    for item in bag.read_messages(recorded, [ELEVATION_TOPIC]):
+    for item in bag.read_messages(recorded, [ELEVATION_TOPIC], on_damage="skip"):
         decoded = grid_map_to_arrays(item.msg, base=grid)
         out[decoded.stamp_ns] = np.asarray(decoded.layers["elevation"], dtype=np.float32)
     return out
@@ -248,6 +263,7 @@ def evaluate_online(
             time.sleep(0.05)
         images_sent = 0
         last_stamp: int | None = None
+        usable = _whole_frames(bag_path, eval_bag)
         sent: dict[int, float] = {}  # stamp -> monotonic time the left image went out
         stop = threading.Event()
 
@@ -255,7 +271,9 @@ def evaluate_online(
             nonlocal images_sent, last_stamp
             if topic != left_topic:
                 return
-            if rate is None and images_sent:
+            # A frame that cannot complete (its other image lost in a damaged or cut bag) gets no
+            # answer: lockstep waits only for the frames the bag holds whole.
+            if rate is None and images_sent and last_stamp in usable:
                 watcher.wait(last_stamp, images_sent, frame_timeout_s)
             if proc.poll() is not None:
                 stop.set()
@@ -268,7 +286,8 @@ def evaluate_online(
         start = time.monotonic()
         replay_bag(io_node, bag_path, rate=0.0 if rate is None else rate, topics=input_topics,
                    wait_for_subscribers=30.0, stop=stop, before_publish=gate)
-        watcher.wait(last_stamp, images_sent, frame_timeout_s)
+        final = max((s for s in sent if s in usable), default=None)
+        watcher.wait(final, images_sent, frame_timeout_s if final is not None else 1.0)
         elapsed = time.monotonic() - start
         # one more diagnostics period so the final counts are in
         time.sleep(1.2)
@@ -284,15 +303,21 @@ def evaluate_online(
     estimates = _estimates(recorded, grid)
     acc = MetricAccumulator(grid)
     missing = 0
-    for stamp in sorted(truths):
+    # The whole frames sent (a frame lost in a damaged bag never reached the node, or only half of
+    # it did): with ground truth those that have one, without it all of them.
+    frames = sorted(s for s in (truths or sent) if s in sent and s in usable)
+    for stamp in frames:
         estimate = estimates.get(stamp)
         if estimate is None:
             missing += 1
             estimate = np.full(grid.shape, np.nan, np.float32)
-        acc.add(estimate, truths[stamp])
+        if truths:
+            acc.add(estimate, truths[stamp])
     accuracy = acc.result()
     metrics: dict[str, Any] = {"backend": backend, **accuracy.to_dict()}
-    answered = len(truths) - missing
+    if not truths:
+        metrics.update(frames=len(frames), coverage_pct=math.nan)
+    answered = len(frames) - missing
     metrics["fps"] = answered / elapsed if elapsed > 0 else math.nan
     metrics["mode"] = "lockstep" if rate is None else f"rate {rate}"
     latencies = [1e3 * (watcher.received[s] - sent[s]) for s in sorted(sent) if s in watcher.received]

@@ -7,6 +7,10 @@ lateness of every publication is measured and returned. ``restamp`` rewrites the
 the raw bytes (the 8 bytes after the CDR encapsulation header, for types whose first field is a
 ``std_msgs/Header``) to the wall-clock time of publication, mapping equal stamps to equal stamps,
 so a node's end-to-end latency (now minus header stamp) can be measured from a recorded bag.
+
+A truncated, unfinished or partly damaged bag is replayed as far as it is readable: damaged
+chunks are skipped, and :attr:`ReplayStats.read_problems` and :attr:`ReplayStats.lost` say what
+was left out and why.
 """
 
 from __future__ import annotations
@@ -45,6 +49,9 @@ class ReplayStats:
         skipped_topics: topic -> why it was not replayed.
         loops: passes over the bag.
         stamp_offset_ns: with restamp, new stamp minus old stamp of the last pass (rate 1).
+        lost: topic -> messages of the bag left out because their chunk is damaged (last pass).
+        read_problems: what was damaged or missing in the bag (empty for a sound bag).
+        bag_complete: the bag was read whole (closed cleanly, nothing damaged).
     """
 
     messages: int = 0
@@ -56,6 +63,9 @@ class ReplayStats:
     skipped_topics: dict[str, str] = field(default_factory=dict)
     loops: int = 0
     stamp_offset_ns: int = 0
+    lost: dict[str, int] = field(default_factory=dict)
+    read_problems: list[str] = field(default_factory=list)
+    bag_complete: bool = True
 
     def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -236,7 +246,9 @@ def replay_bag(
         while not stop.is_set():
             stats.loops += 1
             bag_start: int | None = None
-            for msg in _prefetched(bag.read_messages(path, list(publishers), raw=True), stop):
+            read = bag.ReadStats()
+            messages = bag.read_messages(path, list(publishers), raw=True, on_damage="skip", stats=read)
+            for msg in _prefetched(messages, stop):
                 if stop.is_set():
                     break
                 if bag_start is None:  # the clock starts with the first message, after opening
@@ -271,6 +283,12 @@ def replay_bag(
                 stats.messages += 1
                 if progress is not None:
                     progress(stats.messages)
+            stats.lost = dict(read.lost + read.undecodable)
+            stats.read_problems = list(read.damage) + (
+                ["the bag breaks off: what followed the cut is unknown"] if read.lost_unknown else [])
+            stats.bag_complete = read.complete and not read.unfinished
+            if read.unfinished and not read.lost_unknown:
+                stats.read_problems.append("the bag was not closed cleanly (no summary)")
             if not loop or bag_start is None:
                 break
     finally:

@@ -602,7 +602,10 @@ def write_report(
     if any(f.tracks or f.truth_tracks for f in data.frames):
         tell("preview.png")
         written["preview.png"] = plot_preview(data.frames, out / "preview.png")
-    if data.runs:
+    def scored(run: RunSummary) -> bool:  # a bag without ground truth has no error to draw
+        return any(b is not None and math.isfinite(b) for b in run.metrics.get("band_abs_err_cm", []))
+
+    if any(scored(r) for r in data.runs):
         tell("band_error.png")
         written["band_error.png"] = plot_band_error(data.runs, data.grid, out / "band_error.png")
     if data.timing is not None and data.timing.receive_s.size:

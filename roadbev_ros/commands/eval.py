@@ -8,6 +8,12 @@ from the ground truth's GridMap info, ``base_height`` and the vertical range fro
 
 Backend options may be given in the params file as ``<backend>.<option>`` (for example
 ``bev_sweep.patch_cells: 5``); the learned backends take ``checkpoint`` (or ``--checkpoint``).
+
+A truncated, unfinished or partly damaged bag is evaluated on every readable frame; the lost
+frames and the reasons are printed (and are in the JSON: ``lost_frames``, ``losses``). The exit is
+non-zero only when no frame at all could be evaluated. ``--out OUT.mcap`` writes the outputs
+(``/roadbev/elevation``, ``/roadbev/preview``, as the node publishes them); on a bag without
+ground truth that is the result, and the command says there is nothing to score.
 """
 
 from __future__ import annotations
@@ -36,6 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, default=None, metavar="N", help="evaluate only the first N frames")
     parser.add_argument("--checkpoint", default=None, help="checkpoint for the learned backends (stereo, mono)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--out", default=None, metavar="OUT.mcap",
+                        help="also write every output message (/roadbev/elevation, /roadbev/preview) to this bag")
 
 
 def _check_bag_path(path: Path) -> None:
@@ -106,6 +114,11 @@ def run(args: argparse.Namespace) -> int:
     config = RoadbevConfig.from_params({**explicit, **bag.grid.to_dict()})
     pipeline = Pipeline(config)
     name = config.backend.name
+    outputs = None
+    if args.out:
+        from msg_bridge.outputs import OutputBag
+
+        outputs = OutputBag(args.out, config)
 
     total = len(bag) if args.frames is None else min(len(bag), args.frames)
     if total == 0:
@@ -119,16 +132,35 @@ def run(args: argparse.Namespace) -> int:
         progress = bar.update
     try:
         result = evaluate(pipeline, _read_failures(bag, path), imu=bag.imu, progress=progress,
-                          max_frames=args.frames)
+                          max_frames=args.frames, on_output=None if outputs is None else outputs.write)
+    except BaseException:
+        if outputs is not None:
+            outputs.abort()
+        raise
     finally:
         if bar is not None:
             bar.close()
+    if outputs is not None:
+        outputs.close()
     metrics = result.to_dict()
+    losses = bag.losses()
+    metrics["lost_frames"] = bag.lost_frames()
+    metrics["losses"] = losses
+    for line in losses:
+        print(f"lost: {line}", file=sys.stderr)
     print(format_table([metrics]))
-    bands = ", ".join("-" if b is None else f"{b:.3f}" for b in metrics["band_abs_err_cm"])
-    print(f"abs. error per distance band (cm, near to far): {bands}")
     for reason, count in sorted(result.refused.items()):
         print(f"{count} frame(s) refused: {reason}", file=sys.stderr)
+    if metrics.get("frames_with_truth", 0) == 0:
+        print(f"nothing to score: {path} has no ground truth ({bag.topics['ground_truth_topic']}); "
+              f"{metrics['frames']} frame(s) ran" + (f", outputs in {args.out}" if args.out else
+                                                      "; --out OUT.mcap saves the outputs"))
+    else:
+        bands = ", ".join("-" if b is None else f"{b:.3f}" for b in metrics["band_abs_err_cm"])
+        print(f"abs. error per distance band (cm, near to far): {bands}")
+    if outputs is not None:
+        counts = ", ".join(f"{t}: {n}" for t, n in sorted(outputs.counts.items()))
+        print(f"outputs written to {args.out} ({counts})")
     if args.json:
         record = {**metrics, "bag": str(path), "grid": bag.grid.to_dict(),
                   "backend_options": config.backend.options_of()}

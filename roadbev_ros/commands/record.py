@@ -1,8 +1,10 @@
 """``roadbev record OUT.mcap --topics ...``: record topics to an MCAP bag.
 
 Raw subscriptions (no deserialising), QoS matched to the publishers, each topic subscribed as
-soon as it appears. Ctrl-C or SIGTERM (or ``--duration`` / ``--max-messages``) ends the
-recording and the file is closed cleanly, so nothing recorded is lost.
+soon as it appears. Ctrl-C, SIGTERM or SIGHUP (or ``--duration`` / ``--max-messages``) ends the
+recording and the file is closed cleanly. The bag is written in place as it grows (small chunks,
+synced every 0.25 s): after a crash or ``kill -9`` the file holds everything received up to a
+fraction of a second before, without its summary; ``roadbev bag recover`` makes a complete copy.
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     from rclpy.executors import SingleThreadedExecutor
 
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, lambda *_: stop.set())
     node = rclpy.create_node("roadbev_record")
     executor = SingleThreadedExecutor()

@@ -2,6 +2,10 @@
 
 Messages go out as the bag's raw CDR bytes (no re-serialisation), paced by their log times and
 the rate factor; the Fast DDS profile for large images is applied (``config/fastdds.xml``).
+
+A truncated, unfinished or partly damaged bag is published as far as it is readable; what was
+left out is printed, and the exit is 0. Only a bag of which nothing could be published exits 2
+(the rule of every command that reads a bag: README, "Damaged and truncated bags").
 """
 
 from __future__ import annotations
@@ -71,6 +75,11 @@ def run(args: argparse.Namespace) -> int:
         rclpy.try_shutdown()
     for topic, reason in stats.skipped_topics.items():
         print(f"skipped {topic}: {reason}", file=sys.stderr)
+    if not stats.bag_complete:
+        lost = ", ".join(f"{t}: {n}" for t, n in sorted(stats.lost.items())) or "none known"
+        print(f"the bag is not whole: published what is readable; messages left out: {lost}", file=sys.stderr)
+        for problem in stats.read_problems:
+            print(f"  {problem}", file=sys.stderr)
     if not args.quiet:
         print(
             f"published {stats.messages} messages on {len(stats.per_topic)} topics in "
@@ -79,4 +88,6 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.json:
         args.json.write_text(to_json(stats.to_dict()))
+    if stats.messages == 0 and not stop.is_set():
+        raise CommandError(f"nothing could be published from {args.bag}")
     return 0

@@ -4,6 +4,7 @@ a bag written by mcap-ros2-support read by us, determinism, and damaged bags."""
 from __future__ import annotations
 
 import hashlib
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer as McapRos2Writer
 
-from msg_bridge import BagError, BagWriter, bag_factory, bag_topics, read_messages, typestore
+from msg_bridge import BagError, BagWriter, bag_factory, bag_topics, read_messages, serialize, typestore
 from msg_bridge.camera_info import camera_info_from_stereo, stereo_camera_from_camera_info
 from msg_bridge.grid_map import elevation_grid_map, grid_map_to_arrays
 from msg_bridge.image import array_to_compressed, array_to_image, compressed_to_rgb, image_to_rgb
@@ -54,8 +55,8 @@ def _messages(stamp: int) -> dict[str, object]:
     }
 
 
-def _write(path: Path, *, frames: int = 3, compression: str = "zstd") -> None:
-    with BagWriter(path, compression=compression) as bag:
+def _write(path: Path, *, frames: int = 3, compression: str = "zstd", chunk_size: int = 1 << 20) -> None:
+    with BagWriter(path, compression=compression, chunk_size=chunk_size) as bag:
         for topic, msgtype in TOPICS.items():
             bag.add_topic(topic, msgtype, latched=topic == "/camera_info")
         for i in range(frames):
@@ -200,10 +201,11 @@ def test_we_read_a_bag_written_by_mcap_ros2(tmp_path: Path) -> None:
 
 def test_truncated_bag_names_the_file_and_what_was_readable(tmp_path: Path) -> None:
     path = tmp_path / "cut.mcap"
-    _write(path, frames=3, compression="none")
+    _write(path, frames=3, compression="none", chunk_size=64 * 1024)
     data = path.read_bytes()
     path.write_bytes(data[: len(data) * 2 // 3])
-    with pytest.raises(BagError, match=r"cut\.mcap.*readable before the damage \(/camera_info: \d"):
+    with pytest.raises(BagError, match=r"cut\.mcap: chunk \d+ at byte \d+: the file ends inside this chunk.*"
+                       r"readable before the damage \(/camera_info: \d"):
         list(read_messages(path))
 
 
@@ -255,3 +257,223 @@ def test_writer_refuses_misuse(tmp_path: Path) -> None:
     with pytest.raises(BagError, match="was not added"), BagWriter(tmp_path / "z") as bag:
         bag.write("/x", None, 0)
     assert not (tmp_path / "z").exists()
+
+
+# ------------------------------------------------------------------------------------------------
+# integrity: CRCs, damaged chunks, truncation, unfinished bags, recovery
+# ------------------------------------------------------------------------------------------------
+SMALL_CHUNKS = 16 * 1024  # several chunks per bag
+
+
+def _chunks(path: Path) -> list[object]:
+    with path.open("rb") as stream:
+        return list(make_reader(stream).get_summary().chunk_indexes)
+
+
+def _raw_by_key(path: Path) -> dict[tuple[str, int], bytes]:
+    return {(m.topic, m.log_time_ns): bytes(m.msg) for m in read_messages(path, raw=True)}
+
+
+def _data_range(path: Path, chunk: object) -> tuple[int, int]:
+    """[start, end) of a chunk's (compressed) records inside the file."""
+    from msg_bridge.mcap_file import scan_file
+
+    found = {c.offset: c for c in scan_file(path).chunks}[chunk.chunk_start_offset]  # type: ignore[attr-defined]
+    return found.data_start, found.data_start + found.data_length
+
+
+def test_project_bags_carry_chunk_crcs_that_the_independent_reader_checks(tmp_path: Path) -> None:
+    import zlib
+
+    from mcap.reader import make_reader as reader_with_crcs
+
+    path = tmp_path / "crc.mcap"
+    _write(path, frames=3, chunk_size=SMALL_CHUNKS)
+    with path.open("rb") as stream:
+        reader = reader_with_crcs(stream, validate_crcs=True)
+        assert len(list(reader.iter_messages())) == 3 * len(TOPICS)
+        chunks = reader.get_summary().chunk_indexes
+    assert len(chunks) > 3
+    import zstandard
+
+    data = path.read_bytes()
+    for chunk in chunks:
+        body = data[chunk.chunk_start_offset + 9 : chunk.chunk_start_offset + chunk.chunk_length]
+        crc = int.from_bytes(body[24:28], "little")
+        start, end = _data_range(path, chunk)
+        uncompressed = zstandard.ZstdDecompressor().decompress(data[start:end], max_output_size=chunk.uncompressed_size)
+        assert crc != 0 and crc == zlib.crc32(uncompressed)
+
+
+def test_a_damaged_chunk_is_a_typed_error_naming_it_or_is_skipped_and_counted(tmp_path: Path) -> None:
+    from msg_bridge import DamagedBagError, ReadStats
+
+    path = tmp_path / "bag.mcap"
+    _write(path, frames=3, chunk_size=SMALL_CHUNKS)
+    original = _raw_by_key(path)
+    chunks = _chunks(path)
+    victim = chunks[2]
+    start, end = _data_range(path, victim)
+    data = bytearray(path.read_bytes())
+    data[(start + end) // 2] ^= 0x40
+    path.write_bytes(bytes(data))
+    with pytest.raises(DamagedBagError, match=r"bag\.mcap: chunk 2 at byte \d+: .*(CRC|decompress)"):
+        list(read_messages(path))
+    stats = ReadStats()
+    got = list(read_messages(path, raw=True, on_damage="skip", stats=stats))
+    assert stats.lost and len(got) == len(original) - sum(stats.lost.values())
+    for m in got:  # every message delivered is the original, byte for byte
+        assert bytes(m.msg) == original[(m.topic, m.log_time_ns)]
+    assert len(stats.damage) == 1 and "chunk 2" in stats.damage[0] and "lost" in stats.summary()
+    assert not stats.complete
+
+
+def test_fuzz_100_single_byte_flips_in_chunk_data_are_each_detected_or_harmless(tmp_path: Path) -> None:
+    """A flipped byte inside a chunk is caught (typed error, counted skip) or changes nothing:
+    no flip ever reaches a decoded message."""
+    from msg_bridge import DamagedBagError, ReadStats
+
+    path = tmp_path / "bag.mcap"
+    _write(path, frames=2, chunk_size=SMALL_CHUNKS)
+    original_bytes = path.read_bytes()
+    original = _raw_by_key(path)
+    ranges = [_data_range(path, c) for c in _chunks(path)]
+    rng = np.random.default_rng(2026)
+    victim = tmp_path / "flipped.mcap"
+    outcomes = Counter()
+    for _ in range(100):
+        start, end = ranges[int(rng.integers(len(ranges)))]
+        at = int(rng.integers(start, end))
+        data = bytearray(original_bytes)
+        data[at] ^= 1 << int(rng.integers(8))
+        victim.write_bytes(bytes(data))
+        stats = ReadStats()
+        got = list(read_messages(victim, raw=True, on_damage="skip", stats=stats))
+        for m in got:
+            assert bytes(m.msg) == original[(m.topic, m.log_time_ns)], f"flip at {at} reached a message"
+        if stats.damage:
+            assert sum(stats.lost.values()) > 0 and len(got) < len(original)
+            with pytest.raises(DamagedBagError, match=r"chunk \d+ at byte \d+"):
+                list(read_messages(victim, raw=True))
+            outcomes["detected"] += 1
+        else:
+            assert len(got) == len(original)  # provably harmless: the messages equal the original
+            outcomes["harmless"] += 1
+    assert sum(outcomes.values()) == 100 and outcomes["detected"] > 90
+
+
+@pytest.mark.parametrize("fraction", [0.05, 0.3, 0.55, 0.8, 0.97])
+def test_a_truncated_bag_gives_its_complete_chunks(tmp_path: Path, fraction: float) -> None:
+    from msg_bridge import DamagedBagError, ReadStats, bag_info
+
+    path = tmp_path / "bag.mcap"
+    _write(path, frames=3, chunk_size=SMALL_CHUNKS)
+    original = _raw_by_key(path)
+    chunks = _chunks(path)
+    data = path.read_bytes()
+    cut = int(len(data) * fraction)
+    path.write_bytes(data[:cut])
+    whole = [c for c in chunks if c.chunk_start_offset + c.chunk_length <= cut]  # type: ignore[attr-defined]
+    with pytest.raises(DamagedBagError, match=r"bag\.mcap.*truncated"):
+        list(read_messages(path))
+    stats = ReadStats()
+    got = list(read_messages(path, raw=True, on_damage="skip", stats=stats))
+    expected = sum(sum(1 for _ in _index_entries(data, c)) for c in whole)
+    assert len(got) == expected
+    for m in got:
+        assert bytes(m.msg) == original[(m.topic, m.log_time_ns)]
+    assert stats.lost_unknown and stats.unfinished and "breaks off" in stats.summary()
+    info = bag_info(path)
+    assert not info.closed and sum(i.count for i in info.topics.values()) == expected
+
+
+def _index_entries(data: bytes, chunk: object) -> list[tuple[int, int]]:
+    """The message index entries of a chunk, read from the file independently."""
+    entries = []
+    for offset in chunk.message_index_offsets.values():  # type: ignore[attr-defined]
+        length = int.from_bytes(data[offset + 1 : offset + 9], "little")
+        body = data[offset + 9 : offset + 9 + length]
+        size = int.from_bytes(body[2:6], "little")
+        entries += [(int.from_bytes(body[6 + k : 14 + k], "little"), 0) for k in range(0, size, 16)]
+    return entries
+
+
+def test_an_unfinished_bag_is_readable_and_recovers_to_a_complete_indexed_copy(tmp_path: Path) -> None:
+    """The state a killed writer leaves: finished chunks in the file, no summary, the marker."""
+    from msg_bridge import ReadStats, bag_info, marker_path, recover_bag
+
+    path = tmp_path / "live.mcap"
+    writer = BagWriter(path, chunk_size=SMALL_CHUNKS)
+    writer.open()
+    for topic, msgtype in TOPICS.items():
+        writer.add_topic(topic, msgtype, latched=topic == "/camera_info")
+    for i in range(3):
+        for topic, msg in _messages(1_000_000_000 * (i + 1)).items():
+            writer.write(topic, msg, 1_000_000_000 * (i + 1))
+    writer.flush(fsync=True)
+    assert marker_path(path).is_file()
+    stats = ReadStats()
+    live = list(read_messages(path, raw=True, on_damage="skip", stats=stats))
+    assert len(live) == 3 * len(TOPICS) and stats.unfinished and not stats.lost_unknown
+    with pytest.raises(BagError, match="recover"):
+        list(read_messages(path))
+    info = bag_info(path)
+    assert not info.closed and info.marker and "NOT closed cleanly" in "\n".join(info.lines())
+    assert {t: i.count for t, i in info.topics.items()} == dict.fromkeys(TOPICS, 3)
+
+    out = tmp_path / "recovered.mcap"
+    result = recover_bag(path, out)
+    assert sum(result.read.values()) == 3 * len(TOPICS)
+    assert bag_info(out).closed and not marker_path(out).exists()
+    theirs = _independent_read(out)
+    assert len(theirs) == 3 * len(TOPICS)
+    for mine, (topic, _schema, log_time, decoded) in zip(live, theirs, strict=True):
+        assert (mine.topic, mine.log_time_ns) == (topic, log_time)
+        _check_content(topic, decoded)
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([out]) as reader:  # QoS and types survive the copy
+        assert {c.topic: c.msgcount for c in reader.connections} == dict.fromkeys(TOPICS, 3)
+    writer.close()
+    assert not marker_path(path).exists() and bag_info(path).closed
+
+
+def test_recovering_a_damaged_bag_keeps_every_sound_chunk(tmp_path: Path) -> None:
+    from msg_bridge import bag_info, recover_bag
+
+    path = tmp_path / "bag.mcap"
+    _write(path, frames=3, chunk_size=SMALL_CHUNKS)
+    original = _raw_by_key(path)
+    start, _end = _data_range(path, _chunks(path)[1])
+    data = bytearray(path.read_bytes())
+    data[start + 10] ^= 0xFF
+    path.write_bytes(bytes(data))
+    info = bag_info(path)
+    assert info.closed and len(info.damage) == 1 and sum(info.lost.values()) > 0
+    out = tmp_path / "copy"
+    stats = recover_bag(path, out, compression="none")
+    copy = _raw_by_key(out)
+    assert len(copy) == len(original) - sum(info.lost.values()) == sum(stats.read.values())
+    assert all(original[k] == v for k, v in copy.items())
+    assert (out / "metadata.yaml").is_file() and bag_info(out).closed
+    with pytest.raises(BagError, match="exists already"):
+        recover_bag(path, out)
+
+
+def test_a_chunk_without_crc_is_checked_against_its_index_and_reported(tmp_path: Path) -> None:
+    """rosbags' writer stores CRC 0: such chunks are counted as unverifiable."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from msg_bridge import ReadStats, bag_info
+
+    path = tmp_path / "old"
+    store = typestore()
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conn = writer.add_connection("/imu", "sensor_msgs/msg/Imu", typestore=store)
+        for i in range(5):
+            msg = imu_message(bag_factory(), stamp_ns=i, orientation_xyzw=(0.0, 0.0, 0.0, 1.0))
+            writer.write(conn, i, serialize(msg))
+    stats = ReadStats()
+    assert len(list(read_messages(path, on_damage="skip", stats=stats))) == 5
+    assert stats.unverified_chunks == 1 and "without CRC" in stats.summary()
+    assert bag_info(path).chunks_without_crc == 1

@@ -59,7 +59,7 @@ def test_it_is_an_evaluation_bag_with_a_pothole_and_a_speed_bump() -> None:
     assert bag.grid == GridSpec() and bag.camera.size == (960, 528)
     lowest, highest = 0.0, 0.0
     for sample in bag:
-        assert sample.frame.left.shape == (528, 960, 3) and sample.truth is not None
+        assert sample.inputs.left.shape == (528, 960, 3) and sample.truth is not None
         lowest, highest = min(lowest, np.nanmin(sample.truth)), max(highest, np.nanmax(sample.truth))
     assert lowest < -0.05  # a pothole (the 2 % cross slope alone stays within +-2 cm)
     assert highest > 0.08  # a speed bump

@@ -138,3 +138,27 @@ def test_cli_missing_bag_exits_with_one_line(tmp_path: Path) -> None:
                           capture_output=True, text=True, env=child_env(), timeout=60)
     assert proc.returncode == 2
     assert proc.stderr.strip().count("\n") == 0 and "bag not found" in proc.stderr
+
+
+def test_demo_on_a_truncated_bag_without_ground_truth_writes_the_report(demo, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """The readable frames of a cut bag of the user's own drive: maps, previews and timing, no
+    error figures, and the report says what was lost."""
+    from _damaged_bags import rewrite, truncate
+
+    result, _options = demo
+    drive = tmp_path / "drive.mcap"
+    rewrite(result.bag, drive, drop=["/ground_truth/elevation"])
+    cut = truncate(drive, tmp_path / "cut.mcap", 0.8)
+    options = DemoOptions(bag=cut, out_dir=tmp_path / "out", backend="bm", report_frames=1, progress=False)
+    lines: list[str] = []
+    partial = run_demo(options, log=lines.append)
+    files = {p.name for p in options.out_dir.iterdir()}
+    assert {"index.html", "report.json", "frames.png", "preview.png", "timing.png"} <= files
+    assert "band_error.png" not in files
+    payload = json.loads((options.out_dir / "report.json").read_text())
+    assert payload["losses"] and any("breaks off" in line for line in payload["losses"])
+    assert any("breaks off" in line for line in lines)
+    # every whole frame the node got was answered (a frame cut in half is not waited for)
+    assert 0 < partial.online["frames"] < FRAMES and partial.online["online"]["frames_without_output"] == 0
+    assert partial.online["frames"] <= partial.offline["frames"] < FRAMES and partial.offline["cells"] == 0
+    assert "nothing to score" in (options.out_dir / "index.html").read_text()

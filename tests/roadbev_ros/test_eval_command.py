@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import json
+from collections import Counter
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pytest
 
 from roadbev_core.config import GridSpec, StereoCamera
@@ -126,3 +129,104 @@ def test_bad_frames_and_checkpoint(bag: Path, capsys: pytest.CaptureFixture[str]
     assert "--frames" in _one_line_error(capsys)
     assert main(["eval", str(bag), "--backend", "bm", "--checkpoint", "x.pt"]) == 2
     assert "learned" in _one_line_error(capsys)
+
+
+# ------------------------------------------------------------------------------------------------
+# partial results: truncated bags, broken images, bags without ground truth
+# ------------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def jpeg_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Five small JPEG frames (240 x 132), rewritten with small chunks (several per frame)."""
+    from _damaged_bags import rewrite
+
+    from msg_bridge.evalbag import write_eval_bag
+    from roadbev_core.synth import DriveConfig, RoadConfig, SyntheticDrive
+
+    root = tmp_path_factory.mktemp("jpegbag")
+    road = RoadConfig(road_class="B", features=("speed_bump",), noise_sigma=1.0)
+    drive = SyntheticDrive(DriveConfig(frames=5, seed=6, road=road, camera=CAMERA.scaled(0.5), grid=GRID))
+    write_eval_bag(root / "big.mcap", drive, compressed=True)
+    rewrite(root / "big.mcap", root / "drive.mcap", chunk_size=8 * 1024)
+    return root / "drive.mcap"
+
+
+def _eval(bag: Path, tmp_path: Path, *extra: str) -> tuple[int, dict[str, Any]]:
+    out = tmp_path / f"{bag.stem}.json"
+    rc = main(["eval", str(bag), "--backend", "bm", "--json", str(out), "--no-progress", *extra])
+    return rc, (json.loads(out.read_text()) if out.exists() else {})
+
+
+def test_truncated_bags_give_their_readable_frames_and_say_what_was_lost(
+    jpeg_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from _damaged_bags import truncate
+
+    frames = []
+    for fraction in (0.45, 0.7, 0.9):
+        cut = truncate(jpeg_bag, tmp_path / f"cut{int(fraction * 100)}.mcap", fraction)
+        rc, data = _eval(cut, tmp_path)
+        err = capsys.readouterr().err
+        assert rc == 0 and "breaks off" in err and "chunk" in err
+        assert data["losses"] and 0 < data["frames"] < 5
+        # The readable frames are the bag's first frames, evaluated as in the whole bag (all
+        # but the last: the IMU samples after its stamp may lie beyond the cut).
+        if data["frames"] > 1:
+            head = str(data["frames"] - 1)
+            _rc, part = _eval(cut, tmp_path, "--frames", head)
+            _rc, whole = _eval(jpeg_bag, tmp_path, "--frames", head)
+            assert part["cells"] == whole["cells"] and part["abs_err_cm"] == whole["abs_err_cm"]
+        frames.append(data["frames"])
+    assert frames == sorted(frames) and frames[0] < frames[-1]
+    capsys.readouterr()
+    nothing = truncate(jpeg_bag, tmp_path / "cut2.mcap", 0.02)
+    assert main(["eval", str(nothing), "--backend", "bm", "--no-progress"]) == 2  # nothing to evaluate
+    line = _one_line_error(capsys)
+    assert "no left images" in line or "no usable frames" in line
+
+
+def test_an_undecodable_jpeg_is_a_counted_lost_frame(jpeg_bag: Path, tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    from _damaged_bags import rewrite
+
+    def break_second_left(topic: str, index: int, msg: object) -> object:
+        if topic.startswith("/stereo/left/image_rect") and index == 1:
+            msg.data = np.frombuffer(b"\xff\xd8 this is no jpeg", np.uint8)  # type: ignore[attr-defined]
+        return msg
+
+    broken = tmp_path / "broken.mcap"
+    rewrite(jpeg_bag, broken, change=break_second_left)
+    rc, data = _eval(broken, tmp_path)
+    assert rc == 0 and data["frames"] == 4 and data["lost_frames"] == 1
+    assert "1 frame(s) lost: an image does not decode" in capsys.readouterr().err
+
+
+def test_a_bag_without_ground_truth_writes_every_output_and_says_there_is_nothing_to_score(
+    jpeg_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from _damaged_bags import rewrite
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from msg_bridge.evalbag import read_eval_bag
+    from msg_bridge.grid_map import grid_map_to_arrays
+    from msg_bridge.preview import preview_from_message
+    from roadbev_core.backends import create
+
+    drive = tmp_path / "nogt.mcap"
+    rewrite(jpeg_bag, drive, drop=["/ground_truth/elevation"])
+    out = tmp_path / "outputs.mcap"
+    rc, data = _eval(drive, tmp_path, "--out", str(out))
+    printed = capsys.readouterr().out
+    assert rc == 0 and "nothing to score" in printed and data["frames"] == 5 and data["cells"] == 0
+    with out.open("rb") as stream:  # the independent reader, message for message
+        decoded = [(c.topic, d) for _s, c, _m, d in make_reader(stream, decoder_factories=[DecoderFactory()])
+                   .iter_decoded_messages()]
+    assert Counter(t for t, _ in decoded) == {"/roadbev/elevation": 5, "/roadbev/preview": 5}
+    eval_bag = read_eval_bag(drive)
+    first = next(iter(eval_bag))
+    expected = create("bm", eval_bag.grid).estimate(first.frame)
+    maps = [grid_map_to_arrays(d) for t, d in decoded if t == "/roadbev/elevation"]
+    assert maps[0].stamp_ns == first.inputs.stamp_ns and maps[0].frame_id == "roadbev_road"
+    np.testing.assert_array_equal(maps[0].layers["elevation"], expected.elevation)
+    previews = [preview_from_message(d) for t, d in decoded if t == "/roadbev/preview"]
+    assert [p.stamp_ns for p in previews] == [m.stamp_ns for m in maps] == eval_bag.stamps

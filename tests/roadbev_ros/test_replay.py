@@ -131,3 +131,24 @@ def test_restamp_loop_and_stop(listener: Listener, imu_bag: Path) -> None:
 def test_unknown_topics_only_give_an_error(listener: Listener, imu_bag: Path) -> None:
     with pytest.raises(ReplayError, match="nothing to replay"):
         replay_bag(listener.pub_node, imu_bag, topics=["/nope"])
+
+
+@pytest.mark.parametrize("fraction", [0.35, 0.85])
+def test_a_truncated_bag_is_replayed_as_far_as_it_is_readable(listener: Listener, imu_bag: Path, tmp_path: Path,
+                                                              fraction: float) -> None:
+    from _damaged_bags import rewrite, truncate
+
+    from msg_bridge.bag import ReadStats, read_messages
+
+    small = tmp_path / "small_chunks.mcap"
+    rewrite(imu_bag, small, chunk_size=1024)
+    cut = truncate(small, tmp_path / "cut.mcap", fraction)
+    readable = list(read_messages(cut, ["/imu/data"], raw=True, on_damage="skip", stats=ReadStats()))
+    assert 0 < len(readable) <= N  # a cut in the summary still leaves every message
+    stats = replay_bag(listener.pub_node, cut, rate=0.0, wait_for_subscribers=10.0)
+    assert stats.per_topic["/imu/data"] == len(readable)
+    assert not stats.bag_complete and stats.read_problems
+    if len(readable) < N:
+        assert any("breaks off" in p for p in stats.read_problems)
+    assert wait_for(lambda: len(listener.imu) == len(readable), 5.0), len(listener.imu)
+    assert [s for _, s in listener.imu] == [START + k * PERIOD_NS for k in range(len(readable))]

@@ -1,0 +1,65 @@
+"""A bag of the node's outputs (``roadbev eval --out``): exactly the messages the node publishes.
+
+:class:`OutputBag` writes, per :class:`roadbev_core.pipeline.PipelineOutput`, the
+``grid_map_msgs/GridMap`` and ``roadbev_msgs/RoadPreview`` that
+:func:`msg_bridge.pipeline_io.output_messages` builds (the node's own builder, here with a
+typestore factory), on the node's topics, stamped with the left image's stamp and framed as the
+node frames them, so that any tool can score them.
+"""
+
+from __future__ import annotations
+
+import os
+from types import TracebackType
+
+from msg_bridge._common import TypestoreFactory
+from msg_bridge.bag import BagWriter, typestore
+from msg_bridge.pipeline_io import output_messages
+from roadbev_core.config import RoadbevConfig
+from roadbev_core.pipeline import PipelineOutput
+
+__all__ = ["OutputBag"]
+
+
+class OutputBag:
+    """An MCAP bag of the node's outputs: ``write(output)`` per frame.
+
+    Args:
+        path: ``OUT.mcap`` (or a rosbag2 directory); must not exist.
+        config: the pipeline's config (topics, frame, grid).
+    """
+
+    def __init__(self, path: str | os.PathLike[str], config: RoadbevConfig) -> None:
+        self.config = config
+        self._factory = TypestoreFactory(typestore())
+        self._writer = BagWriter(path)
+        self._writer.open()
+        self._writer.add_topic(config.topics.elevation, "grid_map_msgs/msg/GridMap")
+        self._writer.add_topic(config.topics.preview, "roadbev_msgs/msg/RoadPreview")
+
+    @property
+    def counts(self) -> dict[str, int]:
+        return dict(self._writer.counts)
+
+    def write(self, output: PipelineOutput) -> None:
+        """The frame's GridMap and RoadPreview, logged at the image stamp."""
+        messages = output_messages(output, self.config, self._factory, with_points=False)
+        self._writer.write(self.config.topics.elevation, messages.elevation, output.stamp_ns)
+        self._writer.write(self.config.topics.preview, messages.preview, output.stamp_ns)
+
+    def close(self) -> None:
+        self._writer.close()
+
+    def abort(self) -> None:
+        self._writer.abort()
+
+    def __enter__(self) -> OutputBag:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
