@@ -13,7 +13,7 @@ from __future__ import annotations
 import importlib
 import os
 import sys
-from collections.abc import Mapping, MutableMapping
+from collections.abc import Callable, Mapping, MutableMapping
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +26,7 @@ __all__ = [
     "init_ros",
     "message_class",
     "profile_path",
+    "spin_until_shutdown",
     "use_profile",
 ]
 
@@ -129,3 +130,22 @@ def init_ros(args: list[str] | None = None, *, handle_signals: bool = True) -> A
     if not rclpy.ok():
         rclpy.init(args=args, signal_handler_options=options)
     return rclpy
+
+
+def spin_until_shutdown(rclpy: Any, node: Any, on_exit: Callable[[], None] | None = None) -> None:
+    """Spin ``node`` on a single-threaded executor until Ctrl-C, SIGTERM or a shutdown; then run
+    ``on_exit`` (e.g. stop a worker thread), destroy the node and shut rclpy down."""
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if on_exit is not None:
+            on_exit()
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()

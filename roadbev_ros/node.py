@@ -41,6 +41,7 @@ from roadbev_core.config import ParamError, RoadbevConfig
 from roadbev_core.errors import RoadbevError
 from roadbev_core.pipeline import BackendFactory, Pipeline
 from roadbev_ros.diagnostics import Health, ThrottledLog, problem_kind, to_diagnostic_array
+from roadbev_ros.mailbox import Mailbox
 from roadbev_ros.node_params import check_params_files, config_of, declare_parameters, plain, value_error
 from roadbev_ros.publishers import OutputPublishers
 from roadbev_ros.sync import ApproximateTimeSync, DropReason
@@ -82,10 +83,7 @@ class RoadBevNode(Node):
             raise ParamError(str(exc)) from None
         self.health = Health(backend=self.pipeline.backend.name)
         self._log_gate = ThrottledLog(self.config.diagnostics.log_throttle_s)
-        self._lock = threading.Condition()
-        self._pending: tuple[Any, ...] | None = None
-        self._pending_arrival = 0.0
-        self._stop = False
+        self._mailbox: Mailbox[tuple[Any, ...]] = Mailbox()
         self.sync = self._make_sync()
         topics = self.config.topics
         image_type = CompressedImage if topics.image_transport == "compressed" else Image
@@ -163,12 +161,8 @@ class RoadBevNode(Node):
 
     def _on_set(self, *items: Any) -> None:
         self.health.set_in()
-        with self._lock:
-            if self._pending is not None:
-                self.health.drop("busy")
-            self._pending = tuple(msg for _, msg in items)
-            self._pending_arrival = time.monotonic()
-            self._lock.notify()
+        if self._mailbox.put(tuple(msg for _, msg in items)):
+            self.health.drop("busy")  # the waiting set was replaced by a newer one
 
     def _on_imu(self, msg: Any) -> None:
         try:
@@ -218,13 +212,10 @@ class RoadBevNode(Node):
     def _work(self) -> None:
         self.pipeline.warm_up()
         while True:
-            with self._lock:
-                while self._pending is None and not self._stop:
-                    self._lock.wait(0.5)
-                if self._stop:
-                    return
-                msgs, arrival = self._pending, self._pending_arrival
-                self._pending = None
+            taken = self._mailbox.take()
+            if taken is None:
+                return
+            msgs, arrival = taken
             try:
                 self._process(msgs, arrival)
             except RoadbevError as exc:
@@ -239,7 +230,7 @@ class RoadBevNode(Node):
         t0 = time.perf_counter()
         inputs = camera_input(msgs, config.topics.image_transport)
         # IMU messages may arrive after the images: wait for a sample at or after the stamp
-        imu_wait = self.pipeline.wait_for_attitude(inputs.stamp_ns, config.imu.wait_s, lambda: self._stop)
+        imu_wait = self.pipeline.wait_for_attitude(inputs.stamp_ns, config.imu.wait_s, lambda: self._mailbox.closed)
         self.health.imu_age_s = self.pipeline.imu_age_s(inputs.stamp_ns)
         t1 = time.perf_counter()
         output = self.pipeline.process(inputs)
@@ -256,7 +247,7 @@ class RoadBevNode(Node):
     # --- diagnostics -----------------------------------------------------------------------------
     def _publish_diagnostics(self) -> None:
         snapshot = self.health.snapshot()
-        snapshot.values["queued_sets"] = "1" if self._pending is not None else "0"
+        snapshot.values["queued_sets"] = "1" if self._mailbox.waiting else "0"
         snapshot.values["queued_left_images"] = str(self.sync.queued()[0])
         self._diag_pub.publish(to_diagnostic_array(snapshot, self.get_clock().now().to_msg()))
 
@@ -265,52 +256,36 @@ class RoadBevNode(Node):
         h = self.health
         return {"frames_in": h.frames_in, "outputs": h.outputs, "dropped_busy": h.dropped_busy,
                 "dropped_sync": h.dropped_sync, "dropped_invalid": h.dropped_invalid,
-                "queued": self.sync.queued()[0] + (self._pending is not None)}
+                "queued": self.sync.queued()[0] + self._mailbox.waiting}
 
     def shutdown(self) -> None:
         """Stop the worker (waits for the frame in progress)."""
-        with self._lock:
-            self._stop = True
-            self._lock.notify_all()
+        self._mailbox.close()
         self._worker.join(timeout=30.0)
 
 
 def main(args: Sequence[str] | None = None) -> int:
-    """Run the node until Ctrl-C / SIGTERM (console script ``roadbev_node``).
+    """Run the node until Ctrl-C / SIGTERM (console script ``roadbev_node``); 2 on bad parameters.
 
     Args:
         args: command line (``sys.argv`` when None), with ``--ros-args -p ... --params-file ...``.
     """
-    from roadbev_ros.dds import init_ros
+    from roadbev_ros.dds import init_ros, spin_until_shutdown
 
     argv = list(sys.argv if args is None else args)
+    rclpy = None
     try:
         notes = check_params_files(argv, "roadbev")
-    except ParamError as exc:
-        print(f"roadbev_node: {exc}", file=sys.stderr)
-        return 2
-    rclpy = init_ros(argv)
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-
-    try:
+        rclpy = init_ros(argv)
         node = RoadBevNode()
     except ParamError as exc:
         print(f"roadbev_node: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
+        if rclpy is not None:
+            rclpy.try_shutdown()
         return 2
     for note in notes:
         node.get_logger().warning(note)
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.shutdown()
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
+    spin_until_shutdown(rclpy, node, on_exit=node.shutdown)
     return 0
 
 
