@@ -53,13 +53,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from roadbev_core.config import GridSpec
-    from roadbev_core.datasets import TEST_SEED_START, BagSet, ConcatSource, SyntheticSet
+    from roadbev_core.datasets import TEST_SEED_START, BagSet, ConcatSource, FrameSource, SyntheticSet
     from roadbev_core.models.presets import model_config
     from roadbev_core.train import TrainConfig, train
     from roadbev_ros.params import parse_assignments
 
     overrides = parse_assignments(args.model_option, "--model-option")  # before any data is read
-    sources = []
+    sources: list[FrameSource] = []
     if args.synth:
         last = args.synth_seed + args.synth
         if args.synth_seed < 0 or last > TEST_SEED_START:

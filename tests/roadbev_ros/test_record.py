@@ -7,10 +7,11 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from _ros_harness import wait_for
 
 from msg_bridge import bag
 from roadbev_ros.record import Recorder, RecordError
+
+from ._ros_harness import wait_for
 
 
 def test_records_best_effort_and_reliable_publishers_that_appear_later(ros: Any, tmp_path: Path) -> None:
