@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +23,7 @@ from roadbev_ros.report import (
     TrackProfile,
     band_centres_m,
     plot_frames,
+    plot_preview,
     roi_outline_px,
     write_report,
 )
@@ -72,6 +74,16 @@ def test_write_report_writes_every_figure_page_and_json(tmp_path: Path) -> None:
     assert payload["runs"][0]["metrics"]["abs_err_cm"] == 0.25
     assert payload["runs"][1]["metrics"]["rmse_cm"] is None  # NaN -> null, standard JSON
     assert payload["frames_shown"] == [0, 1]
+
+
+def test_preview_figure_draws_a_frame_that_lacks_a_track_another_frame_has(tmp_path: Path) -> None:
+    """Frame 1 has a right track, frame 0 has not: frame 0's right panel stays empty (no crash)."""
+    rng = np.random.default_rng(3)
+    first, second = _frame(0, rng), _frame(1, rng)
+    right = TrackProfile("right", -0.8, second.tracks[0].distance_m, second.tracks[0].elevation_m)
+    second = replace(second, tracks=(*second.tracks, right))
+    out = plot_preview([first, second], tmp_path / "preview.png")
+    assert mpimg.imread(out).shape[0] > 200
 
 
 def test_frames_figure_keeps_the_bev_aspect(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
