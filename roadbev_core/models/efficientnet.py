@@ -323,7 +323,7 @@ _M = TypeVar("_M", bound=nn.Module)
 def fold_batchnorm(module: _M) -> _M:
     """Fold every :class:`ConvBnAct`'s BatchNorm into its conv (inference only; in place)."""
     for block in module.modules():
-        if isinstance(block, ConvBnAct) and isinstance(block.bn, (nn.BatchNorm2d, nn.BatchNorm3d)):
+        if isinstance(block, ConvBnAct) and isinstance(block.bn, nn.modules.batchnorm._BatchNorm):
             bn = block.bn
             assert bn.running_var is not None and bn.running_mean is not None  # track_running_stats
             scale = bn.weight / torch.sqrt(bn.running_var + bn.eps)  # [C_out]
