@@ -1,4 +1,4 @@
-# The two commands of the README: `make demo` (the main job) and `make test`.
+# The two commands of the README: `make demo` (the main job) and `make test` (`make lint` for CI).
 # Each one sets up ./.venv first (scripts/setup_venv.sh; a no-op when nothing changed).
 PY := .venv/bin/python
 export PYTHONUNBUFFERED := 1
@@ -14,8 +14,13 @@ demo: setup
 test: setup
 	$(PY) -m pytest -q tests
 
+# ruff, then mypy (mypy.ini: the whole tree, one strictness). The launch file is checked from its
+# folder: run from the root, the folder named launch/ would shadow the ROS `launch` package.
 lint: setup
 	$(PY) -m ruff check .
+	$(PY) -m mypy
+	cd launch && $(abspath $(PY)) -m mypy --config-file ../mypy.ini --cache-dir ../.mypy_cache \
+		--no-warn-unused-configs roadbev.launch.py
 
 bench: setup
 	$(PY) -m benchmarks.run_all

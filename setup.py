@@ -6,6 +6,7 @@ An ament_python-compatible package: ``colcon build`` installs it into a ROS 2 wo
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 from setuptools import find_packages, setup
@@ -14,8 +15,8 @@ PACKAGE = "roadbev_ros"
 ROOT = Path(__file__).resolve().parent
 
 
-def _data_files() -> list[tuple[str, list[str]]]:
-    files = [
+def _data_files() -> list[tuple[str, Sequence[str]]]:
+    files: list[tuple[str, Sequence[str]]] = [
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
     ]
@@ -33,7 +34,12 @@ setup(
     license="MIT",
     python_requires=">=3.10",
     packages=find_packages(include=["roadbev_core*", "msg_bridge*", "roadbev_ros*"]),
-    package_data={"roadbev_core": ["data/*"], "roadbev_ros": ["data/*"]},
+    # py.typed (PEP 561): the packages' annotations are their public types
+    package_data={
+        "roadbev_core": ["data/*", "py.typed"],
+        "msg_bridge": ["py.typed"],
+        "roadbev_ros": ["data/*", "py.typed"],
+    },
     data_files=_data_files(),
     install_requires=["numpy", "torch", "opencv-python-headless", "mcap", "rosbags", "pyyaml"],
     zip_safe=False,

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from roadbev_core.backends import create
+from roadbev_core.backends.learned import LearnedBackend
 from roadbev_core.config import GridSpec
 from roadbev_core.datasets import TEST_SEED_START, SyntheticSet, as_samples
 from roadbev_core.evaluation import evaluate, to_json
@@ -88,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
         metrics = dict(result.metrics)
         metrics["wall_s"] = time.perf_counter() - t0
         metrics.update(plane_removed_errors([e.elevation for e in result.estimates or []], truths, data.grid))
-        metrics["checkpoint"] = str(backend.checkpoint)
+        metrics["checkpoint"] = str(backend.checkpoint if isinstance(backend, LearnedBackend) else None)
         results.append(metrics)
         print(f"{name}: abs. err. {metrics['abs_err_cm']:.3f} cm, RMSE {metrics['rmse_cm']:.3f} cm, "
               f">0.5 cm {metrics['gt_0p5cm_pct']:.1f} %, {metrics['fps']:.2f} FPS; without each frame's error "

@@ -10,15 +10,17 @@ wall time grows with the load average, which is recorded with the numbers.
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import statistics
 import time
+from collections.abc import Callable
 from typing import Any
 
 from benchmarks.common import RESULTS, machine_info, write_json
 
 
-def _timed(fn) -> tuple[Any, float, float]:  # type: ignore[no-untyped-def]
+def _timed(fn: Callable[[], Any]) -> tuple[Any, float, float]:
     w0, c0 = time.perf_counter(), time.process_time()
     out = fn()
     return out, time.perf_counter() - w0, time.process_time() - c0
@@ -52,10 +54,10 @@ def main() -> None:
     render_wall, render_cpu, frame_wall, frame_cpu = [], [], [], []
     for i in range(1, args.frames + 1):
         pose, _ = drive.pose(i)
-        _, w, c = _timed(lambda pose=pose: render_stereo(drive.scene, camera, pose))
+        _, w, c = _timed(functools.partial(render_stereo, drive.scene, camera, pose))
         render_wall.append(w)
         render_cpu.append(c)
-        _, w, c = _timed(lambda i=i: drive[i])
+        _, w, c = _timed(functools.partial(drive.__getitem__, i))
         frame_wall.append(w)
         frame_cpu.append(c)
     # One thread: its CPU time is what the wall time is on an idle core (load-independent).
@@ -63,11 +65,11 @@ def main() -> None:
 
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
-    single_cpu = [_timed(lambda i=i: drive[i])[2] for i in range(1, args.frames + 1)]
+    single_cpu = [_timed(functools.partial(drive.__getitem__, i))[2] for i in range(1, args.frames + 1)]
     cv2.setNumThreads(threads)
     sample_wall, sample_cpu = [], []
     for seed in range(args.samples):
-        _, w, c = _timed(lambda seed=seed: make_sample(1000 + seed, camera=camera))
+        _, w, c = _timed(functools.partial(make_sample, 1000 + seed, camera=camera))
         sample_wall.append(w)
         sample_cpu.append(c)
     try:

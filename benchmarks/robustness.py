@@ -62,19 +62,25 @@ def _jpeg(image: np.ndarray, quality: int) -> np.ndarray:
     ok, data = cv2.imencode(".jpg", cv2.cvtColor(image, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality])
     if not ok:
         raise RuntimeError("JPEG encoding failed")
-    return cv2.cvtColor(cv2.imdecode(data, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    decoded = cv2.imdecode(data, cv2.IMREAD_COLOR)
+    if decoded is None:
+        raise RuntimeError("JPEG decoding failed")
+    return cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB)
 
 
 def perturb(frame: Frame, kind: str, level: float, seed: int) -> Frame:
     """``frame`` with one perturbation applied (image ones only; geometry ones act on the backend)."""
     rng = np.random.default_rng(seed)
+    right = frame.right
+    if right is None:
+        raise ValueError("the robustness sweep needs stereo frames")
     if kind == "noise_sigma" and level > 0:
-        return replace(frame, left=_noisy(frame.left, level, rng), right=_noisy(frame.right, level, rng))
+        return replace(frame, left=_noisy(frame.left, level, rng), right=_noisy(right, level, rng))
     if kind == "gain_mismatch" and level != 0:
-        right = np.clip(frame.right.astype(np.float32) * (1.0 + level), 0, 255).astype(np.uint8)
-        return replace(frame, right=right)
+        gained = np.clip(right.astype(np.float32) * (1.0 + level), 0, 255).astype(np.uint8)
+        return replace(frame, right=gained)
     if kind == "jpeg_quality" and level > 0:
-        return replace(frame, left=_jpeg(frame.left, int(level)), right=_jpeg(frame.right, int(level)))
+        return replace(frame, left=_jpeg(frame.left, int(level)), right=_jpeg(right, int(level)))
     if kind == "pitch_bias_deg" and level != 0:
         roll, pitch = frame.attitude.degrees
         return replace(frame, attitude=Attitude.from_degrees(roll, pitch + level))

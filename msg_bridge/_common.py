@@ -158,7 +158,7 @@ class RclpyFactory:
     def sequence(self, values: np.ndarray) -> Any:
         values = np.ascontiguousarray(values)
         out = array.array(_TYPECODES[values.dtype])
-        out.frombytes(memoryview(values).cast("B"))
+        out.frombytes(values.data.cast("B"))
         return out
 
 

@@ -495,7 +495,7 @@ class TopicInfo(NamedTuple):
     """A topic of a bag: its type and message count."""
 
     msgtype: str
-    count: int
+    count: int  # type: ignore[assignment]  # shadows tuple.count; the field name is public API
 
 
 class BagMessage(NamedTuple):

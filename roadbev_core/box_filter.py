@@ -15,8 +15,8 @@ WindowSize = int | tuple[int, int]
 """A window's side in cells (square), or its (rows, columns)."""
 
 
-def window_shape(size: WindowSize) -> tuple[int, int]:
-    """(rows, columns) of a window given as one side or a pair; both odd and positive (centred).
+def window_shape(size: WindowSize | list[int]) -> tuple[int, int]:
+    """(rows, columns) of a window given as one side or a pair (a list from YAML too); odd, positive.
 
     Raises:
         ValueError: not an odd positive integer or a pair of them.

@@ -83,7 +83,7 @@ def voxel_columns_figure(
     h, w = img.shape[:2]
     fig, ax = new_figure(figsize=(w / dpi, h / dpi + 0.45), dpi=dpi)
     ax.imshow(img, cmap="gray" if img.ndim == 2 else None, interpolation="nearest")
-    lines = LineCollection(segments, cmap="turbo", linewidths=1.4, alpha=0.95)
+    lines = LineCollection(list(segments), cmap="turbo", linewidths=1.4, alpha=0.95)  # [N, 2, 2] -> N segments
     lines.set_array(dist)
     lines.set_clim(grid.x_min, grid.x_max)
     ax.add_collection(lines)

@@ -31,7 +31,8 @@ class ElevationLabel(NamedTuple):
 
     elevation: np.ndarray
     mask: np.ndarray
-    count: np.ndarray
+    # The field shadows tuple.count (a public name since the first release, kept for its users).
+    count: np.ndarray  # type: ignore[assignment]
 
 
 def elevation_map(points_road: np.ndarray, grid: GridSpec, *, clip_z: bool = False) -> ElevationLabel:

@@ -99,9 +99,9 @@ def read_pcd(path: str | Path) -> np.ndarray:
         width = sum(counts)
         if len(text) < n_points * width:
             raise RsrdError(f"{path}: ASCII PCD has {len(text) // max(width, 1)} of {n_points} points")
-        values = np.array(text[: n_points * width], dtype=np.float64).reshape(n_points, width)
+        table = np.array(text[: n_points * width], dtype=np.float64).reshape(n_points, width)
         starts = np.cumsum([0, *counts[:-1]])
-        xyz = np.stack([values[:, starts[fields.index(a)]] for a in "xyz"], axis=1)
+        xyz = np.stack([table[:, starts[fields.index(a)]] for a in "xyz"], axis=1)
     elif encoding == "binary":
         try:
             dtype = np.dtype([(f"{f}_{i}", _PCD_TYPES[(t.upper(), s)], (c,))

@@ -108,9 +108,11 @@ class CpuSyncBatchNorm(nn.modules.batchnorm._BatchNorm):
         var = (stats[c:2 * c] / n - mean * mean).clamp_min(0)
         with torch.no_grad():
             m = self.momentum if self.momentum is not None else 0.1
-            self.running_mean.mul_(1 - m).add_(m * mean.detach())
-            self.running_var.mul_(1 - m).add_(m * var.detach() * n / max(float(n) - 1, 1.0))
-            self.num_batches_tracked += 1
+            if self.running_mean is not None and self.running_var is not None:  # track_running_stats
+                self.running_mean.mul_(1 - m).add_(m * mean.detach())
+                self.running_var.mul_(1 - m).add_(m * var.detach() * n / max(float(n) - 1, 1.0))
+            if self.num_batches_tracked is not None:
+                self.num_batches_tracked.add_(1)
         shape = (1, c, *([1] * (x.dim() - 2)))
         scale = (self.weight / torch.sqrt(var + self.eps)).view(shape)
         return (x - mean.view(shape)) * scale + self.bias.view(shape)

@@ -160,7 +160,7 @@ def replay_bag(
     wait_for_subscribers: float = 0.0,
     qos_depth: int = 10,
     stop: threading.Event | None = None,
-    progress: Callable[[int], None] | None = None,
+    progress: Callable[[int], object] | None = None,
     before_publish: Callable[[str, int, bytes], None] | None = None,
     linger_s: float = 0.5,
     settle_s: float = 0.5,
@@ -272,7 +272,7 @@ def replay_bag(
                     data = restamp_cdr(data, new)
                 if before_publish is not None:
                     before_publish(msg.topic, msg.log_time_ns, data)
-                if clock_pub is not None:
+                if clock_pub is not None and clock_msg is not None:
                     sec, nsec = divmod(msg.log_time_ns, 1_000_000_000)
                     clock_msg.clock.sec, clock_msg.clock.nanosec = sec, nsec
                     clock_pub.publish(clock_msg)

@@ -24,7 +24,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import matplotlib
 import numpy as np
@@ -299,7 +299,8 @@ def plot_frames(frames: Sequence[FrameView], grid: GridSpec, path: str | Path) -
     extent = _bev_extent(grid)
     elev_cmap, res_cmap = _cmap(_ELEVATION_CMAP), _cmap(_RESIDUAL_CMAP)
     map_left = [margin + w_img + gap_img + k * (w_map + gap_map) for k in range(3)]
-    im_e = im_r = None
+    im_e: AxesImage | None = None
+    im_r: AxesImage | None = None
     for i, frame in enumerate(frames):
         if frame.estimate.shape != grid.shape:
             raise ReportError(f"frame {frame.index}: estimate {frame.estimate.shape} is not the grid {grid.shape}")
@@ -322,6 +323,7 @@ def plot_frames(frames: Sequence[FrameView], grid: GridSpec, path: str | Path) -
                 im_r = im
             ax.set_title(title if arr is not None else f"{title}: none", fontsize=9)
             _style_bev_axes(ax, grid, first=(j == 0), last_row=True)
+    assert im_e is not None and im_r is not None  # frames is not empty
     cax_e = axes_at(map_left[0], bar_label_h, 2 * w_map + gap_map, bar_h)
     cbar_e = fig.colorbar(im_e, cax=cax_e, orientation="horizontal")
     cbar_e.set_label("elevation (cm), GT and estimate", fontsize=8)
@@ -341,7 +343,7 @@ def plot_frames(frames: Sequence[FrameView], grid: GridSpec, path: str | Path) -
 
 def plot_surface(frame: FrameView, grid: GridSpec, path: str | Path) -> Path:
     """3D surface of one estimate (true horizontal aspect, elevation exaggerated and labelled)."""
-    from mpl_toolkits.mplot3d import Axes3D  # noqa: F401  (registers the 3d projection)
+    from mpl_toolkits.mplot3d import Axes3D  # registers the 3d projection
 
     est_cm = frame.estimate.astype(np.float64) * 100.0
     if not np.isfinite(est_cm).any():
@@ -406,8 +408,9 @@ def plot_preview(frames: Sequence[FrameView], path: str | Path) -> Path:
                     ax.fill_between(t.distance_m, (t.elevation_m - t.sigma_m) * 100.0,
                                     (t.elevation_m + t.sigma_m) * 100.0, color="tab:red", alpha=0.2,
                                     lw=0, label="estimate ±1σ")
-            offset = (est.get(name) or gt.get(name)).lateral_offset_m  # type: ignore[union-attr]
-            ax.set_title(f"frame {frame.index}: {name} wheel track (y = {offset:+.2f} m)", fontsize=9)
+            track = est.get(name) or gt.get(name)  # None: this frame lacks a track another one has
+            offset = "" if track is None else f" (y = {track.lateral_offset_m:+.2f} m)"
+            ax.set_title(f"frame {frame.index}: {name} wheel track{offset}", fontsize=9)
             ax.grid(True, alpha=0.3)
             ax.tick_params(labelsize=7)
             ax.set_ylabel("elevation (cm)", fontsize=8)

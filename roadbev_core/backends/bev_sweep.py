@@ -158,7 +158,9 @@ class SweepParams:
                 window_shape(getattr(self, name))
             except ValueError as exc:
                 raise ConfigError(f"{name}: {exc}") from None
-        non_negative = ("peak_exclusion", "min_texture", "blur_sigma", "highpass_sigma", "occlusion_clearance")
+        non_negative: tuple[str, ...] = (
+            "peak_exclusion", "min_texture", "blur_sigma", "highpass_sigma", "occlusion_clearance",
+        )
         non_negative += ("max_deviation", "max_disagreement", "far_fraction", "near_fraction")
         for name in (*non_negative, "min_score", "min_margin", "temperature", "max_sigma"):
             value = getattr(self, name)
@@ -184,7 +186,8 @@ class SweepParams:
             raise ConfigError(
                 f"unknown bev_sweep option(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(known))}"
             )
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in options.items()})
+        values: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in options.items()}
+        return cls(**values)
 
 
 def _is_int(value: Any) -> bool:
@@ -199,7 +202,7 @@ def grey_image(image: np.ndarray, blur_sigma: float = 0.0, highpass_sigma: float
         blur_sigma: Gaussian smoothing (pixels; 0 = none).
         highpass_sigma: subtract the Gaussian blur of this sigma (pixels; 0 = keep the mean level).
     """
-    grey = grey_u8(image).astype(np.float32)
+    grey: np.ndarray = grey_u8(image).astype(np.float32)
     if blur_sigma > 0:
         grey = cv2.GaussianBlur(grey, (0, 0), blur_sigma)
     if highpass_sigma > 0:
@@ -238,7 +241,7 @@ class _Decision(NamedTuple):
     elevation: torch.Tensor  # sub-step height (m)
     sigma: torch.Tensor  # 1-sigma (m)
     best: torch.Tensor  # best score
-    index: torch.Tensor  # level of the best score
+    level: torch.Tensor  # level (index) of the best score
     second: torch.Tensor  # best score outside the exclusion zone
     interior: torch.Tensor  # bool: the peak is not on the first or last level
 
@@ -359,7 +362,9 @@ class BevSweep:
         return inside[0] & inside[1]
 
     # --- matching ------------------------------------------------------------------------------
-    def _zncc(self, images: torch.Tensor, samples: _Samples, heights: torch.Tensor, frame: Frame, clock: StageClock):
+    def _zncc(
+        self, images: torch.Tensor, samples: _Samples, heights: torch.Tensor, frame: Frame, clock: StageClock
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """ZNCC [K, R, C] over the patch window and the left patch's std [K, R, C].
 
         Args:
@@ -400,7 +405,9 @@ class BevSweep:
         clock.lap("cost")
         return zncc, var_l.sqrt_()
 
-    def _zncc_zones(self, images: torch.Tensor, heights: torch.Tensor, frame: Frame, clock: StageClock):
+    def _zncc_zones(
+        self, images: torch.Tensor, heights: torch.Tensor, frame: Frame, clock: StageClock
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """ZNCC and left-patch std [K, R, C] of the whole grid, each zone at its sampling density.
 
         Args:
@@ -516,14 +523,14 @@ class BevSweep:
         if self.params.threads:
             torch.set_num_threads(self.params.threads)
         try:
-            return self._estimate(frame)
+            return self._estimate(frame, frame.right)
         finally:
             torch.set_num_threads(previous)
 
-    def _estimate(self, frame: Frame) -> Estimate:
+    def _estimate(self, frame: Frame, right: np.ndarray) -> Estimate:
         clock = StageClock()
         p = self.params
-        greys = np.stack([grey_image(im, p.blur_sigma, p.highpass_sigma) for im in (frame.left, frame.right)])
+        greys = np.stack([grey_image(im, p.blur_sigma, p.highpass_sigma) for im in (frame.left, right)])
         greys -= greys.mean(axis=(1, 2), keepdims=True)  # zero-mean: precise float32 moments
         images = torch.from_numpy(greys)[:, None]  # [2, 1, H, W]
         clock.lap("preprocess")
@@ -549,7 +556,7 @@ class BevSweep:
                 (decision.best >= p.min_score)
                 & (decision.best - decision.second >= p.min_margin)
                 & decision.interior
-                & (texture.gather(0, decision.index[None])[0] >= p.min_texture)
+                & (texture.gather(0, decision.level[None])[0] >= p.min_texture)
                 & valid.all(dim=0)
                 & (decision.sigma <= p.max_sigma)
             )

@@ -156,21 +156,22 @@ class ImageViewStereo:
         self.name = name
         self.grid = grid
         self.params = params
-        self._matchers: dict[tuple[int, int], Any] = {}  # (min, num disparities) -> matcher
+        self._matchers: dict[tuple[int, int], cv2.StereoMatcher] = {}  # (min, num disparities) -> matcher
 
-    def _matcher(self, min_disparity: int, num_disparities: int) -> Any:
+    def _matcher(self, min_disparity: int, num_disparities: int) -> cv2.StereoMatcher:
         """A matcher for the disparity range (cached: ranges repeat from frame to frame)."""
         key = (min_disparity, num_disparities)
         if key not in self._matchers:
             p = self.params
+            m: cv2.StereoBM | cv2.StereoSGBM
             if self.name == "bm":
-                m = cv2.StereoBM_create(numDisparities=num_disparities, blockSize=p.block_size)
+                m = cv2.StereoBM.create(numDisparities=num_disparities, blockSize=p.block_size)
                 m.setMinDisparity(min_disparity)
                 m.setTextureThreshold(p.texture_threshold)
                 m.setPreFilterCap(p.pre_filter_cap)
             else:
                 area = p.block_size * p.block_size
-                m = cv2.StereoSGBM_create(
+                m = cv2.StereoSGBM.create(
                     minDisparity=min_disparity,
                     numDisparities=num_disparities,
                     blockSize=p.block_size,

@@ -63,7 +63,9 @@ class LearnedBackend:
         self.meta: dict[str, Any] = dict(payload.get("meta", {}))
         self.model = fold_batchnorm(model.eval())
         for part in (self.model.backbone, self.model.fusion) if self.needs_stereo else (self.model,):
-            part.to(memory_format=torch.channels_last)  # 2-D convs only (the 3-D head stays NCDHW)
+            # 2-D convs only (the 3-D head stays NCDHW). Module.to takes memory_format at run time;
+            # torch's overloads of it do not list the keyword.
+            part.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
         self.config = model.config
 
     @torch.inference_mode()
@@ -73,8 +75,16 @@ class LearnedBackend:
             raise FrameError("the stereo backend needs a right image")
         t0 = time.perf_counter()
         left = torch.from_numpy(prepare_image(frame.left, self.config))[None]
-        right = torch.from_numpy(prepare_image(frame.right, self.config))[None] if self.needs_stereo else None
-        grey = torch.from_numpy(prepare_grey(frame.left, frame.right))[None] if needs_full_grey(self.config) else None
+        right = (
+            torch.from_numpy(prepare_image(frame.right, self.config))[None]
+            if self.needs_stereo and frame.right is not None  # (checked above)
+            else None
+        )
+        grey = (
+            torch.from_numpy(prepare_grey(frame.left, frame.right))[None]
+            if frame.right is not None and needs_full_grey(self.config)
+            else None
+        )
         t1 = time.perf_counter()
         pred = self.model.predict(
             left.contiguous(memory_format=torch.channels_last),

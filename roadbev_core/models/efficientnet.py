@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, TypeVar
 
 import torch
 from torch import nn
@@ -277,6 +278,7 @@ def load_imagenet_weights(
     Raises:
         WeightLoadError: unreadable file, unknown layout, missing tensors or shape mismatch.
     """
+    state: Any  # a foreign file's content until checked below
     if isinstance(source, dict):
         state = source
     else:
@@ -316,12 +318,16 @@ def load_imagenet_weights(
     return layout
 
 
+_M = TypeVar("_M", bound=nn.Module)
+
+
 @torch.no_grad()
-def fold_batchnorm(module: nn.Module) -> nn.Module:
+def fold_batchnorm(module: _M) -> _M:
     """Fold every :class:`ConvBnAct`'s BatchNorm into its conv (inference only; in place)."""
     for block in module.modules():
-        if isinstance(block, ConvBnAct) and not isinstance(block.bn, nn.Identity):
+        if isinstance(block, ConvBnAct) and isinstance(block.bn, nn.modules.batchnorm._BatchNorm):
             bn = block.bn
+            assert bn.running_var is not None and bn.running_mean is not None  # track_running_stats
             scale = bn.weight / torch.sqrt(bn.running_var + bn.eps)  # [C_out]
             conv = block.conv
             conv.weight.mul_(scale.reshape(-1, *([1] * (conv.weight.dim() - 1))))

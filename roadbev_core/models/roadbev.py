@@ -31,7 +31,7 @@ from roadbev_core.models.fpn import PyramidFusion
 from roadbev_core.models.heads import MonoHead, StereoHead
 from roadbev_core.models.loss import soft_argmin
 from roadbev_core.models.presets import ModelConfig
-from roadbev_core.models.voxel_query import batch_lookup, query_voxels, window_zncc
+from roadbev_core.models.voxel_query import VoxelLookup, batch_lookup, query_voxels, window_zncc
 
 __all__ = ["ModelInputError", "Prediction", "RoadBEV", "needs_full_grey", "prepare_grey", "prepare_image"]
 
@@ -74,6 +74,11 @@ def prepare_grey(left: np.ndarray, right: np.ndarray) -> np.ndarray:
 class RoadBEV(nn.Module):
     """The RoadBEV network for one output grid."""
 
+    # buffers (register_buffer), declared for the type checker
+    centres: torch.Tensor  # [Nc] class-centre heights (m)
+    mean: torch.Tensor  # [1, 3, 1, 1] input normalisation
+    std: torch.Tensor  # [1, 3, 1, 1]
+
     def __init__(self, config: ModelConfig, grid: GridSpec) -> None:
         super().__init__()
         self.config = config
@@ -96,13 +101,13 @@ class RoadBEV(nn.Module):
         return self.config.kind == "stereo"
 
     def _lookups(self, cameras: list[StereoCamera], attitudes: list[Attitude], right: bool,
-                 stride: int | None = None, sampling: str | None = None):  # type: ignore[no-untyped-def]
+                 stride: int | None = None, sampling: str | None = None) -> VoxelLookup:
         cfg = self.config
         cams = [c.resized(cfg.input_width, cfg.input_height) for c in cameras]
         lookup = batch_lookup(self.inner, cams, attitudes, stride or cfg.feature_stride, right,
                               sampling or cfg.sampling)
         device = self.centres.device
-        return type(lookup)(lookup.coords.to(device), lookup.mask.to(device))
+        return VoxelLookup(lookup.coords.to(device), lookup.mask.to(device))
 
     def forward(
         self,
@@ -142,7 +147,7 @@ class RoadBEV(nn.Module):
                     f"this model reads the full-resolution grey frames: grey must be [B, 2, {size[0]}, {size[1]}] "
                     f"(prepare_grey), got {None if grey is None else tuple(grey.shape)}"
                 )
-        images = torch.cat([left, right]) if self.is_stereo else left  # [B or 2B, 3, h, w]
+        images = torch.cat([left, right]) if self.is_stereo and right is not None else left  # [B or 2B, 3, h, w]
         x = images.float() / 255.0 if images.dtype == torch.uint8 else images.float()
         fused = self.fusion(self.backbone((x - self.mean) / self.std), x.shape[-2:])  # [., C, h/s, w/s]
         look_l = self._lookups(cameras, attitudes, right=False)
@@ -193,7 +198,7 @@ class RoadBEV(nn.Module):
             rigs = [c.resized(cfg.input_width, cfg.input_height) for c in cameras]
         device = self.centres.device
         looks = [batch_lookup(fine, rigs, attitudes, 1, eye, "bilinear") for eye in (False, True)]
-        looks = [type(look)(look.coords.to(device), look.mask.to(device)) for look in looks]
+        looks = [VoxelLookup(look.coords.to(device), look.mask.to(device)) for look in looks]
         left = query_voxels(left_grey, looks[0], "bilinear")[:, 0]  # [B, Nz, n*Ny, n*Nx]
         right = query_voxels(right_grey, looks[1], "bilinear")[:, 0]
         return window_zncc(left, right, cfg.zncc_window, subsamples=n)  # [B, Nz, Ny, Nx]

@@ -67,13 +67,13 @@ def voxel_lookup(
         raise ValueError(f"sampling must be 'bilinear' or 'integer', got {sampling!r}")
     proj = project_voxels(grid, camera, attitude, stride=stride, right=right)
     u, v = proj.iu.astype(np.float64), proj.iv.astype(np.float64)
-    x = u / max(proj.width - 1, 1) * 2.0 - 1.0  # [Nz, Ny, Nx]
-    y = v / max(proj.height - 1, 1) * 2.0 - 1.0
-    inside = proj.inside
-    xy = np.stack([np.where(inside, x, 0.0), np.where(inside, y, 0.0)], axis=-1)  # [Nz, Ny, Nx, 2]
-    n_z, n_y, n_x = inside.shape
-    coords = torch.from_numpy(xy.reshape(n_z * n_y, n_x, 2).astype(np.float32))
-    return VoxelLookup(coords=coords, mask=torch.from_numpy(inside.copy()))
+    x_norm = u / max(proj.width - 1, 1) * 2.0 - 1.0  # [Nz, Ny, Nx]
+    y_norm = v / max(proj.height - 1, 1) * 2.0 - 1.0
+    seen = proj.inside
+    xy_int = np.stack([np.where(seen, x_norm, 0.0), np.where(seen, y_norm, 0.0)], axis=-1)  # [Nz, Ny, Nx, 2]
+    n_z, n_y, n_x = seen.shape
+    coords = torch.from_numpy(xy_int.reshape(n_z * n_y, n_x, 2).astype(np.float32))
+    return VoxelLookup(coords=coords, mask=torch.from_numpy(seen.copy()))
 
 
 def batch_lookup(

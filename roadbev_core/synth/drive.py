@@ -14,6 +14,7 @@ Ground truth is a dense LiDAR-like point cloud sampled from the height field ove
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -314,16 +315,15 @@ def render_sample(
     gain_right = (1.0 + rng.uniform(-road.gain_mismatch, road.gain_mismatch)) * (
         1.0 + rng.uniform(-0.25, 0.25, 3) * road.gain_mismatch
     )
-    kwargs = dict(
+    sense = functools.partial(
+        sensor_image,
         noise_sigma=road.noise_sigma,
         blur_sigma_px=road.blur_sigma_px,
         jpeg_quality=road.jpeg_quality,
         vignetting=road.vignetting,
     )
-    img_left = sensor_image(left.radiance, exposure=exposure, gain=1.0, rng=rng, **kwargs)
-    img_right = (
-        sensor_image(right.radiance, exposure=exposure, gain=tuple(gain_right), rng=rng, **kwargs) if right else None
-    )
+    img_left = sense(left.radiance, exposure=exposure, gain=1.0, rng=rng)
+    img_right = sense(right.radiance, exposure=exposure, gain=tuple(gain_right), rng=rng) if right else None
     points = sample_points(scene, pose, grid, lidar, rng)
     frame = Frame(
         left=img_left, right=img_right, camera=camera, attitude=attitude or pose.attitude, stamp_ns=int(stamp_ns)
@@ -429,7 +429,10 @@ class SyntheticDrive:
         R = quaternion_to_rotation(*q)
         attitude = attitude_from_rotation(R)
         yaw_world = math.atan2(R[1, 0], R[0, 0])
-        lerp = lambda arr: float(arr[k] * (1 - frac) + arr[k + 1] * frac)  # noqa: E731
+
+        def lerp(arr: np.ndarray) -> float:
+            return float(arr[k] * (1 - frac) + arr[k + 1] * frac)
+
         pose = CameraPose(
             x=lerp(self._x),
             y=lerp(self._y),
@@ -473,13 +476,13 @@ class SyntheticDrive:
         for k in range(n):
             a, b = max(k - 1, 0), min(k + 1, n - 1)
             omega = _rotvec(self._R[a].T @ self._R[b]) / (max(b - a, 1) * imu_dt) + self._gyro_noise[k]
-            q = self._q[k]
+            q, acc = self._q[k], self._acc_body[k]
             out.append(
                 ImuSample(
                     stamp_ns=self.imu_stamps_ns[k],
                     orientation_xyzw=(float(q[0]), float(q[1]), float(q[2]), float(q[3])),
                     angular_velocity=(float(omega[0]), float(omega[1]), float(omega[2])),
-                    linear_acceleration=tuple(float(v) for v in self._acc_body[k]),  # type: ignore[arg-type]
+                    linear_acceleration=(float(acc[0]), float(acc[1]), float(acc[2])),
                 )
             )
         return out

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -63,7 +64,11 @@ FEATURE_NAMES = ("pothole", "speed_bump", "hump", "rut", "crack", "step", "kerb"
 
 
 def _spectral_noise(
-    shape: tuple[int, int], spacing: float, rng: np.random.Generator, psd: np.ndarray | None, keep
+    shape: tuple[int, int],
+    spacing: float,
+    rng: np.random.Generator,
+    psd: Callable[[np.ndarray], np.ndarray],
+    keep: Callable[[np.ndarray], np.ndarray],
 ) -> np.ndarray:
     """Gaussian field with two-sided 2-D PSD ``psd(|k|)`` on a periodic grid.
 
@@ -253,11 +258,16 @@ def _local_noise(shape: tuple[int, int], cells: float, rng: np.random.Generator)
 
 
 class Feature(Protocol):
-    """A discrete road feature drawn onto a :class:`SurfaceCanvas`."""
+    """A discrete road feature drawn onto a :class:`SurfaceCanvas` (frozen dataclasses: read-only)."""
 
-    name: str
-    x: float
-    y: float
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def x(self) -> float: ...
+
+    @property
+    def y(self) -> float: ...
 
     def apply(self, canvas: SurfaceCanvas, rng: np.random.Generator) -> None: ...
 

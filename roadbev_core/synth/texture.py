@@ -32,7 +32,7 @@ def build_pyramid(image: np.ndarray, levels: int) -> list[np.ndarray]:
 
     Odd sizes are handled by ``cv2.INTER_AREA``; each level has at least 2 cells per side.
     """
-    pyr = [np.ascontiguousarray(image, dtype=np.float32)]
+    pyr: list[np.ndarray] = [np.ascontiguousarray(image, dtype=np.float32)]
     for _ in range(levels - 1):
         prev = pyr[-1]
         h, w = prev.shape[:2]
@@ -117,7 +117,9 @@ def _groups(keys: np.ndarray) -> list[tuple[int, np.ndarray]]:
     return [(int(sorted_keys[a]), order[a:b]) for a, b in itertools.pairwise(bounds) if b > a]
 
 
-def _level_taps(image: np.ndarray, col: np.ndarray, row: np.ndarray, level_col: int, level_row: int, wrap: bool):
+def _level_taps(
+    image: np.ndarray, col: np.ndarray, row: np.ndarray, level_col: int, level_row: int, wrap: bool
+) -> np.ndarray:
     """Bilinear taps of a level reduced 2^level_col times along columns, 2^level_row along rows,
     at level-0 coordinates (a level cell k covers level-0 cells [2^L k, 2^L (k+1)))."""
     c = (col + 0.5) * 0.5**level_col - 0.5

@@ -56,12 +56,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from msg_bridge.evalbag import bag_frames
     from roadbev_core.config import GridSpec, parse_assignments
-    from roadbev_core.datasets import TEST_SEED_START, ConcatSource, LabelledFrames, SyntheticSet
+    from roadbev_core.datasets import TEST_SEED_START, ConcatSource, FrameSource, LabelledFrames, SyntheticSet
     from roadbev_core.models.presets import model_config
     from roadbev_core.train import TrainConfig, train
 
     overrides = parse_assignments(args.model_option, "--model-option")  # before any data is read
-    sources = []
+    sources: list[FrameSource] = []
     if args.synth:
         last = args.synth_seed + args.synth
         if args.synth_seed < 0 or last > TEST_SEED_START:

@@ -2,8 +2,14 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import pytest
-from _msg_bridge_fakes import FakeDrive
+
+from ._msg_bridge_fakes import FakeDrive
+
+if TYPE_CHECKING:
+    from msg_bridge import MessageFactory
 
 
 @pytest.fixture
@@ -12,7 +18,7 @@ def fake_drive() -> FakeDrive:
 
 
 @pytest.fixture(params=["rclpy", "typestore"])
-def factory(request: pytest.FixtureRequest):  # type: ignore[no-untyped-def]
+def factory(request: pytest.FixtureRequest) -> MessageFactory:
     """Both message factories: every converter must work on both libraries' messages."""
     from msg_bridge import RclpyFactory, bag_factory
 

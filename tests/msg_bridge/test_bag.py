@@ -91,10 +91,11 @@ def _independent_read(mcap_file: Path) -> list[tuple[str, str, int, object]]:
     with mcap_file.open("rb") as stream:
         reader = make_reader(stream, decoder_factories=[DecoderFactory()])
         assert reader.get_header().profile == "ros2"
-        return [
-            (channel.topic, schema.name, message.log_time, decoded)
-            for schema, channel, message, decoded in reader.iter_decoded_messages()
-        ]
+        out: list[tuple[str, str, int, object]] = []
+        for schema, channel, message, decoded in reader.iter_decoded_messages():
+            assert schema is not None
+            out.append((channel.topic, schema.name, message.log_time, decoded))
+        return out
 
 
 @pytest.mark.parametrize(("name", "compression"), [("bag.mcap", "zstd"), ("bag_dir", "none")])
@@ -114,7 +115,9 @@ def test_every_message_is_decoded_by_the_independent_reader(tmp_path: Path, name
         _check_content(topic, decoded)
         _check_content(topic, mine.msg)
     with mcap_file.open("rb") as stream:
-        chunks = [c.compression for c in make_reader(stream).get_summary().chunk_indexes]
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    chunks = [c.compression for c in summary.chunk_indexes]
     assert set(chunks) == ({"zstd"} if compression == "zstd" else {""})
     assert {t: i.count for t, i in bag_topics(path).items()} == dict.fromkeys(TOPICS, 3)
 
@@ -214,8 +217,9 @@ def test_damaged_chunk_is_reported_with_the_messages_read_before(tmp_path: Path)
     _write(path, frames=3, compression="zstd")
     data = bytearray(path.read_bytes())
     with path.open("rb") as stream:
-        chunks = make_reader(stream).get_summary().chunk_indexes
-    last = chunks[-1]
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    last = summary.chunk_indexes[-1]
     middle = last.chunk_start_offset + last.chunk_length // 2
     data[middle : middle + 64] = bytes(64)
     path.write_bytes(bytes(data))

@@ -2,17 +2,19 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
-from msg_bridge import MessageError, bag_factory
+from msg_bridge import MessageError, MessageFactory, bag_factory
 from msg_bridge.camera_info import camera_info_from_stereo, stereo_camera_from_camera_info
 from roadbev_core.config import StereoCamera
 
 RIG = StereoCamera.rsrd_half()
 
 
-def test_round_trip_of_the_rsrd_rig(factory) -> None:  # type: ignore[no-untyped-def]
+def test_round_trip_of_the_rsrd_rig(factory: MessageFactory) -> None:
     left = camera_info_from_stereo(RIG, factory, stamp_ns=5, frame_id="left")
     right = camera_info_from_stereo(RIG, factory, right=True, stamp_ns=5, frame_id="right")
     assert right.p[3] == pytest.approx(-RIG.fx * RIG.baseline)
@@ -21,7 +23,7 @@ def test_round_trip_of_the_rsrd_rig(factory) -> None:  # type: ignore[no-untyped
     assert camera.baseline == pytest.approx(0.118809, abs=1e-12)
 
 
-def test_mono_rig_has_zero_baseline(factory) -> None:  # type: ignore[no-untyped-def]
+def test_mono_rig_has_zero_baseline(factory: MessageFactory) -> None:
     camera = stereo_camera_from_camera_info(camera_info_from_stereo(RIG, factory))
     assert camera.baseline == 0.0
     assert (camera.fx, camera.cx, camera.size) == (RIG.fx, RIG.cx, RIG.size)
@@ -34,7 +36,7 @@ def test_K_comes_from_P_not_from_the_raw_K() -> None:
     assert stereo_camera_from_camera_info(left).fx == RIG.fx
 
 
-def _pair():  # type: ignore[no-untyped-def]
+def _pair() -> tuple[Any, Any]:
     factory = bag_factory()
     return camera_info_from_stereo(RIG, factory), camera_info_from_stereo(RIG, factory, right=True)
 
@@ -87,7 +89,7 @@ def test_size_binning_and_roi_checks() -> None:
         stereo_camera_from_camera_info(left)
 
 
-def test_a_right_info_needs_a_baseline(factory) -> None:  # type: ignore[no-untyped-def]
+def test_a_right_info_needs_a_baseline(factory: MessageFactory) -> None:
     mono = StereoCamera(100.0, 100.0, 50.0, 40.0, 0.0, 100, 80)
     with pytest.raises(MessageError, match="baseline"):
         camera_info_from_stereo(mono, factory, right=True)

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _msg_bridge_fakes import FakeConfig, FakeDrive
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
@@ -19,6 +18,8 @@ from msg_bridge.grid_map import grid_map_message
 from msg_bridge.image import array_to_image
 from msg_bridge.imu import imu_message
 from roadbev_core.config import GridSpec
+
+from ._msg_bridge_fakes import FakeConfig, FakeDrive
 
 RAW_TOPICS = {
     "/roadbev/grid_config": 1,
@@ -170,7 +171,8 @@ def test_a_foreign_stereo_bag_with_another_window(tmp_path: Path) -> None:
     samples = list(bag)
     assert [s.truth is not None for s in samples] == [True, False, False, True]
     assert samples[0].inputs.left.ndim == 2  # mono8 images stay grey
-    assert samples[3].truth[0, 0] == pytest.approx(0.04)
+    truth = samples[3].truth
+    assert truth is not None and truth[0, 0] == pytest.approx(0.04)
     _, frames = bag_frames(tmp_path / "f.mcap")
     assert len(frames) == 4 and frames[1].frame.attitude.pitch == pytest.approx(0.1, abs=1e-6)
     # with a stricter age limit, the frame 100 ms after the last IMU sample has no attitude

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 import pytest
 
-from msg_bridge import MessageError, bag_factory
+from msg_bridge import MessageError, MessageFactory, bag_factory
 from msg_bridge.grid_map import ROAD_FRAME, elevation_grid_map, grid_map_message, grid_map_to_arrays
 from roadbev_core.config import GridSpec
 
@@ -20,7 +23,7 @@ def _maps() -> tuple[np.ndarray, np.ndarray]:
     return elevation, uncertainty
 
 
-def test_contract_fields_and_round_trip(factory) -> None:  # type: ignore[no-untyped-def]
+def test_contract_fields_and_round_trip(factory: MessageFactory) -> None:
     elevation, uncertainty = _maps()
     msg = elevation_grid_map(elevation, uncertainty, GRID, factory, stamp_ns=42_000_000_007)
     assert msg.header.frame_id == ROAD_FRAME == "roadbev_road"
@@ -41,7 +44,7 @@ def test_contract_fields_and_round_trip(factory) -> None:  # type: ignore[no-unt
     np.testing.assert_array_equal(decoded.layers["uncertainty"], uncertainty)
 
 
-def test_storage_is_column_major_with_cell_0_0_far_left(factory) -> None:  # type: ignore[no-untyped-def]
+def test_storage_is_column_major_with_cell_0_0_far_left(factory: MessageFactory) -> None:
     values = np.arange(GRID.n_rows * GRID.n_cols, dtype=np.float32).reshape(GRID.shape)
     msg = grid_map_message({"elevation": values}, GRID, factory, stamp_ns=0)
     data = np.asarray(msg.data[0].data)
@@ -67,7 +70,7 @@ def test_row_major_layers_and_start_indices_are_understood() -> None:
     np.testing.assert_array_equal(grid_map_to_arrays(msg).layers["elevation"], elevation)
 
 
-def test_grid_is_recovered_from_info_with_other_windows(factory) -> None:  # type: ignore[no-untyped-def]
+def test_grid_is_recovered_from_info_with_other_windows(factory: MessageFactory) -> None:
     other = GridSpec(x_min=3.0, x_max=9.0, y_min=-1.5, y_max=1.5, resolution=0.05, base_height=1.6)
     values = np.zeros(other.shape, np.float32)
     msg = grid_map_message({"elevation": values}, other, factory, stamp_ns=0)
@@ -76,7 +79,7 @@ def test_grid_is_recovered_from_info_with_other_windows(factory) -> None:  # typ
     assert grid_map_to_arrays(msg).grid.base_height == 1.1  # vertical fields come from the base
 
 
-def _bad(change) -> None:  # type: ignore[no-untyped-def]
+def _bad(change: Callable[[Any], object]) -> None:
     msg = elevation_grid_map(*_maps(), GRID, bag_factory(), stamp_ns=0)
     change(msg)
     grid_map_to_arrays(msg)
@@ -99,12 +102,12 @@ def _bad(change) -> None:  # type: ignore[no-untyped-def]
         (lambda m: setattr(m.data[0].layout, "dim", m.data[0].layout.dim[:1]), "1 dimensions"),
     ],
 )
-def test_malformed_grid_maps_raise_message_error(change, message: str) -> None:  # type: ignore[no-untyped-def]
+def test_malformed_grid_maps_raise_message_error(change: Callable[[Any], object], message: str) -> None:
     with pytest.raises(MessageError, match=message):
         _bad(change)
 
 
-def test_building_checks_shapes_and_basic_layers(factory) -> None:  # type: ignore[no-untyped-def]
+def test_building_checks_shapes_and_basic_layers(factory: MessageFactory) -> None:
     with pytest.raises(MessageError, match="the grid is"):
         grid_map_message({"elevation": np.zeros((3, 3))}, GRID, factory, stamp_ns=0)
     with pytest.raises(MessageError, match="basic layer"):

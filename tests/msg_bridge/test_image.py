@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
-from msg_bridge import MessageError, RclpyFactory, bag_factory
+from msg_bridge import MessageError, MessageFactory, RclpyFactory, bag_factory
 from msg_bridge.image import (
     ENCODINGS,
     array_to_compressed,
@@ -27,7 +29,9 @@ def _pixels(encoding: str, h: int = 5, w: int = 7) -> np.ndarray:
     return RNG.integers(0, np.iinfo(spec.dtype).max, shape, dtype=spec.dtype)
 
 
-def _raw_image(factory, pixels: np.ndarray, encoding: str, *, pad: int = 0, bigendian: bool = False):  # type: ignore[no-untyped-def]
+def _raw_image(
+    factory: MessageFactory, pixels: np.ndarray, encoding: str, *, pad: int = 0, bigendian: bool = False
+) -> Any:
     """An Image built by hand: rows padded with ``pad`` junk bytes, optionally big-endian."""
     h, w = pixels.shape[:2]
     data = pixels.astype(pixels.dtype.newbyteorder(">" if bigendian else "<")).reshape(h, -1).view(np.uint8)
@@ -44,7 +48,7 @@ def _raw_image(factory, pixels: np.ndarray, encoding: str, *, pad: int = 0, bige
 
 
 @pytest.mark.parametrize("encoding", list(ENCODINGS))
-def test_round_trip_every_encoding(factory, encoding: str) -> None:  # type: ignore[no-untyped-def]
+def test_round_trip_every_encoding(factory: MessageFactory, encoding: str) -> None:
     pixels = _pixels(encoding)
     msg = array_to_image(pixels, factory, stamp_ns=1_500_000_001, frame_id="cam", encoding=encoding)
     assert msg.step == pixels.shape[1] * ENCODINGS[encoding].bytes_per_pixel
@@ -54,13 +58,13 @@ def test_round_trip_every_encoding(factory, encoding: str) -> None:  # type: ign
 
 @pytest.mark.parametrize("encoding", ["rgb8", "mono16", "32FC1", "bgra8"])
 @pytest.mark.parametrize("pad", [1, 3, 16])
-def test_row_padding_is_skipped(factory, encoding: str, pad: int) -> None:  # type: ignore[no-untyped-def]
+def test_row_padding_is_skipped(factory: MessageFactory, encoding: str, pad: int) -> None:
     pixels = _pixels(encoding)
     np.testing.assert_array_equal(image_to_array(_raw_image(factory, pixels, encoding, pad=pad)), pixels)
 
 
 @pytest.mark.parametrize("encoding", ["mono16", "32FC1"])
-def test_big_endian_images_are_swapped(factory, encoding: str) -> None:  # type: ignore[no-untyped-def]
+def test_big_endian_images_are_swapped(factory: MessageFactory, encoding: str) -> None:
     pixels = _pixels(encoding)
     out = image_to_array(_raw_image(factory, pixels, encoding, bigendian=True))
     assert out.dtype.isnative
@@ -77,7 +81,7 @@ def test_reading_is_zero_copy_for_native_images() -> None:
     assert image_to_rgb(rclpy_msg).base is not None  # a view of the array.array buffer
 
 
-def test_colour_orders_become_rgb(factory) -> None:  # type: ignore[no-untyped-def]
+def test_colour_orders_become_rgb(factory: MessageFactory) -> None:
     rgb = _pixels("rgb8")
     bgr = np.ascontiguousarray(rgb[:, :, ::-1])
     bgra = np.concatenate([bgr, np.full((*rgb.shape[:2], 1), 9, np.uint8)], axis=2)
@@ -108,12 +112,12 @@ def test_malformed_images_raise_message_error(change: dict, message: str) -> Non
         image_to_array(msg)
 
 
-def test_depth_image_is_not_a_camera_image(factory) -> None:  # type: ignore[no-untyped-def]
+def test_depth_image_is_not_a_camera_image(factory: MessageFactory) -> None:
     with pytest.raises(MessageError, match="not a camera image"):
         image_to_rgb(array_to_image(_pixels("32FC1"), factory))
 
 
-def test_png_round_trip_is_exact_and_jpeg_is_close(factory) -> None:  # type: ignore[no-untyped-def]
+def test_png_round_trip_is_exact_and_jpeg_is_close(factory: MessageFactory) -> None:
     yy, xx = np.mgrid[0:32, 0:40]
     smooth = np.stack([xx * 6, yy * 7, (xx + yy) * 3], axis=-1).astype(np.uint8)
     png = array_to_compressed(smooth, factory, fmt="png", stamp_ns=3)
@@ -162,7 +166,7 @@ def test_truncated_jpeg_raises_or_decodes() -> None:
     assert out.shape == (32, 32, 3)  # libjpeg pads a truncated scan: still a whole image
 
 
-def test_building_rejects_arrays_that_are_not_images(factory) -> None:  # type: ignore[no-untyped-def]
+def test_building_rejects_arrays_that_are_not_images(factory: MessageFactory) -> None:
     with pytest.raises(MessageError, match="no image encoding"):
         array_to_image(np.zeros((2, 2, 2), np.uint8), factory)
     with pytest.raises(MessageError, match="is not mono16"):

@@ -6,26 +6,28 @@ Interpolation to an image stamp is tested in tests/roadbev_core/test_attitude.py
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
-from _msg_bridge_fakes import quaternion_xyzw
 
-from msg_bridge import MessageError, bag_factory
+from msg_bridge import MessageError, MessageFactory, bag_factory
 from msg_bridge.imu import attitude_from_imu, imu_message, imu_orientation
 
+from ._msg_bridge_fakes import quaternion_xyzw
 
-def _imu(factory, roll: float, pitch: float, yaw: float = 0.0, stamp_ns: int = 0):  # type: ignore[no-untyped-def]
+
+def _imu(factory: MessageFactory, roll: float, pitch: float, yaw: float = 0.0, stamp_ns: int = 0) -> Any:
     return imu_message(factory, stamp_ns=stamp_ns, orientation_xyzw=quaternion_xyzw(roll, pitch, yaw))
 
 
-def test_roll_and_pitch_are_read_and_yaw_dropped(factory) -> None:  # type: ignore[no-untyped-def]
+def test_roll_and_pitch_are_read_and_yaw_dropped(factory: MessageFactory) -> None:
     attitude = attitude_from_imu(_imu(factory, 0.05, 0.12, yaw=2.5))
     assert attitude.roll == pytest.approx(0.05, abs=1e-12)
     assert attitude.pitch == pytest.approx(0.12, abs=1e-12)
 
 
-def test_extrinsic_pitch_adds_to_the_imu_pitch(factory) -> None:  # type: ignore[no-untyped-def]
+def test_extrinsic_pitch_adds_to_the_imu_pitch(factory: MessageFactory) -> None:
     # Camera pitched 3 deg down relative to a level IMU: the camera's pitch is +3 deg.
     attitude = attitude_from_imu(_imu(factory, 0.0, 0.0), imu_to_camera_rpy_deg=(0.0, 3.0, 0.0))
     assert attitude.degrees == pytest.approx((0.0, 3.0), abs=1e-9)
@@ -55,7 +57,7 @@ def test_imu_without_orientation_is_refused() -> None:
         imu_orientation(msg)
 
 
-def test_upside_down_camera_gives_message_error(factory) -> None:  # type: ignore[no-untyped-def]
+def test_upside_down_camera_gives_message_error(factory: MessageFactory) -> None:
     with pytest.raises(MessageError, match="no usable attitude"):
         attitude_from_imu(_imu(factory, 0.0, math.pi / 2))
 

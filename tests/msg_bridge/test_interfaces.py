@@ -13,7 +13,9 @@ import subprocess
 import sys
 import textwrap
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -104,11 +106,18 @@ def test_publish_and_receive_both_packages_across_processes() -> None:
     publisher = subprocess.Popen([sys.executable, "-c", PUBLISHER], env=env, cwd=REPO)
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain)
-    received: dict[str, object] = {}
+    received: dict[str, Any] = {}
+
+    def keep(key: str) -> Callable[[Any], None]:
+        def callback(msg: Any) -> None:
+            received.setdefault(key, msg)
+
+        return callback
+
     try:
         node = rclpy.create_node("interfaces_test_subscriber", context=context)
-        node.create_subscription(GridMap, "/test/elevation", lambda m: received.setdefault("map", m), 10)
-        node.create_subscription(RoadPreview, "/test/preview", lambda m: received.setdefault("preview", m), 10)
+        node.create_subscription(GridMap, "/test/elevation", keep("map"), 10)
+        node.create_subscription(RoadPreview, "/test/preview", keep("preview"), 10)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
         deadline = time.monotonic() + 20.0
@@ -123,6 +132,7 @@ def test_publish_and_receive_both_packages_across_processes() -> None:
         assert decoded.layers["elevation"][0, 0] == pytest.approx(-0.1)
         preview = preview_from_message(received["preview"])
         assert [t.name for t in preview.profiles.tracks] == ["left", "right"]
+        assert preview.time_of_arrival is not None
         np.testing.assert_allclose(preview.time_of_arrival[0], (2.16 + 0.015) / 4.0, rtol=1e-6)
         executor.shutdown()
         node.destroy_node()

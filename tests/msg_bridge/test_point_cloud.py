@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from msg_bridge import MessageError, bag_factory
+from msg_bridge import MessageError, MessageFactory, bag_factory
 from msg_bridge.point_cloud import elevation_point_cloud, point_cloud_to_array
 from roadbev_core.config import GridSpec
 
 GRID = GridSpec(resolution=0.06)
 
 
-def test_one_point_per_estimated_cell_at_the_cell_centre(factory) -> None:  # type: ignore[no-untyped-def]
+def test_one_point_per_estimated_cell_at_the_cell_centre(factory: MessageFactory) -> None:
     elevation = np.full(GRID.shape, np.nan, np.float32)
     uncertainty = np.full(GRID.shape, 0.01, np.float32)
     elevation[0, 0], elevation[10, 5], elevation[-1, -1] = 0.05, -0.02, 0.0
@@ -29,7 +29,7 @@ def test_one_point_per_estimated_cell_at_the_cell_centre(factory) -> None:  # ty
     np.testing.assert_allclose(points, expected, atol=1e-6)
 
 
-def test_empty_map_gives_an_empty_cloud(factory) -> None:  # type: ignore[no-untyped-def]
+def test_empty_map_gives_an_empty_cloud(factory: MessageFactory) -> None:
     msg = elevation_point_cloud(np.full(GRID.shape, np.nan), None, GRID, factory, stamp_ns=0)
     _names, points = point_cloud_to_array(msg)
     assert points.shape == (0, 4)

@@ -7,15 +7,15 @@ import math
 import numpy as np
 import pytest
 
-from msg_bridge import MessageError, bag_factory
+from msg_bridge import MessageError, MessageFactory, bag_factory
 from msg_bridge.preview import preview_from_message, road_preview_message
 from roadbev_core.config import GridSpec
-from roadbev_core.preview import wheel_track_profiles
+from roadbev_core.preview import PreviewProfiles, wheel_track_profiles
 
 GRID = GridSpec()
 
 
-def _profiles(speed: float | None):  # type: ignore[no-untyped-def]
+def _profiles(speed: float | None) -> PreviewProfiles:
     rng = np.random.default_rng(1)
     elevation = rng.normal(0, 0.02, GRID.shape).astype(np.float32)
     elevation[:30] = np.nan
@@ -24,7 +24,7 @@ def _profiles(speed: float | None):  # type: ignore[no-untyped-def]
 
 
 @pytest.mark.parametrize("speed", [None, 8.0])
-def test_round_trip(factory, speed: float | None) -> None:  # type: ignore[no-untyped-def]
+def test_round_trip(factory: MessageFactory, speed: float | None) -> None:
     profiles = _profiles(speed)
     msg = road_preview_message(profiles, factory, stamp_ns=3_000_000_001)
     assert msg.header.frame_id == "roadbev_road"
@@ -42,6 +42,7 @@ def test_round_trip(factory, speed: float | None) -> None:  # type: ignore[no-un
         np.testing.assert_array_equal(a.elevation, b.elevation)
         np.testing.assert_array_equal(a.uncertainty, b.uncertainty)
     if speed is not None:
+        assert decoded.time_of_arrival is not None
         np.testing.assert_allclose(decoded.time_of_arrival, (profiles.distances() - 1.5) / speed, rtol=1e-6)
 
 

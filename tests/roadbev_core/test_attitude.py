@@ -115,7 +115,7 @@ def test_empty_buffer_refuses() -> None:
 @pytest.mark.parametrize(
     "q", [(math.nan, 0.0, 0.0, 1.0), (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 2.0), (0.0, math.inf, 0.0, 1.0)]
 )
-def test_bad_samples_are_refused_and_do_not_enter(q: tuple[float, ...]) -> None:
+def test_bad_samples_are_refused_and_do_not_enter(q: tuple[float, float, float, float]) -> None:
     buf = ImuBuffer()
     with pytest.raises(ImuError):
         buf.add(1_000 * MS, q)

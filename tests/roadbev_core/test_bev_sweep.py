@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import cv2
 import numpy as np
@@ -15,6 +16,8 @@ from roadbev_core.config import ConfigError, GridSpec, StereoCamera
 from roadbev_core.evaluation import evaluate
 from roadbev_core.frame import Frame, FrameError
 from roadbev_core.geometry import Attitude
+
+from ._frames import right_of
 
 torch.set_flush_denormal(True)
 
@@ -42,6 +45,12 @@ def sweep() -> BevSweep:
     return backend
 
 
+def _params(**options: Any) -> SweepParams:
+    backend = create("bev_sweep", GRID, **options)
+    assert isinstance(backend, BevSweep)
+    return backend.params
+
+
 def _abs_err_cm(backend: BevSweep, frames: list[tuple[Frame, np.ndarray]]) -> tuple[float, float]:
     m = evaluate(backend, frames).metrics
     return m["abs_err_cm"], m["coverage_pct"]
@@ -62,8 +71,8 @@ def test_half_pixel_shift_of_the_right_image_breaks_the_bound(
     """A renderer or rig off by half a pixel in disparity must show up as a clear error."""
     shifted = []
     for frame, truth in samples:
-        shift = np.float32([[1, 0, 0.5], [0, 1, 0]])
-        right = cv2.warpAffine(frame.right, shift, frame.camera.size, borderMode=cv2.BORDER_REFLECT)
+        shift = np.array([[1, 0, 0.5], [0, 1, 0]], np.float32)
+        right = cv2.warpAffine(right_of(frame), shift, frame.camera.size, borderMode=cv2.BORDER_REFLECT)
         shifted.append((replace(frame, right=right), truth))
     good, _ = _abs_err_cm(sweep, samples)
     bad, _ = _abs_err_cm(sweep, shifted)
@@ -72,7 +81,7 @@ def test_half_pixel_shift_of_the_right_image_breaks_the_bound(
 
 def test_swapped_cameras_fail(sweep: BevSweep, samples: list[tuple[Frame, np.ndarray]]) -> None:
     """Left and right exchanged (a mis-signed baseline): no trustworthy surface."""
-    swapped = [(replace(f, left=f.right, right=f.left), t) for f, t in samples]
+    swapped = [(replace(f, left=right_of(f), right=f.left), t) for f, t in samples]
     err, coverage = _abs_err_cm(sweep, swapped)
     assert err > 1.5 or coverage < 20.0, (err, coverage)
 
@@ -89,7 +98,7 @@ def test_cells_outside_the_image_are_nan(sweep: BevSweep, samples: list[tuple[Fr
     frame, _ = samples[0]
     keep = CAMERA.height * 2 // 3
     camera = CAMERA.cropped(0, 0, CAMERA.width, keep)
-    cropped = Frame(frame.left[:keep], frame.right[:keep], camera, frame.attitude)
+    cropped = Frame(frame.left[:keep], right_of(frame)[:keep], camera, frame.attitude)
     estimate = sweep.estimate(cropped)
     full = sweep.estimate(frame)
     assert np.isfinite(full.elevation[-5:]).mean() > 0.5
@@ -127,7 +136,7 @@ def test_mono_frame_is_refused(sweep: BevSweep, samples: list[tuple[Frame, np.nd
 
 
 def test_options_are_validated() -> None:
-    assert create("bev_sweep", GRID, patch_cells=5, subsamples=[2, 2]).params.subsamples == (2, 2)
+    assert _params(patch_cells=5, subsamples=[2, 2]).subsamples == (2, 2)
     with pytest.raises(BackendError, match="unknown bev_sweep option"):
         create("bev_sweep", GRID, patch=3)
     with pytest.raises(BackendError, match="odd"):
@@ -165,11 +174,11 @@ def test_sampling_zones_join_without_seams(samples: list[tuple[Frame, np.ndarray
     from roadbev_core.backends.bev_sweep import _sample_positions, grey_image
     from roadbev_core.backends.common import StageClock
 
-    same = {f"{zone}subsamples": (1, 2) for zone in ("", "far_", "near_")}
+    same: dict[str, Any] = {f"{zone}subsamples": (1, 2) for zone in ("", "far_", "near_")}
     sweep = BevSweep(GRID, SweepParams(**same))
     assert len(sweep._zones) == 3
     frame = samples[0][0]
-    greys = np.stack([grey_image(im, 1.0, 4.0) for im in (frame.left, frame.right)])
+    greys = np.stack([grey_image(im, 1.0, 4.0) for im in (frame.left, right_of(frame))])
     images = torch.from_numpy(greys - greys.mean(axis=(1, 2), keepdims=True))[:, None]
     planes = sweep._z[:, None, None]
     zoned, zoned_texture = sweep._zncc_zones(images, planes, frame, StageClock())
@@ -214,5 +223,5 @@ def test_window_check_drops_cells_where_a_small_window_disagrees(samples: list[t
     with pytest.raises(ConfigError, match="aggregation_cells"):
         SweepParams(aggregation_cells=(21, 8))
     # Windows are one side or (rows, columns); lists from YAML / JSON become tuples.
-    assert create("bev_sweep", GRID, far_aggregation_cells=[25, 9]).params.far_aggregation_cells == (25, 9)
+    assert _params(far_aggregation_cells=[25, 9]).far_aggregation_cells == (25, 9)
     assert SweepParams(near_aggregation_cells=9).near_aggregation_cells == 9

@@ -22,6 +22,7 @@ def test_scenes_are_rendered_once_and_read_back_identically(tmp_path: Path, monk
     first = SyntheticSet(tmp_path, [100_010], camera=CAMERA, grid=GRID)
     frame, truth = first[0]
     reference = synth.make_sample(100_010, camera=CAMERA, grid=GRID)
+    assert frame.right is not None and reference.frame.right is not None
     assert np.array_equal(frame.left, reference.frame.left) and np.array_equal(frame.right, reference.frame.right)
     assert frame.attitude == reference.frame.attitude and frame.camera == CAMERA
     np.testing.assert_array_equal(truth, reference.truth.elevation)

@@ -15,6 +15,8 @@ from roadbev_core.evaluation import evaluate
 from roadbev_core.frame import Frame, FrameError
 from roadbev_core.geometry import Attitude, project_voxels
 
+from ._frames import right_of
+
 CAMERA = StereoCamera.rsrd_half().scaled(0.5)  # 480 x 264
 GRID = GridSpec().scaled(2)  # 82 x 32 cells of 6 cm
 
@@ -62,9 +64,9 @@ def test_accurate_on_rendered_frames(
 def test_half_pixel_disparity_offset_breaks_the_bound(samples: list[tuple[Frame, np.ndarray]]) -> None:
     backend = create("bm", GRID)
     good = evaluate(backend, samples).metrics["abs_err_cm"]
-    shift = np.float32([[1, 0, 0.5], [0, 1, 0]])
+    shift = np.array([[1, 0, 0.5], [0, 1, 0]], np.float32)
     shifted = [
-        (replace(f, right=cv2.warpAffine(f.right, shift, f.camera.size, borderMode=cv2.BORDER_REFLECT)), t)
+        (replace(f, right=cv2.warpAffine(right_of(f), shift, f.camera.size, borderMode=cv2.BORDER_REFLECT)), t)
         for f, t in samples
     ]
     bad = evaluate(backend, shifted).metrics["abs_err_cm"]

@@ -78,7 +78,9 @@ def test_spacing_and_max_distance() -> None:
 
 def test_time_of_arrival_needs_a_positive_speed() -> None:
     out = wheel_track_profiles(np.zeros(GRID.shape), None, GRID, vehicle_speed=10.0, reference_distance=1.2)
-    np.testing.assert_allclose(out.time_of_arrival(), (out.distances() - 1.2) / 10.0, rtol=1e-6)
+    arrival = out.time_of_arrival()
+    assert arrival is not None
+    np.testing.assert_allclose(arrival, (out.distances() - 1.2) / 10.0, rtol=1e-6)
     assert wheel_track_profiles(np.zeros(GRID.shape), None, GRID).time_of_arrival() is None
     assert wheel_track_profiles(np.zeros(GRID.shape), None, GRID, vehicle_speed=0.0).time_of_arrival() is None
 

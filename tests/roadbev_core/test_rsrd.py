@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pickle
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -47,7 +48,7 @@ def rsrd_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("rsrd")
     calib = {"K": K, "B": 118.809, "R": R, "T": T, "Width": 960, "Height": 540}
     (root / "calib_20230317_half.pkl").write_bytes(pickle.dumps(calib))
-    samples = [
+    samples: list[dict[str, Any]] = [
         {"time": "20230317074850.000", "path": "dense/2023-03-17-07-48-37", "pitch": 18.45, "roll": 1.23, "yaw": 90.7},
         {"time": "20230317074850.200", "path": "dense/2023-03-17-07-48-37", "pitch": 17.9, "roll": -0.8, "yaw": 90.1},
     ]

@@ -280,11 +280,11 @@ def test_accelerometer_reports_the_trajectory_plus_gravity() -> None:
     dt = 0.01
     heading = float(path["heading"])
     c, s = math.cos(heading), math.sin(heading)
-    force = []
+    rows = []
     for sample in drive.imu_samples():  # body specific force -> ENU -> road axes
         f = quaternion_to_rotation(*sample.orientation_xyzw) @ np.array(sample.linear_acceleration)
-        force.append([c * f[0] + s * f[1], -s * f[0] + c * f[1], f[2]])
-    force = np.array(force)[5:-5]
+        rows.append([c * f[0] + s * f[1], -s * f[0] + c * f[1], f[2]])
+    force = np.array(rows)[5:-5]
     ax = np.gradient(np.gradient(path["x"], dt), dt)[5:-5]
     az = np.gradient(np.gradient(path["z"], dt), dt)[5:-5]
     np.testing.assert_allclose(force[:, 0], ax, atol=1e-3)
@@ -298,6 +298,7 @@ def test_a_seed_renders_the_scene_the_caches_hold() -> None:
     and put the new values here."""
     sample = make_sample(100_000, camera=SMALL)
     elevation = sample.truth.elevation
+    assert sample.frame.right is not None
     assert int(np.isfinite(elevation).sum()) == 10_496
     fingerprint = (float(np.nanmean(elevation)), float(np.nanstd(elevation)),
                    float(sample.frame.left.mean()), float(sample.frame.right.mean()),

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import cv2
 import numpy as np
 import pytest
@@ -9,7 +11,7 @@ import pytest
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.geometry import Attitude, project_points, road_to_camera
 from roadbev_core.synth import RoadConfig, SynthError, make_sample
-from roadbev_core.synth.drive import LidarConfig
+from roadbev_core.synth.drive import DriveSample, LidarConfig
 from roadbev_core.synth.heightfield import SpeedBump
 from roadbev_core.synth.render import (
     CameraPose,
@@ -19,15 +21,17 @@ from roadbev_core.synth.render import (
     render_view,
     sensor_image,
 )
-from roadbev_core.synth.scene import build_scene
+from roadbev_core.synth.scene import Scene, build_scene
 from roadbev_core.synth.texture import remap_points
+
+from ._frames import right_of
 
 RIG = StereoCamera.rsrd_half()
 GRID = GridSpec()
 
 
-def _flat_scene(features: list[tuple[str, float, float]] | None = None, **road: object):
-    cfg = RoadConfig(road_class="A", roughness_scale=0.0, features=(), cross_slope=0.0, **road)  # type: ignore[arg-type]
+def _flat_scene(features: list[tuple[str, float, float]] | None = None, **road: Any) -> Scene:
+    cfg = RoadConfig(road_class="A", roughness_scale=0.0, features=(), cross_slope=0.0, **road)
     return build_scene(cfg, 0, (-4.0, 36.0), features or [])
 
 
@@ -131,10 +135,10 @@ def test_right_view_needs_a_baseline() -> None:
         render_view(_flat_scene(), mono, CameraPose(0.0, 0.0, 1.1, Attitude()), right=True)
 
 
-def _photometric_errors(sample, camera: StereoCamera, shifts: list[float], near_x: float) -> list[float]:
+def _photometric_errors(sample: DriveSample, camera: StereoCamera, shifts: list[float], near_x: float) -> list[float]:
     """Mean |left - right| grey level at the LiDAR points moved up by each shift (metres)."""
     left = np.ascontiguousarray(sample.frame.left.astype(np.float32).mean(axis=2))
-    right = np.ascontiguousarray(sample.frame.right.astype(np.float32).mean(axis=2))
+    right = np.ascontiguousarray(right_of(sample.frame).astype(np.float32).mean(axis=2))
     pts = sample.points_road.astype(np.float64)
     pts = pts[pts[:, 0] < near_x]
     out = []
@@ -149,18 +153,18 @@ def _photometric_errors(sample, camera: StereoCamera, shifts: list[float], near_
     return out
 
 
-def _stereo_sample(seed: int, features: tuple[str, ...], camera: StereoCamera, **sensor: object):
-    road = RoadConfig(road_class="C", features=features, **sensor)  # type: ignore[arg-type]
+def _stereo_sample(seed: int, features: tuple[str, ...], camera: StereoCamera, **sensor: Any) -> DriveSample:
+    road = RoadConfig(road_class="C", features=features, **sensor)
     return make_sample(seed, camera=camera, road=road, lidar=LidarConfig(spacing_m=0.015))
 
 
 @pytest.fixture(scope="module")
-def clean_sample():
+def clean_sample() -> DriveSample:
     # the real half-resolution rig (960 x 528); no sensor noise, gain mismatch or JPEG
     return _stereo_sample(11, ("pothole", "speed_bump"), RIG, noise_sigma=0.0, gain_mismatch=0.0)
 
 
-def test_warping_through_true_heights_beats_heights_off_by_2cm(clean_sample) -> None:
+def test_warping_through_true_heights_beats_heights_off_by_2cm(clean_sample: DriveSample) -> None:
     """The issue's test: right warped into left through the true surface matches far better
     than through the surface shifted by +-2 cm (the renderer's parallax is right)."""
     err_down, err_true, err_up = _photometric_errors(clean_sample, RIG, [-0.02, 0.0, 0.02], near_x=4.5)
@@ -171,25 +175,25 @@ def test_warping_through_true_heights_beats_heights_off_by_2cm(clean_sample) -> 
 
 
 @pytest.fixture(scope="module")
-def noisy_sample():
+def noisy_sample() -> DriveSample:
     return _stereo_sample(
         12, ("hump", "pothole"), RIG.scaled(0.5), noise_sigma=1.5, gain_mismatch=0.04, jpeg_quality=90
     )
 
 
-def test_true_heights_win_even_with_sensor_noise_and_gain_mismatch(noisy_sample) -> None:
+def test_true_heights_win_even_with_sensor_noise_and_gain_mismatch(noisy_sample: DriveSample) -> None:
     errs = _photometric_errors(noisy_sample, RIG.scaled(0.5), [-0.02, -0.01, 0.0, 0.01, 0.02], near_x=4.5)
     assert int(np.argmin(errs)) == 2
 
 
-def test_textures_carry_detail_a_stereo_matcher_locks_onto(noisy_sample) -> None:
+def test_textures_carry_detail_a_stereo_matcher_locks_onto(noisy_sample: DriveSample) -> None:
     """OpenCV SGBM on a rendered (noisy, JPEG) pair recovers the true disparity of the road to a
     fraction of a pixel: the pavement has the fine texture real stereo relies on."""
     cam = RIG.scaled(0.5)
     left = cv2.cvtColor(noisy_sample.frame.left, cv2.COLOR_RGB2GRAY)
-    right = cv2.cvtColor(noisy_sample.frame.right, cv2.COLOR_RGB2GRAY)
+    right = cv2.cvtColor(right_of(noisy_sample.frame), cv2.COLOR_RGB2GRAY)
     n_disp = 48
-    sgbm = cv2.StereoSGBM_create(0, n_disp, 5, P1=200, P2=800, uniquenessRatio=5, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+    sgbm = cv2.StereoSGBM.create(0, n_disp, 5, P1=200, P2=800, uniquenessRatio=5, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
     disparity = sgbm.compute(left, right).astype(np.float32) / 16.0
     cam_pts = road_to_camera(noisy_sample.points_road.astype(np.float64), noisy_sample.frame.attitude, GRID.base_height)
     u, v, z = project_points(cam_pts, cam)

@@ -15,7 +15,7 @@ import torch
 from roadbev_core.checkpoint import read_checkpoint
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.datasets import SyntheticSet
-from roadbev_core.models.presets import model_config
+from roadbev_core.models.presets import ModelConfig, model_config
 from roadbev_core.train import TrainConfig, TrainError, train
 
 REPO = Path(__file__).resolve().parents[2]
@@ -29,7 +29,7 @@ def frames(tmp_path_factory: pytest.TempPathFactory) -> SyntheticSet:
     return SyntheticSet(tmp_path_factory.mktemp("synth"), SEEDS, camera=CAMERA, grid=GRID)
 
 
-def _tiny(kind: str):  # type: ignore[no-untyped-def]
+def _tiny(kind: str) -> ModelConfig:
     return model_config("tiny", kind, grid_factor=1, label="one_hot")
 
 
@@ -60,6 +60,7 @@ def test_resume_continues_the_schedule_and_checkpoints_carry_config(frames: Synt
         train(_tiny("mono"), GRID, frames, cfg, tmp_path / "x.pt", resume=out, init=out, progress=False)
     warm = train(_tiny("stereo"), GRID, frames, TrainConfig(epochs=1, batch_size=2, lr=1e-9), tmp_path / "warm.pt",
                  init=out, progress=False)  # init takes the checkpoint's model (mono), weights kept
+    assert warm.checkpoint is not None
     warm_payload = read_checkpoint(warm.checkpoint)
     assert warm_payload["model_config"]["kind"] == "mono" and warm_payload["meta"]["init"] == str(out)
     before = read_checkpoint(out)["state_dict"]
@@ -137,6 +138,7 @@ def test_model_overrides_change_an_init_checkpoints_model_but_not_its_weights(
     train(base, GRID, frames, TrainConfig(epochs=1, batch_size=2, lr=1e-3, seed=2), out, progress=False)
     sharper = train(base, GRID, frames, TrainConfig(epochs=1, batch_size=2, lr=1e-9), tmp_path / "sharp.pt", init=out,
                     model_overrides={"zncc_full_resolution": True, "zncc_subsamples": 2}, progress=False)
+    assert sharper.checkpoint is not None
     payload = read_checkpoint(sharper.checkpoint)
     assert payload["model_config"]["zncc_full_resolution"] is True and payload["model_config"]["zncc_subsamples"] == 2
     before = read_checkpoint(out)["state_dict"]

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import os
 import random
+from collections.abc import Iterator
+from typing import Any
 
 import pytest
 
@@ -23,7 +25,7 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 @pytest.fixture(scope="session")
-def ros():  # type: ignore[no-untyped-def]
+def ros() -> Iterator[Any]:
     """rclpy initialised once for the session (with the DDS profile), shut down at the end."""
     from roadbev_ros.dds import init_ros
 

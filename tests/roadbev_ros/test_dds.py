@@ -17,7 +17,8 @@ def test_profile_has_large_shared_memory_udp_and_no_builtin_transports() -> None
     shm = [t for t in transports.values() if t.findtext(f"{NS}type") == "SHM"]
     udp = [t for t in transports.values() if t.findtext(f"{NS}type") == "UDPv4"]
     assert len(shm) == 1 and len(udp) == 1
-    assert int(shm[0].findtext(f"{NS}segment_size")) >= 64 * 2**20
+    segment_size = shm[0].findtext(f"{NS}segment_size")
+    assert segment_size is not None and int(segment_size) >= 64 * 2**20
     participant = next(root.iter(f"{NS}participant"))
     assert participant.get("is_default_profile") == "true"
     assert participant.findtext(f"{NS}rtps/{NS}useBuiltinTransports") == "false"

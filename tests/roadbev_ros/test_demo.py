@@ -6,6 +6,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -13,11 +14,13 @@ from matplotlib import image as mpimg
 
 from msg_bridge import bag
 from msg_bridge.grid_map import grid_map_to_arrays
+from roadbev_core.config import GridSpec
 from roadbev_core.metrics import MetricAccumulator
 from roadbev_ros.dds import child_env
 from roadbev_ros.demo import (
     DemoError,
     DemoOptions,
+    DemoResult,
     _node_failure,
     demo_drive_config,
     ensure_demo_bag,
@@ -32,14 +35,14 @@ FIGURES = ("frames.png", "surface.png", "preview.png", "band_error.png", "timing
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
+def demo(tmp_path_factory: pytest.TempPathFactory) -> tuple[DemoResult, DemoOptions]:
     root = tmp_path_factory.mktemp("demo")
     options = DemoOptions(frames=FRAMES, out_dir=root / "out", cache_dir=root / "cache", image_scale=SCALE,
                           report_frames=2, progress=False)
     return run_demo(options), options
 
 
-def _recorded_metrics(recorded: Path, bag_path: Path, grid) -> dict:  # type: ignore[no-untyped-def]
+def _recorded_metrics(recorded: Path, bag_path: Path, grid: GridSpec) -> dict[str, Any]:
     """The offline evaluation of the recorded outputs, written out here independently."""
     truths = {}
     for item in bag.read_messages(bag_path, ["/ground_truth/elevation"]):
@@ -56,7 +59,7 @@ def _recorded_metrics(recorded: Path, bag_path: Path, grid) -> dict:  # type: ig
     return acc.result().to_dict()
 
 
-def test_demo_writes_the_report_with_every_figure(demo) -> None:  # type: ignore[no-untyped-def]
+def test_demo_writes_the_report_with_every_figure(demo: tuple[DemoResult, DemoOptions]) -> None:
     _result, options = demo
     out = options.out_dir
     for name in (*FIGURES, "index.html", "report.json", "online.mcap", "node.log"):
@@ -70,7 +73,9 @@ def test_demo_writes_the_report_with_every_figure(demo) -> None:  # type: ignore
         assert f'src="{name}"' in page
 
 
-def test_report_numbers_equal_the_offline_evaluation_of_the_recorded_outputs(demo) -> None:  # type: ignore[no-untyped-def]
+def test_report_numbers_equal_the_offline_evaluation_of_the_recorded_outputs(
+    demo: tuple[DemoResult, DemoOptions],
+) -> None:
     result, options = demo
     payload = json.loads((options.out_dir / "report.json").read_text())
     online = next(r for r in payload["runs"] if r["mode"] == "online")["metrics"]
@@ -96,9 +101,10 @@ def test_report_numbers_equal_the_offline_evaluation_of_the_recorded_outputs(dem
     assert len(timing["latency_ms"]) == FRAMES and all(v > 0 for v in timing["latency_ms"])
 
 
-def test_the_bag_is_cached_by_options(demo, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_the_bag_is_cached_by_options(demo: tuple[DemoResult, DemoOptions], tmp_path: Path) -> None:
     result, options = demo
     config = demo_drive_config(FRAMES, 0, SCALE)
+    assert options.cache_dir is not None
     path, reused = ensure_demo_bag(config, options.cache_dir)
     assert reused and path == result.bag
     assert not list(options.cache_dir.glob(".partial-*"))  # no half-written bag left behind

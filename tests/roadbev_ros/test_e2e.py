@@ -104,10 +104,10 @@ def test_replay_and_record_commands_round_trip_raw_bytes(drive_bag: Path, tmp_pa
     for topic in topics:
         assert len(recorded[topic]) == len(original[topic]), topic
         for rec, orig in zip(recorded[topic], original[topic], strict=True):
-            rec, orig = bytes(rec.msg), bytes(orig.msg)
+            data, expected = bytes(rec.msg), bytes(orig.msg)
             # identical bytes; DDS may add the payload's trailing alignment padding (< 4 zeros)
-            assert rec[: len(orig)] == orig, topic
-            assert len(rec) - len(orig) < 4 and not any(rec[len(orig):]), topic
+            assert data[: len(expected)] == expected, topic
+            assert len(data) - len(expected) < 4 and not any(data[len(expected):]), topic
     # published with the bag's timing: receive times keep the log-time spacing
     sent = np.array([m.log_time_ns for m in original["/imu/data"]], dtype=np.float64) * 1e-9
     got = np.array([m.log_time_ns for m in recorded["/imu/data"]], dtype=np.float64) * 1e-9

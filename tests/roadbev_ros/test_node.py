@@ -8,10 +8,11 @@ from typing import Any
 
 import numpy as np
 import pytest
-from _ros_harness import MS, START_NS, Harness, wait_for
 
 from msg_bridge import stamp_from_header
 from msg_bridge.preview import preview_from_message
+
+from ._ros_harness import MS, START_NS, Harness, wait_for
 
 FRAME_NS = 100 * MS  # 10 Hz
 
@@ -210,7 +211,7 @@ def test_costly_or_crashing_parameter_changes_are_rejected_and_the_node_keeps_ru
     from rclpy.parameter import Parameter
 
     def factory(name: str, grid: Any, **options: Any) -> Any:
-        from _ros_harness import PitchBackend
+        from ._ros_harness import PitchBackend
 
         if name == "mono":  # a checkpoint whose config asks for 10^6 channels
             raise RuntimeError("[enforce fail] could not allocate 4000000000000 bytes")
@@ -263,6 +264,7 @@ def test_speed_topic_gives_times_of_arrival_and_a_viewer_gets_points(harness: Ha
     assert wait_for(lambda: len(harness.previews) == 1)
     profiles = preview_from_message(harness.previews[0]).profiles
     toa = profiles.time_of_arrival()
+    assert toa is not None
     assert profiles.vehicle_speed == pytest.approx(5.0)
     np.testing.assert_allclose(toa, profiles.distances() / 5.0, rtol=1e-5)
     # a viewer listens on the point cloud topic: one point per estimated cell
@@ -279,7 +281,7 @@ def test_backend_options_come_from_parameters(ros: Any) -> None:
     seen: list[dict[str, Any]] = []
 
     def factory(name: str, grid: Any, **options: Any) -> Any:
-        from _ros_harness import PitchBackend
+        from ._ros_harness import PitchBackend
 
         seen.append({"name": name, **options})
         if options.get("patch_cells", 1) % 2 == 0:
@@ -315,7 +317,7 @@ def test_time_jump_back_resets_and_goes_on(harness: Harness) -> None:
 
 
 def test_mono_backend_needs_only_the_left_camera(ros: Any) -> None:
-    from _ros_harness import PitchBackend
+    from ._ros_harness import PitchBackend
 
     class MonoStub(PitchBackend):
         needs_stereo = False

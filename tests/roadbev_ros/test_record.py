@@ -8,10 +8,11 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from _ros_harness import wait_for
 
 from msg_bridge import bag
 from roadbev_ros.record import Recorder, RecordError
+
+from ._ros_harness import wait_for
 
 
 def test_records_best_effort_and_reliable_publishers_that_appear_later(ros: Any, tmp_path: Path) -> None:
@@ -101,7 +102,7 @@ def _record_and_kill(ros: Any, source: Path, outs: list[Path], kill_after: list[
     import sys
     import time
 
-    from _ros_harness import wait_for
+    from ._ros_harness import wait_for
 
     from roadbev_ros.dds import child_env
     from roadbev_ros.replay import replay_bag

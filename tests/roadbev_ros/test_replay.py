@@ -9,12 +9,13 @@ from typing import Any
 
 import numpy as np
 import pytest
-from _ros_harness import wait_for
 
 from msg_bridge import TypestoreFactory
 from msg_bridge.bag import BagWriter, typestore
 from msg_bridge.imu import imu_message
 from roadbev_ros.replay import ReplayError, header_stamp_ns, replay_bag, restamp_cdr
+
+from ._ros_harness import wait_for
 
 START = 1_700_000_000_000_000_000
 PERIOD_NS = 20_000_000  # 50 Hz
@@ -110,7 +111,12 @@ def test_replay_keeps_the_timing_at_the_rate(listener: Listener, imu_bag: Path, 
 
 def test_restamp_loop_and_stop(listener: Listener, imu_bag: Path) -> None:
     stop = threading.Event()
-    watcher = threading.Thread(target=lambda: wait_for(lambda: len(listener.imu) >= 2 * N + 3, 20.0) and stop.set())
+
+    def stop_in_the_third_pass() -> None:
+        if wait_for(lambda: len(listener.imu) >= 2 * N + 3, 20.0):
+            stop.set()
+
+    watcher = threading.Thread(target=stop_in_the_third_pass)
     watcher.start()  # stops the replay early in its third pass
     before = time.time_ns()
     stats = replay_bag(listener.pub_node, imu_bag, rate=1.0, loop=True, restamp=True, topics=["/imu/data"],

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import json
 import re
+from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -21,6 +23,7 @@ from roadbev_ros.report import (
     TrackProfile,
     band_centres_m,
     plot_frames,
+    plot_preview,
     roi_outline_px,
     write_report,
 )
@@ -73,24 +76,31 @@ def test_write_report_writes_every_figure_page_and_json(tmp_path: Path) -> None:
     assert payload["frames_shown"] == [0, 1]
 
 
-def test_frames_figure_keeps_the_bev_aspect(tmp_path: Path) -> None:
+def test_preview_figure_draws_a_frame_that_lacks_a_track_another_frame_has(tmp_path: Path) -> None:
+    """Frame 1 has a right track, frame 0 has not: frame 0's right panel stays empty (no crash)."""
+    rng = np.random.default_rng(3)
+    first, second = _frame(0, rng), _frame(1, rng)
+    right = TrackProfile("right", -0.8, second.tracks[0].distance_m, second.tracks[0].elevation_m)
+    second = replace(second, tracks=(*second.tracks, right))
+    out = plot_preview([first, second], tmp_path / "preview.png")
+    assert mpimg.imread(out).shape[0] > 200
+
+
+def test_frames_figure_keeps_the_bev_aspect(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Each BEV map is 4.92 m x 1.92 m: its axes are about 2.56 times taller than wide."""
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     data = _data(1)
-    captured = {}
-    original = plt.Figure.savefig
+    captured: dict[str, Any] = {}
+    original = Figure.savefig
 
-    def grab(fig, *args, **kwargs):  # type: ignore[no-untyped-def]
+    def grab(fig: Figure, *args: Any, **kwargs: Any) -> None:
         fig.canvas.draw()
         captured["boxes"] = [ax.get_window_extent() for ax in fig.axes if ax.images and ax.get_title() == "estimate"]
-        return original(fig, *args, **kwargs)
+        original(fig, *args, **kwargs)
 
-    plt.Figure.savefig = grab
-    try:
-        plot_frames(data.frames, GRID, tmp_path / "f.png")
-    finally:
-        plt.Figure.savefig = original
+    monkeypatch.setattr(Figure, "savefig", grab)
+    plot_frames(data.frames, GRID, tmp_path / "f.png")
     (box,) = captured["boxes"]
     assert box.height / box.width == pytest.approx(GRID.length_x / GRID.length_y, rel=0.03)
 

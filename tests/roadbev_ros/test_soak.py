@@ -7,7 +7,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from _ros_harness import MS, START_NS, Harness, wait_for
+
+from ._ros_harness import MS, START_NS, Harness, wait_for
 
 FRAMES = 1000
 WARM_UP = 200
@@ -33,7 +34,10 @@ def test_thousand_frames_with_flat_memory(ros: Any) -> None:
                 h.publish_imu(stamp + dt * MS, 0.02)
             h.publish_frame(stamp)
             # lockstep: wait for the answer (a lost frame is allowed, it is counted)
-            wait_for(lambda s=stamp: s in h.stamps_seen, timeout=1.0, step=0.0005)
+            def answered(s: int = stamp) -> bool:
+                return s in h.stamps_seen
+
+            wait_for(answered, timeout=1.0, step=0.0005)
             if k == WARM_UP:
                 baseline = rss_bytes()
         elapsed = time.monotonic() - start

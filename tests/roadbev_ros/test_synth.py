@@ -47,13 +47,15 @@ def test_synth_raw_directory_bag(tmp_path: Path) -> None:
         (["--jpeg-quality", "0"], "--jpeg-quality"),
     ],
 )
-def test_bad_arguments_exit_with_a_reason(tmp_path: Path, capsys, extra: list[str], message: str) -> None:  # type: ignore[no-untyped-def]
+def test_bad_arguments_exit_with_a_reason(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str], message: str
+) -> None:
     assert main(["synth", str(tmp_path / "x.mcap"), "--quiet", *extra]) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "x.mcap").exists()
 
 
-def test_existing_output_is_not_overwritten(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+def test_existing_output_is_not_overwritten(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "exists.mcap"
     out.write_bytes(b"keep")
     assert main(["synth", str(out), "--quiet"]) == 2

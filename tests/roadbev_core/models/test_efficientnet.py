@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 import torch
 
@@ -100,7 +102,7 @@ def test_imagenet_weights_load_by_name_from_both_layouts(layout: str, known: dic
         assert torch.equal(loaded[ours], state[theirs]), ours
 
 
-def test_weights_file_round_trip_and_clear_errors(tmp_path) -> None:  # type: ignore[no-untyped-def]
+def test_weights_file_round_trip_and_clear_errors(tmp_path: Path) -> None:
     net = EfficientNetFeatures("b0")
     state = _foreign_state(net, "torchvision")
     path = tmp_path / "b0.pth"
@@ -123,6 +125,7 @@ def test_folding_batchnorm_keeps_the_output() -> None:
     with torch.no_grad():  # non-trivial running statistics
         for m in net.modules():
             if isinstance(m, torch.nn.BatchNorm2d):
+                assert m.running_mean is not None and m.running_var is not None
                 m.running_mean.uniform_(-0.5, 0.5)
                 m.running_var.uniform_(0.5, 2.0)
                 m.weight.uniform_(0.5, 1.5)

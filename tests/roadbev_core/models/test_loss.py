@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pytest
 import torch
@@ -14,7 +16,9 @@ GRID = GridSpec()
 
 
 @pytest.mark.parametrize(("label", "reference"), [("one_hot", one_hot), ("two_hot", two_hot)])
-def test_targets_match_the_label_module(label: str, reference) -> None:  # type: ignore[no-untyped-def]
+def test_targets_match_the_label_module(
+    label: str, reference: Callable[[np.ndarray, GridSpec], np.ndarray]
+) -> None:
     rng = np.random.default_rng(1)
     elev = rng.uniform(-0.25, 0.25, size=(2, 5, 4)).astype(np.float32)
     elev[0, 0, 0] = np.nan

@@ -109,6 +109,7 @@ def test_photometric_channel_reads_the_full_resolution_frames() -> None:
     grid = GridSpec(x_min=3.0, x_max=4.2, y_min=-0.48, y_max=0.48)
     sample = make_sample(100_003, grid=grid)
     frame, truth = sample.frame, sample.truth.elevation
+    assert frame.right is not None
     for n in (1, 2):
         model = RoadBEV(model_config("lite", "stereo", zncc_subsamples=n), grid).eval()
         grey = torch.from_numpy(prepare_grey(frame.left, frame.right))[None]
@@ -146,7 +147,7 @@ def test_window_zncc_with_subsamples_correlates_every_fine_sample() -> None:
     # samples constant over each cell's 2 x 2 block give the one-sample correlation
     coarse_a, coarse_b = a[..., ::2, ::2], b[..., ::2, ::2]
     blocky = [t.repeat_interleave(2, dim=-1).repeat_interleave(2, dim=-2) for t in (coarse_a, coarse_b)]
-    torch.testing.assert_close(window_zncc(*blocky, 3, subsamples=2), window_zncc(coarse_a, coarse_b, 3), atol=1e-4,
-                               rtol=0)
+    torch.testing.assert_close(window_zncc(blocky[0], blocky[1], 3, subsamples=2), window_zncc(coarse_a, coarse_b, 3),
+                               atol=1e-4, rtol=0)
     with pytest.raises(ValueError, match="split"):
         window_zncc(a[..., :11, :], b[..., :11, :], 3, subsamples=2)
