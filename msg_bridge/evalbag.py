@@ -104,7 +104,7 @@ def write_eval_bag(
     compressed: bool = False,
     compression: str = "zstd",
     jpeg_quality: int = 90,
-    progress: Callable[[int], None] | None = None,
+    progress: Callable[[int], object] | None = None,
 ) -> dict[str, int]:
     """Write a synthetic drive as an evaluation bag.
 
@@ -497,13 +497,13 @@ def read_eval_bag(path: str | os.PathLike[str], params: Mapping[str, Any] | None
         if left_info is None or (stereo and right_info is None):
             skip("no CameraInfo")
             continue
-        key = (id(left_info), id(right_info))
-        if key not in cameras:
+        camera_key = (id(left_info), id(right_info))
+        if camera_key not in cameras:
             try:
-                cameras[key] = stereo_camera_from_camera_info(left_info, right_info)
+                cameras[camera_key] = stereo_camera_from_camera_info(left_info, right_info)
             except MessageError as exc:
                 raise BagError(f"{path}: CameraInfo for the frame at {stamp} ns: {exc}") from None
-        frames.append(_FrameIndex(stamp, cameras[key]))
+        frames.append(_FrameIndex(stamp, cameras[camera_key]))
     if not frames:
         damage = f"; {collected.read.summary()}" if not collected.read.complete else ""
         raise BagError(f"{path}: no usable frames ({skipped or 'no left images'}){damage}")

@@ -32,7 +32,7 @@ __all__ = [
 ]
 
 
-def _unit_quaternion(values: Sequence[Any], what: str) -> np.ndarray:
+def _unit_quaternion(values: Sequence[Any] | np.ndarray, what: str) -> np.ndarray:
     try:
         return unit_quaternion([as_float(v, what) for v in values], what)
     except ImuError as exc:
@@ -72,7 +72,7 @@ def imu_message(
     factory: MessageFactory,
     *,
     stamp_ns: int,
-    orientation_xyzw: Sequence[float],
+    orientation_xyzw: Sequence[float] | np.ndarray,
     angular_velocity: Sequence[float] = (0.0, 0.0, 0.0),
     linear_acceleration: Sequence[float] = (0.0, 0.0, 9.81),
     frame_id: str = "imu_link",

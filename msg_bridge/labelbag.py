@@ -440,7 +440,7 @@ def write_recording(
     camera: StereoCamera,
     frames: Sequence[RecordedFrame],
     *,
-    imu: Sequence[tuple[int, Sequence[float]]],
+    imu: Sequence[tuple[int, Sequence[float] | np.ndarray]],
     scans: Sequence[tuple[int, str, np.ndarray]] = (),
     odometry: Sequence[tuple[int, float, float, float, float]] = (),
     static_transforms: Sequence[StaticTransform] = (),

@@ -59,10 +59,10 @@ def speed_message_type(kind: str) -> type:
     if kind == "odometry":
         from nav_msgs.msg import Odometry
 
-        return Odometry  # type: ignore[no-any-return]
+        return Odometry
     from geometry_msgs.msg import TwistStamped
 
-    return TwistStamped  # type: ignore[no-any-return]
+    return TwistStamped
 
 
 def speed_from_message(msg: Any) -> tuple[int, float]:

@@ -429,10 +429,11 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
         if estimate is None:
             continue
         preview = recorded.previews.get(frame.stamp_ns)
-        tracks = _profiles_to_report(preview) if preview is not None else ()
-        truth_tracks = ()
-        if preview is not None and truths[i] is not None:
-            truth_tracks = _truth_profiles(truths[i], grid, preview)
+        truth = truths[i]
+        tracks: tuple[TrackProfile, ...] = _profiles_to_report(preview) if preview is not None else ()
+        truth_tracks: tuple[TrackProfile, ...] = ()
+        if preview is not None and truth is not None:
+            truth_tracks = _truth_profiles(truth, grid, preview)
         views.append(FrameView(i, frame.stamp_ns, frame.left, frame.camera, frame.attitude, truths[i],
                                estimate, tracks, truth_tracks))
     if not views:

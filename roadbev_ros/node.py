@@ -20,6 +20,7 @@ and the running backend stays.
 
 from __future__ import annotations
 
+import functools
 import sys
 import threading
 import time
@@ -91,7 +92,7 @@ class RoadBevNode(Node):
                   (RIGHT_IMAGE, self._image_topic(topics.right_image), image_type),
                   (LEFT_INFO, topics.left_info, CameraInfo), (RIGHT_INFO, topics.right_info, CameraInfo))
         for which, topic, kind in inputs:
-            self.create_subscription(kind, topic, lambda m, w=which: self._on_input(w, m), SENSOR_QOS)
+            self.create_subscription(kind, topic, functools.partial(self._on_input, which), SENSOR_QOS)
         self.create_subscription(ImuMsg, topics.imu, self._on_imu, IMU_QOS)
         if topics.speed:
             self.create_subscription(speed_message_type(topics.speed_type), topics.speed, self._on_speed, SENSOR_QOS)

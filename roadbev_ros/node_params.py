@@ -15,6 +15,7 @@ from typing import Any
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.exceptions import InvalidParameterValueException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 from roadbev_core.config import ParamError, ParamSpec, RoadbevConfig, load_params_file, parameter_specs
 from roadbev_core.config.tree import check_name, is_backend_option
@@ -102,7 +103,7 @@ def declare_parameters(node: Node) -> None:
             node.declare_parameter(spec.name, spec.default, descriptor(spec))
         except InvalidParameterValueException as exc:
             raise ParamError(f"parameter {spec.name}: {exc}") from None
-    overrides: Mapping[str, Any] = node._parameter_overrides  # what -p / --params-file gave
+    overrides: Mapping[str, Parameter] = node._parameter_overrides  # what -p / --params-file gave
     check_overrides(overrides)
     for name, override in overrides.items():
         if is_backend_option(name) and not node.has_parameter(name):
@@ -119,8 +120,8 @@ def config_of(node: Node, base: RoadbevConfig | None = None) -> RoadbevConfig:
     """
     known = {spec.name for spec in parameter_specs()}
     values = {
-        name: plain(p.value)
-        for name, p in node.get_parameters_by_prefix("").items()
+        name: plain(node.get_parameter(name).value)
+        for name in node.get_parameters_by_prefix("")
         if name in known or is_backend_option(name)
     }
     return RoadbevConfig.from_params(values, base=base)

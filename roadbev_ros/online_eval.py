@@ -156,7 +156,7 @@ def _whole_frames(path: Path, eval_bag: Any) -> set[int]:
 
 
 def _estimates(recorded: Path, grid: Any) -> dict[int, np.ndarray]:
-    out = {}
+    out: dict[int, np.ndarray] = {}
     if not recorded.exists():
         return out
     for item in bag.read_messages(recorded, [ELEVATION_TOPIC], on_damage="skip"):

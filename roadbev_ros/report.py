@@ -30,6 +30,7 @@ import matplotlib
 import numpy as np
 from matplotlib import colors as mcolors
 from matplotlib.figure import Figure
+from matplotlib.image import AxesImage
 
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.errors import RoadbevError
@@ -351,7 +352,7 @@ def plot_surface(frame: FrameView, grid: GridSpec, path: str | Path) -> Path:
     yy, xx = np.meshgrid(grid.y_centres(), grid.x_centres())  # [R, C]
     lo, hi = _elevation_limits_cm([frame.truth if frame.truth is not None else frame.estimate])
     fig = Figure(figsize=(8.0, 6.0), dpi=_DPI)
-    ax = fig.add_axes((0.0, 0.02, 0.84, 0.9), projection="3d")
+    ax = cast("Axes3D", fig.add_axes((0.0, 0.02, 0.84, 0.9), projection="3d"))  # mplot3d: untyped
     surf = ax.plot_surface(
         yy, xx, np.ma.masked_invalid(est_cm), cmap=_cmap(_ELEVATION_CMAP), vmin=lo, vmax=hi,
         rstride=1, cstride=1, linewidth=0, antialiased=False,

@@ -271,7 +271,9 @@ SMALL_CHUNKS = 16 * 1024  # several chunks per bag
 
 def _chunks(path: Path) -> list[object]:
     with path.open("rb") as stream:
-        return list(make_reader(stream).get_summary().chunk_indexes)
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    return list(summary.chunk_indexes)
 
 
 def _raw_by_key(path: Path) -> dict[tuple[str, int], bytes]:
@@ -296,7 +298,9 @@ def test_project_bags_carry_chunk_crcs_that_the_independent_reader_checks(tmp_pa
     with path.open("rb") as stream:
         reader = reader_with_crcs(stream, validate_crcs=True)
         assert len(list(reader.iter_messages())) == 3 * len(TOPICS)
-        chunks = reader.get_summary().chunk_indexes
+        summary = reader.get_summary()
+        assert summary is not None
+        chunks = summary.chunk_indexes
     assert len(chunks) > 3
     import zstandard
 
@@ -344,7 +348,7 @@ def test_fuzz_100_single_byte_flips_in_chunk_data_are_each_detected_or_harmless(
     ranges = [_data_range(path, c) for c in _chunks(path)]
     rng = np.random.default_rng(2026)
     victim = tmp_path / "flipped.mcap"
-    outcomes = Counter()
+    outcomes: Counter[str] = Counter()
     for _ in range(100):
         start, end = ranges[int(rng.integers(len(ranges)))]
         at = int(rng.integers(start, end))

@@ -81,6 +81,7 @@ def _errors(path: Path, drive: SyntheticDrive) -> tuple[np.ndarray, np.ndarray]:
         pose, _ = drive.pose(i)
         world = pose.road_to_world(np.stack([x, y, np.zeros_like(x)], axis=-1), grid.base_height)
         truth = drive.scene.height(world[..., 0], world[..., 1]) - (pose.z - grid.base_height)
+        assert sample.truth is not None
         labelled = np.isfinite(sample.truth)
         share.append(labelled.mean())
         err.append(np.abs(sample.truth[labelled] - truth[labelled]).mean())

@@ -27,6 +27,7 @@ def test_a_sound_file_scans_closed_with_indexed_crc_chunks(tmp_path: Path) -> No
     scan = scan_file(path)
     assert scan.closed and scan.summary_crc_ok and not scan.damage and scan.profile == "ros2"
     assert len(scan.chunks) > 5 and all(c.crc and not c.cut for c in scan.chunks)
+    assert scan.statistics is not None
     assert sum(sum(c.indexed_counts.values()) for c in scan.chunks) == N == sum(scan.statistics.values())
     content, damage = load_chunk(scan.chunks[0])
     assert damage is None and content is not None and content.channels[0].topic == "/s"

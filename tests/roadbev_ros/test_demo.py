@@ -149,7 +149,7 @@ def test_cli_missing_bag_exits_with_one_line(tmp_path: Path) -> None:
 def test_demo_on_a_truncated_bag_without_ground_truth_writes_the_report(demo, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """The readable frames of a cut bag of the user's own drive: maps, previews and timing, no
     error figures, and the report says what was lost."""
-    from _damaged_bags import rewrite, truncate
+    from ._damaged_bags import rewrite, truncate
 
     result, _options = demo
     drive = tmp_path / "drive.mcap"

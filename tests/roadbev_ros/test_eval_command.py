@@ -137,10 +137,10 @@ def test_bad_frames_and_checkpoint(bag: Path, capsys: pytest.CaptureFixture[str]
 @pytest.fixture(scope="module")
 def jpeg_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Five small JPEG frames (240 x 132), rewritten with small chunks (several per frame)."""
-    from _damaged_bags import rewrite
-
     from msg_bridge.evalbag import write_eval_bag
     from roadbev_core.synth import DriveConfig, RoadConfig, SyntheticDrive
+
+    from ._damaged_bags import rewrite
 
     root = tmp_path_factory.mktemp("jpegbag")
     road = RoadConfig(road_class="B", features=("speed_bump",), noise_sigma=1.0)
@@ -159,7 +159,7 @@ def _eval(bag: Path, tmp_path: Path, *extra: str) -> tuple[int, dict[str, Any]]:
 def test_truncated_bags_give_their_readable_frames_and_say_what_was_lost(
     jpeg_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from _damaged_bags import truncate
+    from ._damaged_bags import truncate
 
     frames = []
     for fraction in (0.45, 0.7, 0.9):
@@ -186,7 +186,7 @@ def test_truncated_bags_give_their_readable_frames_and_say_what_was_lost(
 
 def test_an_undecodable_jpeg_is_a_counted_lost_frame(jpeg_bag: Path, tmp_path: Path,
                                                      capsys: pytest.CaptureFixture[str]) -> None:
-    from _damaged_bags import rewrite
+    from ._damaged_bags import rewrite
 
     def break_second_left(topic: str, index: int, msg: object) -> object:
         if topic.startswith("/stereo/left/image_rect") and index == 1:
@@ -203,7 +203,6 @@ def test_an_undecodable_jpeg_is_a_counted_lost_frame(jpeg_bag: Path, tmp_path: P
 def test_a_bag_without_ground_truth_writes_every_output_and_says_there_is_nothing_to_score(
     jpeg_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from _damaged_bags import rewrite
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
 
@@ -211,6 +210,8 @@ def test_a_bag_without_ground_truth_writes_every_output_and_says_there_is_nothin
     from msg_bridge.grid_map import grid_map_to_arrays
     from msg_bridge.preview import preview_from_message
     from roadbev_core.backends import create
+
+    from ._damaged_bags import rewrite
 
     drive = tmp_path / "nogt.mcap"
     rewrite(jpeg_bag, drive, drop=["/ground_truth/elevation"])

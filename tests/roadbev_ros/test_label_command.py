@@ -77,6 +77,7 @@ def test_kitti_scan_labels_agree_with_a_direct_projection(kitti_frame, kitti_dir
     tr, r0, p2 = calib["Tr_velo_to_cam"], calib["R0_rect"], calib["P2"]
     cam = (frame.points @ tr[:, :3].T + tr[:, 3]) @ r0.T + np.linalg.solve(p2[:, :3], p2[:, 3])
     direct = elevation_map(camera_to_road(cam, pose.attitude, grid.base_height), grid, clip_z=True)
+    assert label is not None
     labelled = np.isfinite(label)
     assert labelled.sum() > 0.1 * labelled.size  # one scan: ring-shaped stripes, about 18 % of the cells
     assert not (labelled & ~direct.mask).any()  # labels only where the scan has points

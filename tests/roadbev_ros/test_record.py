@@ -102,10 +102,10 @@ def _record_and_kill(ros: Any, source: Path, outs: list[Path], kill_after: list[
     import sys
     import time
 
-    from ._ros_harness import wait_for
-
     from roadbev_ros.dds import child_env
     from roadbev_ros.replay import replay_bag
+
+    from ._ros_harness import wait_for
 
     published: list[tuple[float, str, bytes]] = []
     killed_at = [0.0] * len(outs)

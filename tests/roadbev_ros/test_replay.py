@@ -142,9 +142,9 @@ def test_unknown_topics_only_give_an_error(listener: Listener, imu_bag: Path) ->
 @pytest.mark.parametrize("fraction", [0.35, 0.85])
 def test_a_truncated_bag_is_replayed_as_far_as_it_is_readable(listener: Listener, imu_bag: Path, tmp_path: Path,
                                                               fraction: float) -> None:
-    from _damaged_bags import rewrite, truncate
-
     from msg_bridge.bag import ReadStats, read_messages
+
+    from ._damaged_bags import rewrite, truncate
 
     small = tmp_path / "small_chunks.mcap"
     rewrite(imu_bag, small, chunk_size=1024)
