@@ -37,6 +37,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, default=None, metavar="N", help="evaluate only the first N frames")
     parser.add_argument("--checkpoint", default=None, help="checkpoint for the learned backends (stereo, mono)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--lead-time", type=float, default=0.1, metavar="S",
+                        help="drive bags: preview at arrival counts messages stamped this long before (default 0.1 s)")
 
 
 def _check_bag_path(path: Path) -> None:
@@ -87,6 +89,27 @@ def _read_failures(samples: Any, path: Path) -> Iterator[Any]:
         yield sample
 
 
+def _preview_at_arrival(path: Path, grid: Any, result: Any, params: dict[str, Any], lead: float) -> dict[str, Any]:
+    """Score the per-frame pipeline's previews at arrival, print one line, return the JSON keys."""
+    from msg_bridge.drivebag import evaluate_drive_previews
+    from roadbev_core.arrival import ArrivalError, per_frame_previews
+    from roadbev_core.evaluation import json_safe
+
+    stamps = [int(r["stamp_ns"]) for r in result.per_frame]
+    try:
+        previews = per_frame_previews(result.estimates, stamps, grid,
+                                      track_offsets_m=params.get("preview.track_offsets_m", (0.8, -0.8)),
+                                      tyre_width_m=float(params.get("preview.tyre_width_m", 0.2)),
+                                      spacing_m=float(params.get("preview.spacing_m", 0.03)))
+        out = evaluate_drive_previews(path, previews, stamps, params, base_height=grid.base_height, lead_time_s=lead)
+    except (ArrivalError, ValueError) as exc:
+        raise CommandError(f"preview at arrival on {path}: {exc}") from exc
+    print(f"preview at arrival (lead {lead:g} s, {out['points']} points): abs. error {out['abs_err_cm']:.3f} cm, "
+          f"coverage {out['coverage_pct']:.1f} %, features {out['features_abs_err_cm']:.3f} cm, smooth "
+          f"{out['smooth_abs_err_cm']:.3f} cm, vs the contact plane {out['contact_plane_abs_err_cm']:.3f} cm")
+    return json_safe(out)
+
+
 def run(args: argparse.Namespace) -> int:
     """Evaluate, print the table, write the JSON; non-zero exit (via CommandError) on bad input."""
     from roadbev_core.backends import available, create
@@ -124,13 +147,19 @@ def run(args: argparse.Namespace) -> int:
 
         bar = tqdm(total=total, unit="frame", desc=f"eval {name}", file=sys.stderr, leave=False)
         progress = bar.update
+    from msg_bridge.drivebag import is_drive_bag
+
+    drive = is_drive_bag(path, params)
     try:
-        result = evaluate(backend, _read_failures(bag, path), progress=progress, max_frames=args.frames)
+        result = evaluate(backend, _read_failures(bag, path), progress=progress, max_frames=args.frames,
+                          keep_estimates=drive)
     finally:
         if bar is not None:
             bar.close()
     metrics = result.to_dict()
     print(format_table([metrics]))
+    if drive:  # contract, "Drive bags": the per-frame previews at the wheels' arrival
+        metrics["preview_at_arrival"] = _preview_at_arrival(path, bag.grid, result, params, args.lead_time)
     bands = ", ".join("-" if b is None else f"{b:.3f}" for b in metrics["band_abs_err_cm"])
     print(f"abs. error per distance band (cm, near to far): {bands}")
     if args.json:
