@@ -175,8 +175,8 @@ class RoadMap(NamedTuple):
         n_l = max(2, int(math.ceil(length / 0.01)))
         across = (np.arange(n_w) + 0.5) / n_w * width - 0.5 * width
         along = (np.arange(n_l) + 0.5) / n_l * length - 0.5 * length
-        a, b = np.meshgrid(along, across, indexing="ij")
-        a, b = a.ravel(), b.ravel()  # [S]
+        grid_a, grid_b = np.meshgrid(along, across, indexing="ij")
+        a, b = grid_a.ravel(), grid_b.ravel()  # [S] offsets along and across
         c, s = np.cos(heading)[:, None], np.sin(heading)[:, None]
         px = np.asarray(x)[:, None] + c * a - s * b  # [N, S]
         py = np.asarray(y)[:, None] + s * a + c * b
