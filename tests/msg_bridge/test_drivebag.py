@@ -85,9 +85,9 @@ def test_evaluate_drive_previews_on_the_bags_own_truth(drive: RidingDrive, bag: 
                 for s in samples]
     stamps = [s.frame.stamp_ns for s in samples]
     out = evaluate_drive_previews(bag, previews, stamps, base_height=grid.base_height)
-    # the labels themselves, read at arrival: ~exact; coverage misses the start (the first window
+    # the labels themselves, read at arrival: millimetres; coverage misses the start (the first window
     # begins 0.96 m ahead of the wheel, arrivals 0.6 m ahead) and the cells hidden from the camera
-    assert 60.0 < out["coverage_pct"] < 100.0 and out["abs_err_cm"] < 0.1
+    assert 60.0 < out["coverage_pct"] < 100.0 and out["abs_err_cm"] < 0.3  # 3 cm cells, S-curves
 
 
 def test_bags_without_truth_are_refused(tmp_path: Path) -> None:
