@@ -39,7 +39,7 @@ import json
 import os
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
@@ -58,6 +58,7 @@ __all__ = [
     "DEFAULT_TOPICS",
     "EvalBag",
     "EvalSample",
+    "ExtraTopics",
     "LabelledFrame",
     "bag_frames",
     "read_eval_bag",
@@ -105,6 +106,7 @@ def write_eval_bag(
     compression: str = "zstd",
     jpeg_quality: int = 90,
     progress: Callable[[int], object] | None = None,
+    extra: ExtraTopics | None = None,
 ) -> dict[str, int]:
     """Write a synthetic drive as an evaluation bag.
 
@@ -116,6 +118,8 @@ def write_eval_bag(
         compression: "zstd" (MCAP chunk compression) or "none".
         jpeg_quality: JPEG quality when ``compressed``.
         progress: called with 1 after each frame (e.g. ``tqdm.update``).
+        extra: more topics, written in time order with the rest (a drive bag's odometry, TF
+            and road map: :mod:`msg_bridge.drivebag`).
 
     Returns:
         Messages written per topic.
@@ -143,10 +147,14 @@ def write_eval_bag(
         bag.add_topic(t["right_info_topic"], "sensor_msgs/msg/CameraInfo")
         bag.add_topic(t["imu_topic"], "sensor_msgs/msg/Imu")
         bag.add_topic(t["ground_truth_topic"], "grid_map_msgs/msg/GridMap")
+        if extra is not None:
+            extra.add_topics(bag)
         next_imu = 0
 
         def write_imu_until(stamp_ns: int) -> None:
             nonlocal next_imu
+            if extra is not None:
+                extra.write_until(bag, factory, stamp_ns)
             while next_imu < len(imu) and imu[next_imu].stamp_ns <= stamp_ns:
                 s = imu[next_imu]
                 msg = imu_message(
@@ -198,6 +206,18 @@ def write_eval_bag(
                 progress(1)
         write_imu_until(2**63 - 1)
         return dict(bag.counts)
+
+
+class ExtraTopics(Protocol):
+    """Topics :func:`write_eval_bag` interleaves with its own, in time order."""
+
+    def add_topics(self, bag: BagWriter) -> None:
+        """Declare the topics (``bag.add_topic``)."""
+        ...
+
+    def write_until(self, bag: BagWriter, factory: TypestoreFactory, stamp_ns: int) -> None:
+        """Write every message stamped at or before ``stamp_ns`` not written yet."""
+        ...
 
 
 class EvalSample(NamedTuple):

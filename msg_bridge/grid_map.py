@@ -35,9 +35,12 @@ from roadbev_core.config import ConfigError, GridSpec
 __all__ = [
     "ROAD_FRAME",
     "GridMapData",
+    "RawGridMap",
+    "decode_grid_map",
     "elevation_grid_map",
     "grid_from_info",
     "grid_map_message",
+    "grid_map_message_at",
     "grid_map_to_arrays",
 ]
 
@@ -77,18 +80,54 @@ def grid_map_message(
         layers: name -> [n_rows, n_cols] array (stored as float32, NaN = no value).
         basic_layers: layers that must be valid for a cell to be valid (grid_map semantics).
     """
+    for name, values in layers.items():
+        if np.shape(values) != grid.shape:
+            raise MessageError(f"layer {name!r} is {np.shape(values)}, the grid is {grid.shape}")
+    return grid_map_message_at(
+        layers,
+        factory,
+        resolution=grid.resolution,
+        length=(grid.length_x, grid.length_y),
+        centre=grid.centre,
+        stamp_ns=stamp_ns,
+        frame_id=frame_id,
+        basic_layers=basic_layers,
+    )
+
+
+def grid_map_message_at(
+    layers: Mapping[str, np.ndarray],
+    factory: MessageFactory,
+    *,
+    resolution: float,
+    length: tuple[float, float],
+    centre: tuple[float, float],
+    stamp_ns: int,
+    frame_id: str,
+    basic_layers: Sequence[str] = ("elevation",),
+) -> Any:
+    """A GridMap of any axis-aligned extent (a map in ``odom``, not only a :class:`GridSpec`).
+
+    Args:
+        layers: name -> [n_rows, n_cols] array, all the same shape (row 0 at +x, col 0 at +y).
+        resolution: cell size (m).
+        length: (length_x, length_y) of the map (m): n_rows and n_cols cells.
+        centre: (x, y) of the map centre in ``frame_id``.
+    """
     if not layers:
         raise MessageError("a GridMap needs at least one layer")
     missing = [name for name in basic_layers if name not in layers]
     if missing:
         raise MessageError(f"basic layer(s) {missing} are not among the layers {list(layers)}")
-    n_rows, n_cols = grid.shape
+    shapes = {np.shape(values) for values in layers.values()}
+    if len(shapes) != 1 or len(next(iter(shapes))) != 2:
+        raise MessageError(f"layers must be equal 2-D arrays, got shapes {sorted(shapes)}")
+    n_rows, n_cols = next(iter(shapes))
+    if int(round(length[0] / resolution)) != n_rows or int(round(length[1] / resolution)) != n_cols:
+        raise MessageError(f"a {length[0]} x {length[1]} m map of {resolution} m cells is not {n_rows}x{n_cols}")
     data = []
-    for name, values in layers.items():
-        values = np.asarray(values)
-        if values.shape != grid.shape:
-            raise MessageError(f"layer {name!r} is {values.shape}, the grid is {grid.shape}")
-        column_major = values.astype(np.float32).flatten(order="F")  # [n_rows*n_cols]
+    for values in layers.values():
+        column_major = np.asarray(values).astype(np.float32).flatten(order="F")  # [n_rows*n_cols]
         layout = factory.new(
             "std_msgs/msg/MultiArrayLayout",
             dim=[
@@ -109,7 +148,7 @@ def grid_map_message(
                 "std_msgs/msg/Float32MultiArray", layout=layout, data=factory.sequence(column_major)
             )
         )
-    cx, cy = grid.centre
+    cx, cy = centre
     pose = factory.new(
         "geometry_msgs/msg/Pose",
         position=factory.new("geometry_msgs/msg/Point", x=float(cx), y=float(cy), z=0.0),
@@ -117,9 +156,9 @@ def grid_map_message(
     )
     info = factory.new(
         "grid_map_msgs/msg/GridMapInfo",
-        resolution=float(grid.resolution),
-        length_x=float(grid.length_x),
-        length_y=float(grid.length_y),
+        resolution=float(resolution),
+        length_x=float(length[0]),
+        length_y=float(length[1]),
         pose=pose,
     )
     return factory.new(
@@ -226,6 +265,76 @@ def _layer_array(multi_array: Any, name: str, n_rows: int, n_cols: int) -> np.nd
     return cells.reshape(n_rows, n_cols) if row_major else cells.reshape(n_rows, n_cols, order="F")
 
 
+class RawGridMap(NamedTuple):
+    """A decoded GridMap of any axis-aligned extent (see :func:`decode_grid_map`).
+
+    Attributes:
+        layers: name -> [n_rows, n_cols] float32 (row 0 at +x, col 0 at +y).
+        resolution: cell size (m).
+        centre: (x, y) of the map centre in ``frame_id`` (``info.pose``).
+        stamp_ns, frame_id, basic_layers: as in the message.
+    """
+
+    layers: dict[str, np.ndarray]
+    resolution: float
+    centre: tuple[float, float]
+    stamp_ns: int
+    frame_id: str
+    basic_layers: tuple[str, ...]
+
+
+def decode_grid_map(msg: Any) -> RawGridMap:
+    """Decode a GridMap without asking it to be a BEV window (a road map in ``odom``).
+
+    Raises:
+        MessageError: a rotated or non-positive geometry, or layers that disagree with it.
+    """
+    info = field(msg, "info")
+    resolution = as_float(field(info, "resolution"), "GridMapInfo.resolution")
+    length_x = as_float(field(info, "length_x"), "GridMapInfo.length_x")
+    length_y = as_float(field(info, "length_y"), "GridMapInfo.length_y")
+    pose = field(info, "pose")
+    position = field(pose, "position")
+    q = [as_float(field(field(pose, "orientation"), k), f"GridMapInfo.pose.orientation.{k}") for k in "xyzw"]
+    if not np.allclose(np.abs(q), [0.0, 0.0, 0.0, 1.0], atol=1e-6):
+        raise MessageError(f"GridMapInfo.pose.orientation {q} is rotated; only axis-aligned maps are supported")
+    if not (resolution > 0 and length_x > 0 and length_y > 0):
+        raise MessageError(f"GridMapInfo needs a positive resolution and lengths, got {resolution}, "
+                           f"{length_x}, {length_y}")
+    n_rows, n_cols = int(round(length_x / resolution)), int(round(length_y / resolution))
+    if abs(n_rows * resolution - length_x) > 1e-6 * max(1.0, length_x) or \
+            abs(n_cols * resolution - length_y) > 1e-6 * max(1.0, length_y):
+        raise MessageError(f"GridMap lengths {length_x} x {length_y} m are not whole {resolution} m cells")
+    centre = (as_float(field(position, "x"), "GridMapInfo.pose.position.x"),
+              as_float(field(position, "y"), "GridMapInfo.pose.position.y"))
+    layers = _decode_layers(msg, n_rows, n_cols)
+    frame_id = as_str(field(field(msg, "header"), "frame_id"), "GridMap.header.frame_id")
+    basic = tuple(as_str(n, "GridMap.basic_layers[]") for n in field(msg, "basic_layers"))
+    return RawGridMap(layers, resolution, centre, stamp_from_header(msg), frame_id, basic)
+
+
+def _decode_layers(msg: Any, n_rows: int, n_cols: int) -> dict[str, np.ndarray]:
+    names = [as_str(n, "GridMap.layers[]") for n in field(msg, "layers")]
+    data = list(field(msg, "data"))
+    if len(names) != len(data):
+        raise MessageError(f"GridMap names {len(names)} layers but carries {len(data)} data arrays")
+    if len(set(names)) != len(names):
+        raise MessageError(f"GridMap has duplicate layer names {names}")
+    start_row = as_int(field(msg, "outer_start_index"), "GridMap.outer_start_index")
+    start_col = as_int(field(msg, "inner_start_index"), "GridMap.inner_start_index")
+    if start_row >= n_rows or start_col >= n_cols:
+        raise MessageError(
+            f"GridMap start index ({start_row}, {start_col}) lies outside the {n_rows}x{n_cols} map"
+        )
+    layers = {}
+    for name, multi_array in zip(names, data, strict=True):
+        cells = _layer_array(multi_array, name, n_rows, n_cols)
+        if start_row or start_col:  # undo grid_map's circular buffer
+            cells = np.roll(cells, (-start_row, -start_col), axis=(0, 1))
+        layers[name] = cells
+    return layers
+
+
 def grid_map_to_arrays(msg: Any, base: GridSpec | None = None) -> GridMapData:
     """Decode a GridMap into per-layer arrays on the grid recovered from its ``info``.
 
@@ -241,24 +350,6 @@ def grid_map_to_arrays(msg: Any, base: GridSpec | None = None) -> GridMapData:
     stamp_ns = stamp_from_header(msg)
     frame_id = as_str(field(field(msg, "header"), "frame_id"), "GridMap.header.frame_id")
     grid = grid_from_info(field(msg, "info"), base)
-    names = [as_str(n, "GridMap.layers[]") for n in field(msg, "layers")]
     basic = tuple(as_str(n, "GridMap.basic_layers[]") for n in field(msg, "basic_layers"))
-    data = list(field(msg, "data"))
-    if len(names) != len(data):
-        raise MessageError(f"GridMap names {len(names)} layers but carries {len(data)} data arrays")
-    if len(set(names)) != len(names):
-        raise MessageError(f"GridMap has duplicate layer names {names}")
-    n_rows, n_cols = grid.shape
-    start_row = as_int(field(msg, "outer_start_index"), "GridMap.outer_start_index")
-    start_col = as_int(field(msg, "inner_start_index"), "GridMap.inner_start_index")
-    if start_row >= n_rows or start_col >= n_cols:
-        raise MessageError(
-            f"GridMap start index ({start_row}, {start_col}) lies outside the {n_rows}x{n_cols} map"
-        )
-    layers = {}
-    for name, multi_array in zip(names, data, strict=True):
-        cells = _layer_array(multi_array, name, n_rows, n_cols)
-        if start_row or start_col:  # undo grid_map's circular buffer
-            cells = np.roll(cells, (-start_row, -start_col), axis=(0, 1))
-        layers[name] = cells
+    layers = _decode_layers(msg, *grid.shape)
     return GridMapData(layers, grid, stamp_ns, frame_id, basic)

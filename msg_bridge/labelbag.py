@@ -435,6 +435,11 @@ class RecordedFrame(NamedTuple):
     truth: np.ndarray | None = None
 
 
+def _yaw_quaternion(yaw: float) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of a rotation by ``yaw`` about z (planar odometry)."""
+    return (0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw))
+
+
 def write_recording(
     path: str | os.PathLike[str],
     camera: StereoCamera,
@@ -497,7 +502,8 @@ def write_recording(
         )
     for s, x, y, z, yaw in odometry:
         records.append(
-            (int(s), 0, DEFAULT_ODOM_TOPIC, odometry_message(factory, stamp_ns=int(s), xyz=(x, y, z), yaw=yaw))
+            (int(s), 0, DEFAULT_ODOM_TOPIC, odometry_message(factory, stamp_ns=int(s), position=(x, y, z),
+                                                                orientation_xyzw=_yaw_quaternion(yaw)))
         )
     records.sort(key=lambda r: (r[0], r[1]))
     types = {

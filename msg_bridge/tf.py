@@ -173,22 +173,38 @@ def odometry_message(
     factory: MessageFactory,
     *,
     stamp_ns: int,
-    xyz: Sequence[float],
-    yaw: float,
+    position: Sequence[float] | np.ndarray,
+    orientation_xyzw: Sequence[float] | np.ndarray,
+    linear_velocity: Sequence[float] | np.ndarray = (0.0, 0.0, 0.0),
+    angular_velocity: Sequence[float] | np.ndarray = (0.0, 0.0, 0.0),
+    pose_covariance: np.ndarray | None = None,
+    twist_covariance: np.ndarray | None = None,
     frame_id: str = "odom",
     child_frame_id: str = "base_link",
 ) -> Any:
-    """A ``nav_msgs/Odometry`` with a planar orientation (covariances left zero)."""
-    x, y, z = (float(v) for v in xyz)
-    half = 0.5 * float(yaw)
+    """A ``nav_msgs/Odometry``: pose in ``frame_id``, twist in the child frame (REP-105);
+    covariances zero (unknown) unless given ([36] row-major)."""
+
+    def vec(v: Sequence[float] | np.ndarray) -> Any:
+        return factory.new("geometry_msgs/msg/Vector3", x=float(v[0]), y=float(v[1]), z=float(v[2]))
+
+    p, q = position, orientation_xyzw
     pose = factory.new(
         "geometry_msgs/msg/Pose",
-        position=factory.new("geometry_msgs/msg/Point", x=x, y=y, z=z),
-        orientation=factory.new("geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=math.sin(half), w=math.cos(half)),
+        position=factory.new("geometry_msgs/msg/Point", x=float(p[0]), y=float(p[1]), z=float(p[2])),
+        orientation=factory.new("geometry_msgs/msg/Quaternion", x=float(q[0]), y=float(q[1]), z=float(q[2]),
+                                w=float(q[3])),
     )
+    zeros = np.zeros(36)
     return factory.new(
         "nav_msgs/msg/Odometry",
         header=make_header(factory, stamp_ns, frame_id),
         child_frame_id=child_frame_id,
-        pose=factory.new("geometry_msgs/msg/PoseWithCovariance", pose=pose),
+        pose=factory.new("geometry_msgs/msg/PoseWithCovariance", pose=pose,
+                         covariance=np.asarray(zeros if pose_covariance is None else pose_covariance, np.float64)),
+        twist=factory.new(
+            "geometry_msgs/msg/TwistWithCovariance",
+            twist=factory.new("geometry_msgs/msg/Twist", linear=vec(linear_velocity), angular=vec(angular_velocity)),
+            covariance=np.asarray(zeros if twist_covariance is None else twist_covariance, np.float64),
+        ),
     )

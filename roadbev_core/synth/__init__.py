@@ -3,6 +3,7 @@
 Public API (``shared`` agreement, see the project notes)::
 
     from roadbev_core.synth import RoadConfig, DriveConfig, SyntheticDrive, DriveSample, ImuSample, make_sample
+    from roadbev_core.synth import RidingConfig, RidingDrive  # a car riding on its road (drive bags)
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from roadbev_core.synth.drive import (
 )
 from roadbev_core.synth.heightfield import FEATURE_NAMES, ISO8608_GD0, SynthError
 from roadbev_core.synth.render import CameraPose, render_view
+from roadbev_core.synth.riding import OdometryNoise, RidingConfig, RidingDrive, SuspensionSpec
 from roadbev_core.synth.scene import RoadConfig, Scene, build_scene
 
 __all__ = [
@@ -31,8 +33,12 @@ __all__ = [
     "DriveSample",
     "ImuSample",
     "LidarConfig",
+    "OdometryNoise",
+    "RidingConfig",
+    "RidingDrive",
     "RoadConfig",
     "Scene",
+    "SuspensionSpec",
     "SynthError",
     "SyntheticDrive",
     "build_scene",

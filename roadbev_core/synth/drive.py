@@ -25,7 +25,13 @@ import numpy as np
 from roadbev_core.attitude import quaternion_from_rotation, slerp
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.frame import Frame
-from roadbev_core.geometry import Attitude, attitude_from_rotation, quaternion_to_rotation, rotation_from_rpy
+from roadbev_core.geometry import (
+    Attitude,
+    attitude_from_rotation,
+    quaternion_to_rotation,
+    road_to_camera,
+    rotation_from_rpy,
+)
 from roadbev_core.labels import ElevationLabel, elevation_map
 from roadbev_core.synth.heightfield import FEATURE_NAMES, SynthError
 from roadbev_core.synth.render import LOOK_AHEAD_M, CameraPose, render_stereo, sensor_image
@@ -38,9 +44,11 @@ __all__ = [
     "ImuSample",
     "LidarConfig",
     "SyntheticDrive",
+    "corner_heights",
     "make_sample",
     "render_sample",
     "sample_points",
+    "visible_points",
 ]
 
 GRAVITY = 9.80665
@@ -231,18 +239,30 @@ def _second_order(u: np.ndarray, dt: float, freq_hz: float, damping: float, subs
     return out
 
 
+def corner_heights(
+    scene: Scene, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, corners: np.ndarray
+) -> np.ndarray:
+    """[len(corners), n] road height under tyres at body points ``corners`` [K, 2] (x, y) of a
+    body at (x, y, yaw) [n]: the mean over the contact patch (-6, 0, +6 cm along the tyre)."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    out = []
+    for ax, ay in np.asarray(corners, np.float64):
+        total = np.zeros_like(x)
+        for dx in (-0.06, 0.0, 0.06):  # contact patch along x
+            wx = x + c * (ax + dx) - s * ay
+            wy = y + s * (ax + dx) + c * ay
+            total += scene.height(wx, wy)
+        out.append(total / 3)
+    return np.array(out)
+
+
 def _wheel_heights(scene: Scene, x: np.ndarray, y: np.ndarray, yaw: np.ndarray) -> tuple[np.ndarray, ...]:
     """Mean road height under the front, rear, left and right wheels (tyre patch averaged)."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    out = {}
-    for name, ax in (("front", FRONT_AXLE), ("rear", FRONT_AXLE - WHEELBASE)):
-        for side, ay in (("left", HALF_TRACK), ("right", -HALF_TRACK)):
-            total = np.zeros_like(x)
-            for dx in (-0.06, 0.0, 0.06):  # contact patch along x
-                wx = x + c * (ax + dx) - s * ay
-                wy = y + s * (ax + dx) + c * ay
-                total += scene.height(wx, wy)
-            out[(name, side)] = total / 3
+    corners = [(FRONT_AXLE, HALF_TRACK), (FRONT_AXLE, -HALF_TRACK),
+               (FRONT_AXLE - WHEELBASE, HALF_TRACK), (FRONT_AXLE - WHEELBASE, -HALF_TRACK)]
+    heights = corner_heights(scene, x, y, yaw, np.array(corners))
+    out = {(name, side): heights[2 * i + j] for i, name in enumerate(("front", "rear"))
+           for j, side in enumerate(("left", "right"))}
     front = (out[("front", "left")] + out[("front", "right")]) / 2
     rear = (out[("rear", "left")] + out[("rear", "right")]) / 2
     left = (out[("front", "left")] + out[("rear", "left")]) / 2
@@ -303,8 +323,16 @@ def render_sample(
     rng: np.random.Generator,
     stamp_ns: int,
     attitude: Attitude | None = None,
+    *,
+    hide_occluded: bool = False,
 ) -> DriveSample:
-    """Render the stereo pair at ``pose``, sample the LiDAR-like points, make the labels."""
+    """Render the stereo pair at ``pose``, sample the LiDAR-like points, make the labels.
+
+    Args:
+        hide_occluded: mark cells the left camera cannot see NaN in the labels (outside its
+            image, or more than half of the cell's points behind a nearer surface: the far
+            side of a bump, the near wall of a pothole); ``points_road`` keeps every point.
+    """
     road = scene.config
     left, right = render_stereo(scene, camera, pose)
     lum = left.radiance.mean(axis=2)
@@ -328,7 +356,74 @@ def render_sample(
     frame = Frame(
         left=img_left, right=img_right, camera=camera, attitude=attitude or pose.attitude, stamp_ns=int(stamp_ns)
     )
-    return DriveSample(frame=frame, truth=elevation_map(points, grid), points_road=points)
+    truth = elevation_map(points, grid)
+    if hide_occluded:
+        seen = elevation_map(points[visible_points(scene, points, pose, camera, grid.base_height, left.depth)], grid)
+        hidden = truth.mask & (2 * seen.count < truth.count)
+        truth = ElevationLabel(
+            elevation=np.where(hidden, np.float32(np.nan), truth.elevation).astype(np.float32),
+            mask=truth.mask & ~hidden,
+            count=np.where(hidden, 0, truth.count).astype(truth.count.dtype),
+        )
+    return DriveSample(frame=frame, truth=truth, points_road=points)
+
+
+def visible_points(
+    scene: Scene,
+    points_road: np.ndarray,
+    pose: CameraPose,
+    camera: StereoCamera,
+    base_height: float,
+    depth: np.ndarray,
+    *,
+    step_m: float = 0.02,
+    tolerance_m: float = 0.005,
+) -> np.ndarray:
+    """[N] bool: which road-frame points on the surface the left camera sees.
+
+    A point is seen when it projects inside the image in front of the camera and the line of
+    sight from the camera to it (on the true surface, without LiDAR noise) stays above the
+    surface. Only points whose pixel in the rendered ``depth`` map shows a nearer surface
+    (by 2 cm) are marched (every ``step_m`` horizontally, ``tolerance_m`` below the surface
+    counts as blocked): the depth map narrows the search, the march decides.
+
+    Args:
+        points_road: [N, 3] in the road frame of ``pose`` (z is replaced by the true surface).
+        depth: [H, W] optical-frame z of the surface seen at each pixel (inf for sky).
+    """
+    pts = np.asarray(points_road, np.float64)
+    world = pose.road_to_world(pts, base_height)  # [N, 3]
+    world[:, 2] = scene.height(world[:, 0], world[:, 1])
+    on_surface = pose.world_to_road(world, base_height)
+    cam = road_to_camera(on_surface, pose.attitude, base_height)  # [N, 3] optical
+    z = cam[:, 2]
+    ok = z > 0.05
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.rint(camera.fx * cam[:, 0] / z + camera.cx)
+        v = np.rint(camera.fy * cam[:, 1] / z + camera.cy)
+    ok &= (u >= 0) & (u <= camera.width - 1) & (v >= 0) & (v <= camera.height - 1)
+    seen = ok.copy()
+    idx = np.flatnonzero(ok)
+    surface = depth[v[idx].astype(np.int64), u[idx].astype(np.int64)]
+    suspect = idx[surface < z[idx] - 0.02]
+    if suspect.size == 0:
+        return seen
+    origin = np.array([pose.x, pose.y, pose.z])
+    p = world[suspect]  # [M, 3]
+    horizontal = np.hypot(p[:, 0] - origin[0], p[:, 1] - origin[1])  # [M]
+    top = float(np.max(scene.plane(p[:, 0], p[:, 1]))) + 0.5 + scene.displacement_range[1]
+    drop = np.maximum(origin[2] - p[:, 2], 1e-3)
+    reach = np.minimum((top - p[:, 2]) * horizontal / drop, horizontal)  # the ray is above ``top`` beyond
+    blocked = np.zeros(suspect.size, bool)
+    for chunk in np.array_split(np.arange(suspect.size), max(1, suspect.size // 4096)):
+        n_steps = int(np.ceil(reach[chunk].max() / step_m))
+        d = step_m * np.arange(1, n_steps + 1)[None, :]  # [1, J] back from the point toward the camera
+        t = np.minimum(d / horizontal[chunk, None], 1.0)  # [m, J] fraction of the way to the camera
+        q = p[chunk, None, :] + t[..., None] * (origin - p[chunk, None, :])  # [m, J, 3]
+        below = q[..., 2] < scene.height(q[..., 0], q[..., 1]) - tolerance_m
+        blocked[chunk] = np.any(below & (d <= reach[chunk, None]), axis=1)
+    seen[suspect[blocked]] = False
+    return seen
 
 
 # --- drives --------------------------------------------------------------------------------------

@@ -44,6 +44,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--out", default=None, metavar="OUT.mcap",
                         help="also write every output message (/roadbev/elevation, /roadbev/preview) to this bag")
+    parser.add_argument("--lead-time", type=float, default=0.1, metavar="S",
+                        help="drive bags: preview at arrival counts messages stamped this long before (default 0.1 s)")
 
 
 def _check_bag_path(path: Path) -> None:
@@ -92,6 +94,25 @@ def _read_failures(samples: Any, path: Path) -> Iterator[Any]:
         yield sample
 
 
+def _preview_at_arrival(path: Path, config: Any, result: Any, lead: float) -> dict[str, Any]:
+    """Score the per-frame pipeline's previews at arrival, print one line, return the JSON keys."""
+    from msg_bridge.drivebag import evaluate_drive_previews
+    from roadbev_core.arrival import ArrivalError, per_frame_previews
+    from roadbev_core.evaluation import json_safe
+
+    stamps = [int(r["stamp_ns"]) for r in result.per_frame]
+    try:
+        previews = per_frame_previews(result.outputs or [])
+        out = evaluate_drive_previews(path, previews, stamps, config.to_params(), base_height=config.grid.base_height,
+                                      lead_time_s=lead)
+    except (ArrivalError, ValueError) as exc:
+        raise CommandError(f"preview at arrival on {path}: {exc}") from exc
+    print(f"preview at arrival (lead {lead:g} s, {out['points']} points): abs. error {out['abs_err_cm']:.3f} cm, "
+          f"coverage {out['coverage_pct']:.1f} %, features {out['features_abs_err_cm']:.3f} cm, smooth "
+          f"{out['smooth_abs_err_cm']:.3f} cm, vs the contact plane {out['contact_plane_abs_err_cm']:.3f} cm")
+    return dict(json_safe(out))
+
+
 def run(args: argparse.Namespace) -> int:
     """Evaluate, print the table, write the JSON; non-zero exit (via CommandError) on bad input."""
     from msg_bridge.evalbag import read_eval_bag
@@ -114,6 +135,9 @@ def run(args: argparse.Namespace) -> int:
     config = RoadbevConfig.from_params({**explicit, **bag.grid.to_dict()})
     pipeline = Pipeline(config)
     name = config.backend.name
+    from msg_bridge.drivebag import is_drive_bag
+
+    drive = is_drive_bag(path)  # a drive bag: the previews are scored at the wheels' arrival too
     outputs = None
     if args.out:
         from msg_bridge.outputs import OutputBag
@@ -130,9 +154,13 @@ def run(args: argparse.Namespace) -> int:
 
         bar = tqdm(total=total, unit="frame", desc=f"eval {name}", file=sys.stderr, leave=False)
         progress = bar.update
+    from msg_bridge.drivebag import is_drive_bag
+
+    drive = is_drive_bag(path, params)
     try:
         result = evaluate(pipeline, _read_failures(bag, path), imu=bag.imu, progress=progress,
-                          max_frames=args.frames, on_output=None if outputs is None else outputs.write)
+                          max_frames=args.frames, keep_estimates=drive,
+                          on_output=None if outputs is None else outputs.write)
     except BaseException:
         if outputs is not None:
             outputs.abort()
@@ -156,6 +184,8 @@ def run(args: argparse.Namespace) -> int:
               f"{metrics['frames']} frame(s) ran" + (f", outputs in {args.out}" if args.out else
                                                       "; --out OUT.mcap saves the outputs"))
     else:
+        if drive:  # contract, "Drive bags": the per-frame previews at the wheels' arrival
+            metrics["preview_at_arrival"] = _preview_at_arrival(path, config, result, args.lead_time)
         bands = ", ".join("-" if b is None else f"{b:.3f}" for b in metrics["band_abs_err_cm"])
         print(f"abs. error per distance band (cm, near to far): {bands}")
     if outputs is not None:

@@ -47,7 +47,8 @@ def test_tf_and_odometry_messages_round_trip_through_cdr() -> None:
     (back,) = transforms_from_tf(msg)
     assert (back.parent, back.child) == ("a", "b")
     np.testing.assert_allclose(back.rotation, tf.rotation, atol=1e-9)
-    odom = odometry_message(factory, stamp_ns=7, xyz=(3.0, -1.0, 0.0), yaw=2.5)
+    odom = odometry_message(factory, stamp_ns=7, position=(3.0, -1.0, 0.0),
+                            orientation_xyzw=(0.0, 0.0, math.sin(1.25), math.cos(1.25)))
     pose = odometry_pose(deserialize(serialize(odom), "nav_msgs/msg/Odometry"))
     assert (pose.stamp_ns, pose.x, pose.y, pose.frame_id, pose.child_frame_id) == (7, 3.0, -1.0, "odom", "base_link")
     assert pose.yaw == pytest.approx(2.5)

@@ -61,3 +61,29 @@ def test_existing_output_is_not_overwritten(tmp_path: Path, capsys: pytest.Captu
     assert main(["synth", str(out), "--quiet"]) == 2
     assert "exists already" in capsys.readouterr().err
     assert out.read_bytes() == b"keep"
+
+
+def test_synth_drive_writes_a_drive_bag_that_eval_scores_at_arrival(tmp_path: Path) -> None:
+    import json
+
+    from roadbev_core.arrival import ARRIVAL_KEYS
+
+    out = tmp_path / "drive.mcap"
+    args = ["--duration", "0.6", "--rate", "5", "--image-scale", "0.25", "--quiet", "--speed", "8", "--features",
+            "speed_bump", "--odom-rate", "25", "--road-map-resolution", "0.04"]
+    assert main(["synth", str(out), "--drive", *args]) == 0
+    topics = {t: i.count for t, i in bag_topics(out).items()}
+    assert topics["/ground_truth/elevation"] == 3  # 0.6 s at 5 Hz
+    assert topics["/tf_static"] == 1 == topics["/ground_truth/road_map"]
+    assert topics["/ground_truth/odom"] == topics["/imu/data"] and topics["/odom"] >= 0.24 * topics["/imu/data"]
+    metrics = tmp_path / "m.json"
+    assert main(["eval", str(out), "--backend", "bm", "--json", str(metrics), "--no-progress"]) == 0
+    data = json.loads(metrics.read_text())["preview_at_arrival"]
+    assert set(ARRIVAL_KEYS) <= set(data)
+    assert data["lead_time_s"] == 0.1 and data["points"] > 2 * 0.4 * 8 / 0.03 * 0.9
+    assert 0.0 <= data["coverage_pct"] <= 100.0
+
+
+def test_synth_frames_and_duration_exclude_each_other(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    assert main(["synth", str(tmp_path / "x.mcap"), "--frames", "2", "--duration", "1"]) != 0
+    assert "--frames or --duration" in capsys.readouterr().err
