@@ -129,7 +129,7 @@ def write_drive_bag(
     compressed: bool = False,
     compression: str = "zstd",
     jpeg_quality: int = 90,
-    progress: Callable[[int], None] | None = None,
+    progress: Callable[[int], object] | None = None,
 ) -> dict[str, int]:
     """Write a :class:`roadbev_core.synth.RidingDrive` as a drive bag (deterministic bytes).
 

@@ -306,7 +306,7 @@ class RidingDrive(SyntheticDrive):
 
     def __init__(self, config: RidingConfig | None = None) -> None:
         self.riding = riding = config or RidingConfig()
-        self.config = c = riding.drive  # type: ignore[assignment]
+        self.config = c = riding.drive
         vehicle = riding.vehicle
         seq = np.random.SeedSequence([int(c.seed) & 0xFFFFFFFF, 0x41D1E6])
         rng, rng_frames, rng_odom = (np.random.default_rng(s) for s in seq.spawn(3))

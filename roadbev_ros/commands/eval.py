@@ -154,9 +154,6 @@ def run(args: argparse.Namespace) -> int:
 
         bar = tqdm(total=total, unit="frame", desc=f"eval {name}", file=sys.stderr, leave=False)
         progress = bar.update
-    from msg_bridge.drivebag import is_drive_bag
-
-    drive = is_drive_bag(path, params)
     try:
         result = evaluate(pipeline, _read_failures(bag, path), imu=bag.imu, progress=progress,
                           max_frames=args.frames, keep_estimates=drive,

@@ -81,9 +81,11 @@ def test_writing_is_deterministic(drive: RidingDrive, bag: Path, tmp_path: Path)
 def test_evaluate_drive_previews_on_the_bags_own_truth(drive: RidingDrive, bag: Path) -> None:
     samples = list(read_eval_bag(bag))
     grid = read_eval_bag(bag).grid
-    previews = [TimedPreview(s.frame.stamp_ns, REFERENCE_ROAD, wheel_track_profiles(s.truth, None, grid))
-                for s in samples]
-    stamps = [s.frame.stamp_ns for s in samples]
+    truths = [s.truth for s in samples]
+    assert all(t is not None for t in truths)
+    previews = [TimedPreview(s.inputs.stamp_ns, REFERENCE_ROAD, wheel_track_profiles(t, None, grid))
+                for s, t in zip(samples, truths, strict=True) if t is not None]
+    stamps = [s.inputs.stamp_ns for s in samples]
     out = evaluate_drive_previews(bag, previews, stamps, base_height=grid.base_height)
     # the labels themselves, read at arrival: millimetres; coverage misses the start (the first window
     # begins 0.96 m ahead of the wheel, arrivals 0.6 m ahead) and the cells hidden from the camera
