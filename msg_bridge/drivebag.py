@@ -34,8 +34,8 @@ from msg_bridge.evalbag import LEFT_FRAME, write_eval_bag
 from msg_bridge.grid_map import decode_grid_map, grid_map_message_at
 from msg_bridge.tf import StaticTransform, odometry_message, tf_message, transforms_from_tf
 from roadbev_core.arrival import ArrivalSettings, RoadMap, TimedPreview, Trajectory, preview_at_arrival
+from roadbev_core.config import RoadbevConfig
 from roadbev_core.geometry import GeometryError, quaternion_to_rotation
-from roadbev_core.vehicle import VehicleSpec
 
 __all__ = [
     "BASE_FRAME",
@@ -239,19 +239,15 @@ def arrival_settings(
 ) -> ArrivalSettings:
     """Metric settings from node parameters (``preview.tyre_width_m``, ``preview.spacing_m``,
     ``vehicle.wheelbase_m``, ``vehicle.track_width_m``, ``vehicle.camera_position_m``)."""
-    p = dict(params or {})
-    d = VehicleSpec()
-    vehicle = VehicleSpec(
-        wheelbase_m=float(p.get("vehicle.wheelbase_m", d.wheelbase_m)),
-        track_width_m=float(p.get("vehicle.track_width_m", d.track_width_m)),
-        camera_position_m=tuple(float(v) for v in p.get("vehicle.camera_position_m", d.camera_position_m)),  # type: ignore[arg-type]
-    )
+    names = ("preview.spacing_m", "preview.tyre_width_m", "vehicle.wheelbase_m", "vehicle.track_width_m",
+             "vehicle.camera_position_m")
+    config = RoadbevConfig.from_params({k: v for k, v in (params or {}).items() if k in names})
     return ArrivalSettings(
         lead_time_s=float(lead_time_s),
-        spacing_m=float(p.get("preview.spacing_m", 0.03)),
-        tyre_width_m=float(p.get("preview.tyre_width_m", 0.20)),
+        spacing_m=config.preview.spacing_m,
+        tyre_width_m=config.preview.tyre_width_m,
         base_height=float(base_height),
-        vehicle=vehicle,
+        vehicle=config.vehicle,
         camera_in_base=camera_in_base,
     )
 

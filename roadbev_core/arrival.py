@@ -42,9 +42,11 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 
 from roadbev_core.attitude import slerp
+from roadbev_core.config import VehicleConfig
+from roadbev_core.errors import RoadbevError
 from roadbev_core.geometry import R_BODY_FROM_OPTICAL, quaternion_to_rotation
 from roadbev_core.preview import PreviewProfiles
-from roadbev_core.vehicle import VehicleSpec, contact_plane, planar_yaw
+from roadbev_core.vehicle import contact_plane, planar_yaw
 
 if TYPE_CHECKING:  # the pipeline imports nothing from here; typing only
     from roadbev_core.pipeline import PipelineOutput
@@ -83,7 +85,7 @@ ARRIVAL_KEYS: tuple[str, ...] = (
 _TRACK_OF_WHEEL = {"front_left": ("front_left", "left"), "front_right": ("front_right", "right")}
 
 
-class ArrivalError(ValueError):
+class ArrivalError(RoadbevError, ValueError):
     """Inputs the metric cannot score (no previews, truth that does not cover the drive...)."""
 
 
@@ -220,7 +222,7 @@ class ArrivalSettings:
     spacing_m: float = 0.03
     tyre_width_m: float = 0.20
     base_height: float = 1.10
-    vehicle: VehicleSpec = field(default_factory=VehicleSpec)
+    vehicle: VehicleConfig = field(default_factory=VehicleConfig)
     camera_in_base: tuple[np.ndarray, np.ndarray] | None = None
     feature_threshold_m: float = 0.015
     feature_window_m: float = 2.0

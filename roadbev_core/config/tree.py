@@ -25,6 +25,8 @@ from dataclasses import dataclass, field, fields, replace
 from functools import cache
 from typing import Any, ClassVar
 
+import numpy as np
+
 from roadbev_core.config.grid import ConfigError, GridSpec
 from roadbev_core.config.params_file import ParamError
 
@@ -259,6 +261,27 @@ class VehicleConfig:
     camera_position_m: tuple[float, float, float] = param(
         "vehicle.camera_position_m", (1.60, 0.0, 1.10), "x, y, z of the left camera's optical centre in "
         "base_link (m); /tf_static base_link -> camera frame wins when present")
+
+    def __post_init__(self) -> None:
+        for attr, spec in _specs_of(VehicleConfig):  # built directly (drives, tests) too: same ranges
+            spec.check(getattr(self, attr))
+        pos = tuple(float(v) for v in self.camera_position_m)
+        if len(pos) != 3 or not all(math.isfinite(v) for v in pos) or pos[2] <= 0:
+            raise ParamError(f"vehicle.camera_position_m must be 3 finite numbers with z > 0 (above the "
+                             f"road), got {self.camera_position_m}")
+        object.__setattr__(self, "camera_position_m", pos)
+
+    @property
+    def front_axle_ahead_of_camera_m(self) -> float:
+        """How far the front axle is ahead of the camera (m; 1.20 with the defaults)."""
+        return self.wheelbase_m - self.camera_position_m[0]
+
+    def wheel_positions(self) -> np.ndarray:
+        """[4, 2] (x, y) of the tyre centres in ``base_link``, front left, front right, rear left,
+        rear right."""
+        half = 0.5 * self.track_width_m
+        L = self.wheelbase_m
+        return np.array([[L, half], [L, -half], [0.0, half], [0.0, -half]])
 
 
 @dataclass(frozen=True)

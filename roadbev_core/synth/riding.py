@@ -51,7 +51,7 @@ import numpy as np
 
 from roadbev_core.arrival import RoadMap
 from roadbev_core.attitude import quaternion_from_rotation, slerp
-from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.config import GridSpec, StereoCamera, VehicleConfig
 from roadbev_core.geometry import Attitude, attitude_from_rotation, quaternion_to_rotation, rotation_from_rpy
 from roadbev_core.synth.drive import (
     GRAVITY,
@@ -67,7 +67,7 @@ from roadbev_core.synth.drive import (
 from roadbev_core.synth.heightfield import SynthError
 from roadbev_core.synth.render import LOOK_AHEAD_M, CameraPose
 from roadbev_core.synth.scene import build_scene
-from roadbev_core.vehicle import VehicleSpec, camera_extrinsic
+from roadbev_core.vehicle import camera_extrinsic
 
 __all__ = [
     "DRIVE_VERSION",
@@ -111,7 +111,7 @@ class SuspensionSpec:
         if not all(math.isfinite(v) and v > 0 for v in values):
             raise SynthError(f"suspension parameters must be positive and finite, got {self}")
 
-    def matrices(self, vehicle: VehicleSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def matrices(self, vehicle: VehicleConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Mass M [3, 3], corner map G [4, 3], corner stiffness k [4] and damping c [4], and
         the moment arms of the inertial forces h [3] (q = heave, pitch, roll)."""
         m = self.sprung_mass_kg
@@ -123,7 +123,7 @@ class SuspensionSpec:
         c = np.array([self.damping_front_ns_per_m] * 2 + [self.damping_rear_ns_per_m] * 2)
         return M, G, k, c, np.array([0.0, -m * self.cg_height_m, m * self.cg_height_m])
 
-    def modes(self, vehicle: VehicleSpec) -> dict[str, tuple[float, float]]:
+    def modes(self, vehicle: VehicleConfig) -> dict[str, tuple[float, float]]:
         """Undamped natural frequency (Hz) and damping ratio of heave, pitch and roll
         (each from its own diagonal term: the coupling is small)."""
         M, G, k, c, _ = self.matrices(vehicle)
@@ -181,7 +181,7 @@ class RidingConfig:
     """
 
     drive: DriveConfig = field(default_factory=DriveConfig)
-    vehicle: VehicleSpec = field(default_factory=VehicleSpec)
+    vehicle: VehicleConfig = field(default_factory=VehicleConfig)
     suspension: SuspensionSpec = field(default_factory=SuspensionSpec)
     odometry: OdometryNoise = field(default_factory=OdometryNoise)
     curve_amplitude_m: float = 0.6
@@ -250,7 +250,7 @@ def _expm(A: np.ndarray, terms: int = 18) -> tuple[np.ndarray, np.ndarray]:
 
 def simulate_suspension(
     spec: SuspensionSpec,
-    vehicle: VehicleSpec,
+    vehicle: VehicleConfig,
     road: np.ndarray,
     dt: float,
     accel_x: np.ndarray,

@@ -83,10 +83,10 @@ def run(args: argparse.Namespace) -> int:
     from roadbev_core.synth import DriveConfig, OdometryNoise, RidingConfig, RidingDrive, RoadConfig, SyntheticDrive
 
     if args.frames is not None and args.duration is not None:
-        raise ValueError("give --frames or --duration, not both")
+        raise CommandError("give --frames or --duration, not both")
     if args.duration is not None:
         if not args.duration > 0:
-            raise ValueError(f"--duration must be > 0, got {args.duration}")
+            raise CommandError(f"--duration must be > 0, got {args.duration}")
         args.frames = max(1, int(round(args.duration * args.frame_rate)))
     if args.frames is None:
         args.frames = 20

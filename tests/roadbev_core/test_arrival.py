@@ -21,12 +21,12 @@ from roadbev_core.arrival import (
     read_profile,
     wheel_paths,
 )
-from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.config import GridSpec, StereoCamera, VehicleConfig
 from roadbev_core.labels import elevation_map
 from roadbev_core.preview import PreviewProfiles, TrackProfile, wheel_track_profiles
 from roadbev_core.synth import DriveConfig, RidingConfig, RidingDrive, RoadConfig
 from roadbev_core.synth.drive import sample_points
-from roadbev_core.vehicle import VehicleSpec, contact_plane
+from roadbev_core.vehicle import contact_plane
 
 SMALL = StereoCamera.rsrd_half().scaled(0.25)
 S = 1_000_000_000
@@ -188,7 +188,7 @@ def test_per_frame_truth_previews_on_a_riding_drive_in_both_conventions() -> Non
     traj = Trajectory(gt.stamp_ns, gt.position, gt.orientation_xyzw)
     road_map = drive.road_map()
     grid: GridSpec = drive.config.grid
-    settings = ArrivalSettings(camera_in_base=drive.base_to_camera, vehicle=VehicleSpec())
+    settings = ArrivalSettings(camera_in_base=drive.base_to_camera, vehicle=VehicleConfig())
     previews = []
     for i in range(len(drive)):
         pose, _ = drive.pose(i)

@@ -7,14 +7,13 @@ import math
 import numpy as np
 import pytest
 
-from roadbev_core.config import StereoCamera
+from roadbev_core.config import StereoCamera, VehicleConfig
 from roadbev_core.geometry import R_BODY_FROM_OPTICAL, attitude_from_quaternion, quaternion_to_rotation
 from roadbev_core.synth import DriveConfig, OdometryNoise, RidingConfig, RidingDrive, RoadConfig, SynthError
 from roadbev_core.synth.riding import SuspensionSpec, simulate_suspension
-from roadbev_core.vehicle import VehicleSpec
 
 SMALL = StereoCamera.rsrd_half().scaled(0.25)
-VEHICLE = VehicleSpec()
+VEHICLE = VehicleConfig()
 
 
 def test_default_suspension_modes_are_a_passenger_cars() -> None:
