@@ -55,7 +55,7 @@ def processes() -> Iterator[list[subprocess.Popen[bytes]]]:
 @pytest.mark.parametrize("backend", ["bev_sweep", "bm"])
 def test_online_metrics_match_offline(ros: object, drive_bag: Path, tmp_path: Path, backend: str) -> None:
     eval_bag = read_eval_bag(drive_bag)
-    offline = evaluate(create(backend, eval_bag.grid), eval_bag).metrics
+    offline = evaluate(create(backend, eval_bag.grid), eval_bag, imu=eval_bag.imu).metrics
     result = evaluate_online(drive_bag, tmp_path, backend=backend)
     online = result.metrics
     assert online["online"]["frames_without_output"] == 0, result.node_log
@@ -137,7 +137,7 @@ def test_sample_bag_compressed_images_online_match_offline(ros: object, tmp_path
         pytest.skip("bags/sample_drive.mcap is not in this checkout")
     eval_bag = read_eval_bag(sample)
     assert eval_bag.compressed
-    offline = evaluate(create("bm", eval_bag.grid), eval_bag).metrics
+    offline = evaluate(create("bm", eval_bag.grid), eval_bag, imu=eval_bag.imu).metrics
     result = evaluate_online(sample, tmp_path, backend="bm")
     assert result.metrics["online"]["frames_without_output"] == 0, result.node_log
     for key in METRIC_KEYS:
