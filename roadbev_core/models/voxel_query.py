@@ -43,26 +43,42 @@ class VoxelLookup(NamedTuple):
 
 
 @lru_cache(maxsize=32)
+def _bilinear_lookups(grid: GridSpec, camera: StereoCamera, attitude: Attitude, stride: int) -> tuple[VoxelLookup, ...]:
+    """The left and right bilinear lookups of ``grid`` at ``stride``, from one projection (cached)."""
+    # Float32 separable projection (the per-frame hot path: a new attitude every frame), both
+    # images at once. The feature coordinate is an affine function of the pixel coordinate
+    # (geometry's convention: (u - (s - 1) / 2) / s), hence of the normalised image coordinate c:
+    # xy = k c + k - (s - 1) / (s (F - 1)) - 1 with k = (S - 1) / (s (F - 1)), S the image and F
+    # the feature map size; one multiply-add per coordinate (none at stride 1, where xy = c).
+    heights = torch.from_numpy(grid.z_centres()).float()[:, None, None]
+    x, y = torch.from_numpy(grid.x_centres()), torch.from_numpy(grid.y_centres())
+    projected = sample_coordinates(x, y, heights, camera, attitude, grid.base_height)
+    inside = projected.inside(camera)  # [2, Nz, Ny, Nx]
+    coords = projected.coords  # [2, Nz, Ny, Nx, 2] normalised over the whole image
+    if stride != 1:
+        size = torch.tensor([camera.width, camera.height], dtype=torch.float64)
+        span = (-(-size // stride) - 1.0).clamp_min(1.0)  # F - 1 of the feature map's (width, height)
+        k = (size - 1.0) / (stride * span)
+        offset = k - (stride - 1) / (stride * span) - 1.0
+        coords = torch.addcmul(offset.float(), coords, k.float())
+    xy = torch.where(inside[..., None], coords, torch.zeros((), dtype=coords.dtype))
+    n_z, n_y, n_x = inside.shape[1:]
+    return tuple(VoxelLookup(coords=xy[eye].reshape(n_z * n_y, n_x, 2), mask=inside[eye]) for eye in (0, 1))
+
+
 def voxel_lookup(
     grid: GridSpec, camera: StereoCamera, attitude: Attitude, stride: int, right: bool, sampling: str
 ) -> VoxelLookup:
     """The (cached) lookup of ``grid``'s voxels in a feature map of ``stride`` of ``camera``'s image."""
     if sampling == "bilinear":
-        # Float32 separable projection (the per-frame hot path: a new attitude every frame). The
-        # feature coordinate is an affine function of the pixel coordinate (geometry's
-        # convention: (u - (s - 1) / 2) / s), so one projection serves every stride.
-        heights = torch.from_numpy(grid.z_centres()).float()[:, None, None]
-        x, y = torch.from_numpy(grid.x_centres()), torch.from_numpy(grid.y_centres())
-        projected = sample_coordinates(x, y, heights, camera, attitude, grid.base_height)
-        image = projected.coords[int(right)]  # [Nz, Ny, Nx, 2] normalised over the whole image
-        inside = projected.inside(camera)[int(right)]  # [Nz, Ny, Nx]
-        size = torch.tensor([camera.width, camera.height], dtype=torch.float32)
-        features = -(-size // stride)  # the feature map's (width, height)
-        pixel = (image + 1.0) * (0.5 * (size - 1.0))
-        xy = ((pixel - (stride - 1) / 2.0) / stride) / (features - 1.0).clamp_min(1.0) * 2.0 - 1.0
-        xy = torch.where(inside[..., None], xy, torch.zeros_like(xy))
-        n_z, n_y, n_x = inside.shape
-        return VoxelLookup(coords=xy.reshape(n_z * n_y, n_x, 2).contiguous(), mask=inside)
+        return _bilinear_lookups(grid, camera, attitude, stride)[int(right)]
+    return _integer_lookup(grid, camera, attitude, stride, right, sampling)
+
+
+@lru_cache(maxsize=32)
+def _integer_lookup(
+    grid: GridSpec, camera: StereoCamera, attitude: Attitude, stride: int, right: bool, sampling: str
+) -> VoxelLookup:
     if sampling != "integer":
         raise ValueError(f"sampling must be 'bilinear' or 'integer', got {sampling!r}")
     proj = project_voxels(grid, camera, attitude, stride=stride, right=right)
