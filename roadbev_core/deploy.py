@@ -40,6 +40,7 @@ import copy
 import io
 import json
 import tempfile
+import threading
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -343,30 +344,62 @@ class OnnxRunner:
     @staticmethod
     def _openvino(data: bytes, threads: int | None) -> Any:
         try:
-            import openvino as ov
+            import openvino  # noqa: F401
         except ImportError as exc:
             raise DeployError("runtime openvino needs the openvino package (pip install openvino)") from exc
-        core = ov.Core()
-        with tempfile.TemporaryDirectory(prefix="roadbev_ov_") as tmp:
-            path = Path(tmp) / "model.onnx"
-            path.write_bytes(data)
-            model = core.read_model(str(path))
-        config: dict[str, Any] = {"PERFORMANCE_HINT": "LATENCY", "INFERENCE_PRECISION_HINT": "f32",
-                                  "CPU_DENORMALS_OPTIMIZATION": True}
-        if threads:
-            config["INFERENCE_NUM_THREADS"] = int(threads)
-        compiled = core.compile_model(model, "CPU", config)
-        request = compiled.create_infer_request()
-        order = [out.get_any_name() for out in compiled.outputs]
-
-        def run(feeds: dict[str, np.ndarray]) -> list[np.ndarray]:
-            results = request.infer(feeds)
-            by_name = {order[i]: np.asarray(v) for i, v in enumerate(results.values())}
-            return [by_name[name] for name in OUTPUTS]
-
-        return run
+        return _OpenVinoEngine(data, threads)
 
     def run(self, feeds: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """elevation, uncertainty [B, R, C] float32 and observed [B, R, C] bool for the graph's inputs."""
         elevation, uncertainty, observed = self._run(feeds)
         return elevation, uncertainty, observed.astype(bool, copy=False)
+
+
+class _OpenVinoEngine:
+    """OpenVINO on the CPU: the graph compiled for any shape, and for each input shape it meets
+    compiled again with those shapes fixed (measured 17 % faster here), in a background thread
+    so that the first frame of a new rig does not wait for the compilation (seconds)."""
+
+    def __init__(self, data: bytes, threads: int | None) -> None:
+        import openvino as ov
+
+        self._core = ov.Core()
+        with tempfile.TemporaryDirectory(prefix="roadbev_ov_") as tmp:
+            path = Path(tmp) / "model.onnx"
+            path.write_bytes(data)
+            self._model = self._core.read_model(str(path))
+        self._config: dict[str, Any] = {"PERFORMANCE_HINT": "LATENCY", "INFERENCE_PRECISION_HINT": "f32",
+                                        "CPU_DENORMALS_OPTIMIZATION": True}
+        if threads:
+            self._config["INFERENCE_NUM_THREADS"] = int(threads)
+        self._any_shape = self._compile(self._model)
+        self._fixed: dict[tuple[tuple[str, tuple[int, ...]], ...], Any] = {}
+        self._lock = threading.Lock()
+
+    def _compile(self, model: Any) -> Any:
+        compiled = self._core.compile_model(model, "CPU", self._config)
+        names = [out.get_any_name() for out in compiled.outputs]
+        return compiled.create_infer_request(), names
+
+    def _compile_fixed(self, key: tuple[tuple[str, tuple[int, ...]], ...]) -> None:
+        try:
+            model = self._model.clone()
+            model.reshape({name: list(shape) for name, shape in key})
+            compiled = self._compile(model)
+        except Exception:  # the any-shape model keeps serving (a shape OpenVINO cannot fix)
+            compiled = None
+        with self._lock:
+            self._fixed[key] = compiled
+
+    def __call__(self, feeds: dict[str, np.ndarray]) -> list[np.ndarray]:
+        key = tuple(sorted((name, tuple(int(n) for n in value.shape)) for name, value in feeds.items()))
+        with self._lock:
+            fixed = self._fixed.get(key, False)
+            if fixed is False:
+                self._fixed[key] = None  # compiling (or not possible): the any-shape model serves
+                # not a daemon: an interpreter exiting mid-compilation waits for it (OpenVINO aborts otherwise)
+                threading.Thread(target=self._compile_fixed, args=(key,), name="openvino-compile").start()
+        request, names = fixed or self._any_shape
+        results = request.infer(feeds)
+        by_name = {names[i]: np.asarray(value) for i, value in enumerate(results.values())}
+        return [by_name[name] for name in OUTPUTS]
