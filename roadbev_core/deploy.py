@@ -78,6 +78,7 @@ __all__ = [
     "image_feeds",
     "input_names",
     "read_onnx",
+    "trtexec_shapes",
 ]
 
 FORMAT = "roadbev-onnx/1"
@@ -240,6 +241,17 @@ def export_onnx(
         tmp.write_bytes(data)
         tmp.replace(path)
     return data
+
+
+def trtexec_shapes(config: ModelConfig, grid: GridSpec, width: int, height: int, batch: int = 1) -> str:
+    """The ``--shapes`` argument of TensorRT's ``trtexec`` for frames of ``width`` x ``height``."""
+    camera = StereoCamera(fx=width, fy=width, cx=(width - 1) / 2, cy=(height - 1) / 2, baseline=0.5,
+                          width=width, height=height)  # shapes only: any rig of that image size
+    image = np.zeros((height, width, 3), np.uint8)
+    feeds = {**image_feeds(config, image, image if config.kind == "stereo" else None),
+             **geometry_feeds(config, grid, [camera], [Attitude.from_degrees(0.0, 18.0)])}
+    return ",".join(f"{name}:" + "x".join(str(batch if i == 0 else n) for i, n in enumerate(feeds[name].shape))
+                    for name in input_names(config))
 
 
 @dataclass(frozen=True)

@@ -45,6 +45,11 @@ def run(args: argparse.Namespace) -> int:
         path = save_checkpoint(args.out, model, meta=meta, half=args.half)
         what = "checkpoint"
     params = sum(p.numel() for p in model.parameters())
+    if args.format == "onnx":
+        from roadbev_core.deploy import trtexec_shapes
+
+        print("TensorRT (README, Deployment), batch 1 of 960x528 frames (grey's H x W follow the frames): "
+              f"trtexec --onnx={path} --shapes={trtexec_shapes(model.config, model.grid, 960, 528)}")
     print(f"exported RoadBEV-{model.config.kind} ({model.config.backbone}, C={model.config.channels}, "
           f"{params / 1e6:.2f} M parameters) for a {model.grid.n_rows}x{model.grid.n_cols} grid to {path} "
           f"({what}; {path.stat().st_size / 1e6:.1f} MB)")
