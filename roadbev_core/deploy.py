@@ -37,7 +37,6 @@ checkpoint's), ``inputs`` (name -> shape), ``opset`` and the checkpoint's ``meta
 from __future__ import annotations
 
 import copy
-import io
 import json
 import tempfile
 import threading
@@ -45,7 +44,7 @@ import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -161,7 +160,8 @@ class _Exportable(nn.Module):
         geometry = VoxelGeometry(left, look("", "right"), look("fine_", "left"), look("fine_", "right"))
         logits, observed = self.model.logits(named["left"], named.get("right"), named.get("grey"), geometry,
                                              gather=self.gather)
-        elevation, uncertainty = soft_argmin(logits, self.model.centres)
+        centres = cast(torch.Tensor, self.model.centres)  # (a buffer)
+        elevation, uncertainty = soft_argmin(logits, centres)
         return elevation, uncertainty, observed
 
 
@@ -202,21 +202,23 @@ def export_onnx(
 
     if opset < 16:
         raise DeployError(f"opset {opset} lacks GridSample: use 16 or later")
-    net = _Exportable(fold_batchnorm(copy.deepcopy(model).float().eval()), gather).eval()
+    folded = copy.deepcopy(model).float().eval()
+    fold_batchnorm(folded)
+    net = _Exportable(folded, gather).eval()
     cfg = model.config
     names = input_names(cfg)
     example = _example_inputs(model, camera or StereoCamera.rsrd_half())
     dynamic: dict[str, dict[int, str]] = {name: {0: "batch"} for name in [*names, *OUTPUTS]}
     if "grey" in dynamic:
         dynamic["grey"] = {0: "batch", 2: "height", 3: "width"}
-    buffer = io.BytesIO()
-    with torch.no_grad(), warnings.catch_warnings():
+    with torch.no_grad(), warnings.catch_warnings(), tempfile.TemporaryDirectory(prefix="roadbev_onnx_") as tmp:
         # the tracer warns about every Python-level shape check; the graph's shapes are fixed by
         # the config except the documented dynamic axes, which the equality tests exercise
         warnings.simplefilter("ignore", category=torch.jit.TracerWarning)
-        torch.onnx.export(net, example, buffer, dynamo=False, input_names=names, output_names=list(OUTPUTS),
+        traced = Path(tmp) / "model.onnx"
+        torch.onnx.export(net, example, str(traced), dynamo=False, input_names=names, output_names=list(OUTPUTS),
                           dynamic_axes=dynamic, opset_version=opset, do_constant_folding=True)
-    proto = onnx.load_from_string(buffer.getvalue())
+        proto = onnx.load_from_string(traced.read_bytes())
     shapes: dict[str, list[str | int]] = {
         name: ["B" if i == 0 else int(n) for i, n in enumerate(t.shape)] for name, t in zip(names, example, strict=True)
     }
@@ -237,9 +239,9 @@ def export_onnx(
     if out is not None:
         path = Path(out)
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_bytes(data)
-        tmp.replace(path)
+        partial = path.with_name(path.name + ".tmp")
+        partial.write_bytes(data)
+        partial.replace(path)
     return data
 
 

@@ -15,7 +15,7 @@ grid, so callers always see the :class:`GridSpec` they asked for.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import cv2
 import numpy as np
@@ -96,8 +96,12 @@ class VoxelGeometry(NamedTuple):
 
     def to(self, device: torch.device | str) -> VoxelGeometry:
         """The same lookups on ``device``."""
-        return VoxelGeometry(*(None if look is None else VoxelLookup(look.coords.to(device), look.mask.to(device))
-                               for look in self))
+        def move(look: VoxelLookup | None) -> VoxelLookup | None:
+            return None if look is None else VoxelLookup(look.coords.to(device), look.mask.to(device))
+
+        left = move(self.left)
+        assert left is not None
+        return VoxelGeometry(left, move(self.right), move(self.fine_left), move(self.fine_right))
 
 
 def voxel_geometry(
@@ -154,7 +158,8 @@ class RoadBEV(nn.Module):
     def geometry(self, cameras: list[StereoCamera], attitudes: list[Attitude]) -> VoxelGeometry:
         """Where this batch's voxels are read (:func:`voxel_geometry` for the model's grid)."""
         geometry = voxel_geometry(self.config, self.grid, cameras, attitudes)
-        return geometry.to(self.centres.device)
+        centres = cast(torch.Tensor, self.centres)  # (a buffer: on the model's device)
+        return geometry.to(centres.device)
 
     def forward(
         self,

@@ -144,6 +144,7 @@ def gather_voxels(features: torch.Tensor, lookup: VoxelLookup, sampling: str) ->
     py = (xy[..., 1] + 1.0) * (0.5 * (h - 1))
     rows = features.permute(0, 2, 3, 1).reshape(b * h * w, c)  # [B*H*W, C] channels last
     base = (torch.arange(b, device=features.device) * (h * w))[:, None]  # [B, 1] first row of each sample
+    taps: tuple[tuple[torch.Tensor, torch.Tensor, torch.Tensor], ...]  # (x, y, weight) [B, N] each
     if sampling == "bilinear":
         x0, y0 = torch.floor(px), torch.floor(py)
         fx, fy = px - x0, py - y0
