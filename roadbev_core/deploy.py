@@ -373,7 +373,7 @@ class OnnxRunner:
 
 class _OpenVinoEngine:
     """OpenVINO on the CPU: the graph compiled for any shape, and for each input shape it meets
-    compiled again with those shapes fixed (measured 8-17 % faster here), in a background thread
+    compiled again with those shapes fixed (measured 8-19 % faster here), in a background thread
     at the lowest priority, so that the first frames of a new rig do not wait for the
     compilation (seconds) and are slowed by it as little as possible."""
 
