@@ -42,6 +42,11 @@ setup(
     },
     data_files=_data_files(),
     install_requires=["numpy", "torch", "opencv-python-headless", "mcap", "rosbags", "pyyaml"],
+    # the learned backends' ONNX runtimes (`roadbev export --format onnx`, `runtime: ...`)
+    extras_require={
+        "onnx": ["onnx>=1.16", "onnxruntime>=1.18"],
+        "openvino": ["onnx>=1.16", "openvino>=2024.0"],
+    },
     zip_safe=False,
     entry_points={
         "console_scripts": [

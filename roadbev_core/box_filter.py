@@ -36,13 +36,14 @@ def box_mean(volume: torch.Tensor, size: WindowSize) -> torch.Tensor:
 
     Windows shrink at the borders (the mean over the cells inside the grid). OpenCV's box filter
     (running sums, SIMD) costs the same for any window size and is 5-20x faster than pooling on a
-    CPU; tensors on another device or that need gradients take torch's pooling (same result).
+    CPU; tensors on another device, that need gradients or that an ONNX export traces take
+    torch's pooling (same result).
     A 1 x 1 window returns ``volume`` itself.
     """
     rows, cols = window_shape(size)
     if rows == cols == 1:
         return volume
-    if volume.device.type != "cpu" or volume.requires_grad:
+    if volume.device.type != "cpu" or volume.requires_grad or torch.jit.is_tracing():  # (ONNX export)
         pooled = F.avg_pool2d(
             volume[:, None], (rows, cols), stride=1, padding=(rows // 2, cols // 2), count_include_pad=False
         )

@@ -1,9 +1,16 @@
 """Learned backends ``stereo`` and ``mono``: RoadBEV networks from a checkpoint.
 
 Options:
-    checkpoint: path of a RoadBEV checkpoint (``roadbev train`` / ``roadbev export``); default the
-        shipped ``checkpoints/roadbev_{stereo,mono}_lite.pt`` of this repository.
-    threads: torch intra-op threads (default: torch's choice).
+    checkpoint: path of a RoadBEV checkpoint (``roadbev train`` / ``roadbev export``) or of an ONNX
+        export (``roadbev export CKPT OUT.onnx --format onnx``); default the shipped
+        ``checkpoints/roadbev_{stereo,mono}_lite.pt`` of this repository.
+    threads: intra-op threads of the runtime (default: torch's current setting, which the node's
+        ``inference_threads`` sets).
+    runtime: ``torch`` (default), ``onnxruntime`` or ``openvino`` (:mod:`roadbev_core.deploy`): the
+        network as an ONNX graph in that engine; a ``.pt`` checkpoint is exported in memory at
+        start-up (a few seconds), an ``.onnx`` file is read as it is.
+    provider: ONNX Runtime's execution provider, ``cpu`` (default), ``cuda`` or ``tensorrt``
+        (with ``onnxruntime-gpu`` on a GPU machine).
 
 Inference folds BatchNorm into the convolutions and runs channels-last with denormals flushed
 (``shared/design/cpu-sizing.md``: both roughly halve CPU time). Cells whose voxels the camera(s) do
@@ -12,6 +19,7 @@ not see get NaN elevation and uncertainty.
 
 from __future__ import annotations
 
+import importlib.util
 import time
 from pathlib import Path
 from typing import Any
@@ -22,6 +30,16 @@ import torch
 from roadbev_core.backends import BackendError, register
 from roadbev_core.checkpoint import CheckpointError, load_model
 from roadbev_core.config import GridSpec
+from roadbev_core.deploy import (
+    RUNTIMES,
+    DeployError,
+    OnnxRunner,
+    export_onnx,
+    geometry_feeds,
+    image_feeds,
+    read_onnx,
+    same_graph_grid,
+)
 from roadbev_core.frame import Estimate, Frame, FrameError
 from roadbev_core.models.efficientnet import fold_batchnorm
 from roadbev_core.models.roadbev import needs_full_grey, prepare_grey, prepare_image
@@ -40,22 +58,34 @@ class LearnedBackend:
     """A RoadBEV network behind the backend protocol."""
 
     def __init__(self, kind: str, grid: GridSpec, *, checkpoint: str | Path | None = None,
-                 threads: int | None = None) -> None:
+                 threads: int | None = None, runtime: str = "torch", provider: str = "cpu") -> None:
         path = Path(checkpoint) if checkpoint else default_checkpoint(kind)
         if not path.is_file():
             raise BackendError(
                 f"{kind} backend: checkpoint {path} not found (train one with `roadbev train --kind {kind}` "
                 "or pass checkpoint=PATH)"
             )
+        if runtime not in RUNTIMES:
+            raise BackendError(f"{kind} backend: runtime must be one of {', '.join(RUNTIMES)}, got {runtime!r}")
+        self.runtime = runtime
+        self.provider = str(provider)
+        self.threads = int(threads) if threads else None
+        self._runner: OnnxRunner | None = None
+        self._onnx: bytes | None = None
+        self.name = kind
+        if runtime != "torch":
+            self._check_runtime()
+        if path.suffix == ".onnx":
+            self._init_onnx(kind, grid, path)
+            return
         try:
             model, payload = load_model(path, grid=grid)
         except CheckpointError as exc:
             raise BackendError(f"{kind} backend: {exc}") from exc
         if model.config.kind != kind:
             raise BackendError(f"{kind} backend: {path} holds a RoadBEV-{model.config.kind} model")
-        if threads:
+        if threads and runtime == "torch":
             torch.set_num_threads(int(threads))
-        torch.set_flush_denormal(True)
         self.name = kind
         self.grid = grid
         self.needs_stereo = kind == "stereo"
@@ -67,12 +97,62 @@ class LearnedBackend:
             # torch's overloads of it do not list the keyword.
             part.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
         self.config = model.config
+        if runtime != "torch":
+            self._onnx = export_onnx(model, meta=self.meta)
+
+    def _init_onnx(self, kind: str, grid: GridSpec, path: Path) -> None:
+        """An exported graph: its metadata instead of the checkpoint's, no torch network."""
+        if self.runtime == "torch":
+            raise BackendError(f"{kind} backend: {path} is an ONNX export: run it with runtime onnxruntime or openvino")
+        try:
+            exported = read_onnx(path)
+        except DeployError as exc:
+            raise BackendError(f"{kind} backend: {exc}") from exc
+        if exported.config.kind != kind:
+            raise BackendError(f"{kind} backend: {path} holds a RoadBEV-{exported.config.kind} model")
+        if not same_graph_grid(exported.grid, grid):
+            raise BackendError(
+                f"{kind} backend: {path} was exported for a {exported.grid.n_rows}x{exported.grid.n_cols} grid "
+                f"with {exported.grid.n_classes} classes; export it for this grid ({grid.n_rows}x{grid.n_cols})"
+            )
+        self.name = kind
+        self.grid = grid
+        self.needs_stereo = kind == "stereo"
+        self.checkpoint = path
+        self.meta = dict(exported.meta)
+        self.config = exported.config
+        self._onnx = exported.data
+
+    def _check_runtime(self) -> None:
+        """Fail at creation (not at the first frame) when the engine or provider is missing."""
+        if self.runtime == "openvino" and self.provider != "cpu":
+            raise BackendError(
+                f"{self.name} backend: provider {self.provider!r} is ONNX Runtime's; openvino runs on the CPU"
+            )
+        module = {"onnxruntime": "onnxruntime", "openvino": "openvino"}[self.runtime]
+        if importlib.util.find_spec(module) is None:
+            raise BackendError(f"{self.name} backend: runtime {self.runtime} needs the {module} package "
+                               f"(pip install {module})")
+
+    def _engine(self) -> OnnxRunner:
+        """The inference session, made on the first frame (so it takes the threads set by then)."""
+        if self._runner is None:
+            assert self._onnx is not None
+            try:
+                self._runner = OnnxRunner(self._onnx, self.runtime, threads=self.threads or torch.get_num_threads(),
+                                          provider=self.provider)
+            except DeployError as exc:
+                raise BackendError(f"{self.name} backend: {exc}") from exc
+        return self._runner
 
     @torch.inference_mode()
     def estimate(self, frame: Frame) -> Estimate:
         """Elevation and 1-sigma uncertainty for one frame (NaN where the camera sees no voxel)."""
         if self.needs_stereo and frame.right is None:
             raise FrameError("the stereo backend needs a right image")
+        torch.set_flush_denormal(True)
+        if self._onnx is not None:
+            return self._estimate_onnx(frame)
         t0 = time.perf_counter()
         left = torch.from_numpy(prepare_image(frame.left, self.config))[None]
         right = (
@@ -97,6 +177,23 @@ class LearnedBackend:
         uncertainty = np.where(seen, pred.uncertainty[0].numpy(), np.nan).astype(np.float32)
         t3 = time.perf_counter()
         timings = {"preprocess": 1e3 * (t1 - t0), "network": 1e3 * (t2 - t1), "post": 1e3 * (t3 - t2)}
+        return Estimate(elevation=elevation, uncertainty=uncertainty, timings_ms=timings)
+
+    def _estimate_onnx(self, frame: Frame) -> Estimate:
+        engine = self._engine()
+        t0 = time.perf_counter()
+        feeds = image_feeds(self.config, frame.left, frame.right)
+        t1 = time.perf_counter()
+        feeds.update(geometry_feeds(self.config, self.grid, [frame.camera], [frame.attitude]))
+        t2 = time.perf_counter()
+        elevation, uncertainty, observed = engine.run(feeds)
+        t3 = time.perf_counter()
+        seen = observed[0]
+        elevation = np.where(seen, elevation[0], np.nan).astype(np.float32)
+        uncertainty = np.where(seen, uncertainty[0], np.nan).astype(np.float32)
+        t4 = time.perf_counter()
+        timings = {"preprocess": 1e3 * (t1 - t0), "projection": 1e3 * (t2 - t1), "network": 1e3 * (t3 - t2),
+                   "post": 1e3 * (t4 - t3)}
         return Estimate(elevation=elevation, uncertainty=uncertainty, timings_ms=timings)
 
 

@@ -33,7 +33,16 @@ from roadbev_core.models.loss import soft_argmin
 from roadbev_core.models.presets import ModelConfig
 from roadbev_core.models.voxel_query import VoxelLookup, batch_lookup, query_voxels, window_zncc
 
-__all__ = ["ModelInputError", "Prediction", "RoadBEV", "needs_full_grey", "prepare_grey", "prepare_image"]
+__all__ = [
+    "ModelInputError",
+    "Prediction",
+    "RoadBEV",
+    "VoxelGeometry",
+    "needs_full_grey",
+    "prepare_grey",
+    "prepare_image",
+    "voxel_geometry",
+]
 
 
 class ModelInputError(RoadbevError, ValueError):
@@ -71,6 +80,58 @@ def prepare_grey(left: np.ndarray, right: np.ndarray) -> np.ndarray:
     return np.stack(planes)
 
 
+class VoxelGeometry(NamedTuple):
+    """Everything a batch's rigs and attitudes give the network: where each voxel is read.
+
+    Attributes:
+        left, right: lookups in the feature map of the left / right image (coords
+            [B, Nz*Ny, Nx, 2], mask [B, Nz, Ny, Nx] on the internal grid); ``right`` None for mono.
+        fine_left, fine_right: lookups of the photometric channel's grey frames on the
+            ``zncc_subsamples`` times finer grid (None without ``ModelConfig.photometric``).
+    """
+
+    left: VoxelLookup
+    right: VoxelLookup | None = None
+    fine_left: VoxelLookup | None = None
+    fine_right: VoxelLookup | None = None
+
+    def to(self, device: torch.device | str) -> VoxelGeometry:
+        """The same lookups on ``device``."""
+        def move(look: VoxelLookup | None) -> VoxelLookup | None:
+            return None if look is None else VoxelLookup(look.coords.to(device), look.mask.to(device))
+
+        left = move(self.left)
+        assert left is not None
+        return VoxelGeometry(left, move(self.right), move(self.fine_left), move(self.fine_right))
+
+
+def voxel_geometry(
+    config: ModelConfig, grid: GridSpec, cameras: list[StereoCamera], attitudes: list[Attitude]
+) -> VoxelGeometry:
+    """The voxel lookups of a batch for a ``config`` model on output ``grid`` (CPU tensors).
+
+    Depends on the rigs and attitudes only, never on the images: the part of the network that
+    ``roadbev export`` leaves outside the ONNX graph (its inputs), so one file serves any rig.
+    Lookups are cached per (rig, attitude) by :func:`voxel_lookup`.
+
+    Args:
+        config, grid: the model and its output grid.
+        cameras: B rigs of the ORIGINAL images.
+        attitudes: B camera attitudes.
+    """
+    inner = config.internal_grid(grid)
+    cams = [c.resized(config.input_width, config.input_height) for c in cameras]
+    stereo = config.kind == "stereo"
+    left = batch_lookup(inner, cams, attitudes, config.feature_stride, False, config.sampling)
+    right = batch_lookup(inner, cams, attitudes, config.feature_stride, True, config.sampling) if stereo else None
+    if not (stereo and config.photometric):
+        return VoxelGeometry(left, right)
+    fine = replace(inner, resolution=inner.resolution / config.zncc_subsamples)  # n x n samples per cell
+    rigs = cameras if config.zncc_full_resolution else cams
+    fine_left, fine_right = (batch_lookup(fine, rigs, attitudes, 1, eye, "bilinear") for eye in (False, True))
+    return VoxelGeometry(left, right, fine_left, fine_right)
+
+
 class RoadBEV(nn.Module):
     """The RoadBEV network for one output grid."""
 
@@ -100,14 +161,10 @@ class RoadBEV(nn.Module):
     def is_stereo(self) -> bool:
         return self.config.kind == "stereo"
 
-    def _lookups(self, cameras: list[StereoCamera], attitudes: list[Attitude], right: bool,
-                 stride: int | None = None, sampling: str | None = None) -> VoxelLookup:
-        cfg = self.config
-        cams = [c.resized(cfg.input_width, cfg.input_height) for c in cameras]
-        lookup = batch_lookup(self.inner, cams, attitudes, stride or cfg.feature_stride, right,
-                              sampling or cfg.sampling)
-        device = self.centres.device
-        return VoxelLookup(lookup.coords.to(device), lookup.mask.to(device))
+    def geometry(self, cameras: list[StereoCamera], attitudes: list[Attitude]) -> VoxelGeometry:
+        """Where this batch's voxels are read (:func:`voxel_geometry` for the model's grid)."""
+        geometry = voxel_geometry(self.config, self.grid, cameras, attitudes)
+        return geometry.to(self.centres.device)  # (a buffer: on the model's device)
 
     def forward(
         self,
@@ -147,21 +204,42 @@ class RoadBEV(nn.Module):
                     f"this model reads the full-resolution grey frames: grey must be [B, 2, {size[0]}, {size[1]}] "
                     f"(prepare_grey), got {None if grey is None else tuple(grey.shape)}"
                 )
+        return self.logits(left, right, grey, self.geometry(cameras, attitudes))
+
+    def logits(
+        self, left: torch.Tensor, right: torch.Tensor | None, grey: torch.Tensor | None, geometry: VoxelGeometry,
+        *, gather: bool = False,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`forward` after the geometry: tensors in, tensors out (what ``roadbev export`` traces).
+
+        Args:
+            left, right, grey: as :meth:`forward` (checked there).
+            geometry: the batch's :class:`VoxelGeometry` on the model's device.
+            gather: read voxel features with explicit gathers (``voxel_query.gather_voxels``, the
+                ONNX graph's way) instead of grid_sample; the same numbers.
+
+        Returns:
+            logits [B, Nc, n_rows, n_cols], observed [B, n_rows, n_cols] bool.
+        """
+        cfg = self.config
+        b = left.shape[0]
         images = torch.cat([left, right]) if self.is_stereo and right is not None else left  # [B or 2B, 3, h, w]
         x = images.float() / 255.0 if images.dtype == torch.uint8 else images.float()
         fused = self.fusion(self.backbone((x - self.mean) / self.std), x.shape[-2:])  # [., C, h/s, w/s]
-        look_l = self._lookups(cameras, attitudes, right=False)
-        vox_l = query_voxels(fused[:b], look_l, cfg.sampling)  # [B, C, Nz, Ny, Nx]
+        look_l = geometry.left
+        vox_l = query_voxels(fused[:b], look_l, cfg.sampling, gather=gather)  # [B, C, Nz, Ny, Nx]
         grid = self.grid
         pad_rows, pad_cols = cfg.padding(grid)
         size = (grid.n_rows + pad_rows, grid.n_cols + pad_cols)  # output cells covered by self.inner
         if self.is_stereo:
-            look_r = self._lookups(cameras, attitudes, right=True)
-            vox_r = query_voxels(fused[b:], look_r, cfg.sampling)
+            look_r = geometry.right
+            if look_r is None:
+                raise ModelInputError("RoadBEV-stereo needs the right image's voxel lookup")
+            vox_r = query_voxels(fused[b:], look_r, cfg.sampling, gather=gather)
             volume = vox_l * vox_r if cfg.volume == "product" else vox_l - vox_r
             if cfg.photometric:  # [B, C + 1, Nz, Ny, Nx]: + the photometric ZNCC channel (ModelConfig)
                 seen_both = look_l.mask & look_r.mask  # [B, Nz, Ny, Nx]
-                photometric = self._photometric(x, grey, cameras, attitudes) * seen_both
+                photometric = self._photometric_from(x, grey, geometry, gather=gather) * seen_both
                 volume = torch.cat([volume, photometric[:, None]], dim=1)
             score = self.head(volume)  # [B, Nz, Ny, Nx]
             logits = F.interpolate(score[:, None], size=(grid.n_classes, *size),
@@ -179,29 +257,33 @@ class RoadBEV(nn.Module):
     def _photometric(
         self, images: torch.Tensor, grey: torch.Tensor | None, cameras: list[StereoCamera], attitudes: list[Attitude]
     ) -> torch.Tensor:
+        """[B, Nz, Ny, Nx] ZNCC of the grey left / right images at the voxels (ModelConfig.photometric)."""
+        return self._photometric_from(images, grey, self.geometry(cameras, attitudes))
+
+    def _photometric_from(
+        self, images: torch.Tensor, grey: torch.Tensor | None, geometry: VoxelGeometry, *, gather: bool = False
+    ) -> torch.Tensor:
         """[B, Nz, Ny, Nx] ZNCC of the grey left / right images at the voxels (ModelConfig.photometric).
 
         Reads the full-resolution ``grey`` [B, 2, H, W] or, without ``zncc_full_resolution``, the
-        mean of the model inputs ``images`` [2B, 3, h, w]; ``zncc_subsamples`` points per cell side.
-        Voxels outside an image are the caller's to mask.
+        mean of the model inputs ``images`` [2B, 3, h, w]; ``zncc_subsamples`` points per cell side
+        (``geometry.fine_left`` / ``fine_right``). Voxels outside an image are the caller's to mask.
         """
         cfg = self.config
-        n = cfg.zncc_subsamples
-        fine = replace(self.inner, resolution=self.inner.resolution / n)  # same extent, n x n cells per cell
-        if cfg.zncc_full_resolution and grey is not None:
+        if geometry.fine_left is None or geometry.fine_right is None:
+            raise ModelInputError("the photometric channel needs the fine voxel lookups")
+        if cfg.zncc_full_resolution:
+            if grey is None:
+                raise ModelInputError("this model reads the full-resolution grey frames (grey)")
             planes = grey.transpose(0, 1).float()  # [2, B, H, W]
-            left_grey, right_grey, rigs = planes[0][:, None], planes[1][:, None], cameras
+            left_grey, right_grey = planes[0][:, None], planes[1][:, None]
         else:
             b = images.shape[0] // 2
             mean = images.mean(dim=1, keepdim=True) * 255.0  # [2B, 1, h, w]
             left_grey, right_grey = mean[:b], mean[b:]
-            rigs = [c.resized(cfg.input_width, cfg.input_height) for c in cameras]
-        device = self.centres.device
-        looks = [batch_lookup(fine, rigs, attitudes, 1, eye, "bilinear") for eye in (False, True)]
-        looks = [VoxelLookup(look.coords.to(device), look.mask.to(device)) for look in looks]
-        left = query_voxels(left_grey, looks[0], "bilinear")[:, 0]  # [B, Nz, n*Ny, n*Nx]
-        right = query_voxels(right_grey, looks[1], "bilinear")[:, 0]
-        return window_zncc(left, right, cfg.zncc_window, subsamples=n)  # [B, Nz, Ny, Nx]
+        left = query_voxels(left_grey, geometry.fine_left, "bilinear", gather=gather)[:, 0]  # [B, Nz, n*Ny, n*Nx]
+        right = query_voxels(right_grey, geometry.fine_right, "bilinear", gather=gather)[:, 0]
+        return window_zncc(left, right, cfg.zncc_window, subsamples=cfg.zncc_subsamples)  # [B, Nz, Ny, Nx]
 
     def predict(
         self,

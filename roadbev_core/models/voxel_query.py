@@ -27,7 +27,7 @@ from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.geometry import Attitude, project_voxels
 from roadbev_core.image_sampling import sample_coordinates
 
-__all__ = ["VoxelLookup", "batch_lookup", "query_voxels", "voxel_lookup", "window_zncc"]
+__all__ = ["VoxelLookup", "batch_lookup", "gather_voxels", "query_voxels", "voxel_lookup", "window_zncc"]
 
 
 class VoxelLookup(NamedTuple):
@@ -43,26 +43,42 @@ class VoxelLookup(NamedTuple):
 
 
 @lru_cache(maxsize=32)
+def _bilinear_lookups(grid: GridSpec, camera: StereoCamera, attitude: Attitude, stride: int) -> tuple[VoxelLookup, ...]:
+    """The left and right bilinear lookups of ``grid`` at ``stride``, from one projection (cached)."""
+    # Float32 separable projection (the per-frame hot path: a new attitude every frame), both
+    # images at once. The feature coordinate is an affine function of the pixel coordinate
+    # (geometry's convention: (u - (s - 1) / 2) / s), hence of the normalised image coordinate c:
+    # xy = k c + k - (s - 1) / (s (F - 1)) - 1 with k = (S - 1) / (s (F - 1)), S the image and F
+    # the feature map size; one multiply-add per coordinate (none at stride 1, where xy = c).
+    heights = torch.from_numpy(grid.z_centres()).float()[:, None, None]
+    x, y = torch.from_numpy(grid.x_centres()), torch.from_numpy(grid.y_centres())
+    projected = sample_coordinates(x, y, heights, camera, attitude, grid.base_height)
+    inside = projected.inside(camera)  # [2, Nz, Ny, Nx]
+    coords = projected.coords  # [2, Nz, Ny, Nx, 2] normalised over the whole image
+    if stride != 1:
+        size = torch.tensor([camera.width, camera.height], dtype=torch.float64)
+        span = (-(-size // stride) - 1.0).clamp_min(1.0)  # F - 1 of the feature map's (width, height)
+        k = (size - 1.0) / (stride * span)
+        offset = k - (stride - 1) / (stride * span) - 1.0
+        coords = torch.addcmul(offset.float(), coords, k.float())
+    xy = torch.where(inside[..., None], coords, torch.zeros((), dtype=coords.dtype))
+    n_z, n_y, n_x = inside.shape[1:]
+    return tuple(VoxelLookup(coords=xy[eye].reshape(n_z * n_y, n_x, 2), mask=inside[eye]) for eye in (0, 1))
+
+
 def voxel_lookup(
     grid: GridSpec, camera: StereoCamera, attitude: Attitude, stride: int, right: bool, sampling: str
 ) -> VoxelLookup:
     """The (cached) lookup of ``grid``'s voxels in a feature map of ``stride`` of ``camera``'s image."""
     if sampling == "bilinear":
-        # Float32 separable projection (the per-frame hot path: a new attitude every frame). The
-        # feature coordinate is an affine function of the pixel coordinate (geometry's
-        # convention: (u - (s - 1) / 2) / s), so one projection serves every stride.
-        heights = torch.from_numpy(grid.z_centres()).float()[:, None, None]
-        x, y = torch.from_numpy(grid.x_centres()), torch.from_numpy(grid.y_centres())
-        projected = sample_coordinates(x, y, heights, camera, attitude, grid.base_height)
-        image = projected.coords[int(right)]  # [Nz, Ny, Nx, 2] normalised over the whole image
-        inside = projected.inside(camera)[int(right)]  # [Nz, Ny, Nx]
-        size = torch.tensor([camera.width, camera.height], dtype=torch.float32)
-        features = -(-size // stride)  # the feature map's (width, height)
-        pixel = (image + 1.0) * (0.5 * (size - 1.0))
-        xy = ((pixel - (stride - 1) / 2.0) / stride) / (features - 1.0).clamp_min(1.0) * 2.0 - 1.0
-        xy = torch.where(inside[..., None], xy, torch.zeros_like(xy))
-        n_z, n_y, n_x = inside.shape
-        return VoxelLookup(coords=xy.reshape(n_z * n_y, n_x, 2).contiguous(), mask=inside)
+        return _bilinear_lookups(grid, camera, attitude, stride)[int(right)]
+    return _integer_lookup(grid, camera, attitude, stride, right, sampling)
+
+
+@lru_cache(maxsize=32)
+def _integer_lookup(
+    grid: GridSpec, camera: StereoCamera, attitude: Attitude, stride: int, right: bool, sampling: str
+) -> VoxelLookup:
     if sampling != "integer":
         raise ValueError(f"sampling must be 'bilinear' or 'integer', got {sampling!r}")
     proj = project_voxels(grid, camera, attitude, stride=stride, right=right)
@@ -89,22 +105,60 @@ def batch_lookup(
     return VoxelLookup(torch.stack([p.coords for p in parts]), torch.stack([p.mask for p in parts]))
 
 
-def query_voxels(features: torch.Tensor, lookup: VoxelLookup, sampling: str) -> torch.Tensor:
+def query_voxels(features: torch.Tensor, lookup: VoxelLookup, sampling: str, *, gather: bool = False) -> torch.Tensor:
     """Voxel features of one image.
 
     Args:
         features: [B, C, H, W] feature map.
         lookup: batch lookup (coords [B, Nz*Ny, Nx, 2], mask [B, Nz, Ny, Nx]) on the same device.
         sampling: ``bilinear`` or ``integer`` (nearest cell of the integer indices).
+        gather: read the taps with explicit gathers (:func:`gather_voxels`) instead of grid_sample.
 
     Returns:
         [B, C, Nz, Ny, Nx], zero where the mask is False.
     """
+    if gather:
+        return gather_voxels(features, lookup, sampling)
     mode = "bilinear" if sampling == "bilinear" else "nearest"
     sampled = F.grid_sample(features, lookup.coords, mode=mode, padding_mode="zeros", align_corners=True)
     b, c = features.shape[:2]
     n_z, n_y, n_x = lookup.mask.shape[1:]
     volume = sampled.view(b, c, n_z, n_y, n_x)  # [B, C, Nz, Ny, Nx]
+    return volume * lookup.mask[:, None].to(volume.dtype)
+
+
+def gather_voxels(features: torch.Tensor, lookup: VoxelLookup, sampling: str) -> torch.Tensor:
+    """:func:`query_voxels` as explicit gathers of the 4 bilinear taps (1 for ``integer``).
+
+    The same numbers as ``grid_sample(align_corners=True, padding_mode="zeros")``, written with
+    Floor / Gather / Mul only: what the ONNX export traces, because ONNX Runtime's GridSample
+    kernel measured several times slower than torch's on this CPU, while row gathers of the
+    channels-last feature map are plain copies.
+
+    Args / Returns: as :func:`query_voxels`.
+    """
+    b, c, h, w = features.shape
+    n_z, n_y, n_x = lookup.mask.shape[1:]
+    xy = lookup.coords.reshape(b, n_z * n_y * n_x, 2)  # [B, N, 2] in [-1, 1]
+    px = (xy[..., 0] + 1.0) * (0.5 * (w - 1))  # [B, N] pixel coordinates of the feature map
+    py = (xy[..., 1] + 1.0) * (0.5 * (h - 1))
+    rows = features.permute(0, 2, 3, 1).reshape(b * h * w, c)  # [B*H*W, C] channels last
+    base = (torch.arange(b, device=features.device) * (h * w))[:, None]  # [B, 1] first row of each sample
+    taps: tuple[tuple[torch.Tensor, torch.Tensor, torch.Tensor], ...]  # (x, y, weight) [B, N] each
+    if sampling == "bilinear":
+        x0, y0 = torch.floor(px), torch.floor(py)
+        fx, fy = px - x0, py - y0
+        taps = ((x0, y0, (1.0 - fx) * (1.0 - fy)), (x0 + 1.0, y0, fx * (1.0 - fy)),
+                (x0, y0 + 1.0, (1.0 - fx) * fy), (x0 + 1.0, y0 + 1.0, fx * fy))
+    else:
+        taps = ((torch.round(px), torch.round(py), torch.ones_like(px)),)
+    out = torch.zeros(b, n_z * n_y * n_x, c, dtype=features.dtype, device=features.device)
+    for tx, ty, weight in taps:
+        valid = (tx >= 0) & (tx <= w - 1) & (ty >= 0) & (ty <= h - 1)  # zero padding outside
+        index = ty.clamp(0, h - 1) * w + tx.clamp(0, w - 1)  # [B, N]
+        picked = rows[(index.long() + base).reshape(-1)].reshape(b, -1, c)  # [B, N, C]
+        out = out + picked * (weight * valid.to(weight.dtype))[..., None]
+    volume = out.permute(0, 2, 1).reshape(b, c, n_z, n_y, n_x)  # [B, C, Nz, Ny, Nx]
     return volume * lookup.mask[:, None].to(volume.dtype)
 
 

@@ -1,17 +1,29 @@
-"""``roadbev export``: a deployment checkpoint (weights, model config, grid; no optimizer state)."""
+"""``roadbev export``: a checkpoint for deployment, as a ``.pt`` (weights, model config, grid; no
+optimizer state) or as an ONNX graph (``--format onnx``, :mod:`roadbev_core.deploy`)."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-HELP = "export a checkpoint for deployment"
+from roadbev_ros.cli import CommandError
+
+HELP = "export a checkpoint for deployment (.pt or ONNX)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from roadbev_core.deploy import OPSET
+
     parser.add_argument("checkpoint", type=Path, help="a checkpoint written by `roadbev train`")
-    parser.add_argument("out", type=Path, help="where to write the exported checkpoint")
-    parser.add_argument("--half", action="store_true", help="store weights as float16 (half the size)")
+    parser.add_argument("out", type=Path, help="where to write the export")
+    parser.add_argument("--format", choices=("pt", "onnx"), default="pt",
+                        help="pt: a deployment checkpoint (default); onnx: the network as an ONNX graph whose "
+                             "geometry (voxel sampling coordinates) are inputs, for ONNX Runtime, OpenVINO, TensorRT")
+    parser.add_argument("--half", action="store_true", help="pt: store weights as float16 (half the size)")
+    parser.add_argument("--opset", type=int, default=OPSET, help=f"onnx: the ONNX opset (default {OPSET}; >= 16)")
+    parser.add_argument("--gather", action="store_true",
+                        help="onnx: voxel features by Gather nodes instead of GridSample (same numbers), for "
+                             "engines without GridSample")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -23,9 +35,24 @@ def run(args: argparse.Namespace) -> int:
     if train_state.get("history"):
         meta["final_epoch"] = train_state["history"][-1]
     meta["exported_from"] = args.checkpoint.name
-    path = save_checkpoint(args.out, model, meta=meta, half=args.half)
+    if args.format == "onnx":
+        if args.half:
+            raise CommandError("--half is for --format pt (the ONNX graph is fp32; engines choose their precision)")
+        from roadbev_core.deploy import export_onnx, input_names
+
+        export_onnx(model, args.out, meta=meta, opset=args.opset, gather=args.gather)
+        path = args.out
+        what = f"ONNX opset {args.opset}, inputs {', '.join(input_names(model.config))}"
+    else:
+        path = save_checkpoint(args.out, model, meta=meta, half=args.half)
+        what = "checkpoint"
     params = sum(p.numel() for p in model.parameters())
+    if args.format == "onnx":
+        from roadbev_core.deploy import trtexec_shapes
+
+        print("TensorRT (README, Deployment), batch 1 of 960x528 frames (grey's H x W follow the frames): "
+              f"trtexec --onnx={path} --shapes={trtexec_shapes(model.config, model.grid, 960, 528)}")
     print(f"exported RoadBEV-{model.config.kind} ({model.config.backbone}, C={model.config.channels}, "
           f"{params / 1e6:.2f} M parameters) for a {model.grid.n_rows}x{model.grid.n_cols} grid to {path} "
-          f"({path.stat().st_size / 1e6:.1f} MB)")
+          f"({what}; {path.stat().st_size / 1e6:.1f} MB)")
     return 0

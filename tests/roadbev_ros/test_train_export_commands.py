@@ -37,3 +37,32 @@ def test_export_drops_training_state_and_can_halve(tmp_path: Path, capsys: pytes
     assert payload["state_dict"]["head.classify.weight"].dtype == torch.float16
     assert main(["export", str(tmp_path / "missing.pt"), str(out)]) == 2
 
+
+
+def test_export_onnx_writes_a_graph_the_runtime_option_runs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`roadbev export CKPT OUT --format onnx`, then `mono.runtime: onnxruntime` as a params YAML gives it."""
+    pytest.importorskip("onnxruntime")
+    import numpy as np
+
+    from roadbev_core.backends import create
+    from roadbev_core.config import RoadbevConfig, StereoCamera
+    from roadbev_core.deploy import read_onnx
+    from roadbev_core.frame import Frame
+    from roadbev_core.geometry import Attitude
+
+    torch.manual_seed(0)
+    source = save_checkpoint(tmp_path / "mono.pt", RoadBEV(model_config("tiny", "mono"), GridSpec()))
+    out = tmp_path / "mono.onnx"
+    assert main(["export", str(source), str(out), "--format", "onnx"]) == 0
+    printed = capsys.readouterr().out
+    assert "RoadBEV-mono" in printed and "ONNX opset 17" in printed
+    assert read_onnx(out).meta["exported_from"] == "mono.pt"
+    config = RoadbevConfig.from_params({"backend": "mono", "mono.runtime": "onnxruntime", "checkpoint": str(out)})
+    options = config.backend.options_of()
+    backend = create("mono", GridSpec(), **options)
+    camera = StereoCamera.rsrd_half().scaled(0.25)
+    image = np.random.default_rng(0).integers(0, 255, (camera.height, camera.width, 3), dtype=np.uint8)
+    estimate = backend.estimate(Frame(image, None, camera, Attitude.from_degrees(0.0, 18.0)))
+    assert estimate.elevation.shape == GridSpec().shape and np.isfinite(estimate.elevation).mean() > 0.9
+    assert main(["export", str(source), str(out), "--format", "onnx", "--half"]) == 2
+    assert "--half is for --format pt" in capsys.readouterr().err
