@@ -556,7 +556,10 @@ class BevSweep:
             if p.max_disagreement > 0:
                 small = torch.where(valid, box_mean(zncc, p.check_cells), torch.full_like(zncc, _WORST))
                 check = self._decide(small, planes, self.z_step)
-                confident &= (check.elevation - elevation).abs() <= p.max_disagreement
+                disagreement = (check.elevation - elevation).abs()
+                confident &= disagreement <= p.max_disagreement
+                # The two windows disagree where the large one smears a bump's edge: part of the error.
+                sigma = torch.hypot(sigma, disagreement)
             if p.max_deviation > 0:
                 confident &= ~_outliers(self._fill_holes(elevation, confident), confident, p.max_deviation)
             if p.occlusion_clearance > 0:

@@ -87,6 +87,19 @@ def _read_failures(samples: Any, path: Path) -> Iterator[Any]:
         yield sample
 
 
+def coverage_hint(backend: Any, samples: Any, coverage_pct: float | None) -> str | None:
+    """The self-check's one-line hint (:func:`roadbev_core.selfcheck.self_check` on the first
+    frame) when the evaluation's coverage fell below the threshold; None otherwise."""
+    from roadbev_core.selfcheck import MIN_COVERAGE_PCT, self_check
+
+    if coverage_pct is None or coverage_pct >= MIN_COVERAGE_PCT:
+        return None
+    sample = next(iter(samples), None)
+    if sample is None:
+        return None
+    return self_check(backend.estimate(sample.frame), sample.frame, backend.grid).message
+
+
 def run(args: argparse.Namespace) -> int:
     """Evaluate, print the table, write the JSON; non-zero exit (via CommandError) on bad input."""
     from roadbev_core.backends import available, create
@@ -133,6 +146,20 @@ def run(args: argparse.Namespace) -> int:
     print(format_table([metrics]))
     bands = ", ".join("-" if b is None else f"{b:.3f}" for b in metrics["band_abs_err_cm"])
     print(f"abs. error per distance band (cm, near to far): {bands}")
+    print(
+        "uncertainty: error within 1 / 2 / 3 sigma "
+        + " / ".join("-" if metrics.get(k) is None else f"{metrics[k]:.1f}"
+                     for k in ("within_1sigma_pct", "within_2sigma_pct", "within_3sigma_pct"))
+        + " %, confidently wrong "
+        + ("-" if metrics.get("confident_wrong_pct") is None else f"{metrics['confident_wrong_pct']:.2f}")
+        + " %, mean sigma "
+        + ("-" if metrics.get("mean_sigma_cm") is None else f"{metrics['mean_sigma_cm']:.3f}")
+        + " cm"
+    )
+    hint = coverage_hint(backend, bag, metrics.get("coverage_pct"))
+    if hint:
+        print(f"self-check: {hint}")
+        metrics["self_check"] = hint
     if args.json:
         record = {**metrics, "bag": str(path), "grid": bag.grid.to_dict(), "backend_options": options}
         if args.params:
