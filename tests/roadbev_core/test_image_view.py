@@ -53,7 +53,7 @@ def test_accurate_on_rendered_frames(
     name: str, bound_cm: float, min_coverage: float, samples: list[tuple[Frame, np.ndarray]]
 ) -> None:
     backend = create(name, GRID)
-    assert isinstance(backend, ImageViewStereo) and backend.name == name
+    assert isinstance(backend.inner, ImageViewStereo) and backend.name == name
     m = evaluate(backend, samples).metrics
     assert m["abs_err_cm"] < bound_cm, m["abs_err_cm"]
     assert m["coverage_pct"] > min_coverage, m["coverage_pct"]

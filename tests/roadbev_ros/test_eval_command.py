@@ -96,3 +96,18 @@ def test_bad_frames_and_checkpoint(bag: Path, capsys: pytest.CaptureFixture[str]
     assert "--frames" in _one_line_error(capsys)
     assert main(["eval", str(bag), "--backend", "bm", "--checkpoint", "x.pt"]) == 2
     assert "learned" in _one_line_error(capsys)
+
+
+def test_a_wrong_base_height_gets_a_self_check_hint(
+    bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    params = tmp_path / "wrong.yaml"
+    params.write_text("roadbev:\n  ros__parameters:\n    base_height: 1.60\n")  # the road at z = -0.5 m
+    out = tmp_path / "m.json"
+    assert main(["eval", str(bag), "--backend", "bev_sweep", "--params", str(params), "--json", str(out),
+                 "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    assert "uncertainty: error within 1 / 2 / 3 sigma" in printed
+    hint = next(line for line in printed.splitlines() if line.startswith("self-check:"))
+    assert "(low)" in hint and "base_height" in hint
+    assert "base_height" in json.loads(out.read_text())["self_check"]
