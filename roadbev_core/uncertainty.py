@@ -36,7 +36,6 @@ import numpy as np
 
 from roadbev_core.config import GridSpec
 from roadbev_core.frame import Estimate, Frame
-from roadbev_core.metrics import CONFIDENT_WRONG_CM
 from roadbev_core.visibility import Visibility, analyse
 
 __all__ = [
@@ -179,20 +178,16 @@ def refine(estimate: Estimate, frame: Frame, grid: GridSpec, *, stereo: bool,
 
 def fit_sigma_model(features: Sequence[SigmaFeatures], errors: Sequence[np.ndarray], *,
                     fit: Sequence[str] = ("raw", "floor", "slope", "relief", "plane", "shadow"),
-                    tail_weight: float = 0.0, iterations: int = 400) -> SigmaModel:
-    """Coefficients maximising the Gaussian likelihood of the observed errors, optionally with a
-    penalty on confidently wrong cells.
+                    iterations: int = 400) -> SigmaModel:
+    """Coefficients maximising the Gaussian likelihood of the observed errors.
 
-    The loss per cell is 0.5 (log sigma^2 + err^2 / sigma^2) plus ``tail_weight`` times
-    max(0, |err| - 3 sigma) / 1 cm for the cells with |err| > 1 cm: the errors are heavier-tailed
-    than a Gaussian, and the penalty moves sigma onto the features that predict the tail rather
-    than inflating every cell.
+    The loss per cell is 0.5 (log sigma^2 + err^2 / sigma^2), minimised by Adam over the
+    log-coefficients (so they stay positive).
 
     Args:
         features: per frame, :func:`sigma_features`.
         errors: per frame, [R, C] estimate - truth (m), NaN where either is missing.
         fit: the coefficients to fit (the others stay 0, ``raw`` 1).
-        tail_weight: weight of the confidently-wrong penalty (0 = likelihood only).
         iterations: Adam steps on the log-coefficients.
 
     Raises:
@@ -217,8 +212,6 @@ def fit_sigma_model(features: Sequence[SigmaFeatures], errors: Sequence[np.ndarr
         raise ValueError("no cell with both an estimate and a label to fit sigma on")
     basis = torch.from_numpy(np.concatenate(columns))  # [N, P] squared features
     err2 = torch.from_numpy(np.concatenate(targets))  # [N]
-    abs_err = err2.sqrt()
-    large = (abs_err > CONFIDENT_WRONG_CM / 100.0).double()  # [N]
     active = torch.tensor([n in fit for n in names], dtype=torch.float64)
     start = [0.0 if n == "raw" else (math.log(0.002) if n == "floor" else math.log(0.05)) for n in names]
     log_coeff = torch.tensor(start, dtype=torch.float64, requires_grad=True)
@@ -229,13 +222,10 @@ def fit_sigma_model(features: Sequence[SigmaFeatures], errors: Sequence[np.ndarr
         coeff = torch.where(active > 0, log_coeff.exp(), fixed)
         variance = (basis * coeff.square()).sum(dim=1).clamp_min(1e-10)
         loss = 0.5 * (variance.log() + err2 / variance).mean()
-        if tail_weight > 0:
-            excess = torch.relu(abs_err - 3.0 * variance.sqrt()) * large
-            loss = loss + tail_weight * (excess / (CONFIDENT_WRONG_CM / 100.0)).mean()
         loss.backward()
         optimiser.step()
-    coeff = torch.where(active > 0, log_coeff.exp(), fixed).detach().numpy()
-    return SigmaModel(**{n: float(c) for n, c in zip(names, coeff, strict=True)})
+    fitted = torch.where(active > 0, log_coeff.exp(), fixed).detach().numpy()
+    return SigmaModel(**{n: float(c) for n, c in zip(names, fitted, strict=True)})
 
 
 @cache
