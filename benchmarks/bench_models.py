@@ -20,6 +20,7 @@ import platform
 import time
 from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -79,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     data = SyntheticSet(args.cache, range(TEST_SEED_START, TEST_SEED_START + args.frames), progress=True)
     results = []
     for name in args.backends:
-        options = {}
+        options: dict[str, Any] = {}
         if args.checkpoint_dir:
             options["checkpoint"] = str(args.checkpoint_dir / f"roadbev_{name}_lite.pt")
         backend = create(name, data.grid, **options)

@@ -26,6 +26,7 @@ __all__ = [
     "available_backends",
     "eval_samples",
     "machine_info",
+    "scene_samples",
     "write_json",
 ]
 
@@ -53,6 +54,24 @@ def eval_samples(
         if progress is not None:
             progress(1)
     return out
+
+
+def scene_samples(seeds: Iterable[int], grid: GridSpec, cache: str | Path | None = None) -> list[tuple[Any, Any]]:
+    """(frame, truth [n_rows, n_cols]) of the synthetic scenes ``seeds`` on the RSRD rig.
+
+    With ``cache`` the scenes are rendered once into that folder
+    (:class:`roadbev_core.datasets.SyntheticSet`) and read back afterwards: the same frames,
+    without minutes of rendering per benchmark run.
+    """
+    seeds = list(seeds)
+    if cache is None:
+        from roadbev_core.synth import make_sample
+
+        return [(s.frame, s.truth.elevation) for s in (make_sample(seed, grid=grid) for seed in seeds)]
+    from roadbev_core.datasets import SyntheticSet
+
+    scenes = SyntheticSet(cache, seeds, grid=grid)
+    return [scenes[i] for i in range(len(scenes))]
 
 
 def available_backends(names: Iterable[str] = ("bev_sweep", "sgbm", "bm", "stereo", "mono")) -> dict[str, str]:

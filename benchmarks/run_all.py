@@ -6,7 +6,9 @@ Run (from the repository root)::
     .venv/bin/python -m benchmarks.run_all --quick    # smoke test: 3 frames, one level each
 
 Writes ``benchmarks/results/table1.json`` and ``table1.md`` (abs. err., RMSE, >0.5 cm, FPS on
-this machine, coverage, per-stage times), ``band_error.png`` (abs. error per distance band, one
+this machine, coverage, per-stage times, the uncertainty keys: error within 1/2/3 sigma,
+confidently wrong cells, mean sigma), ``reliability.png`` (observed error quantile against
+predicted sigma, per backend), ``band_error.png`` (abs. error per distance band, one
 line per backend, like the paper's Fig. 9), and the robustness sweep
 (:mod:`benchmarks.robustness`): ``robustness.json`` and ``robustness.png``.
 
@@ -25,7 +27,15 @@ from typing import Any
 
 import torch
 
-from benchmarks.common import EVAL_SEED_BASE, RESULTS, available_backends, eval_samples, machine_info, write_json
+from benchmarks.common import (
+    EVAL_SEED_BASE,
+    RESULTS,
+    available_backends,
+    eval_samples,
+    machine_info,
+    scene_samples,
+    write_json,
+)
 from roadbev_core.backends import create
 from roadbev_core.config import GridSpec
 from roadbev_core.evaluation import common_cell_errors, evaluate, format_table
@@ -43,8 +53,9 @@ def markdown_table(rows: list[dict[str, Any]]) -> str:
 
     lines = [
         "| backend | abs. err. (cm) | RMSE (cm) | >0.5 cm (%) | coverage (%) | FPS | decode | projection | cost/network"
-        " | post (ms) | error within 1σ / 2σ (%) | median / p95 abs. err. (cm) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        " | post (ms) | error within 1σ / 2σ / 3σ (%) | confidently wrong (%) | mean σ (cm) | mean σ / RMSE"
+        " | median / p95 abs. err. (cm) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for m in rows:
         s = m["stage_ms"]
@@ -52,10 +63,77 @@ def markdown_table(rows: list[dict[str, Any]]) -> str:
             f"| {m['backend']} | {f(m['abs_err_cm'], 3)} | {f(m['rmse_cm'], 3)} | {f(m['gt_0p5cm_pct'], 1)} "
             f"| {f(m['coverage_pct'], 1)} | {f(m['fps'], 1)} | {f(s['decode'], 1)} | {f(s['projection'], 1)} "
             f"| {f(s['cost_network'], 1)} | {f(s['post'], 1)} "
-            f"| {f(m.get('within_1sigma_pct'), 0)} / {f(m.get('within_2sigma_pct'), 0)} "
+            f"| {f(m.get('within_1sigma_pct'), 1)} / {f(m.get('within_2sigma_pct'), 1)} "
+            f"/ {f(m.get('within_3sigma_pct'), 1)} | {f(m.get('confident_wrong_pct'), 2)} "
+            f"| {f(m.get('mean_sigma_cm'), 3)} | {f(_sharpness(m), 2)} "
             f"| {f(m.get('median_abs_err_cm'), 3)} / {f(m.get('p95_abs_err_cm'), 2)} |"
         )
     return "\n".join(lines)
+
+
+# bev_sweep on Table I before the visibility step and the calibrated sigma (issue 17's baseline).
+BEV_SWEEP_BEFORE = {"abs_err_cm": 0.407, "coverage_pct": 81.4}
+
+
+def _sharpness(m: dict[str, Any]) -> float | None:
+    """mean sigma / RMSE (None when either is missing)."""
+    sigma, rmse = m.get("mean_sigma_cm"), m.get("rmse_cm")
+    return sigma / rmse if sigma is not None and rmse else None
+
+
+def uncertainty_targets(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Issue 17's targets per backend: confidently wrong <= 0.5 %, 90 <= within 2 sigma <= 98 %,
+    mean sigma <= 1.5 x RMSE; bev_sweep's coverage and abs. error against its numbers before."""
+    out: dict[str, Any] = {}
+    for m in rows:
+        cw, w2, sharp = m.get("confident_wrong_pct"), m.get("within_2sigma_pct"), _sharpness(m)
+        out[m["backend"]] = {
+            "confident_wrong_le_0p5": cw is not None and cw <= 0.5,
+            "within_2sigma_90_98": w2 is not None and 90.0 <= w2 <= 98.0,
+            "mean_sigma_le_1p5_rmse": sharp is not None and sharp <= 1.5,
+        }
+    sweep = next((m for m in rows if m["backend"] == "bev_sweep"), None)
+    if sweep is not None:
+        drop = BEV_SWEEP_BEFORE["coverage_pct"] - sweep["coverage_pct"]
+        growth = sweep["abs_err_cm"] - BEV_SWEEP_BEFORE["abs_err_cm"]
+        out["bev_sweep"].update({
+            "before": BEV_SWEEP_BEFORE, "coverage_drop_points": drop, "coverage_drop_le_2": drop <= 2.0,
+            "abs_err_growth_cm": growth, "abs_err_growth_le_0p02": growth <= 0.02,
+        })
+    return out
+
+
+def plot_reliability(rows: list[dict[str, Any]], path: Path, title: str) -> None:
+    """Observed error quantiles (68.3 %, solid; 95.4 % / 2, dashed) against the mean predicted sigma
+    per sigma bin, one colour per backend; an honest sigma lies on the diagonal."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.0, 5.0), dpi=120)
+    top = 0.5
+    for m in rows:
+        curve = [b for b in m.get("reliability") or [] if b["cells"] >= 50]
+        if not curve:
+            continue
+        sigma = [b["mean_sigma_cm"] for b in curve]
+        (line,) = ax.plot(sigma, [b["q68_abs_err_cm"] for b in curve], marker="o", ms=3, lw=1.5,
+                          label=f"{m['backend']} (68 %)")
+        ax.plot(sigma, [b["q95_abs_err_cm"] / 2 for b in curve], ls="--", lw=1.0, color=line.get_color())
+        top = max(top, *sigma, *(b["q68_abs_err_cm"] for b in curve))
+    ax.plot([0, top], [0, top], color="grey", lw=0.8, label="honest sigma")
+    ax.set_xscale("symlog", linthresh=0.1)
+    ax.set_yscale("symlog", linthresh=0.1)
+    ax.set_xlabel("predicted 1-sigma, bin mean (cm)")
+    ax.set_ylabel("observed |error| quantile (cm): 68.3 % solid, 95.4 % / 2 dashed")
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
 
 
 def check_targets(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -138,14 +216,20 @@ def plot_bands(rows: list[dict[str, Any]], grid_x: tuple[float, float], path: Pa
     fig.savefig(path)
 
 
-def run_table(frames: int, names: list[str], *, out_dir: Path, quiet: bool = False) -> dict[str, Any]:
-    """Render the evaluation set, run every backend on it, write table1.{json,md} and band_error.png."""
+def run_table(
+    frames: int, names: list[str], *, out_dir: Path, quiet: bool = False, scene_cache: str | None = None
+) -> dict[str, Any]:
+    """Render the evaluation set, run every backend on it, write table1.{json,md}, band_error.png and
+    reliability.png."""
     from tqdm import tqdm
 
     grid = GridSpec()  # the contract's default grid and the RSRD half-resolution rig
     t0 = time.perf_counter()
-    with tqdm(total=frames, desc="render eval set", unit="frame", disable=quiet, file=sys.stderr) as bar:
-        samples = eval_samples(frames, grid=grid, progress=bar.update)
+    if scene_cache:
+        samples = scene_samples(range(EVAL_SEED_BASE, EVAL_SEED_BASE + frames), grid, scene_cache)
+    else:
+        with tqdm(total=frames, desc="render eval set", unit="frame", disable=quiet, file=sys.stderr) as bar:
+            samples = eval_samples(frames, grid=grid, progress=bar.update)
     render_s = time.perf_counter() - t0
     rows = []
     elevations: dict[str, list[Any]] = {}
@@ -160,7 +244,8 @@ def run_table(frames: int, names: list[str], *, out_dir: Path, quiet: bool = Fal
         elevations[name] = [e.elevation for e in result.estimates or []]
     table = format_table(rows)
     targets = check_targets(rows)
-    truths = [s.truth.elevation for s in samples]
+    truths = [s[1] if isinstance(s, tuple) else s.truth.elevation for s in samples]
+    targets["uncertainty"] = uncertainty_targets(rows)
     targets["common_cells"] = common_cell_comparison(elevations, truths)
     record = {
         "command": " ".join(["python -m benchmarks.run_all", *sys.argv[1:]]),
@@ -176,6 +261,7 @@ def run_table(frames: int, names: list[str], *, out_dir: Path, quiet: bool = Fal
     (out_dir / "table1.md").write_text(markdown_table(rows) + "\n" + (f"\n{common}\n" if common else ""))
     title = f"Abs. error vs distance, {frames} synthetic frames"
     plot_bands(rows, (grid.x_min, grid.x_max), out_dir / "band_error.png", title)
+    plot_reliability(rows, out_dir / "reliability.png", f"Reliability of sigma, {frames} synthetic frames")
     print(table)
     print("targets:", targets)
     return record
@@ -190,6 +276,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-robustness", action="store_true", help="skip the robustness sweep")
     parser.add_argument("--out", default=str(RESULTS), help="results folder")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    parser.add_argument("--scene-cache", default=None, metavar="DIR",
+                        help="keep the rendered frames here for later runs (roadbev_core.datasets.SyntheticSet)")
     parser.add_argument(
         "--torch-threads", type=int, default=None, help="torch intra-op threads (default: torch's, = cores)"
     )
@@ -211,7 +299,7 @@ def main(argv: list[str] | None = None) -> int:
         print("no backend available", file=sys.stderr)
         return 2
     out_dir = Path(args.out)
-    record = run_table(frames, names, out_dir=out_dir, quiet=args.quiet)
+    record = run_table(frames, names, out_dir=out_dir, quiet=args.quiet, scene_cache=args.scene_cache)
     record["skipped"] = {n: status[n] for n in wanted if status[n]}
     write_json(out_dir / "table1.json", record)
     if not args.no_robustness:

@@ -3,28 +3,127 @@
 A checkpoint is a plain dict of tensors, numbers and strings saved with ``torch.save`` and read
 back with ``torch.load(weights_only=True)``, which refuses to run code from the file (unlike a
 pickle). Keys: ``format``, ``model_config`` (:class:`ModelConfig` dict), ``grid`` (GridSpec dict),
-``state_dict``, and optionally ``train_state`` (optimizer, schedule, position) and ``meta``.
+``state_dict``, and optionally ``train_state`` (optimizer, schedule, position), ``meta`` and
+``envelope`` (:class:`TrainingEnvelope`: the grid window and the rig the network was trained for;
+checkpoints without one were trained on the RSRD half-resolution rig and their own grid).
+Checkpoints with a non-finite weight are refused at load.
 """
 
 from __future__ import annotations
 
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from roadbev_core.config import ConfigError, GridSpec
+from roadbev_core.config import ConfigError, GridSpec, StereoCamera
 from roadbev_core.errors import RoadbevError
 from roadbev_core.models.presets import ModelConfig
 from roadbev_core.models.roadbev import RoadBEV
 
-__all__ = ["FORMAT", "CheckpointError", "load_model", "read_checkpoint", "save_checkpoint"]
+__all__ = [
+    "FORMAT",
+    "CheckpointError",
+    "TrainingEnvelope",
+    "load_model",
+    "read_checkpoint",
+    "save_checkpoint",
+    "training_envelope",
+]
 
 FORMAT = "roadbev-checkpoint/1"
 
 
 class CheckpointError(RoadbevError, ValueError):
     """A checkpoint that is missing, unreadable, or does not fit the requested model."""
+
+
+@dataclass(frozen=True)
+class TrainingEnvelope:
+    """What a network was trained for, and how far a frame may stray from it.
+
+    Attributes:
+        grid: the training grid (window, resolution, ``base_height``).
+        fx_px: the training rig's focal length range (pixels, at its image width ``width_px``).
+        width_px: image width the focal lengths refer to (a resized image scales both).
+        baseline_m: the training rig's stereo baseline range (m; (0, 0) for mono data).
+        window_margin_m: how far the grid's window may reach beyond the training window.
+        resolution_ratio: the grid's cell size may be at most this factor off the training one.
+        base_height_margin_m: how far ``base_height`` may be off the training one.
+        rig_ratio: how far (factor) the focal length in image widths and the baseline may be off.
+    """
+
+    grid: GridSpec
+    fx_px: tuple[float, float]
+    width_px: int
+    baseline_m: tuple[float, float]
+    window_margin_m: float = 0.3
+    resolution_ratio: float = 1.5
+    base_height_margin_m: float = 0.15
+    rig_ratio: float = 1.3
+
+    def grid_problems(self, grid: GridSpec) -> list[str]:
+        """Why ``grid`` is outside the envelope (empty when inside)."""
+        t, m = self.grid, self.window_margin_m
+        problems = []
+        if grid.x_min < t.x_min - m or grid.x_max > t.x_max + m:
+            problems.append(f"x window {grid.x_min:.2f}..{grid.x_max:.2f} m is beyond the trained "
+                            f"{t.x_min:.2f}..{t.x_max:.2f} m (+-{m} m)")
+        if grid.y_min < t.y_min - m or grid.y_max > t.y_max + m:
+            problems.append(f"y window {grid.y_min:.2f}..{grid.y_max:.2f} m is beyond the trained "
+                            f"{t.y_min:.2f}..{t.y_max:.2f} m (+-{m} m)")
+        ratio = grid.resolution / t.resolution
+        if not 1.0 / self.resolution_ratio <= ratio <= self.resolution_ratio:
+            problems.append(f"cells of {grid.resolution} m against the trained {t.resolution} m")
+        if abs(grid.base_height - t.base_height) > self.base_height_margin_m:
+            problems.append(f"base_height {grid.base_height} m against the trained {t.base_height} m "
+                            f"(+-{self.base_height_margin_m} m)")
+        return problems
+
+    def rig_problems(self, camera: StereoCamera, stereo: bool) -> list[str]:
+        """Why ``camera`` is outside the envelope (empty when inside)."""
+        problems = []
+        r = self.rig_ratio
+        fx = camera.fx * self.width_px / camera.width  # at the training image width
+        if not self.fx_px[0] / r <= fx <= self.fx_px[1] * r:
+            problems.append(f"focal length {fx:.0f} px (at {self.width_px} px wide) against the trained "
+                            f"{self.fx_px[0]:.0f}..{self.fx_px[1]:.0f} px (x/ {r})")
+        if stereo and not self.baseline_m[0] / r <= camera.baseline <= self.baseline_m[1] * r:
+            problems.append(f"baseline {camera.baseline:.3f} m against the trained "
+                            f"{self.baseline_m[0]:.3f}..{self.baseline_m[1]:.3f} m (x/ {r})")
+        return problems
+
+    def to_dict(self) -> dict[str, Any]:
+        out = asdict(self)
+        out["grid"] = self.grid.to_dict()
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> TrainingEnvelope:
+        fields = dict(data)
+        fields["grid"] = GridSpec.from_dict(fields["grid"])
+        fields["fx_px"] = tuple(float(v) for v in fields["fx_px"])
+        fields["baseline_m"] = tuple(float(v) for v in fields["baseline_m"])
+        return cls(**fields)
+
+
+def training_envelope(payload: dict[str, Any]) -> TrainingEnvelope:
+    """The :class:`TrainingEnvelope` of a checkpoint dict.
+
+    Checkpoints without an ``envelope`` entry were all trained on the synthetic RSRD
+    half-resolution rig (``StereoCamera.rsrd_half``, ``roadbev_core.synth``) on their own grid.
+    """
+    try:
+        if "envelope" in payload:
+            return TrainingEnvelope.from_dict(payload["envelope"])
+        rig = StereoCamera.rsrd_half()
+        return TrainingEnvelope(
+            grid=GridSpec.from_dict(payload["grid"]), fx_px=(rig.fx, rig.fx), width_px=rig.width,
+            baseline_m=(rig.baseline, rig.baseline),
+        )
+    except (ConfigError, KeyError, TypeError, ValueError) as exc:
+        raise CheckpointError(f"checkpoint has a bad training envelope: {exc}") from exc
 
 
 def save_checkpoint(
@@ -94,6 +193,10 @@ def load_model(path: str | Path, *, grid: GridSpec | None = None) -> tuple[RoadB
         raise CheckpointError(f"checkpoint {path} has a bad configuration: {exc}") from exc
     model = RoadBEV(config, grid or trained_grid)
     state = {k: v.float() if v.is_floating_point() else v for k, v in payload["state_dict"].items()}
+    broken = [k for k, v in state.items() if v.is_floating_point() and not bool(torch.isfinite(v).all())]
+    if broken:
+        more = f" and {len(broken) - 1} more" if len(broken) > 1 else ""
+        raise CheckpointError(f"checkpoint {path} has non-finite weights (NaN or inf) in {broken[0]}{more}")
     try:
         model.load_state_dict(state)
     except RuntimeError as exc:

@@ -33,7 +33,14 @@ from roadbev_core.backends import Backend
 from roadbev_core.config import RoadbevConfig
 from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Estimate, Frame
-from roadbev_core.metrics import MetricAccumulator, Metrics
+from roadbev_core.metrics import (
+    MetricAccumulator,
+    Metrics,
+    reliability_curve,
+    reliability_histogram,
+    sigma_counts,
+    sigma_metrics,
+)
 from roadbev_core.pipeline import CameraInput, ImuFeed, Pipeline, PipelineOutput
 
 __all__ = [
@@ -253,7 +260,8 @@ def evaluate(
     per_frame: list[dict[str, float]] = []
     outputs: list[PipelineOutput] = []
     refused: dict[str, int] = {}
-    calibration = np.zeros(3, np.int64)  # cells with a finite uncertainty; of those, |err| <= 1 sigma, <= 2 sigma
+    calibration = np.zeros(6, np.float64)  # metrics.sigma_counts, summed over frames
+    reliability: list[tuple[np.ndarray, np.ndarray]] = []  # metrics.reliability_histogram, summed
     stage_timings: list[dict[str, float]] = []
     iterator = iter(samples)
     frames = 0
@@ -299,7 +307,7 @@ def evaluate(
                 record["abs_err_cm"] = float(np.abs(estimate.elevation[both] - truth[both]).mean() * 100.0)
             record["coverage_pct"] = 100.0 * float(both.sum()) / max(int(labelled.sum()), 1)
             accumulator.add(estimate.elevation, truth)
-            calibration += _sigma_counts(estimate, truth)
+            calibration += _sigma_counts(estimate, truth, reliability)
         per_frame.append(record)
         stage_timings.append(dict(estimate.timings_ms))
         if keep_estimates:
@@ -317,11 +325,9 @@ def evaluate(
             stage_sums[stage] = stage_sums.get(stage, 0.0) + ms
     accuracy = accumulator.result()
     metrics = _metrics(pipeline.backend.name, accuracy, per_frame, per_frame[first_timed:], stage_sums)
-    # Calibration of the reported 1-sigma uncertainty: a Gaussian would put 68.3 % / 95.4 % inside.
-    with_sigma = int(calibration[0])
-    metrics["sigma_cells"] = with_sigma
-    metrics["within_1sigma_pct"] = 100.0 * calibration[1] / with_sigma if with_sigma else math.nan
-    metrics["within_2sigma_pct"] = 100.0 * calibration[2] / with_sigma if with_sigma else math.nan
+    # Calibration of the reported 1-sigma uncertainty: a Gaussian would put 68.3 / 95.4 / 99.7 % inside.
+    metrics.update(sigma_metrics(calibration))
+    metrics["reliability"] = reliability_curve(*reliability[0]) if reliability else []
     return EvalResult(
         metrics=metrics,
         accuracy=accuracy,
@@ -332,13 +338,20 @@ def evaluate(
     )
 
 
-def _sigma_counts(estimate: Estimate, truth: np.ndarray) -> np.ndarray:
-    """[3] int: labelled cells with an estimate and a finite uncertainty; of those, how many have
-    |error| within 1 sigma and within 2 sigma."""
+def _sigma_counts(
+    estimate: Estimate, truth: np.ndarray, reliability: list[tuple[np.ndarray, np.ndarray]]
+) -> np.ndarray:
+    """[6] :func:`roadbev_core.metrics.sigma_counts` of one frame; adds its reliability histogram
+    to ``reliability`` (one summed entry)."""
     sigma = estimate.uncertainty
     usable = np.isfinite(truth) & np.isfinite(estimate.elevation) & np.isfinite(sigma)  # [R, C]
-    error = np.abs(estimate.elevation[usable] - truth[usable])
-    return np.array([usable.sum(), (error <= sigma[usable]).sum(), (error <= 2.0 * sigma[usable]).sum()], np.int64)
+    error_cm = 100.0 * np.abs(estimate.elevation[usable].astype(np.float64) - truth[usable])
+    counts, sigma_sum = reliability_histogram(error_cm, 100.0 * sigma[usable].astype(np.float64))
+    if reliability:
+        reliability[0] = (reliability[0][0] + counts, reliability[0][1] + sigma_sum)
+    else:
+        reliability.append((counts, sigma_sum))
+    return sigma_counts(estimate.elevation, sigma, truth)
 
 
 def _metrics(

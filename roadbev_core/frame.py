@@ -66,11 +66,15 @@ class Estimate:
         elevation: [n_rows, n_cols] float32 metres (road frame z), NaN = no estimate.
         uncertainty: [n_rows, n_cols] float32 1-sigma metres, NaN where elevation is NaN.
         timings_ms: wall time per stage (``projection``, ``cost``, ``network``, ``post``...).
+        out_of_distribution: the backend ran outside what it was made for (a learned backend on
+            a rig or grid beyond its training, run on request): every cell is flagged with a
+            large sigma and the calibration leaves it alone.
     """
 
     elevation: np.ndarray
     uncertainty: np.ndarray
     timings_ms: dict[str, float] = field(default_factory=dict)
+    out_of_distribution: bool = False
 
     def __post_init__(self) -> None:
         if self.elevation.ndim != 2 or self.elevation.shape != self.uncertainty.shape:

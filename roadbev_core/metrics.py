@@ -5,6 +5,12 @@ absolute error per distance band (15 bands along x, near to far), and the median
 percentile of the absolute error (a mean can be carried by a few per cent of cells: the
 percentiles say whether an estimator is broadly better or has a heavier tail). A labelled cell
 without an estimate is *missing*: it lowers ``coverage_pct`` and never counts as zero error.
+
+The reported 1-sigma uncertainty is scored too (contract, "Uncertainty keys in roadbev eval
+JSON"): the share of cells with the error inside 1, 2 and 3 sigma, the share that is *confidently
+wrong* (error beyond both 3 sigma and 1 cm: a controller trusting sigma would act on them), the
+mean sigma, and a reliability curve (the observed error quantile in bins of predicted sigma: an
+honest sigma puts the 68.3 % quantile of the error on the diagonal).
 """
 
 from __future__ import annotations
@@ -16,12 +22,30 @@ import numpy as np
 
 from roadbev_core.config import GridSpec
 
-__all__ = ["N_BANDS", "MetricAccumulator", "Metrics", "differences"]
+__all__ = [
+    "CONFIDENT_WRONG_CM",
+    "N_BANDS",
+    "RELIABILITY_EDGES_CM",
+    "MetricAccumulator",
+    "Metrics",
+    "differences",
+    "reliability_curve",
+    "reliability_histogram",
+    "sigma_counts",
+    "sigma_metrics",
+]
 
 N_BANDS = 15
 # Error histogram for the percentiles: 0.001 cm bins up to 100 cm (larger errors share the top bin).
 _HIST_STEP_CM = 0.001
 _HIST_BINS = 100_000
+# An error must exceed 3 sigma *and* this (cm) to count as confidently wrong (contract).
+CONFIDENT_WRONG_CM = 1.0
+# Predicted-sigma bins of the reliability curve (cm); the last bin is open.
+RELIABILITY_EDGES_CM: tuple[float, ...] = (0.0, 0.1, 0.2, 0.3, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 5.0, math.inf)
+# Error histogram inside each sigma bin: 0.01 cm steps up to 40 cm (larger errors share the top bin).
+_REL_STEP_CM = 0.01
+_REL_BINS = 4000
 
 
 @dataclass
@@ -145,3 +169,106 @@ class MetricAccumulator:
             median_abs_err_cm=self._percentile(0.5),
             p95_abs_err_cm=self._percentile(0.95),
         )
+
+
+# --- uncertainty ------------------------------------------------------------------------------
+def sigma_counts(estimate: np.ndarray, sigma: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """Per-frame counts for the uncertainty keys.
+
+    Args:
+        estimate: [R, C] metres, NaN = no estimate.
+        sigma: [R, C] 1-sigma metres (NaN = none).
+        truth: [R, C] metres, NaN = no label.
+
+    Returns:
+        [6] float64: labelled cells with an estimate and a finite sigma; of those, the error
+        within 1, 2 and 3 sigma; confidently wrong (error > 3 sigma and > 1 cm); the sum of their
+        sigma (cm).
+    """
+    usable = np.isfinite(truth) & np.isfinite(estimate) & np.isfinite(sigma)  # [R, C]
+    error = np.abs(estimate[usable].astype(np.float64) - truth[usable])  # [N] m
+    s = sigma[usable].astype(np.float64)  # [N] m
+    wrong = (error > 3.0 * s) & (error > CONFIDENT_WRONG_CM / 100.0)
+    return np.array(
+        [usable.sum(), (error <= s).sum(), (error <= 2.0 * s).sum(), (error <= 3.0 * s).sum(), wrong.sum(),
+         100.0 * s.sum()],
+        np.float64,
+    )
+
+
+def sigma_metrics(counts: np.ndarray) -> dict[str, float | int]:
+    """The contract's uncertainty keys from summed :func:`sigma_counts` (NaN without any sigma)."""
+    n = int(counts[0])
+
+    def pct(value: float) -> float:
+        return 100.0 * value / n if n else math.nan
+
+    return {
+        "sigma_cells": n,
+        "within_1sigma_pct": pct(counts[1]),
+        "within_2sigma_pct": pct(counts[2]),
+        "within_3sigma_pct": pct(counts[3]),
+        "confident_wrong_pct": pct(counts[4]),
+        "mean_sigma_cm": float(counts[5]) / n if n else math.nan,
+    }
+
+
+def reliability_histogram(
+    abs_err_cm: np.ndarray, sigma_cm: np.ndarray, edges: tuple[float, ...] = RELIABILITY_EDGES_CM
+) -> tuple[np.ndarray, np.ndarray]:
+    """Counts of the error per predicted-sigma bin (sums over frames add up).
+
+    Args:
+        abs_err_cm: [N] absolute errors (cm) of cells with a finite sigma.
+        sigma_cm: [N] their 1-sigma (cm).
+        edges: [B + 1] sigma bin edges (cm), increasing.
+
+    Returns:
+        counts [B, _REL_BINS] int64 (error in 0.01 cm steps, the top bin open) and the sigma sum
+        per bin [B] float64 (cm).
+    """
+    n_bins = len(edges) - 1
+    which = np.clip(np.searchsorted(np.asarray(edges), sigma_cm, side="right") - 1, 0, n_bins - 1)  # [N]
+    err_bin = np.minimum((abs_err_cm / _REL_STEP_CM).astype(np.int64), _REL_BINS - 1)  # [N]
+    counts = np.bincount(which * _REL_BINS + err_bin, minlength=n_bins * _REL_BINS).reshape(n_bins, _REL_BINS)
+    sigma_sum = np.bincount(which, weights=sigma_cm, minlength=n_bins).astype(np.float64)
+    return counts.astype(np.int64), sigma_sum
+
+
+def reliability_curve(
+    counts: np.ndarray,
+    sigma_sum: np.ndarray,
+    edges: tuple[float, ...] = RELIABILITY_EDGES_CM,
+    quantiles: tuple[float, ...] = (0.683, 0.954),
+) -> list[dict[str, float | int]]:
+    """Observed error quantiles against predicted sigma, one entry per non-empty sigma bin.
+
+    For an honest Gaussian sigma the 68.3 % quantile of the error equals the bin's mean sigma and
+    the 95.4 % quantile twice it.
+
+    Args:
+        counts, sigma_sum: from :func:`reliability_histogram` (summed over frames).
+        edges: the sigma bin edges (cm) they were made with.
+        quantiles: error quantiles to report.
+
+    Returns:
+        dicts with ``sigma_lo_cm``, ``sigma_hi_cm``, ``cells``, ``mean_sigma_cm`` and
+        ``q<percent>_abs_err_cm`` per quantile (e.g. ``q68_abs_err_cm``), bin-centre resolution.
+    """
+    out: list[dict[str, float | int]] = []
+    for b in range(counts.shape[0]):
+        cells = int(counts[b].sum())
+        if cells == 0:
+            continue
+        cumulative = np.cumsum(counts[b])
+        entry: dict[str, float | int] = {
+            "sigma_lo_cm": float(edges[b]),
+            "sigma_hi_cm": float(edges[b + 1]),
+            "cells": cells,
+            "mean_sigma_cm": float(sigma_sum[b]) / cells,
+        }
+        for q in quantiles:
+            index = int(np.searchsorted(cumulative, max(1, math.ceil(q * cells))))
+            entry[f"q{int(q * 100)}_abs_err_cm"] = (index + 0.5) * _REL_STEP_CM
+        out.append(entry)
+    return out

@@ -154,6 +154,9 @@ class Health:
     last_error: str = ""
     last_error_time: float = -math.inf
     imu_age_s: float | None = None
+    coverage_pct: float | None = None  # the latest frame's (roadbev_core.selfcheck)
+    coverage_ok: bool = True
+    coverage_hint: str = ""
 
     def __post_init__(self) -> None:
         self._lock = threading.Lock()
@@ -204,6 +207,14 @@ class Health:
             else:
                 self.dropped_invalid += count
 
+    def coverage(self, coverage_pct: float, ok: bool, hint: str) -> None:
+        """The latest frame's self-check (:func:`roadbev_core.selfcheck.self_check`: its
+        ``coverage_pct``, ``ok`` and ``message``); WARN with the hint while coverage is low."""
+        with self._lock:
+            self.coverage_pct = float(coverage_pct)
+            self.coverage_ok = bool(ok)
+            self.coverage_hint = hint
+
     def problem(self, kind: str, reason: str) -> None:
         """An input or processing problem (counted by kind; the reason is kept as last error)."""
         with self._lock:
@@ -239,13 +250,18 @@ class Health:
                 "dropped_invalid": str(self.dropped_invalid),
                 "imu_age_s": "none" if self.imu_age_s is None else f"{self.imu_age_s:.3f}",
                 "last_error": self.last_error,
+                "coverage_pct": "none" if self.coverage_pct is None else f"{self.coverage_pct:.1f}",
+                "self_check": self.coverage_hint,
             }
+            low_coverage = not self.coverage_ok
             for kind, count in sorted(self.problems.items()):
                 values[f"problem.{kind}"] = str(count)
         if recent_problem:
             level, message = WARN, self.last_error
         elif in_rate > 0 and out_rate == 0:
             level, message = WARN, "input arrives but nothing is published"
+        elif low_coverage:
+            level, message = WARN, self.coverage_hint or "low coverage"
         else:
             level, message = OK, "ok" if self.outputs else "waiting for input"
         return HealthSnapshot(level, message, values)

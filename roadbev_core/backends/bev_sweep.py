@@ -42,6 +42,7 @@ from roadbev_core.config import ConfigError, GridSpec, StereoCamera
 from roadbev_core.frame import Estimate, Frame, FrameError
 from roadbev_core.geometry import Attitude
 from roadbev_core.image_sampling import sample_coordinates
+from roadbev_core.visibility import fill_holes
 
 __all__ = ["DEFAULT_Z_STEP", "BevSweep", "SweepParams", "grey_image"]
 
@@ -454,18 +455,7 @@ class BevSweep:
     @staticmethod
     def _fill_holes(surface: torch.Tensor, known: torch.Tensor) -> torch.Tensor:
         """[R, C] ``surface`` with the cells not ``known`` filled from known neighbours (0 m if none)."""
-        values = torch.where(known, surface, torch.zeros_like(surface))
-        weight = known.float()
-        filled, have = values, known
-        # Normalised convolution with a growing reach until every cell has a value.
-        for reach in (2, 4, 8, 16, 32):
-            if bool(have.all()):
-                break
-            num = box_mean(values[None], 2 * reach + 1)[0]
-            den = box_mean(weight[None], 2 * reach + 1)[0]
-            filled = torch.where(have, filled, num / den.clamp_min(1e-6))
-            have = have | (den > 0)
-        return torch.where(have, filled, torch.zeros_like(filled))
+        return torch.from_numpy(fill_holes(surface.numpy(), known.numpy()))
 
     def _occluded(self, surface: torch.Tensor, baseline: float) -> torch.Tensor:
         """[R, C] bool: cells whose line of sight (left or right camera) grazes the nearer surface.
@@ -564,7 +554,10 @@ class BevSweep:
             if p.max_disagreement > 0:
                 small = torch.where(valid, box_mean(zncc, p.check_cells), torch.full_like(zncc, _WORST))
                 check = self._decide(small, planes, self.z_step)
-                confident &= (check.elevation - elevation).abs() <= p.max_disagreement
+                disagreement = (check.elevation - elevation).abs()
+                confident &= disagreement <= p.max_disagreement
+                # The two windows disagree where the large one smears a bump's edge: part of the error.
+                sigma = torch.hypot(sigma, disagreement)
             if p.max_deviation > 0:
                 confident &= ~_outliers(self._fill_holes(elevation, confident), confident, p.max_deviation)
             if p.occlusion_clearance > 0:

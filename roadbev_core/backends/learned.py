@@ -11,6 +11,10 @@ Options:
         start-up (a few seconds), an ``.onnx`` file is read as it is.
     provider: ONNX Runtime's execution provider, ``cpu`` (default), ``cuda`` or ``tensorrt``
         (with ``onnxruntime-gpu`` on a GPU machine).
+    out_of_distribution: ``refuse`` (default): a grid (at creation) or a rig (per frame) beyond
+        the checkpoint's training envelope (:class:`roadbev_core.checkpoint.TrainingEnvelope`) is
+        refused with the reason; ``flag``: run anyway and mark every cell out of distribution with
+        a sigma of the grid's whole height range.
 
 Inference folds BatchNorm into the convolutions and runs channels-last with denormals flushed
 (``shared/design/cpu-sizing.md``: both roughly halve CPU time). Cells whose voxels the camera(s) do
@@ -28,7 +32,7 @@ import numpy as np
 import torch
 
 from roadbev_core.backends import BackendError, register
-from roadbev_core.checkpoint import CheckpointError, load_model
+from roadbev_core.checkpoint import CheckpointError, load_model, training_envelope
 from roadbev_core.config import GridSpec
 from roadbev_core.deploy import (
     RUNTIMES,
@@ -44,7 +48,13 @@ from roadbev_core.frame import Estimate, Frame, FrameError
 from roadbev_core.models.efficientnet import fold_batchnorm
 from roadbev_core.models.roadbev import needs_full_grey, prepare_grey, prepare_image
 
-__all__ = ["DEFAULT_CHECKPOINT_DIR", "LearnedBackend", "default_checkpoint"]
+__all__ = ["DEFAULT_CHECKPOINT_DIR", "OOD_MODES", "LearnedBackend", "OutOfDistributionError", "default_checkpoint"]
+
+OOD_MODES = ("refuse", "flag")
+
+
+class OutOfDistributionError(FrameError):
+    """A frame whose rig lies beyond what the checkpoint was trained for (refused)."""
 
 DEFAULT_CHECKPOINT_DIR = Path(__file__).resolve().parents[2] / "checkpoints"
 
@@ -58,7 +68,12 @@ class LearnedBackend:
     """A RoadBEV network behind the backend protocol."""
 
     def __init__(self, kind: str, grid: GridSpec, *, checkpoint: str | Path | None = None,
-                 threads: int | None = None, runtime: str = "torch", provider: str = "cpu") -> None:
+                 threads: int | None = None, runtime: str = "torch", provider: str = "cpu",
+                 out_of_distribution: str = "refuse") -> None:
+        if out_of_distribution not in OOD_MODES:
+            raise BackendError(f"{kind} backend: out_of_distribution must be one of {', '.join(OOD_MODES)}, "
+                               f"got {out_of_distribution!r}")
+        self.flag_out_of_distribution = out_of_distribution == "flag"
         path = Path(checkpoint) if checkpoint else default_checkpoint(kind)
         if not path.is_file():
             raise BackendError(
@@ -84,6 +99,7 @@ class LearnedBackend:
             raise BackendError(f"{kind} backend: {exc}") from exc
         if model.config.kind != kind:
             raise BackendError(f"{kind} backend: {path} holds a RoadBEV-{model.config.kind} model")
+        self._check_envelope(kind, grid, path, payload)
         if threads and runtime == "torch":
             torch.set_num_threads(int(threads))
         self.name = kind
@@ -115,6 +131,7 @@ class LearnedBackend:
                 f"{kind} backend: {path} was exported for a {exported.grid.n_rows}x{exported.grid.n_cols} grid "
                 f"with {exported.grid.n_classes} classes; export it for this grid ({grid.n_rows}x{grid.n_cols})"
             )
+        self._check_envelope(kind, grid, path, {"grid": exported.grid.to_dict(), **exported.meta})
         self.name = kind
         self.grid = grid
         self.needs_stereo = kind == "stereo"
@@ -150,9 +167,16 @@ class LearnedBackend:
         """Elevation and 1-sigma uncertainty for one frame (NaN where the camera sees no voxel)."""
         if self.needs_stereo and frame.right is None:
             raise FrameError("the stereo backend needs a right image")
+        rig_problems = self.envelope.rig_problems(frame.camera, self.needs_stereo)
+        if rig_problems and not self.flag_out_of_distribution:
+            raise OutOfDistributionError(
+                f"{self.name} backend: the rig is outside what {self.checkpoint.name} was trained for: "
+                f"{'; '.join(rig_problems)} (or run with out_of_distribution=flag)"
+            )
+        outside = self.grid_out_of_distribution or bool(rig_problems)
         torch.set_flush_denormal(True)
         if self._onnx is not None:
-            return self._estimate_onnx(frame)
+            return self._flagged(self._estimate_onnx(frame), outside)
         t0 = time.perf_counter()
         left = torch.from_numpy(prepare_image(frame.left, self.config))[None]
         right = (
@@ -177,7 +201,30 @@ class LearnedBackend:
         uncertainty = np.where(seen, pred.uncertainty[0].numpy(), np.nan).astype(np.float32)
         t3 = time.perf_counter()
         timings = {"preprocess": 1e3 * (t1 - t0), "network": 1e3 * (t2 - t1), "post": 1e3 * (t3 - t2)}
-        return Estimate(elevation=elevation, uncertainty=uncertainty, timings_ms=timings)
+        return self._flagged(Estimate(elevation=elevation, uncertainty=uncertainty, timings_ms=timings), outside)
+
+    def _flagged(self, estimate: Estimate, outside: bool) -> Estimate:
+        """Out of the training envelope (with ``out_of_distribution=flag``): every cell as unsure as
+        the grid's whole height range, and the estimate marked."""
+        if outside:
+            seen = np.isfinite(estimate.elevation)
+            estimate.uncertainty = np.where(seen, self.grid.z_max - self.grid.z_min, np.nan).astype(np.float32)
+            estimate.out_of_distribution = True
+        return estimate
+
+    def _check_envelope(self, kind: str, grid: GridSpec, path: Path, payload: dict[str, Any]) -> None:
+        """The grid must be one the network was trained for (refused, or flagged on request)."""
+        try:
+            self.envelope = training_envelope(payload)
+        except CheckpointError as exc:
+            raise BackendError(f"{kind} backend: {path}: {exc}") from exc
+        problems = self.envelope.grid_problems(grid)
+        if problems and not self.flag_out_of_distribution:
+            raise BackendError(
+                f"{kind} backend: the grid is outside what {path.name} was trained for: {'; '.join(problems)} "
+                "(train for this grid, or pass out_of_distribution=flag to run with every cell flagged)"
+            )
+        self.grid_out_of_distribution = bool(problems)
 
     def _estimate_onnx(self, frame: Frame) -> Estimate:
         engine = self._engine()

@@ -113,6 +113,22 @@ def _preview_at_arrival(path: Path, config: Any, result: Any, lead: float) -> di
     return dict(json_safe(out))
 
 
+def coverage_hint(pipeline: Any, path: Path, coverage_pct: float | None) -> str | None:
+    """The self-check's one-line hint (:func:`roadbev_core.selfcheck.self_check` on the first
+    frame, through the same pipeline) when the evaluation's coverage fell below the threshold;
+    None otherwise."""
+    from msg_bridge.evalbag import bag_frames
+    from roadbev_core.selfcheck import MIN_COVERAGE_PCT, self_check
+
+    if coverage_pct is None or coverage_pct >= MIN_COVERAGE_PCT:
+        return None
+    frames = bag_frames(path, pipeline.config.to_params())[1][:1]
+    if not frames:
+        return None
+    frame = frames[0].frame
+    return self_check(pipeline.process_frame(frame).estimate, frame, pipeline.config.grid).message
+
+
 def run(args: argparse.Namespace) -> int:
     """Evaluate, print the table, write the JSON; non-zero exit (via CommandError) on bad input."""
     from msg_bridge.evalbag import read_eval_bag
@@ -185,6 +201,20 @@ def run(args: argparse.Namespace) -> int:
             metrics["preview_at_arrival"] = _preview_at_arrival(path, config, result, args.lead_time)
         bands = ", ".join("-" if b is None else f"{b:.3f}" for b in metrics["band_abs_err_cm"])
         print(f"abs. error per distance band (cm, near to far): {bands}")
+        print(
+            "uncertainty: error within 1 / 2 / 3 sigma "
+            + " / ".join("-" if metrics.get(k) is None else f"{metrics[k]:.1f}"
+                         for k in ("within_1sigma_pct", "within_2sigma_pct", "within_3sigma_pct"))
+            + " %, confidently wrong "
+            + ("-" if metrics.get("confident_wrong_pct") is None else f"{metrics['confident_wrong_pct']:.2f}")
+            + " %, mean sigma "
+            + ("-" if metrics.get("mean_sigma_cm") is None else f"{metrics['mean_sigma_cm']:.3f}")
+            + " cm"
+        )
+        hint = coverage_hint(pipeline, path, metrics.get("coverage_pct"))
+        if hint:
+            print(f"self-check: {hint}")
+            metrics["self_check"] = hint
     if outputs is not None:
         counts = ", ".join(f"{t}: {n}" for t, n in sorted(outputs.counts.items()))
         print(f"outputs written to {args.out} ({counts})")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from roadbev_core.backends import BackendError, create
+from roadbev_core.backends import BackendError, RefinedBackend, create
 from roadbev_core.backends.bev_sweep import BevSweep, SweepParams, _outliers
 from roadbev_core.config import ConfigError, GridSpec, StereoCamera
 from roadbev_core.evaluation import evaluate
@@ -39,24 +39,24 @@ def samples() -> list[tuple[Frame, np.ndarray]]:
 
 
 @pytest.fixture(scope="module")
-def sweep() -> BevSweep:
+def sweep() -> RefinedBackend:
     backend = create("bev_sweep", GRID)
-    assert isinstance(backend, BevSweep)
-    return backend
+    assert isinstance(backend, RefinedBackend) and isinstance(backend.inner, BevSweep)  # behind the
+    return backend  # registry's visibility/calibration step
 
 
 def _params(**options: Any) -> SweepParams:
-    backend = create("bev_sweep", GRID, **options)
+    backend = create("bev_sweep", GRID, raw=True, **options)
     assert isinstance(backend, BevSweep)
     return backend.params
 
 
-def _abs_err_cm(backend: BevSweep, frames: list[tuple[Frame, np.ndarray]]) -> tuple[float, float]:
+def _abs_err_cm(backend: RefinedBackend, frames: list[tuple[Frame, np.ndarray]]) -> tuple[float, float]:
     m = evaluate(backend, frames).metrics
     return m["abs_err_cm"], m["coverage_pct"]
 
 
-def test_accurate_on_rendered_frames(sweep: BevSweep, samples: list[tuple[Frame, np.ndarray]]) -> None:
+def test_accurate_on_rendered_frames(sweep: RefinedBackend, samples: list[tuple[Frame, np.ndarray]]) -> None:
     err, coverage = _abs_err_cm(sweep, samples)
     # Predicting a flat road scores ~1.5-2 cm here; the sweep is sub-centimetre on most cells.
     flat = np.nanmean(np.concatenate([np.abs(t).ravel() for _, t in samples])) * 100
@@ -66,7 +66,7 @@ def test_accurate_on_rendered_frames(sweep: BevSweep, samples: list[tuple[Frame,
 
 
 def test_half_pixel_shift_of_the_right_image_breaks_the_bound(
-    sweep: BevSweep, samples: list[tuple[Frame, np.ndarray]]
+    sweep: RefinedBackend, samples: list[tuple[Frame, np.ndarray]]
 ) -> None:
     """A renderer or rig off by half a pixel in disparity must show up as a clear error."""
     shifted = []
@@ -79,21 +79,21 @@ def test_half_pixel_shift_of_the_right_image_breaks_the_bound(
     assert bad > max(1.5 * good, 1.0), (good, bad)
 
 
-def test_swapped_cameras_fail(sweep: BevSweep, samples: list[tuple[Frame, np.ndarray]]) -> None:
+def test_swapped_cameras_fail(sweep: RefinedBackend, samples: list[tuple[Frame, np.ndarray]]) -> None:
     """Left and right exchanged (a mis-signed baseline): no trustworthy surface."""
     swapped = [(replace(f, left=right_of(f), right=f.left), t) for f, t in samples]
     err, coverage = _abs_err_cm(sweep, swapped)
     assert err > 1.5 or coverage < 20.0, (err, coverage)
 
 
-def test_textureless_images_give_nan(sweep: BevSweep) -> None:
+def test_textureless_images_give_nan(sweep: RefinedBackend) -> None:
     grey = np.full((CAMERA.height, CAMERA.width, 3), 128, dtype=np.uint8)
     estimate = sweep.estimate(Frame(grey, grey.copy(), CAMERA, Attitude.from_degrees(0.0, 19.0)))
     assert np.isnan(estimate.elevation).all()
     assert np.isnan(estimate.uncertainty).all()
 
 
-def test_cells_outside_the_image_are_nan(sweep: BevSweep, samples: list[tuple[Frame, np.ndarray]]) -> None:
+def test_cells_outside_the_image_are_nan(sweep: RefinedBackend, samples: list[tuple[Frame, np.ndarray]]) -> None:
     """Crop the bottom of the images: the near rows of the grid fall outside and must be NaN."""
     frame, _ = samples[0]
     keep = CAMERA.height * 2 // 3
@@ -108,7 +108,7 @@ def test_cells_outside_the_image_are_nan(sweep: BevSweep, samples: list[tuple[Fr
 
 
 def test_uncertainty_is_finite_exactly_where_elevation_is(
-    sweep: BevSweep, samples: list[tuple[Frame, np.ndarray]]
+    sweep: RefinedBackend, samples: list[tuple[Frame, np.ndarray]]
 ) -> None:
     estimate = sweep.estimate(samples[0][0])
     finite = np.isfinite(estimate.elevation)
@@ -123,13 +123,13 @@ def test_uncertainty_is_finite_exactly_where_elevation_is(
     assert estimate.elevation.dtype == np.float32 and estimate.elevation.shape == GRID.shape
 
 
-def test_reports_stage_timings(sweep: BevSweep, samples: list[tuple[Frame, np.ndarray]]) -> None:
+def test_reports_stage_timings(sweep: RefinedBackend, samples: list[tuple[Frame, np.ndarray]]) -> None:
     timings = sweep.estimate(samples[0][0]).timings_ms
     assert {"projection", "sampling", "cost", "aggregation", "post"} <= set(timings)
     assert all(v >= 0 for v in timings.values())
 
 
-def test_mono_frame_is_refused(sweep: BevSweep, samples: list[tuple[Frame, np.ndarray]]) -> None:
+def test_mono_frame_is_refused(sweep: RefinedBackend, samples: list[tuple[Frame, np.ndarray]]) -> None:
     frame = samples[0][0]
     with pytest.raises(FrameError):
         sweep.estimate(replace(frame, right=None))

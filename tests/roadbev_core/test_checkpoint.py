@@ -2,13 +2,21 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
 import torch
 
-from roadbev_core.checkpoint import CheckpointError, load_model, read_checkpoint, save_checkpoint
-from roadbev_core.config import GridSpec
+from roadbev_core.checkpoint import (
+    CheckpointError,
+    TrainingEnvelope,
+    load_model,
+    read_checkpoint,
+    save_checkpoint,
+    training_envelope,
+)
+from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.models.presets import model_config
 from roadbev_core.models.roadbev import RoadBEV
 
@@ -41,3 +49,31 @@ def test_missing_corrupt_or_foreign_files_raise_checkpoint_errors(tmp_path: Path
     torch.save({"weights": torch.zeros(2)}, tmp_path / "other.pt")
     with pytest.raises(CheckpointError, match="not a RoadBEV checkpoint"):
         read_checkpoint(tmp_path / "other.pt")
+
+
+def test_non_finite_weights_are_refused_at_load(tmp_path: Path) -> None:
+    torch.manual_seed(0)
+    model = RoadBEV(model_config("tiny", "mono"), GridSpec())
+    name, weight = next((k, v) for k, v in model.state_dict().items() if v.is_floating_point() and v.numel() > 1)
+    with torch.no_grad():
+        weight.view(-1)[0] = float("nan")
+    path = save_checkpoint(tmp_path / "nan.pt", model)
+    with pytest.raises(CheckpointError, match=f"non-finite weights .* in {re.escape(name)}"):
+        load_model(path)
+
+
+def test_training_envelope_names_what_is_out_of_range(tmp_path: Path) -> None:
+    model = RoadBEV(model_config("tiny", "mono"), GridSpec())
+    payload = read_checkpoint(save_checkpoint(tmp_path / "m.pt", model))
+    envelope = training_envelope(payload)  # no envelope stored: the RSRD rig and the own grid
+    rig = StereoCamera.rsrd_half()
+    assert envelope.grid == GridSpec() and envelope.grid_problems(GridSpec()) == []
+    assert envelope.rig_problems(rig, stereo=True) == []
+    assert envelope.rig_problems(rig.scaled(0.5), stereo=True) == []  # same rig, smaller images
+    far = GridSpec(x_min=6.5, x_max=18.5, y_min=-1.0, y_max=1.0, resolution=0.1, base_height=1.65)
+    problems = " ".join(envelope.grid_problems(far))
+    assert "x window" in problems and "cells of 0.1" in problems and "base_height 1.65" in problems
+    wide = StereoCamera(fx=400.0, fy=400.0, cx=480.0, cy=264.0, baseline=0.54, width=960, height=528)
+    assert len(envelope.rig_problems(wide, stereo=True)) == 2
+    assert len(envelope.rig_problems(wide, stereo=False)) == 1  # mono ignores the baseline
+    assert TrainingEnvelope.from_dict(envelope.to_dict()) == envelope

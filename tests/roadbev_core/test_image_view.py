@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from roadbev_core.backends import BackendError, create
+from roadbev_core.backends import BackendError, RefinedBackend, create
 from roadbev_core.backends.image_view import ImageViewStereo, match_window
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.evaluation import evaluate
@@ -55,7 +55,8 @@ def test_accurate_on_rendered_frames(
     name: str, bound_cm: float, min_coverage: float, samples: list[tuple[Frame, np.ndarray]]
 ) -> None:
     backend = create(name, GRID)
-    assert isinstance(backend, ImageViewStereo) and backend.name == name
+    assert isinstance(backend, RefinedBackend) and isinstance(backend.inner, ImageViewStereo)
+    assert backend.name == name
     m = evaluate(backend, samples).metrics
     assert m["abs_err_cm"] < bound_cm, m["abs_err_cm"]
     assert m["coverage_pct"] > min_coverage, m["coverage_pct"]

@@ -75,3 +75,20 @@ def test_percentiles_see_a_heavy_tail_that_the_mean_mixes_in() -> None:
     acc = MetricAccumulator(G)
     acc.add(est, truth)
     assert acc.result().p95_abs_err_cm > 99.0
+
+
+def test_reliability_curve_of_an_honest_gaussian_sigma_lies_on_the_diagonal() -> None:
+    from roadbev_core.metrics import reliability_curve, reliability_histogram
+
+    rng = np.random.default_rng(1)
+    sigma = rng.choice([0.15, 0.4, 1.2], 200_000)  # cm
+    error = np.abs(rng.normal(0.0, sigma))
+    counts, sigma_sum = reliability_histogram(error, sigma)
+    curve = reliability_curve(counts, sigma_sum)
+    assert [round(b["mean_sigma_cm"], 2) for b in curve] == [0.15, 0.4, 1.2]
+    for b in curve:
+        assert b["q68_abs_err_cm"] == pytest.approx(b["mean_sigma_cm"], rel=0.06, abs=0.01)
+        assert b["q95_abs_err_cm"] == pytest.approx(2 * b["mean_sigma_cm"], rel=0.06, abs=0.01)
+    # an overconfident sigma lies above it
+    counts, sigma_sum = reliability_histogram(3 * error, sigma)
+    assert all(b["q68_abs_err_cm"] > 2 * b["mean_sigma_cm"] for b in reliability_curve(counts, sigma_sum))

@@ -87,6 +87,29 @@ def test_input_without_output_warns() -> None:
     assert health.snapshot().level == WARN
 
 
+def test_zero_coverage_warns_with_the_self_check_hint() -> None:
+    import numpy as np
+
+    from roadbev_core.config import GridSpec, StereoCamera
+    from roadbev_core.frame import Estimate, Frame
+    from roadbev_core.geometry import Attitude
+    from roadbev_core.selfcheck import self_check
+
+    grid = GridSpec()
+    camera = StereoCamera.rsrd_half().scaled(0.25)
+    flat = np.full((camera.height, camera.width), 120, np.uint8)
+    empty = np.full(grid.shape, np.nan, np.float32)
+    check = self_check(Estimate(empty, empty.copy()), Frame(flat, flat.copy(), camera, Attitude(0.0, 0.3)), grid)
+    health = Health(backend="bev_sweep", clock=FakeClock())
+    health.output(30.0, 40.0, 20.0, 2.0)
+    health.coverage(check.coverage_pct, check.ok, check.message)
+    snap = health.snapshot()
+    assert snap.level == WARN and "no texture" in snap.message
+    assert snap.values["coverage_pct"] == "0.0" and "coverage 0.0 % (low)" in snap.values["self_check"]
+    health.coverage(85.0, True, "coverage 85.0 %")
+    assert health.snapshot().level == OK
+
+
 def test_diagnostic_array_message() -> None:
     from builtin_interfaces.msg import Time
 

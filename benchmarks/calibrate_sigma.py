@@ -1,0 +1,141 @@
+"""Fit every backend's sigma model on the tuning scenes: ``roadbev_core/data/sigma_calibration.json``.
+
+The tuning scenes are seeds 200,000+ (:data:`benchmarks.tune_bev_sweep.TUNING_SEED_BASE`),
+disjoint from the training seeds (0..9,999) and from the Table I test frames (100,000+), which
+this script never renders. Per backend:
+
+1. its raw estimates (``create(name, raw=True)``) with the hidden cells removed and the sigma
+   features (:func:`roadbev_core.uncertainty.visible_estimate`, what ``refine`` does);
+2. the :class:`~roadbev_core.uncertainty.SigmaModel` of maximum Gaussian likelihood
+   (:func:`~roadbev_core.uncertainty.fit_sigma_model`);
+3. one common factor k >= 1 on its coefficients, the smallest (in steps of 0.05) that brings the
+   confidently wrong cells (error > 3 sigma and > 1 cm) to ``--max-confident-wrong`` per cent on
+   the tuning scenes, unless that would put more than ``--max-within-2sigma`` per cent of the
+   errors inside 2 sigma or the mean sigma above ``--max-sharpness`` x RMSE (the errors are
+   heavier-tailed than a Gaussian: a likelihood fit alone leaves too many confident outliers).
+
+Run: ``.venv/bin/python -m benchmarks.calibrate_sigma [--frames 16] [--backends bev_sweep,bm]``;
+Table I (``benchmarks.run_all``) then checks the result on the test frames.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmarks.common import available_backends, machine_info, scene_samples
+from benchmarks.tune_bev_sweep import TUNING_SEED_BASE
+from roadbev_core.backends import create
+from roadbev_core.config import GridSpec
+from roadbev_core.evaluation import json_safe
+from roadbev_core.metrics import sigma_counts, sigma_metrics
+from roadbev_core.uncertainty import (
+    CALIBRATION_FILE,
+    SigmaFeatures,
+    SigmaModel,
+    camera_positions,
+    fit_sigma_model,
+    visible_estimate,
+)
+
+BACKENDS = ("bev_sweep", "bm", "sgbm", "stereo", "mono")
+
+
+def scaled(model: SigmaModel, factor: float) -> SigmaModel:
+    """``model`` with every coefficient times ``factor``."""
+    return dataclasses.replace(model, **{k: v * factor for k, v in model.to_dict().items()})
+
+
+def score(model: SigmaModel, cells: list[tuple[np.ndarray, SigmaFeatures, np.ndarray]]) -> dict[str, float]:
+    """The uncertainty keys and the RMSE of ``model`` over (elevation, features, truth) frames."""
+    counts = np.zeros(6)
+    squared, n = 0.0, 0
+    for elevation, features, truth in cells:
+        sigma = np.where(np.isfinite(elevation), model.sigma(features), np.nan)
+        counts += sigma_counts(elevation, sigma, truth)
+        both = np.isfinite(elevation) & np.isfinite(truth)
+        squared += float(np.square(100.0 * (elevation[both] - truth[both])).sum())
+        n += int(both.sum())
+    return {**sigma_metrics(counts), "rmse_cm": float(np.sqrt(squared / max(n, 1)))}
+
+
+def calibrate(name: str, samples: list[Any], grid: GridSpec, args: argparse.Namespace) -> dict[str, Any]:
+    """Fit ``name`` on ``samples``; the table entry with its tuning-scene scores."""
+    backend = create(name, grid, raw=True)
+    cells = []
+    for frame, truth in samples:
+        raw = backend.estimate(frame)
+        elevation, features = visible_estimate(raw, grid, camera_positions(frame, backend.needs_stereo))
+        cells.append((elevation, features, truth))
+    fitted = fit_sigma_model([f for _, f, _ in cells], [e - t for e, _, t in cells])
+    factor, chosen = 1.0, score(fitted, cells)
+    for k in np.arange(1.0, 4.0001, 0.05):
+        trial = score(scaled(fitted, float(k)), cells)
+        if trial["within_2sigma_pct"] > args.max_within_2sigma or trial["mean_sigma_cm"] > (
+            args.max_sharpness * trial["rmse_cm"]
+        ):
+            break
+        factor, chosen = float(k), trial
+        if trial["confident_wrong_pct"] <= args.max_confident_wrong:
+            break
+    model = scaled(fitted, factor)
+    print(f"{name:<10} k {factor:.2f}  {model}  tuning: " + ", ".join(f"{k} {v:.3f}" for k, v in chosen.items()),
+          flush=True)
+    return {"model": model.to_dict(), "likelihood_fit": fitted.to_dict(), "factor": factor,
+            "tuning_scores": chosen, "raw_tuning_scores": score(SigmaModel(), cells)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.calibrate_sigma", description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=16, help="tuning scenes (default 16)")
+    parser.add_argument("--backends", default=",".join(BACKENDS), help="comma-separated (default: all available)")
+    parser.add_argument("--max-confident-wrong", type=float, default=0.3, help="per cent (default 0.3)")
+    parser.add_argument("--max-within-2sigma", type=float, default=98.0, help="per cent (default 98)")
+    parser.add_argument("--max-sharpness", type=float, default=1.5, help="mean sigma / RMSE at most (default 1.5)")
+    parser.add_argument("--scene-cache", default=None, metavar="DIR",
+                        help="keep the rendered scenes here (roadbev_core.datasets.SyntheticSet) for later runs")
+    parser.add_argument("--out", default=str(CALIBRATION_FILE), help="calibration table to write")
+    args = parser.parse_args(argv)
+    wanted = args.backends.split(",")
+    status = available_backends(wanted)
+    grid = GridSpec()
+    start = time.perf_counter()
+    samples = scene_samples(range(TUNING_SEED_BASE, TUNING_SEED_BASE + args.frames), grid, args.scene_cache)
+    out = Path(args.out)
+    table: dict[str, Any] = {}
+    try:
+        table = json.loads(out.read_text())
+    except (OSError, ValueError):
+        table = {}
+    models = dict(table.get("models", {}))
+    details = dict(table.get("details", {}))
+    for name in wanted:
+        if status.get(name):
+            print(f"skipping {name}: {status[name]}", file=sys.stderr)
+            continue
+        entry = calibrate(name, samples, grid, args)
+        models[name] = entry.pop("model")
+        details[name] = entry
+    record = {
+        "command": " ".join(["python -m benchmarks.calibrate_sigma", *(argv if argv is not None else sys.argv[1:])]),
+        "seeds": [TUNING_SEED_BASE, TUNING_SEED_BASE + args.frames - 1],
+        "machine": machine_info(),
+        "seconds": time.perf_counter() - start,
+        "models": models,
+        "details": details,
+    }
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(json_safe(record), indent=2) + "\n")
+    print(f"written {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
