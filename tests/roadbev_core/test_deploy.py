@@ -170,7 +170,7 @@ def test_bad_files_options_and_grids_are_clear_errors(tiny: tuple[str, Path, Pat
     with pytest.raises(BackendError, match="exported for a 164x64 grid"):
         create(kind, GridSpec(x_max=6.18), checkpoint=str(path), runtime="onnxruntime")
     # Another window and base height of the same shape: the same graph, other geometry inputs.
-    moved = GridSpec(x_min=2.46, x_max=7.38, base_height=1.3)
+    moved = GridSpec(x_min=2.46, x_max=7.38, base_height=1.2)  # (within the training envelope)
     assert create(kind, moved, checkpoint=str(path), runtime="onnxruntime").grid == moved
     with pytest.raises(BackendError, match="has no CUDAExecutionProvider"):
         create(kind, checkpoint=str(path), runtime="onnxruntime", provider="cuda").estimate(
