@@ -65,22 +65,7 @@ def elevation_point_cloud(
     points[:, 1] = grid.y_centres()[cols]
     points[:, 2] = elevation[rows, cols]
     points[:, 3] = sigma[rows, cols]
-    fields = [
-        factory.new("sensor_msgs/msg/PointField", name=name, offset=4 * i, datatype=FLOAT32, count=1)
-        for i, name in enumerate(_FIELDS)
-    ]
-    return factory.new(
-        "sensor_msgs/msg/PointCloud2",
-        header=make_header(factory, stamp_ns, frame_id),
-        height=1,
-        width=int(rows.size),
-        fields=fields,
-        is_bigendian=False,
-        point_step=16,
-        row_step=16 * int(rows.size),
-        data=factory.sequence(points.reshape(-1).view(np.uint8)),
-        is_dense=True,
-    )
+    return array_point_cloud(points, _FIELDS, factory, stamp_ns=stamp_ns, frame_id=frame_id)
 
 
 def point_cloud_to_array(msg: Any) -> tuple[tuple[str, ...], np.ndarray]:
