@@ -63,8 +63,11 @@ __all__ = [
     "FusionError",
     "MapSettings",
     "MapWindow",
+    "Prepared",
     "place_frame",
+    "prepare_bilinear",
     "sample_bilinear",
+    "sample_prepared",
 ]
 
 
@@ -177,7 +180,30 @@ def sample_bilinear(values: np.ndarray, sigma: np.ndarray | None, rows: np.ndarr
     Returns:
         [N] values and [N] sigmas (the same weights; NaN without ``sigma``).
     """
-    n_rows, n_cols = values.shape
+    return sample_prepared(prepare_bilinear(values, sigma), rows, cols, min_weight)
+
+
+class Prepared(NamedTuple):
+    """A [R, C] array (and its sigma) ready for :func:`sample_prepared`: flat, holes zeroed."""
+
+    shape: tuple[int, int]
+    values: np.ndarray  # [R*C] NaN -> 0
+    sigma: np.ndarray | None  # [R*C] NaN -> 0
+    known: np.ndarray  # [R*C] 1.0 where values (and sigma) are finite
+
+
+def prepare_bilinear(values: np.ndarray, sigma: np.ndarray | None) -> Prepared:
+    """Flatten ``values`` [R, C] (and ``sigma``) once for many :func:`sample_prepared` calls."""
+    known = np.isfinite(values) if sigma is None else np.isfinite(values) & np.isfinite(sigma)
+    return Prepared((int(values.shape[0]), int(values.shape[1])), np.where(known, values, 0.0).ravel(),
+                    None if sigma is None else np.where(known, sigma, 0.0).ravel(), known.ravel().astype(np.float64))
+
+
+def sample_prepared(prepared: Prepared, rows: np.ndarray, cols: np.ndarray, min_weight: float = 0.5
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sample_bilinear` of a :class:`Prepared` array."""
+    n_rows, n_cols = prepared.shape
+    v0, s0, k0 = prepared.values, prepared.sigma, prepared.known
     r0 = np.floor(rows).astype(np.int64)
     c0 = np.floor(cols).astype(np.int64)
     tr, tc = rows - r0, cols - c0
@@ -187,19 +213,16 @@ def sample_bilinear(values: np.ndarray, sigma: np.ndarray | None, rows: np.ndarr
     for dr, dc, w in ((0, 0, (1 - tr) * (1 - tc)), (0, 1, (1 - tr) * tc), (1, 0, tr * (1 - tc)), (1, 1, tr * tc)):
         r, c = r0 + dr, c0 + dc
         inside = (r >= 0) & (r < n_rows) & (c >= 0) & (c < n_cols)
-        ri, ci = np.where(inside, r, 0), np.where(inside, c, 0)
-        v = values[ri, ci]
-        ok = inside & np.isfinite(v)
-        if sigma is not None:
-            sv = sigma[ri, ci]
-            ok &= np.isfinite(sv)
-            acc_s += np.where(ok, w * np.where(ok, sv, 0.0), 0.0)
-        acc += np.where(ok, w * np.where(ok, v, 0.0), 0.0)
-        weight += np.where(ok, w, 0.0)
+        flat = np.where(inside, r * n_cols + c, 0)
+        wk = w * inside * k0[flat]  # [N] the weight of this neighbour where it is known
+        acc += wk * v0[flat]
+        if s0 is not None:
+            acc_s += wk * s0[flat]
+        weight += wk
     good = weight >= min_weight - 1e-12
     with np.errstate(invalid="ignore", divide="ignore"):
         out = np.where(good, acc / weight, np.nan)
-        out_s = np.where(good, acc_s / weight, np.nan) if sigma is not None else np.full(rows.shape, np.nan)
+        out_s = np.where(good, acc_s / weight, np.nan) if s0 is not None else np.full(rows.shape, np.nan)
     return out, out_s
 
 
@@ -273,7 +296,7 @@ class FusedMap:
         settings: the map's settings.
     """
 
-    MARGIN_M = 2.0  # the buffer reaches this far beyond the corridor, so it moves every ~2 m
+    MARGIN_M = 1.0  # the buffer reaches this far beyond the corridor, so it moves every ~1 m
 
     def __init__(self, settings: MapSettings) -> None:
         self.settings = settings
@@ -290,6 +313,7 @@ class FusedMap:
         self._base_z: float | None = None  # base_link's origin z in odom, after the last frame
         self.frames = 0
         self._cached: tuple[np.ndarray, np.ndarray] | None = None  # _means() until the next change
+        self._prepared: Prepared | None = None  # the means ready for heights(), likewise
 
     @property
     def empty(self) -> bool:
@@ -363,6 +387,7 @@ class FusedMap:
         once per change of the map."""
         if self._cached is None:
             self._cached = self._compute_means()
+            self._prepared = None
         return self._cached
 
     def _compute_means(self) -> tuple[np.ndarray, np.ndarray]:
@@ -381,11 +406,13 @@ class FusedMap:
         x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
         if not self._n.size:
             return np.full(x.shape, np.nan), np.full(x.shape, np.nan)
-        mean, sigma = self._means()
+        means = self._means()  # recomputed after a change, which also drops the prepared copy
+        if self._prepared is None:
+            self._prepared = prepare_bilinear(*means)
         r = self.settings.resolution
         rows = x / r - 0.5 - self._i0
         cols = y / r - 0.5 - self._j0
-        z, s = sample_bilinear(mean, sigma, rows.ravel(), cols.ravel(), min_weight)
+        z, s = sample_prepared(self._prepared, rows.ravel(), cols.ravel(), min_weight)
         return z.reshape(x.shape), s.reshape(x.shape)
 
     def window(self, base: PlanarPose, stamp_ns: int) -> MapWindow:
