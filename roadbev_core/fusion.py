@@ -85,12 +85,15 @@ class MapSettings:
         ahead_m: the far edge in ``base_link`` x (camera x + the grid's ``x_max``).
         y_min, y_max: the corridor's lateral extent in ``base_link`` (camera y + the grid's).
         base_height: the road frame lies this far below the camera.
-        error_correlation: ``rho`` of the fused variance (0 = independent frames).
+        error_correlation: ``rho`` of the fused variance: how correlated one cell's errors are
+            from frame to frame (0 = independent frames).
         gate_sigma: observations farther than this many combined sigmas are rejected.
         reset_after: this many rejections in a row restart a cell.
         align: fit the offset (and with ``align_slopes`` the slopes) of each frame on the overlap.
         offset_prior_m, slope_prior_rad: 1-sigma priors of the alignment around the prediction.
         min_overlap_cells: fewer overlapping cells than this: the prediction is kept.
+        align_correlation: correlation of the cell errors of one frame in the alignment fit (the
+            overlap's n cells are worth ``1 / (rho + (1 - rho) / n)`` independent ones).
         range_exponent: an observation at distance x ahead of the camera weighs
             ``(x_near / x)^range_exponent`` times what its sigma alone says (x_near: the grid's
             near edge).
@@ -102,7 +105,7 @@ class MapSettings:
     y_min: float
     y_max: float
     base_height: float
-    error_correlation: float = 0.1
+    error_correlation: float = 1.0
     gate_sigma: float = 3.0
     reset_after: int = 3
     align: bool = True
@@ -111,6 +114,7 @@ class MapSettings:
     slope_prior_rad: float = math.radians(0.3)
     min_overlap_cells: int = 50
     range_exponent: float = 4.0
+    align_correlation: float = 0.1
 
     def __post_init__(self) -> None:
         if not (0.001 <= self.resolution <= 1.0):
@@ -551,8 +555,8 @@ class FusedMap:
         residual = m - z
         keep = np.ones(z.size, bool)
         x = np.zeros(3)
-        # equicorrelated cell errors: n cells are worth n_eff = 1 / (rho + (1 - rho) / n) of one
-        rho = s.error_correlation
+        # spatially correlated cell errors: n cells of one frame are worth 1 / (rho + (1 - rho) / n) of one
+        rho = s.align_correlation
         for _ in range(3):  # refit without the cells the fit cannot explain (a bump moved, a bad cell)
             n = max(int(keep.sum()), 1)
             w = np.where(keep, 1.0 / var, 0.0) / (n * (rho + (1.0 - rho) / n))
