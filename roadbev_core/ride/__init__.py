@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from roadbev_core.ride.iso2631 import WK_TABLE, WeightingError, WkFilter, weighted_rms, wk_response
 from roadbev_core.ride.lti import LtiError, discretise, expm_integral, solve_dare
+from roadbev_core.ride.online import HeldPreview, OnlinePreviewController, WheelCommand
 from roadbev_core.ride.preview_lqr import LqrWeights, PreviewLqr
 from roadbev_core.ride.quarter_car import GRAVITY, QuarterCar, RideError
 from roadbev_core.ride.simulate import (
@@ -34,14 +35,17 @@ __all__ = [
     "FRONT_WHEELS",
     "GRAVITY",
     "WK_TABLE",
+    "HeldPreview",
     "LqrWeights",
     "LtiError",
+    "OnlinePreviewController",
     "PreviewLqr",
     "QuarterCar",
     "RideError",
     "RideMetrics",
     "RideSettings",
     "WeightingError",
+    "WheelCommand",
     "WheelRoad",
     "WkFilter",
     "discretise",

@@ -315,7 +315,7 @@ def ride_metrics(result: dict[str, np.ndarray], controller: PreviewLqr, start: i
     )
 
 
-def ride(truth: Trajectory, road_map: RoadMap, sources: dict[str, Source], settings: RideSettings, start_ns: int,
+def ride(truth: Trajectory, road_map: RoadMap, sources: Mapping[str, Source], settings: RideSettings, start_ns: int,
          end_ns: int, score_end_ns: int | None = None, plane_slopes: Mapping[str, PlaneSlopes] | None = None,
          wheels: Sequence[str] = FRONT_WHEELS) -> dict[str, dict[str, Any]]:
     """Ride every source over the drive's true road (both front wheels) and score it.
