@@ -282,7 +282,8 @@ class RidingDrive(SyntheticDrive):
 
     ``drive[i]`` renders frame i (a :class:`DriveSample` whose labels mark hidden cells NaN);
     ``imu_samples()``, ``ground_truth_poses()``, ``odometry()``, ``road_map()`` and
-    ``base_to_camera`` give everything else a drive bag holds.
+    ``base_to_camera`` give everything else a drive bag holds; ``features_in_odom()`` where the
+    road's features are (for detectors).
     """
 
     def __init__(self, config: RidingConfig | None = None) -> None:
@@ -463,6 +464,18 @@ class RidingDrive(SyntheticDrive):
             "x": self._x.copy(), "y": self._y.copy(), "z": self._z.copy(),
             "yaw": self._yaw.copy(), "speed": self._speed.copy(), "heading": np.array(self._heading),
         }
+
+    def features_in_odom(self) -> list[tuple[str, float, float, float]]:
+        """The road's placed features as (name, x, y, height) in ``odom`` (height: a bump's
+        height, a pothole's depth as a negative number, 0 for other kinds)."""
+        c, s = math.cos(self._odom_yaw), math.sin(self._odom_yaw)
+        out = []
+        for f in self.scene.features:
+            dx, dy = f.x - self._odom_origin[0], f.y - self._odom_origin[1]
+            depth = getattr(f, "depth", None) if f.name == "pothole" else None
+            height = -float(depth) if depth is not None else float(getattr(f, "height", 0.0) or 0.0)
+            out.append((f.name, c * dx + s * dy, -s * dx + c * dy, height))
+        return out
 
     def road_map(self, margin_m: float = 1.5) -> RoadMap:
         """The true road height in ``odom`` over every wheel path and camera window of the drive."""
