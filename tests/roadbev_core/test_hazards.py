@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from roadbev_core.hazards import HazardError, HazardSettings, detect_hazards, road_residual, severity_cost
+from roadbev_core.hazards import HazardError, HazardSettings, band, detect_hazards, road_residual, severity_cost
 from roadbev_core.synth import DriveConfig, RidingConfig, RidingDrive, RoadConfig
 
 RES = 0.02
@@ -58,15 +58,14 @@ def test_true_road_map_of_a_drive() -> None:
     drive = RidingDrive(RidingConfig(drive=DriveConfig(frames=40, speed_mps=10.0, frame_rate_hz=10.0, seed=3,
                                                        road=road)))
     rm = drive.road_map()
-    n_rows, n_cols = rm.elevation.shape
+    n_rows = rm.elevation.shape[0]
     xs = rm.centre[0] + 0.5 * n_rows * rm.resolution - (np.arange(n_rows) + 0.5) * rm.resolution
-    ys = rm.centre[1] + 0.5 * n_cols * rm.resolution - (np.arange(n_cols) + 0.5) * rm.resolution
     path = drive.ground_truth_poses().position
-    lane = (ys >= path[:, 1].min() - 1.0) & (ys <= path[:, 1].max() + 1.0)  # the corridor a fused map covers
-    centre = (rm.centre[0], 0.5 * (ys[lane][0] + ys[lane][-1]))
-    found = detect_hazards(rm.elevation[:, lane], None, rm.resolution, centre)
+    y_lo, y_hi = path[:, 1].min() - 1.0, path[:, 1].max() + 1.0  # the corridor a fused map covers
+    lane, centre = band(rm.elevation, rm.resolution, rm.centre, y_lo, y_hi)
+    found = detect_hazards(lane, None, rm.resolution, centre)
     x_lo, x_hi = xs[-1] + 1.0, path[-1, 0] + 1.0
-    truth = [f for f in drive.features_in_odom() if x_lo < f[1] < x_hi and ys[lane][-1] < f[2] < ys[lane][0]]
+    truth = [f for f in drive.features_in_odom() if x_lo < f[1] < x_hi and y_lo < f[2] < y_hi]
     assert len(truth) >= 5
     for name, fx, fy, height in truth:
         match = [h for h in found if abs(h.x - fx) < 0.5 and (name != "pothole" or abs(h.y - fy) < 0.5)]
