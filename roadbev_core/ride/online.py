@@ -42,11 +42,14 @@ class HeldPreview(NamedTuple):
         stamp_ns: the message's stamp.
         profiles: its profiles (with ``vehicle_speed``).
         wheel_x: x of the front axle in the message's frame at its stamp (m).
+        slope_x: dz/dx of the message's reference plane against gravity along its x (0 for
+            ``roadbev_road``, which is level; the contact plane's for fused-map messages).
     """
 
     stamp_ns: int
     profiles: PreviewProfiles
     wheel_x: float
+    slope_x: float = 0.0
 
 
 class WheelCommand(NamedTuple):
@@ -94,8 +97,9 @@ class OnlinePreviewController:
         self.state = {w: np.zeros(4) for w in self.wheels}
         self.held = deque(maxlen=self.hold)
 
-    def receive(self, stamp_ns: int, profiles: PreviewProfiles, wheel_x: float) -> None:
-        """Hold a message.
+    def receive(self, stamp_ns: int, profiles: PreviewProfiles, wheel_x: float, slope_x: float = 0.0) -> None:
+        """Hold a message (``slope_x``: see :class:`HeldPreview`; the profile is put back on gravity
+        with it, so a tilted reference plane does not read as road).
 
         Raises:
             RideError: no positive ``vehicle_speed`` (the wheel cannot be placed), no track for
@@ -110,9 +114,9 @@ class OnlinePreviewController:
                 raise RideError(f"the preview has no track for {wheel} (tracks {sorted(names)})")
         if self.held and stamp_ns < self.held[-1].stamp_ns:
             raise RideError("preview stamps went back in time")
-        if not math.isfinite(wheel_x):
-            raise RideError("wheel_x must be finite")
-        self.held.append(HeldPreview(int(stamp_ns), profiles, float(wheel_x)))
+        if not (math.isfinite(wheel_x) and math.isfinite(slope_x)):
+            raise RideError("wheel_x and slope_x must be finite")
+        self.held.append(HeldPreview(int(stamp_ns), profiles, float(wheel_x), float(slope_x)))
 
     def reset(self) -> None:
         """Forget the messages and return the model to rest (e.g. after a time jump)."""
@@ -131,7 +135,8 @@ class OnlinePreviewController:
             v = float(msg.profiles.vehicle_speed or 0.0)
             track = next(t for t in _TRACKS[wheel] if t in {p.name for p in msg.profiles.tracks})
             x0 = msg.wheel_x + v * (now_ns - msg.stamp_ns) * 1e-9
-            h = read_profile(msg.profiles, track, x0 + v * dt * np.arange(n + 2))  # [n + 2]
+            xs = x0 + v * dt * np.arange(n + 2)  # [n + 2]
+            h = read_profile(msg.profiles, track, xs) + msg.slope_x * xs
             w = np.diff(h) / dt
             gap = np.isnan(out)
             out[gap] = w[gap]

@@ -60,6 +60,13 @@ def test_model_rides_the_previewed_road_and_reports_coverage() -> None:
     assert first.covered and first.preview_m == pytest.approx(9.0, abs=0.1)  # to the profile's end (300 x 3 cm)
     forces = [online.step(T0 + int(k * CTL.dt * S))["front_left"] for k in range(1, 100)]
     assert max(abs(c.feedforward_n) for c in forces) > 50.0  # it prepares for the plateau
+    # a reference plane tilted by 1 % along x adds its slope x speed to the road velocity
+    tilted = OnlinePreviewController(CTL)
+    tilted.receive(T0, profiles, wheel_x=0.0, slope_x=0.01)
+    flat = OnlinePreviewController(CTL)
+    flat.receive(T0, profiles, wheel_x=0.0)
+    assert tilted.road_velocity_ahead("front_left", T0)[:50] == pytest.approx(
+        flat.road_velocity_ahead("front_left", T0)[:50] + 0.01 * 10.0, abs=1e-3)
     # past the profile's end the wheel has no preview
     assert not online.step(T0 + int(1.0 * S))["front_left"].covered
     online.reset()
