@@ -155,7 +155,7 @@ def summarise(cells: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         for rate, data in cell["rates"].items():
             groups.setdefault((cell["rendered"], cell["speed_mps"], rate), []).append(data)
     table = []
-    for (rendered, speed, rate), items in sorted(groups.items()):
+    for (rendered, speed, rate), items in sorted(groups.items(), key=lambda g: (g[0][0], g[0][1], float(g[0][2]))):
         rows = sorted({r for d in items for r in d["rows"]}, key=_row_order)
         entry: dict[str, Any] = {"rendered": rendered, "speed_mps": speed, "rate_hz": float(rate), "drives": len(items),
                                  "rows": {}}
