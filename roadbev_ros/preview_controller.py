@@ -12,7 +12,9 @@ suspension controller"), in the manner of ros2/examples: a small node around the
   ``header.stamp``, the wheel advancing at the message's ``vehicle_speed`` (a message without a
   speed is refused and counted). Tracks ``left``/``right`` or ``front_left``/``front_right``;
   heights in the message's own reference (only their slope along the track is used, so a
-  reference offset does not matter).
+  reference offset does not matter); for ``reference`` ``contact_plane`` the plane's pitch
+  (``contact_plane_pitch``) is added back (:func:`plane_slope_x`), so the plane's tilt is not
+  read as road.
 * **Out**: ``geometry_msgs/WrenchStamped`` on ``force_topic`` every control step, one per front
   wheel, ``header.frame_id`` = the wheel (``front_left``, ``front_right``), ``header.stamp`` =
   the step's time, ``wrench.force.z`` = the commanded actuator force (N, positive pushes the body
@@ -47,7 +49,7 @@ from msg_bridge.grid_map import ROAD_FRAME
 from msg_bridge.preview import preview_from_message
 from roadbev_core.ride import OnlinePreviewController, PreviewLqr, RideError
 
-__all__ = ["PreviewControllerNode", "main"]
+__all__ = ["PreviewControllerNode", "main", "plane_slope_x"]
 
 BASE_FRAME = "base_link"
 TIME_JUMP_BACK_S = 1.0
@@ -63,6 +65,17 @@ DEFAULTS: dict[str, Any] = {
     "vehicle.wheelbase_m": 2.80,
     "vehicle.camera_position_m": [1.60, 0.0, 1.10],
 }
+
+
+def plane_slope_x(msg: Any) -> float:
+    """dz/dx of a message's reference plane against gravity: 0 for ``road`` previews (level), and
+    ``-tan(contact_plane_pitch)`` for ``contact_plane`` ones (the plane ``z = height - x tan(pitch)
+    + ...`` of the message's contact-plane fields), so that a tilted plane does not read as road.
+    Messages without those fields (older ``RoadPreview`` definitions) count as level."""
+    if str(getattr(msg, "reference", "")) != "contact_plane":
+        return 0.0
+    pitch = float(getattr(msg, "contact_plane_pitch", 0.0))
+    return -math.tan(pitch) if math.isfinite(pitch) and abs(pitch) < 0.5 else 0.0
 
 
 class PreviewControllerNode(Node):
@@ -115,7 +128,8 @@ class PreviewControllerNode(Node):
             decoded = preview_from_message(msg)
             if decoded.frame_id not in self.wheel_x:
                 raise RideError(f"frame {decoded.frame_id!r} is neither {ROAD_FRAME} nor {BASE_FRAME}")
-            self.control.receive(decoded.stamp_ns, decoded.profiles, self.wheel_x[decoded.frame_id])
+            self.control.receive(decoded.stamp_ns, decoded.profiles, self.wheel_x[decoded.frame_id],
+                                 slope_x=plane_slope_x(msg))
         except (MessageError, RideError) as exc:
             self._refuse(str(exc))
             return

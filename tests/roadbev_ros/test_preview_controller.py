@@ -107,3 +107,15 @@ def test_node_refuses_bad_parameters(ros: Any) -> None:
 
     with pytest.raises(RideError, match="control_rate_hz"):
         PreviewControllerNode(node_name=f"ctl_{uuid.uuid4().hex[:8]}", parameter_overrides={"control_rate_hz": 5.0})
+
+
+def test_plane_slope_of_a_message() -> None:
+    from types import SimpleNamespace
+
+    from roadbev_ros.preview_controller import plane_slope_x
+
+    assert plane_slope_x(SimpleNamespace(reference="road", contact_plane_pitch=0.1)) == 0.0
+    assert plane_slope_x(SimpleNamespace()) == 0.0  # an older RoadPreview without the fields
+    # nose-down pitch: the plane falls ahead (z = height - x tan(pitch))
+    assert plane_slope_x(SimpleNamespace(reference="contact_plane", contact_plane_pitch=0.02)) == pytest.approx(
+        -np.tan(0.02))
