@@ -178,35 +178,43 @@ def _row_order(name: str) -> tuple[int, str]:
 
 
 def plot(table: Sequence[dict[str, Any]], path: Path) -> None:
-    """Wk RMS and share of the ceiling's gain against speed (rendered drives solid, oracle-only dashed)."""
+    """Wk RMS (truth-only drives) and the share of the ceiling's gain per preview row against speed:
+    a colour per row, solid 10 Hz / dashed 5 Hz, circles truth-only / squares rendered drives."""
     from roadbev_core.figures import new_figure
 
-    fig, axes = new_figure(1, 2, figsize=(12, 4.2), dpi=100)
+    fig, axes = new_figure(1, 2, figsize=(12, 4.4), dpi=100)
+    names = sorted({r for t in table for r in t["rows"]}, key=_row_order)
+    colours = {name: f"C{i}" for i, name in enumerate(names)}
+    rates = sorted({t["rate_hz"] for t in table})
     for rendered in (False, True):
-        for rate in sorted({t["rate_hz"] for t in table}):
+        for rate in rates:
             items = sorted((t for t in table if t["rendered"] == rendered and t["rate_hz"] == rate),
                            key=lambda t: t["speed_mps"])
             if not items:
                 continue
-            names = sorted({r for t in items for r in t["rows"]}, key=_row_order)
             speeds = [t["speed_mps"] for t in items]
-            tag = f"{'rendered' if rendered else 'truth-only'} {rate:g} Hz"
-            style = "-o" if rendered else "--s"
+            style = ("-" if rate == rates[-1] else "--") + ("s" if rendered else "o")
+            tag = f"{rate:g} Hz{', rendered' if rendered else ''}"
             for name in names:
-                if name in ("passive", "no_preview", "true_road") and rate != min(t["rate_hz"] for t in table):
-                    continue  # the same at every camera rate
-                axes[0].plot(speeds, [t["rows"][name]["wk_rms_mps2"] for t in items], style, label=f"{name} ({tag})")
-                if "share_mean" in items[0]["rows"].get(name, {}) and name != "true_road":
-                    axes[1].errorbar(speeds, [t["rows"][name]["share_mean"] for t in items],
-                                     yerr=[t["rows"][name]["share_std"] for t in items], fmt=style, capsize=3,
-                                     label=f"{name} ({tag})")
+                rows = [t["rows"].get(name) for t in items]
+                if any(r is None for r in rows):
+                    continue
+                if not rendered and (rate == rates[-1] or name not in ("passive", "no_preview", "true_road")):
+                    axes[0].plot(speeds, [r["wk_rms_mps2"] for r in rows], style, color=colours[name],
+                                 label=name if name in ("passive", "no_preview", "true_road") else f"{name} {tag}")
+                if name not in ("passive", "no_preview", "true_road") and all("share_mean" in r for r in rows):
+                    axes[1].errorbar(speeds, [r["share_mean"] for r in rows], yerr=[r["share_std"] for r in rows],
+                                     fmt=style, color=colours[name], capsize=3, label=f"{name} {tag}")
     axes[0].set_ylabel("Wk-weighted RMS body acceleration (m/s^2)")
+    axes[0].set_title("truth-only drives (20 s)")
     axes[1].set_ylabel("share of the true road's gain over no preview")
+    axes[1].set_title("preview rows")
     axes[1].axhline(1.0, color="k", lw=0.5)
+    axes[1].axhline(0.0, color="k", lw=0.5)
     for ax in axes:
         ax.set_xlabel("speed (m/s)")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=6)
+        ax.legend(fontsize=6, ncol=2)
     fig.suptitle("preview LQR quarter car on drives over bumps, potholes, rough road (latency 0.1 s)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
