@@ -21,8 +21,10 @@ suspension controller"), in the manner of ros2/examples: a small node around the
   up and the wheel down); ``diagnostic_msgs/DiagnosticArray`` on ``/diagnostics`` (status
   "roadbev: preview controller": messages held / refused, share of steps with a preview under
   the wheel, how far ahead the preview reaches, RMS force).
-* **Clock**: the node's clock (``use_sim_time:=true`` with a replayed bag's ``/clock``). A clock
-  that jumps back more than 1 s (a bag restarted) resets the controller.
+* **Clock**: the node's clock (``use_sim_time:=true`` with a replayed bag's ``/clock``); the model
+  advances by the time elapsed since the last callback (several control steps when a sim-time
+  timer fires late), and the forces are published once per callback. A clock that jumps back
+  more than 1 s (a bag restarted) resets the controller.
 
 The model is the reference's stand-in for suspension sensors: each wheel's quarter car rides the
 previewed road itself. On a vehicle, set the controller's state from the measured one before
@@ -53,6 +55,7 @@ __all__ = ["PreviewControllerNode", "main", "plane_slope_x"]
 
 BASE_FRAME = "base_link"
 TIME_JUMP_BACK_S = 1.0
+MAX_CATCH_UP = 50  # model steps one timer callback may run (a longer pause: the model skips ahead)
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 DEFAULTS: dict[str, Any] = {
     "preview_topic": "/roadbev/preview",
@@ -137,11 +140,20 @@ class PreviewControllerNode(Node):
 
     def _step(self) -> None:
         now = self.get_clock().now().nanoseconds
-        if self._last_now is not None and now < self._last_now - int(TIME_JUMP_BACK_S * 1e9):
+        dt_ns = int(round(self.control.controller.dt * 1e9))
+        last = self._last_now
+        if last is not None and now < last - int(TIME_JUMP_BACK_S * 1e9):
             self.control.reset()
             self.counts["resets"] += 1
+            last = None
+        # the model advances with the clock: as many steps as have elapsed (a sim-time timer fires
+        # only when /clock moves, so one callback may stand for several steps), at most MAX_CATCH_UP
+        n = 1 if last is None else min(MAX_CATCH_UP, int(round((now - last) / dt_ns)))
+        if n < 1:
+            return
         self._last_now = now
-        commands = self.control.step(now)
+        for k in range(n):
+            commands = self.control.step(now - (n - 1 - k) * dt_ns)
         sec, nsec = divmod(now, 1_000_000_000)
         for wheel, cmd in commands.items():
             out = WrenchStamped()
@@ -153,7 +165,7 @@ class PreviewControllerNode(Node):
             self._period["reach"] += cmd.preview_m
             self._period["covered"] += int(cmd.covered)
             self._period["steps"] += 1
-        self.counts["steps"] += 1
+        self.counts["steps"] += n
         self.counts["covered_steps"] += int(all(c.covered for c in commands.values()))
 
     def _publish_diagnostics(self) -> None:
