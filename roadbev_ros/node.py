@@ -280,7 +280,7 @@ def main(args: Sequence[str] | None = None) -> int:
         rclpy = init_ros(argv)
         node = RoadBevNode()
     except ParamError as exc:
-        print(f"roadbev_node: {exc}", file=sys.stderr)
+        print(f"roadbev node: error: {exc}", file=sys.stderr)
         if rclpy is not None:
             rclpy.try_shutdown()
         return 2
