@@ -151,6 +151,7 @@ class Health:
     dropped_sync: int = 0
     dropped_invalid: int = 0
     problems: Counter[str] = field(default_factory=Counter)
+    time_jumps: int = 0
     last_error: str = ""
     last_error_time: float = -math.inf
     imu_age_s: float | None = None
@@ -215,6 +216,11 @@ class Health:
             self.coverage_ok = bool(ok)
             self.coverage_hint = hint
 
+    def time_jump(self) -> None:
+        """The stamps jumped back (a looped bag): counted, not a problem."""
+        with self._lock:
+            self.time_jumps += 1
+
     def problem(self, kind: str, reason: str) -> None:
         """An input or processing problem (counted by kind; the reason is kept as last error)."""
         with self._lock:
@@ -249,6 +255,7 @@ class Health:
                 "dropped_sync": str(self.dropped_sync),
                 "dropped_invalid": str(self.dropped_invalid),
                 "imu_age_s": "none" if self.imu_age_s is None else f"{self.imu_age_s:.3f}",
+                "time_jumps": str(self.time_jumps),
                 "last_error": self.last_error,
                 "coverage_pct": "none" if self.coverage_pct is None else f"{self.coverage_pct:.1f}",
                 "self_check": self.coverage_hint,

@@ -85,6 +85,7 @@ class RoadBevNode(Node):
         self.health = Health(backend=self.pipeline.backend.name)
         self._log_gate = ThrottledLog(self.config.diagnostics.log_throttle_s)
         self._mailbox: Mailbox[tuple[Any, ...]] = Mailbox()
+        self._passes = 0  # time jumps back so far: a frame of an earlier pass fails quietly
         self.sync = self._make_sync()
         topics = self.config.topics
         image_type = CompressedImage if topics.image_transport == "compressed" else Image
@@ -146,13 +147,20 @@ class RoadBevNode(Node):
         self.sync.add(index, stamp, (which, msg))
 
     def _on_time_jump(self, topic: int, jump_ns: int) -> None:
+        """A looped or restarted bag: not an error (rosbag2 stacks expect it), a reset, once."""
+        self._passes += 1
         self.pipeline.reset()
-        self._problem("time jump", f"stamps went back {jump_ns * 1e-9:.2f} s (a bag started again?); "
-                      "the synchroniser and the IMU history start afresh")
+        if self._mailbox.clear():  # a set of the old pass must not meet the new pass's IMU
+            self.health.drop("sync")
+        self.health.time_jump()
+        self.get_logger().info(f"stamps went back {jump_ns * 1e-9:.2f} s (a bag started again?): the "
+                               "synchroniser, the IMU history and the pipeline state start afresh")
 
     def _on_sync_drop(self, topic: int, stamp: int, item: Any, reason: str) -> None:
         which = item[0]
-        if reason in (DropReason.OUT_OF_ORDER, DropReason.DUPLICATE):
+        if reason == DropReason.RESET:
+            pass  # counted below; the jump itself is logged once by _on_time_jump
+        elif reason in (DropReason.OUT_OF_ORDER, DropReason.DUPLICATE):
             self._problem("stamp order", f"{which} at {stamp * 1e-9:.6f} s: {reason}")
         elif which == LEFT_IMAGE:
             self._problem("unpaired", f"left image at {stamp * 1e-9:.6f} s dropped: {reason} "
@@ -217,9 +225,13 @@ class RoadBevNode(Node):
             if taken is None:
                 return
             msgs, arrival = taken
+            passes = self._passes
             try:
                 self._process(msgs, arrival)
             except RoadbevError as exc:
+                if passes != self._passes:  # the clock jumped back meanwhile (IMU history reset)
+                    self.health.drop("sync")
+                    continue
                 self.health.drop("invalid")
                 self._problem(problem_kind(exc), str(exc))
             except Exception as exc:  # a backend failure must not end the node

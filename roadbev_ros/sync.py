@@ -46,6 +46,7 @@ class DropReason:
     SUPERSEDED = "older than an emitted set"
     OUT_OF_ORDER = "out of order"
     DUPLICATE = "duplicate stamp"
+    RESET = "the clock jumped back (reset)"
 
 
 @dataclass
@@ -178,8 +179,9 @@ class ApproximateTimeSync:
         return True
 
     def reset(self) -> None:
-        """Forget every queued message and the emitted history (e.g. after a clock jump back)."""
+        """Forget every queued message (reported as :attr:`DropReason.RESET`) and the emitted
+        history (e.g. after a clock jump back)."""
         for index, queue in enumerate(self._queues):
             for stamp in sorted(queue):
-                self._drop(index, stamp, queue.pop(stamp), DropReason.SUPERSEDED)
+                self._drop(index, stamp, queue.pop(stamp), DropReason.RESET)
         self._last_emitted = [None] * self.n_topics

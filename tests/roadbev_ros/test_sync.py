@@ -152,7 +152,7 @@ def test_a_jump_back_resets_instead_of_refusing_everything() -> None:
     assert not sync.add(1, 4_500 * MS, "late")  # half a second back: only out of order
     assert sync.add(1, 100 * MS, "b0") is False  # five seconds back: a reset, then queued
     assert resets == [(1, 4_900 * MS)]
-    assert (0, 5_100 * MS, DropReason.SUPERSEDED) in rec.drops
+    assert (0, 5_100 * MS, DropReason.RESET) in rec.drops
     assert sync.add(0, 100 * MS, "a0")
     assert rec.sets[-1] == ("a0", "b0")
     never = ApproximateTimeSync(2, 10, 0.01, rec.emit, rec.drop, jump_back_s=None)
