@@ -29,6 +29,7 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -41,9 +42,16 @@ from msg_bridge.pipeline_io import camera_input, output_messages, speed_from_mes
 from roadbev_core.config import ParamError, RoadbevConfig
 from roadbev_core.errors import RoadbevError
 from roadbev_core.pipeline import BackendFactory, Pipeline
-from roadbev_ros.diagnostics import Health, ThrottledLog, problem_kind, to_diagnostic_array
+from roadbev_ros.diagnostics import Health, ThrottledLog, problem_kind, to_diagnostic_array, transport_hint
 from roadbev_ros.mailbox import Mailbox
-from roadbev_ros.node_params import check_params_files, config_of, declare_parameters, plain, value_error
+from roadbev_ros.node_params import (
+    ROS_PARAMETERS,
+    check_params_files,
+    config_of,
+    declare_parameters,
+    plain,
+    value_error,
+)
 from roadbev_ros.publishers import OutputPublishers
 from roadbev_ros.sync import ApproximateTimeSync, DropReason
 
@@ -83,6 +91,7 @@ class RoadBevNode(Node):
         except RoadbevError as exc:
             raise ParamError(str(exc)) from None
         self.health = Health(backend=self.pipeline.backend.name)
+        self.health.configure(self.config.diagnostics)
         self._log_gate = ThrottledLog(self.config.diagnostics.log_throttle_s)
         self._mailbox: Mailbox[tuple[Any, ...]] = Mailbox()
         self._passes = 0  # time jumps back so far: a frame of an earlier pass fails quietly
@@ -99,7 +108,7 @@ class RoadBevNode(Node):
             self.create_subscription(speed_message_type(topics.speed_type), topics.speed, self._on_speed, SENSOR_QOS)
         self._out = OutputPublishers(self, OUTPUT_QOS, topics)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", OUTPUT_QOS)
-        self._diag_timer = self.create_timer(self.config.diagnostics.period_s, self._publish_diagnostics)
+        self._diag_timer = self._diagnostics_timer(self.config.diagnostics.period_s)
         self.add_pre_set_parameters_callback(self._report_bad_values)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._worker = threading.Thread(target=self._work, name="roadbev-inference", daemon=True)
@@ -116,6 +125,10 @@ class RoadBevNode(Node):
         return ApproximateTimeSync(n, s.queue_size, s.slop_s, self._on_set, self._on_sync_drop,
                                    jump_back_s=TIME_JUMP_BACK_S, on_reset=self._on_time_jump)
 
+    def _diagnostics_timer(self, period_s: float) -> Any:
+        """On the steady clock: diagnostics go on while a simulated /clock stops or jumps back."""
+        return self.create_timer(period_s, self._publish_diagnostics, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
     def _image_topic(self, base: str) -> str:
         return base + "/compressed" if self.config.topics.image_transport == "compressed" else base
 
@@ -128,8 +141,6 @@ class RoadBevNode(Node):
 
     # --- callbacks (executor thread) -------------------------------------------------------------
     def _on_input(self, which: str, msg: Any) -> None:
-        if which == LEFT_IMAGE:
-            self.health.frame_in()
         index = {LEFT_IMAGE: 0, RIGHT_IMAGE: 1, LEFT_INFO: 2, RIGHT_INFO: 3}[which]
         if self.sync.n_topics == 2:
             if index in (1, 3):
@@ -140,10 +151,13 @@ class RoadBevNode(Node):
             if stamp <= 0:
                 raise MessageError("header has no stamp (0)")
         except MessageError as exc:
-            self._problem("bad stamp", f"{which}: {exc}")
             if which == LEFT_IMAGE:
+                self.health.frame_in()
                 self.health.drop("invalid")
+            self._problem("bad stamp", f"{which}: {exc}")
             return
+        if which == LEFT_IMAGE:  # the stamp's age by the node's clock (sim time under use_sim_time)
+            self.health.frame_in((self.get_clock().now().nanoseconds - stamp) * 1e-9)
         self.sync.add(index, stamp, (which, msg))
 
     def _on_time_jump(self, topic: int, jump_ns: int) -> None:
@@ -198,8 +212,11 @@ class RoadBevNode(Node):
         error = next(filter(None, (value_error(p.name, plain(p.value)) for p in parameters)), None)
         if error:  # already reported by _report_bad_values
             return SetParametersResult(successful=False, reason=error)
+        changes = {p.name: plain(p.value) for p in parameters if p.name not in ROS_PARAMETERS}
+        if not changes:  # use_sim_time: rclpy's time source takes it
+            return SetParametersResult(successful=True)
         try:
-            config = self.config.with_params({p.name: plain(p.value) for p in parameters if p.name != "use_sim_time"})
+            config = self.config.with_params(changes)
             self.pipeline.reconfigure(config)  # builds a new backend first; the old one runs on failure
         except RoadbevError as exc:
             self._problem("parameter", f"rejected: {exc}")
@@ -213,7 +230,8 @@ class RoadBevNode(Node):
             self.sync.configure(config.sync.queue_size, config.sync.slop_s)
         if old.diagnostics.period_s != config.diagnostics.period_s:
             self.destroy_timer(self._diag_timer)
-            self._diag_timer = self.create_timer(config.diagnostics.period_s, self._publish_diagnostics)
+            self._diag_timer = self._diagnostics_timer(config.diagnostics.period_s)
+        self.health.configure(config.diagnostics)
         self.get_logger().info("parameters updated")
         return SetParametersResult(successful=True)
 
@@ -252,13 +270,15 @@ class RoadBevNode(Node):
         self._out.publish(messages)
         t3 = time.perf_counter()
         latency_ms = (time.monotonic() - arrival) * 1e3
-        stamp_age_ms = (time.time_ns() - inputs.stamp_ns) * 1e-6
+        stamp_age_ms = (self.get_clock().now().nanoseconds - inputs.stamp_ns) * 1e-6
         estimate_ms = output.timings_ms["estimate"]
         overhead_ms = ((t1 - t0) - imu_wait + (t2 - t1) - estimate_ms * 1e-3 + (t3 - t2)) * 1e3
         self.health.output(latency_ms, stamp_age_ms, estimate_ms, overhead_ms, imu_wait * 1e3)
 
     # --- diagnostics -----------------------------------------------------------------------------
     def _publish_diagnostics(self) -> None:
+        quiet = self.health.input_rate.in_window() == 0
+        self.health.input_hint = transport_hint(self, self._image_topic(self.config.topics.left_image)) if quiet else ""
         snapshot = self.health.snapshot()
         snapshot.values["queued_sets"] = "1" if self._mailbox.waiting else "0"
         snapshot.values["queued_left_images"] = str(self.sync.queued()[0])

@@ -191,7 +191,8 @@ def replay_bag(
             has a subscriber before starting (0 = do not wait); on a timeout the replay starts
             anyway and :attr:`ReplayStats.unmatched` names the topics still without one.
         wait_topics: the topics to wait for (None = every replayed topic; topics not replayed
-            are ignored).
+            are ignored). ``/clock`` is not waited for: a node on ``use_sim_time`` subscribes to
+            it as it starts, before its own subscriptions.
         on_wait_timeout: called with the topics still without a subscriber when the wait timed
             out, before the first message goes out.
         qos_depth: reliable keep-last depth of the publishers.
@@ -250,6 +251,7 @@ def replay_bag(
         clock_msg = Clock()
     stop = stop or threading.Event()
     waited_on = [publishers[t] for t in (publishers if wait_topics is None else wait_topics) if t in publishers]
+    named = {id(p): t for t, p in publishers.items()}
     if wait_for_subscribers > 0 and waited_on:
         began = time.monotonic()
         deadline = began + wait_for_subscribers
@@ -261,8 +263,7 @@ def replay_bag(
                 time.sleep(settle_s)
                 break
             if time.monotonic() >= deadline:
-                stats.unmatched = [t for t, p in publishers.items()
-                                   if p in waited_on and p.get_subscription_count() == 0]
+                stats.unmatched = [named[id(p)] for p in waited_on if p.get_subscription_count() == 0]
                 if on_wait_timeout is not None:
                     on_wait_timeout(stats.unmatched)
                 break

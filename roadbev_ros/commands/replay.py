@@ -27,7 +27,6 @@ from roadbev_ros.cli import CommandError, list_item, progress_bar, warn
 
 HELP = "publish a bag's topics over ROS 2 with their original timing"
 DEFAULT_WAIT_S = 10.0
-COMPRESSED = "/compressed"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -62,13 +61,14 @@ def waited_topics(bag_path: Path, topics: list[str] | None) -> list[str] | None:
 
 def transport_hint(node: Any, topic: str) -> str:
     """Why ``topic`` may have no subscriber: someone listens on its other image transport."""
-    other = topic[: -len(COMPRESSED)] if topic.endswith(COMPRESSED) else topic + COMPRESSED
+    from roadbev_ros.diagnostics import COMPRESSED_SUFFIX, other_transport
+
+    other = other_transport(topic)
     if node.count_subscribers(other) == 0:
         return ""
-    if topic.endswith(COMPRESSED):
-        return (f" ({other} has a subscriber: the bag's images are compressed, start the node with "
-                "-p image_transport:=compressed)")
-    return f" ({other} has a subscriber: the bag's images are raw, start the node with -p image_transport:=raw)"
+    transport = "compressed" if topic.endswith(COMPRESSED_SUFFIX) else "raw"
+    return (f" ({other} has a subscriber: the bag's images are {transport}, start the node with "
+            f"-p image_transport:={transport})")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -94,6 +94,11 @@ def test_replay_into_the_node_and_record(user_folder: Path, shell: list[subproce
     assert int(final["frames_in"]) == SAMPLE_FRAMES, final
     assert outputs + drops == SAMPLE_FRAMES, final
     assert outputs >= 1
+    # the node ran on the bag's clock (use_sim_time, replay --clock): its stamps were never "old"
+    stamp_checks = [m.status[2] for m in diagnostics]
+    assert all(s.name == "roadbev: left image stamps" for s in stamp_checks)
+    assert not any("old on arrival" in s.message or "ahead of" in s.message for s in stamp_checks), \
+        [s.message for s in stamp_checks]
     # the recording holds every output the node published
     assert topics["/roadbev/elevation"].count == outputs, final
     assert topics["/roadbev/preview"].count == outputs, final
