@@ -37,6 +37,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from sensor_msgs.msg import Imu as ImuMsg
 
 from msg_bridge import MessageError, RclpyFactory, stamp_from_header
+from msg_bridge.image import check_image_message
 from msg_bridge.imu import imu_orientation
 from msg_bridge.pipeline_io import camera_input, output_messages, speed_from_message, speed_message_type
 from roadbev_core.config import ParamError, RoadbevConfig
@@ -123,7 +124,8 @@ class RoadBevNode(Node):
         n = 4 if self.pipeline.backend.needs_stereo else 2
         s = self.config.sync
         return ApproximateTimeSync(n, s.queue_size, s.slop_s, self._on_set, self._on_sync_drop,
-                                   jump_back_s=TIME_JUMP_BACK_S, on_reset=self._on_time_jump)
+                                   jump_back_s=TIME_JUMP_BACK_S, on_reset=self._on_time_jump,
+                                   max_bytes=int(s.queue_mb * 2**20))
 
     def _diagnostics_timer(self, period_s: float) -> Any:
         """On the steady clock: diagnostics go on while a simulated /clock stops or jumps back."""
@@ -158,7 +160,16 @@ class RoadBevNode(Node):
             return
         if which == LEFT_IMAGE:  # the stamp's age by the node's clock (sim time under use_sim_time)
             self.health.frame_in((self.get_clock().now().nanoseconds - stamp) * 1e-9)
-        self.sync.add(index, stamp, (which, msg))
+        nbytes = 0
+        if which in (LEFT_IMAGE, RIGHT_IMAGE):  # refused before it is held (issue 19: 46 MB images)
+            try:
+                nbytes = check_image_message(msg, int(self.config.sync.max_image_mb * 2**20), which)
+            except MessageError as exc:
+                if which == LEFT_IMAGE:
+                    self.health.drop("invalid")
+                self._problem("image too large", str(exc))
+                return
+        self.sync.add(index, stamp, (which, msg), nbytes)
 
     def _on_time_jump(self, topic: int, jump_ns: int) -> None:
         """A looped or restarted bag: not an error (rosbag2 stacks expect it), a reset, once."""
@@ -179,6 +190,8 @@ class RoadBevNode(Node):
         elif which == LEFT_IMAGE:
             self._problem("unpaired", f"left image at {stamp * 1e-9:.6f} s dropped: {reason} "
                           "(no matching right image / camera infos within the slop)")
+        elif reason == DropReason.OVERFLOW_BYTES:
+            self._problem("unpaired", f"{which} at {stamp * 1e-9:.6f} s dropped: {reason} (sync_queue_mb)")
         if which == LEFT_IMAGE:
             self.health.drop("sync")
 
@@ -227,7 +240,7 @@ class RoadBevNode(Node):
         if (self.sync.n_topics == 4) != self.pipeline.backend.needs_stereo:
             self.sync = self._make_sync()
         else:
-            self.sync.configure(config.sync.queue_size, config.sync.slop_s)
+            self.sync.configure(config.sync.queue_size, config.sync.slop_s, int(config.sync.queue_mb * 2**20))
         if old.diagnostics.period_s != config.diagnostics.period_s:
             self.destroy_timer(self._diag_timer)
             self._diag_timer = self._diagnostics_timer(config.diagnostics.period_s)

@@ -211,10 +211,15 @@ class SyncConfig:
     queue_size: int = param("sync_queue_size", 10, "approximate-time synchroniser queue per topic", 1, 1000)
     slop_s: float = param("sync_slop_s", 0.02, "largest stamp spread within a synchronised set (s)", 0.0, 1.0)
     queue_mb: float = param("sync_queue_mb", 256.0, "largest total size of the messages the synchroniser "
-                            "holds (MB, all topics); beyond it the oldest are dropped (queue overflow)", 1.0, 65536.0)
-    max_image_mb: float = param("max_image_mb", 64.0, "an image message larger than this (MB of data) is refused "
+                            "holds (MiB, all topics); beyond it the oldest are dropped (queue overflow)", 1.0, 65536.0)
+    max_image_mb: float = param("max_image_mb", 64.0, "an image message larger than this (MiB of data) is refused "
                                 "on arrival, counted as 'image too large' (the shipped Fast DDS profile's "
-                                "shared-memory segment is 64 MB)", 0.01, 4096.0)
+                                "shared-memory segment is 64 MiB)", 0.001, 4096.0)
+
+    def __post_init__(self) -> None:
+        if self.queue_mb < 2 * self.max_image_mb:
+            raise ParamError(f"sync_queue_mb = {self.queue_mb:g} must hold a stereo pair of the largest images: "
+                             f"at least 2 x max_image_mb = {2 * self.max_image_mb:g}")
 
     def sets_per_message(self, topics: int) -> float:
         """Upper bound of the stamp combinations one new message makes the synchroniser try."""

@@ -131,3 +131,25 @@ def test_the_other_transport_is_named_when_nothing_arrives(ros: Any) -> None:
         node.shutdown()
         node.destroy_node()
         camera.destroy_node()
+
+
+@pytest.mark.parametrize("harness", [{"max_image_mb": 0.005}], indirect=True)
+def test_an_image_over_the_size_limit_is_refused_on_arrival_and_counted(harness: Harness) -> None:
+    node = harness.node  # the harness's 64 x 48 rgb8 images are 9 KiB, over 0.005 MiB
+    for k in range(3):
+        feed(harness, k)
+    assert wait_for(lambda: node.health.problems["image too large"] == 6), dict(node.health.problems)
+    counts = node.counts()
+    assert counts["frames_in"] == 3 and counts["dropped_invalid"] == 3 and counts["outputs"] == 0, counts
+    assert node.sync.queued() == [0, 0, 3, 3] and node.sync.queued_bytes == 0  # only the camera infos wait
+    assert "MiB is larger than the limit" in node.health.last_error
+    values = harness.latest_diagnostics()
+    assert wait_for(lambda: harness.latest_diagnostics().get("problem.image too large") == "6"), values
+
+
+def test_the_byte_bound_must_hold_a_stereo_pair() -> None:
+    from roadbev_core.config import ParamError, RoadbevConfig
+
+    with pytest.raises(ParamError, match="sync_queue_mb = 100 must hold a stereo pair"):
+        RoadbevConfig.from_params({"sync_queue_mb": 100.0, "max_image_mb": 64.0})
+    assert RoadbevConfig.from_params({"sync_queue_mb": 128.0}).sync.queue_mb == 128.0
