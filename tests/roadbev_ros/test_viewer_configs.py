@@ -31,7 +31,7 @@ RVIZ_TYPES = {
 NOT_YET = "/roadbev/map"  # the fused map of issue 16, in the configs before the node has it
 
 
-def type_name(cls: type) -> str:
+def type_name(cls: Any) -> str:
     return f"{cls.__module__.split('.')[0]}/msg/{cls.__name__}"
 
 
