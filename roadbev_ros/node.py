@@ -59,9 +59,10 @@ from roadbev_ros.sync import ApproximateTimeSync, DropReason
 __all__ = ["RoadBevNode", "main"]
 
 LEFT_IMAGE, RIGHT_IMAGE, LEFT_INFO, RIGHT_INFO = "left image", "right image", "left info", "right info"
-# A left image this much older than the last processed one means the clock jumped back (a bag
-# started again): the synchroniser and the IMU history start afresh.
-TIME_JUMP_BACK_S = 1.0
+# A camera message this much older than the last paired one means the clock jumped back (a bag
+# looped or started again): the synchroniser, the IMU history and the pipeline start afresh.
+# (Half a second: a looped bag of one second jumps back by one second less one frame.)
+TIME_JUMP_BACK_S = 0.5
 SENSOR_QOS = qos_profile_sensor_data
 # the IMU comes in bursts of many small messages per image: a deeper best-effort queue
 IMU_QOS = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -172,7 +173,8 @@ class RoadBevNode(Node):
         self.sync.add(index, stamp, (which, msg), nbytes)
 
     def _on_time_jump(self, topic: int, jump_ns: int) -> None:
-        """A looped or restarted bag: not an error (rosbag2 stacks expect it), a reset, once."""
+        """A looped or restarted bag (the synchroniser saw a stamp jump back and has reset
+        itself): not an error (rosbag2 stacks expect it), a reset, logged and counted once."""
         self._passes += 1
         self.pipeline.reset()
         if self._mailbox.clear():  # a set of the old pass must not meet the new pass's IMU
