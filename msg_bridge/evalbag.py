@@ -34,6 +34,7 @@ not decode is a lost frame, and :meth:`EvalBag.losses` says how many frames were
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
@@ -49,8 +50,11 @@ from msg_bridge.camera_info import camera_info_from_stereo, stereo_camera_from_c
 from msg_bridge.grid_map import ROAD_FRAME, grid_map_message, grid_map_to_arrays
 from msg_bridge.image import array_to_compressed, array_to_image, compressed_to_rgb, image_to_rgb
 from msg_bridge.imu import imu_message, imu_orientation
+from msg_bridge.pipeline_io import odometry_sample
+from msg_bridge.tf import StaticTransform, transforms_from_tf
 from roadbev_core.attitude import ImuBuffer, ImuSample, ImuStale
 from roadbev_core.config import ConfigError, GridSpec, StereoCamera
+from roadbev_core.ego_motion import PlanarPose
 from roadbev_core.frame import Frame
 from roadbev_core.pipeline import CameraInput
 
@@ -74,6 +78,8 @@ DEFAULT_TOPICS: dict[str, str] = {
     "imu_topic": "/imu/data",
     "ground_truth_topic": "/ground_truth/elevation",
     "grid_config_topic": "/roadbev/grid_config",
+    "odom_topic": "/odom",
+    "tf_static_topic": "/tf_static",
 }
 COMPRESSED = "/compressed"
 LEFT_FRAME = "stereo_left_optical_frame"
@@ -248,6 +254,10 @@ class EvalBag:
         camera: the rig of the first frame.
         stereo: whether the bag has right images.
         imu: the IMU orientations in stamp order (for :func:`roadbev_core.pipeline.replay`).
+        odometry: ``base_link`` poses from ``odom_topic`` in stamp order (the map's ego-motion).
+        camera_frame: the left images' ``header.frame_id``.
+        camera_mount: ``base_link`` -> that frame from ``/tf_static`` (position [3], R [3, 3]
+            optical -> base_link), or None.
         topics: parameter name -> topic actually read (image topics with ``/compressed``).
         skipped: reason -> number of left images that could not become camera sets (while
             iterating, also images that do not decode or do not fit the camera).
@@ -280,6 +290,9 @@ class EvalBag:
         self.skipped = skipped
         self.notes = notes
         self.read_stats = read_stats if read_stats is not None else ReadStats()
+        self.odometry: list[PlanarPose] = []
+        self.camera_frame = LEFT_FRAME
+        self.camera_mount: tuple[np.ndarray, np.ndarray] | None = None
 
     def lost_frames(self) -> int:
         """Frames of the bag that cannot be evaluated: incomplete or undecodable ones, and left
@@ -375,6 +388,10 @@ class _Collected(NamedTuple):
     grid_config: dict[str, Any] | None
     bad_imu: int
     read: ReadStats
+    odometry: list[PlanarPose]
+    bad_odometry: int
+    static: list[StaticTransform]
+    left_frame: str
 
 
 def _collect(path: Path, topics: dict[str, str]) -> _Collected:
@@ -385,7 +402,10 @@ def _collect(path: Path, topics: dict[str, str]) -> _Collected:
     imu: list[tuple[int, np.ndarray]] = []
     truths: dict[int, Any] = {}
     grid_config = None
-    bad_imu = 0
+    bad_imu = bad_odometry = 0
+    odometry: list[PlanarPose] = []
+    static: list[StaticTransform] = []
+    left_frame = ""
     read = ReadStats()
     for item in read_messages(path, list(topics.values()), on_damage="skip", stats=read):
         topic, msg = item.topic, item.msg
@@ -395,12 +415,17 @@ def _collect(path: Path, topics: dict[str, str]) -> _Collected:
             except (TypeError, ValueError) as exc:
                 raise BagError(f"{path}: {topic} is not JSON: {exc}") from None
             continue
+        if topic == topics["tf_static_topic"]:
+            with contextlib.suppress(MessageError):  # malformed: the mount comes from vehicle.camera_position_m
+                static.extend(transforms_from_tf(msg))
+            continue
         try:
             stamp = stamp_from_header(msg)
         except MessageError as exc:
             raise BagError(f"{path}: a message on {topic} has a bad stamp: {exc}") from None
         if topic == topics["left_image_topic"]:
             left[stamp] = left.get(stamp, 0) + 1
+            left_frame = left_frame or str(getattr(msg.header, "frame_id", ""))
         elif topic == topics["right_image_topic"]:
             right.add(stamp)
         elif topic == topics["left_info_topic"]:
@@ -414,9 +439,16 @@ def _collect(path: Path, topics: dict[str, str]) -> _Collected:
                 bad_imu += 1
         elif topic == topics["ground_truth_topic"]:
             truths[stamp] = msg
+        elif topic == topics["odom_topic"]:
+            try:
+                odometry.append(odometry_sample(msg))
+            except MessageError:
+                bad_odometry += 1
     imu.sort(key=lambda s: s[0])
+    odometry.sort(key=lambda p: p.stamp_ns)
     samples = [ImuSample(stamp, (float(q[0]), float(q[1]), float(q[2]), float(q[3]))) for stamp, q in imu]
-    return _Collected(left, right, left_info, right_info, samples, truths, grid_config, bad_imu, read)
+    return _Collected(left, right, left_info, right_info, samples, truths, grid_config, bad_imu, read, odometry,
+                      bad_odometry, static, left_frame)
 
 
 def _info_at(infos: dict[int, Any], stamp: int) -> Any | None:
@@ -463,6 +495,8 @@ def read_eval_bag(path: str | os.PathLike[str], params: Mapping[str, Any] | None
     collected = _collect(path, topics)
     if collected.bad_imu:
         notes.append(f"{collected.bad_imu} IMU message(s) without a valid orientation ignored")
+    if collected.bad_odometry:
+        notes.append(f"{collected.bad_odometry} malformed odometry message(s) ignored")
 
     # The grid: vertical fields from params > the bag's grid_config > defaults.
     base_fields = dict(GridSpec().to_dict())
@@ -529,8 +563,14 @@ def read_eval_bag(path: str | os.PathLike[str], params: Mapping[str, Any] | None
         raise BagError(f"{path}: no usable frames ({skipped or 'no left images'}){damage}")
     if not collected.imu:
         notes.append("no IMU orientation in the bag: every frame needs require_imu false and a default attitude")
-    return EvalBag(path, grid, frames, truths, collected.imu, topics, compressed, stereo, skipped, notes,
-                   collected.read)
+    bag = EvalBag(path, grid, frames, truths, collected.imu, topics, compressed, stereo, skipped, notes,
+                  collected.read)
+    bag.odometry = collected.odometry
+    camera_frame = collected.left_frame or LEFT_FRAME
+    bag.camera_frame = camera_frame
+    mounts = [t for t in collected.static if t.parent == "base_link" and t.child == camera_frame]
+    bag.camera_mount = (mounts[-1].translation, mounts[-1].rotation) if mounts else None
+    return bag
 
 
 def bag_frames(

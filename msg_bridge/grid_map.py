@@ -31,6 +31,7 @@ from msg_bridge._common import (
     stamp_from_header,
 )
 from roadbev_core.config import ConfigError, GridSpec
+from roadbev_core.fusion import MapWindow
 
 __all__ = [
     "ROAD_FRAME",
@@ -38,6 +39,7 @@ __all__ = [
     "RawGridMap",
     "decode_grid_map",
     "elevation_grid_map",
+    "fused_map_message",
     "grid_from_info",
     "grid_map_message",
     "grid_map_message_at",
@@ -171,6 +173,15 @@ def grid_map_message_at(
         outer_start_index=0,
         inner_start_index=0,
     )
+
+
+def fused_map_message(window: MapWindow, factory: MessageFactory, *, frame_id: str) -> Any:
+    """The fused road map (contract ``/roadbev/map``): layers elevation, uncertainty,
+    observations and age of a :class:`roadbev_core.fusion.MapWindow`, in ``frame_id`` (odom)."""
+    n_rows, n_cols = window.elevation.shape
+    r = window.resolution
+    return grid_map_message_at(window.layers(), factory, resolution=r, length=(n_rows * r, n_cols * r),
+                               centre=window.centre, stamp_ns=window.stamp_ns, frame_id=frame_id)
 
 
 def elevation_grid_map(

@@ -1,7 +1,8 @@
 """A bag of the node's outputs (``roadbev eval --out``): exactly the messages the node publishes.
 
 :class:`OutputBag` writes, per :class:`roadbev_core.pipeline.PipelineOutput`, the
-``grid_map_msgs/GridMap`` and ``roadbev_msgs/RoadPreview`` that
+``grid_map_msgs/GridMap`` and ``roadbev_msgs/RoadPreview`` (and, when they exist, the fused map
+and the ``/tf`` to ``roadbev_road``) that
 :func:`msg_bridge.pipeline_io.output_messages` builds (the node's own builder, here with a
 typestore factory), on the node's topics, stamped with the left image's stamp and framed as the
 node frames them, so that any tool can score them.
@@ -29,13 +30,16 @@ class OutputBag:
         config: the pipeline's config (topics, frame, grid).
     """
 
-    def __init__(self, path: str | os.PathLike[str], config: RoadbevConfig) -> None:
+    def __init__(self, path: str | os.PathLike[str], config: RoadbevConfig, *, camera_frame: str | None = None
+                 ) -> None:
         self.config = config
+        self.camera_frame = camera_frame
         self._factory = TypestoreFactory(typestore())
         self._writer = BagWriter(path)
         self._writer.open()
         self._writer.add_topic(config.topics.elevation, "grid_map_msgs/msg/GridMap")
         self._writer.add_topic(config.topics.preview, "roadbev_msgs/msg/RoadPreview")
+        self._optional: set[str] = set()  # the fused map and /tf: added with their first message
 
     @property
     def counts(self) -> dict[str, int]:
@@ -43,9 +47,18 @@ class OutputBag:
 
     def write(self, output: PipelineOutput) -> None:
         """The frame's GridMap and RoadPreview, logged at the image stamp."""
-        messages = output_messages(output, self.config, self._factory, with_points=False)
+        messages = output_messages(output, self.config, self._factory, with_points=False,
+                                   camera_frame=self.camera_frame)
         self._writer.write(self.config.topics.elevation, messages.elevation, output.stamp_ns)
         self._writer.write(self.config.topics.preview, messages.preview, output.stamp_ns)
+        for topic, kind, msg in ((self.config.map.topic, "grid_map_msgs/msg/GridMap", messages.road_map),
+                                 ("/tf", "tf2_msgs/msg/TFMessage", messages.tf)):
+            if msg is None:
+                continue
+            if topic not in self._optional:
+                self._writer.add_topic(topic, kind)
+                self._optional.add(topic)
+            self._writer.write(topic, msg, output.stamp_ns)
 
     def close(self) -> None:
         self._writer.close()

@@ -6,8 +6,10 @@ write what the node would publish (typestore messages), so both publish the same
 * :func:`camera_input`: a synchronised set (left, right, left info, right info) or (left, info)
   -> :class:`roadbev_core.pipeline.CameraInput`, images refused by size before they are decoded;
 * :func:`speed_from_message`: ``nav_msgs/Odometry`` or ``geometry_msgs/TwistStamped`` -> speed;
+* :func:`odometry_sample`: ``nav_msgs/Odometry`` -> :class:`roadbev_core.ego_motion.PlanarPose`;
 * :func:`output_messages`: a :class:`roadbev_core.pipeline.PipelineOutput` -> GridMap,
-  RoadPreview and (optionally) PointCloud2, stamped with the left image's stamp.
+  RoadPreview, (optionally) PointCloud2, the fused map (map on) and the TF
+  ``<left camera frame> -> roadbev_road``, stamped with the left image's stamp.
 """
 
 from __future__ import annotations
@@ -18,14 +20,28 @@ from typing import Any, NamedTuple
 
 from msg_bridge._common import MessageError, MessageFactory, field, stamp_from_header
 from msg_bridge.camera_info import stereo_camera_from_camera_info
-from msg_bridge.grid_map import elevation_grid_map
+from msg_bridge.grid_map import elevation_grid_map, fused_map_message
 from msg_bridge.image import compressed_to_rgb, image_to_rgb
 from msg_bridge.point_cloud import elevation_point_cloud
 from msg_bridge.preview import road_preview_message
+from msg_bridge.tf import StaticTransform, odometry_pose, tf_message
 from roadbev_core.config import ConfigError, RoadbevConfig, check_image_size
+from roadbev_core.ego_motion import PlanarPose
+from roadbev_core.geometry import road_frame_in_camera
 from roadbev_core.pipeline import CameraInput, PipelineOutput
+from roadbev_core.preview import REFERENCE_CONTACT_PLANE
 
-__all__ = ["OutputMessages", "camera_input", "output_messages", "speed_from_message", "speed_message_type"]
+__all__ = [
+    "BASE_FRAME",
+    "OutputMessages",
+    "camera_input",
+    "odometry_sample",
+    "output_messages",
+    "speed_from_message",
+    "speed_message_type",
+]
+
+BASE_FRAME = "base_link"  # the contract's vehicle frame: the frame of contact-plane previews
 
 
 def camera_input(msgs: Sequence[Any], image_transport: str) -> CameraInput:
@@ -80,18 +96,40 @@ def speed_from_message(msg: Any) -> tuple[int, float]:
     return stamp_from_header(msg), math.copysign(speed, vx or 1.0)
 
 
+def odometry_sample(msg: Any) -> PlanarPose:
+    """The planar pose and twist of a ``nav_msgs/Odometry`` (``base_link`` in ``odom``).
+
+    Raises:
+        MessageError: non-finite values or a non-unit orientation.
+    """
+    pose = odometry_pose(msg)
+    twist = field(field(msg, "twist"), "twist")
+    vx = float(field(field(twist, "linear"), "x"))
+    wz = float(field(field(twist, "angular"), "z"))
+    if not (math.isfinite(vx) and math.isfinite(wz)):
+        raise MessageError(f"Odometry at {pose.stamp_ns} ns has a non-finite twist")
+    return PlanarPose(pose.stamp_ns, pose.x, pose.y, pose.yaw, vx, wz)
+
+
 class OutputMessages(NamedTuple):
     """What the node publishes for one frame."""
 
     elevation: Any  # grid_map_msgs/GridMap
     preview: Any  # roadbev_msgs/RoadPreview
     points: Any | None  # sensor_msgs/PointCloud2 (only when asked for)
+    road_map: Any | None = None  # grid_map_msgs/GridMap of the fused map (map on)
+    tf: Any | None = None  # tf2_msgs/TFMessage <left camera frame> -> roadbev_road (with a camera frame)
 
 
 def output_messages(
-    output: PipelineOutput, config: RoadbevConfig, factory: MessageFactory, *, with_points: bool
+    output: PipelineOutput, config: RoadbevConfig, factory: MessageFactory, *, with_points: bool,
+    camera_frame: str | None = None,
 ) -> OutputMessages:
-    """The GridMap, RoadPreview and (optionally) PointCloud2 of one pipeline output.
+    """The GridMap, RoadPreview, (optionally) PointCloud2, the fused map and the TF of one output.
+
+    Args:
+        camera_frame: the left image's ``header.frame_id``: the parent of the TF to
+            ``roadbev_road`` (None: no TF).
 
     Raises:
         MessageError: an output without a preview (a pipeline whose config was not validated).
@@ -103,10 +141,16 @@ def output_messages(
     elevation = elevation_grid_map(
         estimate.elevation, estimate.uncertainty, grid, factory, stamp_ns=stamp, frame_id=frame_id
     )
-    preview = road_preview_message(output.preview, factory, stamp_ns=stamp, frame_id=frame_id)
+    preview_frame = BASE_FRAME if output.preview.reference == REFERENCE_CONTACT_PLANE else frame_id
+    preview = road_preview_message(output.preview, factory, stamp_ns=stamp, frame_id=preview_frame)
     points = None
     if with_points:
         points = elevation_point_cloud(
             estimate.elevation, estimate.uncertainty, grid, factory, stamp_ns=stamp, frame_id=frame_id
         )
-    return OutputMessages(elevation, preview, points)
+    road_map = None if output.map is None else fused_map_message(output.map, factory, frame_id=config.map.frame)
+    tf = None
+    if camera_frame:
+        R, t = road_frame_in_camera(output.frame.attitude, grid.base_height)
+        tf = tf_message([StaticTransform(camera_frame, frame_id, R, t)], factory, stamp_ns=stamp)
+    return OutputMessages(elevation, preview, points, road_map, tf)

@@ -22,7 +22,14 @@ from msg_bridge._common import (
     stamp_from_header,
 )
 from msg_bridge.grid_map import ROAD_FRAME
-from roadbev_core.preview import PreviewError, PreviewProfiles, TrackProfile
+from roadbev_core.preview import (
+    REFERENCE_CONTACT_PLANE,
+    REFERENCE_ROAD,
+    ContactPlane,
+    PreviewError,
+    PreviewProfiles,
+    TrackProfile,
+)
 
 __all__ = ["DecodedPreview", "preview_from_message", "road_preview_message"]
 
@@ -34,6 +41,11 @@ class DecodedPreview(NamedTuple):
     time_of_arrival: np.ndarray | None
     stamp_ns: int
     frame_id: str
+
+
+# RoadPreview field suffix -> ContactPlane attribute
+_PLANE_FIELDS = (("height", "height_m"), ("roll", "roll"), ("pitch", "pitch"), ("height_sigma", "height_sigma_m"),
+                 ("roll_sigma", "roll_sigma"), ("pitch_sigma", "pitch_sigma"))
 
 
 def road_preview_message(
@@ -57,9 +69,15 @@ def road_preview_message(
         for t in profiles.tracks
     ]
     speed = math.nan if profiles.vehicle_speed is None else float(profiles.vehicle_speed)
+    plane = profiles.contact_plane
+    plane_fields = {f"contact_plane_{name}": 0.0 if plane is None else float(getattr(plane, attr))
+                    for name, attr in _PLANE_FIELDS}
     return factory.new(
         "roadbev_msgs/msg/RoadPreview",
         header=make_header(factory, stamp_ns, frame_id),
+        reference=profiles.reference,
+        **plane_fields,
+        contact_plane_source="" if plane is None else plane.source,
         start_distance=float(profiles.start_distance),
         spacing=float(profiles.spacing),
         vehicle_speed=speed,
@@ -101,6 +119,18 @@ def preview_from_message(msg: Any) -> DecodedPreview:
                 uncertainty=sigma,
             )
         )
+    reference = as_str(field(msg, "reference"), "RoadPreview.reference") or REFERENCE_ROAD
+    if reference not in (REFERENCE_ROAD, REFERENCE_CONTACT_PLANE):
+        raise MessageError(f"RoadPreview.reference {reference!r} is neither {REFERENCE_ROAD!r} nor "
+                           f"{REFERENCE_CONTACT_PLANE!r}")
+    plane = None
+    if reference == REFERENCE_CONTACT_PLANE:
+        values = {attr: as_float(field(msg, f"contact_plane_{name}"), f"RoadPreview.contact_plane_{name}")
+                  for name, attr in _PLANE_FIELDS}
+        if not all(math.isfinite(v) for v in values.values()):
+            raise MessageError("RoadPreview: the contact plane is not finite")
+        plane = ContactPlane(**values, source=as_str(field(msg, "contact_plane_source"),
+                                                     "RoadPreview.contact_plane_source"))
     try:
         profiles = PreviewProfiles(
             start_distance=as_float(field(msg, "start_distance"), "RoadPreview.start_distance"),
@@ -108,6 +138,8 @@ def preview_from_message(msg: Any) -> DecodedPreview:
             tracks=tuple(tracks),
             vehicle_speed=speed,
             reference_distance=as_float(field(msg, "reference_distance"), "RoadPreview.reference_distance"),
+            reference=reference,
+            contact_plane=plane,
         )
     except PreviewError as exc:
         raise MessageError(f"RoadPreview: {exc}") from None

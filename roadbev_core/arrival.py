@@ -44,8 +44,9 @@ import numpy as np
 from roadbev_core.attitude import slerp
 from roadbev_core.config import VehicleConfig
 from roadbev_core.errors import RoadbevError
+from roadbev_core.fusion import MapWindow
 from roadbev_core.geometry import R_BODY_FROM_OPTICAL, quaternion_to_rotation
-from roadbev_core.preview import PreviewProfiles
+from roadbev_core.preview import REFERENCE_CONTACT_PLANE, REFERENCE_ROAD, PreviewProfiles
 from roadbev_core.vehicle import contact_plane, planar_yaw
 
 if TYPE_CHECKING:  # the pipeline imports nothing from here; typing only
@@ -62,14 +63,13 @@ __all__ = [
     "Trajectory",
     "WheelPath",
     "feature_mask",
+    "map_accuracy",
     "per_frame_previews",
     "preview_at_arrival",
     "read_profile",
     "wheel_paths",
 ]
 
-REFERENCE_ROAD = "road"
-REFERENCE_CONTACT_PLANE = "contact_plane"
 ARRIVAL_KEYS: tuple[str, ...] = (
     "lead_time_s",
     "points",
@@ -492,7 +492,46 @@ def _summary(err: np.ndarray, err_cp: np.ndarray, feature: np.ndarray, known: np
     }
 
 
+def map_accuracy(windows: Sequence[MapWindow], road_map: RoadMap) -> dict[str, Any]:
+    """The fused map against the true road (contract ``"map"`` keys), time-averaged over frames.
+
+    Per published window: ``abs_err_cm`` over the cells it holds (where the truth is known),
+    ``coverage_pct`` the share of the window's cells (with truth) it holds; plus the sigma
+    honesty of those cells (``within_1/2/3sigma_pct``, ``confident_wrong_pct``: error > 3 sigma
+    and > 1 cm, ``mean_sigma_cm``). Each key is the mean over the windows (NaN without any).
+
+    Raises:
+        ArrivalError: no windows.
+    """
+    if not windows:
+        raise ArrivalError("no map windows to score")
+    rows: dict[str, list[float]] = {k: [] for k in ("abs_err_cm", "coverage_pct", "within_1sigma_pct",
+                                                     "within_2sigma_pct", "within_3sigma_pct", "confident_wrong_pct",
+                                                     "mean_sigma_cm")}
+    for window in windows:
+        x, y = window.cell_centres()
+        gx, gy = np.meshgrid(x, y, indexing="ij")
+        truth = road_map.height(gx, gy)  # [n_rows, n_cols]
+        known = np.isfinite(truth)
+        held = known & np.isfinite(window.elevation) & np.isfinite(window.uncertainty)
+        if not known.any():
+            continue
+        rows["coverage_pct"].append(100.0 * held.sum() / known.sum())
+        if not held.any():
+            continue
+        err = np.abs(window.elevation[held] - truth[held])
+        sigma = window.uncertainty[held].astype(np.float64)
+        rows["abs_err_cm"].append(100.0 * float(err.mean()))
+        for k in (1, 2, 3):
+            rows[f"within_{k}sigma_pct"].append(100.0 * float(np.mean(err <= k * sigma)))
+        rows["confident_wrong_pct"].append(100.0 * float(np.mean((err > 3 * sigma) & (err > 0.01))))
+        rows["mean_sigma_cm"].append(100.0 * float(sigma.mean()))
+    out: dict[str, Any] = {k: float(np.mean(v)) if v else math.nan for k, v in rows.items()}
+    out["windows"] = len(windows)
+    return out
+
+
 def per_frame_previews(outputs: Sequence[PipelineOutput]) -> list[TimedPreview]:
-    """The per-frame pipeline's previews (``roadbev_road``, x ahead of the camera: the profiles
-    :class:`roadbev_core.pipeline.Pipeline` made of each frame's estimate), stamped like its image."""
-    return [TimedPreview(o.stamp_ns, REFERENCE_ROAD, o.preview) for o in outputs if o.preview is not None]
+    """The pipeline's previews, stamped like their image, with the reference each declares
+    (``roadbev_road`` per frame; ``contact_plane`` from the fused map)."""
+    return [TimedPreview(o.stamp_ns, o.preview.reference, o.preview) for o in outputs if o.preview is not None]

@@ -31,6 +31,7 @@ import numpy as np
 from roadbev_core.attitude import ImuSample
 from roadbev_core.backends import Backend
 from roadbev_core.config import RoadbevConfig
+from roadbev_core.ego_motion import PlanarPose
 from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Estimate, Frame
 from roadbev_core.metrics import (
@@ -41,7 +42,7 @@ from roadbev_core.metrics import (
     sigma_counts,
     sigma_metrics,
 )
-from roadbev_core.pipeline import CameraInput, ImuFeed, Pipeline, PipelineOutput
+from roadbev_core.pipeline import CameraInput, ImuFeed, OdometryFeed, Pipeline, PipelineOutput
 
 __all__ = [
     "CONTRACT_KEYS",
@@ -229,6 +230,7 @@ def evaluate(
     keep_estimates: bool = False,
     max_frames: int | None = None,
     on_output: Callable[[PipelineOutput], Any] | None = None,
+    odometry: Iterable[PlanarPose] | None = None,
 ) -> EvalResult:
     """Run the pipeline on every sample and measure accuracy and speed.
 
@@ -240,6 +242,7 @@ def evaluate(
             scored). A :class:`Frame` carries its attitude; a :class:`CameraInput` takes it from
             ``imu``.
         imu: IMU samples in stamp order, fed to the pipeline in time order with the frames.
+        odometry: ``base_link`` poses in stamp order, fed likewise (the map's ego-motion).
         progress: called with 1 after each frame (e.g. ``tqdm.update``).
         keep_estimates: keep every :class:`Estimate` and output in the result (memory!).
         max_frames: stop after this many frames (None = all).
@@ -256,6 +259,7 @@ def evaluate(
     pipeline = runner if isinstance(runner, Pipeline) else pipeline_for(runner)
     grid = pipeline.config.grid
     feed = ImuFeed(imu or ())
+    odometry_feed = OdometryFeed(odometry or ())
     accumulator = MetricAccumulator(grid)
     per_frame: list[dict[str, float]] = []
     outputs: list[PipelineOutput] = []
@@ -274,6 +278,7 @@ def evaluate(
         inputs, frame, truth = _unpack(sample)
         decoded = time.perf_counter()
         try:
+            odometry_feed.until(pipeline, frame.stamp_ns if frame is not None else inputs.stamp_ns)
             if frame is not None:
                 output = pipeline.process_frame(frame)
             else:

@@ -37,6 +37,7 @@ __all__ = [
     "project_points",
     "project_voxels",
     "quaternion_to_rotation",
+    "road_frame_in_camera",
     "road_to_camera",
     "rotation_from_rpy",
     "rsrd_camera_attitude",
@@ -168,6 +169,14 @@ def optical_from_road_rotation(attitude: Attitude) -> np.ndarray:
     """[3, 3] rotation taking road-frame directions to camera optical-frame directions."""
     R_level_body = rotation_from_rpy(attitude.roll, attitude.pitch)  # body -> level (road axes)
     return (R_level_body @ R_BODY_FROM_OPTICAL).T
+
+
+def road_frame_in_camera(attitude: Attitude, base_height: float) -> tuple[np.ndarray, np.ndarray]:
+    """The road frame's pose in the camera optical frame (the TF ``<camera> -> roadbev_road``):
+    R [3, 3] taking road directions to optical ones and the road origin t [3] in optical
+    coordinates, so that ``p_optical = R @ p_road + t``."""
+    R = optical_from_road_rotation(attitude)
+    return R, -R @ np.array([0.0, 0.0, float(base_height)])
 
 
 def road_to_camera(points_road: np.ndarray, attitude: Attitude, base_height: float) -> np.ndarray:

@@ -5,9 +5,16 @@ The node, ``roadbev eval``, the online evaluation, the demo and the benchmarks a
 
     IMU samples ──► add_imu ──► ImuBuffer (roadbev_core.attitude: the one attitude path)
     speed       ──► add_speed                                   │
+    odometry    ──► add_odometry ──► EgoMotion                  │
     CameraInput ──► process ──► attitude at the stamp ─► Frame ─► backend.estimate ─► Estimate
                                                                           │
-                                              wheel_track_profiles ◄──────┘ ─► PipelineOutput
+                           map off: wheel_track_profiles ◄────────────────┤ ─► PipelineOutput
+                           map on:  FusedMap.integrate ─► map_preview ◄───┘    (+ map window)
+
+The map stage (roadbev_core.fusion) runs when ``map.enabled`` and an ego-motion source exists:
+odometry samples (``add_odometry``) or, without them, a speed (dead reckoned with the IMU's
+yaw). A frame whose pose cannot be had (odometry too old) falls back to the per-frame preview,
+counted in ``map_skipped``.
 
 It owns the backend (built from the config through the registry), the attitude rules, the
 process-wide compute settings (threads; denormals flushed in the thread that runs the backend)
@@ -33,17 +40,22 @@ import numpy as np
 from roadbev_core.attitude import ImuBuffer, ImuSample, ImuStale
 from roadbev_core.backends import Backend, BackendError, create
 from roadbev_core.config import RoadbevConfig, StereoCamera, check_image_size
+from roadbev_core.ego_motion import EgoMotion, EgoMotionStale, PlanarPose
 from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Estimate, Frame
-from roadbev_core.geometry import Attitude
+from roadbev_core.fusion import FrameFusion, FusedMap, MapWindow, place_frame
+from roadbev_core.geometry import Attitude, quaternion_to_rotation
+from roadbev_core.map_preview import map_preview
 from roadbev_core.preview import PreviewError, PreviewProfiles, check_tracks, wheel_track_profiles
 from roadbev_core.runtime import configure_threads, flush_denormals
+from roadbev_core.vehicle import planar_yaw
 
 __all__ = [
     "SPEED_MAX_AGE_S",
     "BackendFactory",
     "CameraInput",
     "ImuFeed",
+    "OdometryFeed",
     "Pipeline",
     "PipelineOutput",
     "build_backend",
@@ -83,14 +95,20 @@ class PipelineOutput:
         preview: the wheel-track profiles of the estimate (times of arrival when a speed is known);
             None only for a pipeline around a backend whose grid the tracks do not fit
             (:func:`roadbev_core.evaluation.pipeline_for`: a validated config always fits).
-        timings_ms: ``estimate`` and ``preview`` wall times (the backend's own stages are in
-            ``estimate.timings_ms``).
+        timings_ms: ``estimate``, ``preview`` (and with the map ``map``) wall times (the
+            backend's own stages are in ``estimate.timings_ms``).
+        map: the fused map's window after this frame (None with the map off).
+        fusion: what fusing this frame did (None with the map off).
+        base_pose: ``base_link``'s planar pose in ``odom`` at the stamp (map on).
     """
 
     frame: Frame
     estimate: Estimate
     preview: PreviewProfiles | None
     timings_ms: dict[str, float] = field(default_factory=dict)
+    map: MapWindow | None = None
+    fusion: FrameFusion | None = None
+    base_pose: PlanarPose | None = None
 
     @property
     def stamp_ns(self) -> int:
@@ -144,6 +162,14 @@ class Pipeline:
         self.imu = self._imu_buffer(config)
         self._speed: tuple[int, float] | None = None  # (stamp ns, m/s)
         self._with_preview = self._tracks_fit(config)
+        self.ego = EgoMotion(max_age_s=config.map.odom_max_age_s)
+        self._odometry_seen = False
+        # the left camera on base_link: position [3] and R optical -> base_link (None until /tf_static)
+        self._camera_mount: tuple[np.ndarray, np.ndarray | None] = (
+            np.array(config.vehicle.camera_position_m, np.float64), None)
+        self._mount_from_tf = False
+        self.fused: FusedMap | None = None
+        self.map_skipped: dict[str, int] = {}
         if configure_process:
             configure_threads(config.backend.inference_threads)
 
@@ -189,14 +215,56 @@ class Pipeline:
                 self.imu.max_age_s = self.imu.max_gap_s = config.imu.max_age_s
                 self.imu.horizon_s = config.imu.buffer_s
                 self.imu.imu_to_camera_rpy_deg = config.imu.imu_to_camera_rpy_deg
+            self.ego.max_age_s = config.map.odom_max_age_s
+            if not self._mount_from_tf:
+                self._camera_mount = (np.array(config.vehicle.camera_position_m, np.float64), None)
+            if (config.map, config.grid, config.vehicle) != (old.map, old.grid, old.vehicle):
+                self.fused = None  # rebuilt with the new settings at the next frame
         if self._configure_process and config.backend.inference_threads != old.backend.inference_threads:
             configure_threads(config.backend.inference_threads)
 
     def reset(self) -> None:
-        """Forget the IMU history and the speed (the clock jumped back: a bag started again)."""
+        """Forget the IMU history, the speed, the odometry and the map (the clock jumped back: a
+        bag started again)."""
         with self._lock:
             self.imu.clear()
             self._speed = None
+            self.ego.clear()
+            self._odometry_seen = False
+            if self.fused is not None:
+                self.fused.reset()
+
+    def clear_map(self) -> None:
+        """Forget the fused map only (``~/clear_map``)."""
+        with self._lock:
+            if self.fused is not None:
+                self.fused.reset()
+
+    def set_camera_mount(self, position: Iterable[float], R_base_optical: np.ndarray) -> None:
+        """The left camera on ``base_link`` from ``/tf_static`` (wins over
+        ``vehicle.camera_position_m``): position [3] and R [3, 3] optical -> base_link.
+
+        Raises:
+            RoadbevError: a non-finite position or a matrix that is not a rotation.
+        """
+        pos = np.asarray(list(position), np.float64)
+        R = np.asarray(R_base_optical, np.float64)
+        if pos.shape != (3,) or R.shape != (3, 3) or not (np.all(np.isfinite(pos)) and np.all(np.isfinite(R))):
+            raise RoadbevError("camera mount must be a finite position [3] and rotation [3, 3]")
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0:
+            raise RoadbevError("camera mount rotation is not a rotation")
+        with self._lock:
+            changed = not (self._mount_from_tf and np.allclose(pos, self._camera_mount[0]))
+            self._camera_mount = (pos, R)
+            self._mount_from_tf = True
+            if changed:
+                self.fused = None  # the corridor depends on where the camera sits
+
+    @property
+    def camera_mount(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """The left camera on ``base_link``: position [3], R optical -> base_link (None without TF)."""
+        with self._lock:
+            return self._camera_mount
 
     # --- inputs --------------------------------------------------------------------------------
     def add_imu(self, stamp_ns: int, orientation_xyzw: Iterable[float]) -> None:
@@ -219,17 +287,43 @@ class Pipeline:
         with self._lock:
             self._speed = (int(stamp_ns), float(speed_mps))
 
+    def add_odometry(self, pose: PlanarPose) -> None:
+        """One odometry sample (``base_link`` in ``odom``, planar).
+
+        Raises:
+            EgoMotionError: a sample that cannot be used (it is not kept).
+        """
+        with self._lock:
+            self.ego.add(pose)
+            self._odometry_seen = True
+
     def attitude_ready(self, stamp_ns: int) -> bool:
         """Whether the IMU has a sample at or after ``stamp_ns`` (the attitude will not change)."""
         with self._lock:
             return self.imu.brackets(stamp_ns)
 
+    def odometry_ready(self, stamp_ns: int) -> bool:
+        """Whether the pose at ``stamp_ns`` will not change: an odometry sample at or after it has
+        arrived (always true while no odometry is coming)."""
+        with self._lock:
+            return not self._odometry_seen or self.ego.brackets(stamp_ns)
+
+    def inputs_ready(self, stamp_ns: int) -> bool:
+        """Attitude and pose of a frame at ``stamp_ns`` are final."""
+        return self.attitude_ready(stamp_ns) and self.odometry_ready(stamp_ns)
+
+    @property
+    def map_active(self) -> bool:
+        """Whether frames are fused now (``map.enabled`` and odometry or a speed has arrived)."""
+        with self._lock:
+            return self.config.map.enabled and (self._odometry_seen or self._speed is not None)
+
     def wait_for_attitude(self, stamp_ns: int, timeout_s: float, stop: Callable[[], bool] = lambda: False) -> float:
-        """Wait (live) up to ``timeout_s`` for an IMU sample at or after ``stamp_ns``, so the
-        attitude is interpolated rather than taken from an older sample; returns the seconds
-        waited (``stop()`` true ends the wait early)."""
+        """Wait (live) up to ``timeout_s`` for an IMU (and, when odometry comes, an odometry)
+        sample at or after ``stamp_ns``, so attitude and pose are interpolated rather than taken
+        from older samples; returns the seconds waited (``stop()`` true ends the wait early)."""
         start = time.monotonic()
-        while not self.attitude_ready(stamp_ns) and time.monotonic() - start < timeout_s and not stop():
+        while not self.inputs_ready(stamp_ns) and time.monotonic() - start < timeout_s and not stop():
             time.sleep(0.002)
         return time.monotonic() - start
 
@@ -295,16 +389,81 @@ class Pipeline:
         estimate = backend.estimate(frame)
         t1 = time.perf_counter()
         estimate.check_grid(config.grid)
+        timings = {"estimate": 1e3 * (t1 - t0)}
+        mapped = self._map_stage(frame, estimate, config)
+        if mapped is not None:
+            output = PipelineOutput(frame, estimate, mapped[0], timings, *mapped[1:])
+            timings["map"] = 1e3 * (time.perf_counter() - t1)
+            return output
+        preview = self._frame_preview(estimate, frame, config)
+        timings["preview"] = 1e3 * (time.perf_counter() - t1)
+        return PipelineOutput(frame, estimate, preview, timings)
+
+    def _base_pose(self, stamp_ns: int) -> PlanarPose:
+        """``base_link``'s planar pose at a frame: the odometry's, else dead reckoned from the
+        speed along the IMU's yaw.
+
+        Raises:
+            EgoMotionStale: no pose at the stamp.
+        """
+        with self._lock:
+            if self._odometry_seen:
+                return self.ego.pose_at(stamp_ns)
+            speed = self._speed
+            try:
+                q = self.imu.orientation_at(stamp_ns)
+            except ImuStale as exc:
+                raise EgoMotionStale(f"no IMU yaw to dead reckon with: {exc}") from None
+        if speed is None or abs(stamp_ns - speed[0]) > SPEED_MAX_AGE_S * 1e9:
+            raise EgoMotionStale("no odometry and no recent speed")
+        yaw = float(planar_yaw(quaternion_to_rotation(*q)))
+        with self._lock:
+            return self.ego.dead_reckon(stamp_ns, speed[1], yaw)
+
+    def _map_stage(self, frame: Frame, estimate: Estimate, config: RoadbevConfig
+                   ) -> tuple[PreviewProfiles | None, MapWindow, FrameFusion, PlanarPose] | None:
+        """Fuse the estimate and read the preview off the map (None: the map is off, or this
+        frame has no pose: counted in ``map_skipped``)."""
+        if not self.map_active:
+            return None
+        try:
+            base = self._base_pose(frame.stamp_ns)
+        except EgoMotionStale as exc:
+            reason = str(exc).split(" (")[0]
+            self.map_skipped[reason] = self.map_skipped.get(reason, 0) + 1
+            return None
+        position, R_mount = self.camera_mount
+        if self.fused is None:
+            self.fused = FusedMap(config.map_settings(position))
+        fused = self.fused
+        placement = place_frame(base, frame.attitude, position, R_mount)
         p = config.preview
-        preview = None
-        if self._with_preview:
-            preview = wheel_track_profiles(
-                estimate.elevation, estimate.uncertainty, config.grid,
-                track_offsets_m=p.track_offsets_m, tyre_width_m=p.tyre_width_m, spacing_m=p.spacing_m,
-                vehicle_speed=self.speed_at(frame.stamp_ns), reference_distance=p.reference_distance_m,
-            )
-        t2 = time.perf_counter()
-        return PipelineOutput(frame, estimate, preview, {"estimate": 1e3 * (t1 - t0), "preview": 1e3 * (t2 - t1)})
+        before = map_preview(fused, placement, config.vehicle, tyre_width_m=p.tyre_width_m, spacing_m=p.spacing_m)
+        plane = before.contact_plane
+        plane_z = None
+        if plane is not None and plane.source == "map" and fused.base_z is not None:
+            plane_z = fused.base_z + plane.height_m  # the contact plane under base_link's origin
+        fusion = fused.integrate(estimate.elevation, estimate.uncertainty, config.grid, placement, frame.stamp_ns,
+                                 base_z_prediction=fused.predicted_base_z(base, plane_z))
+        preview: PreviewProfiles | None = map_preview(
+            fused, placement, config.vehicle, tyre_width_m=p.tyre_width_m, spacing_m=p.spacing_m,
+            rear_axle=p.rear_axle, vehicle_speed=base.speed if self._odometry_seen else self.speed_at(frame.stamp_ns))
+        if preview is not None and preview.contact_plane is not None and preview.contact_plane.source != "map":
+            # the map does not hold three tyre contacts yet (the first metres): the per-frame
+            # preview, which says so (reference roadbev_road), rather than a guessed plane
+            preview = self._frame_preview(estimate, frame, config)
+        return preview, fused.window(base, frame.stamp_ns), fusion, base
+
+    def _frame_preview(self, estimate: Estimate, frame: Frame, config: RoadbevConfig) -> PreviewProfiles | None:
+        """The per-frame wheel-track profiles of an estimate (``roadbev_road``)."""
+        if not self._with_preview:
+            return None
+        p = config.preview
+        return wheel_track_profiles(
+            estimate.elevation, estimate.uncertainty, config.grid,
+            track_offsets_m=p.track_offsets_m, tyre_width_m=p.tyre_width_m, spacing_m=p.spacing_m,
+            vehicle_speed=self.speed_at(frame.stamp_ns), reference_distance=p.reference_distance_m,
+        )
 
     def warm_up(self) -> None:
         """Run the backend once on a blank frame, so one-time costs (torch kernels and thread
@@ -318,6 +477,22 @@ class Pipeline:
         flush_denormals()
         with contextlib.suppress(Exception):  # a warm-up failure must never stop the caller
             backend.estimate(frame)
+
+
+class OdometryFeed:
+    """Recorded odometry samples handed to a pipeline as a live stream would hand them: before a
+    frame, the samples up to and including the first one at or after its stamp."""
+
+    def __init__(self, samples: Iterable[PlanarPose]) -> None:
+        self._samples = iter(samples)
+        self._pending: PlanarPose | None = next(self._samples, None)
+
+    def until(self, pipeline: Pipeline, stamp_ns: int) -> None:
+        """Add the samples a frame at ``stamp_ns`` waits for (bad samples are skipped, as live)."""
+        while self._pending is not None and not pipeline.ego.brackets(stamp_ns):
+            with contextlib.suppress(RoadbevError):
+                pipeline.add_odometry(self._pending)
+            self._pending = next(self._samples, None)
 
 
 class ImuFeed:
@@ -346,22 +521,27 @@ def replay(
     imu: Iterable[ImuSample],
     *,
     inputs_of: Callable[[Any], CameraInput],
+    odometry: Iterable[PlanarPose] = (),
 ) -> Iterator[tuple[Any, PipelineOutput | RoadbevError]]:
-    """Drive ``pipeline`` offline: IMU samples and frames merged in time order (:class:`ImuFeed`).
+    """Drive ``pipeline`` offline: IMU and odometry samples and frames merged in time order
+    (:class:`ImuFeed`, :class:`OdometryFeed`).
 
     Args:
         frames: recorded items in stamp order (anything ``inputs_of`` turns into a CameraInput).
         imu: IMU samples in stamp order.
         inputs_of: item -> its camera set.
+        odometry: odometry samples in stamp order (none: the map, if on, dead reckons).
 
     Yields:
         (item, output) per frame, or (item, error) for a frame the pipeline refused (bad input:
         no attitude, a malformed frame): the caller counts it and goes on.
     """
     feed = ImuFeed(imu)
+    odometry_feed = OdometryFeed(odometry)
     for item in frames:
         inputs = inputs_of(item)
         feed.until(pipeline, inputs.stamp_ns)
+        odometry_feed.until(pipeline, inputs.stamp_ns)
         try:
             yield item, pipeline.process(inputs)
         except RoadbevError as exc:

@@ -29,6 +29,9 @@ from roadbev_core.errors import RoadbevError
 __all__ = [
     "DEFAULT_TRACK_NAMES",
     "DEFAULT_TRACK_OFFSETS_M",
+    "REFERENCE_CONTACT_PLANE",
+    "REFERENCE_ROAD",
+    "ContactPlane",
     "PreviewError",
     "PreviewProfiles",
     "TrackProfile",
@@ -39,6 +42,9 @@ __all__ = [
 # Left and right wheel tracks of a car with a 1.6 m track width centred under the left camera.
 DEFAULT_TRACK_OFFSETS_M: tuple[float, ...] = (0.8, -0.8)
 DEFAULT_TRACK_NAMES: tuple[str, ...] = ("left", "right")
+# What a preview's elevations are relative to (RoadPreview.reference).
+REFERENCE_ROAD = "road"  # per frame: roadbev_road, the gravity-aligned plane base_height below the camera
+REFERENCE_CONTACT_PLANE = "contact_plane"  # fused map: base_link, the plane through the four tyre contacts
 
 
 class PreviewError(RoadbevError, ValueError):
@@ -71,6 +77,39 @@ class TrackProfile:
             )
 
 
+@dataclass(frozen=True)
+class ContactPlane:
+    """The plane through the four tyre contacts, as a controller needs it to move a profile into
+    its own reference.
+
+    In the gravity-aligned frame at ``base_link``'s origin with ``base_link``'s heading (x
+    forward, y left, z up), the plane is the one of a frame with ``roll`` and ``pitch``
+    (REP-103, yaw 0) through ``(0, 0, height_m)``: a point (x, y) of it lies at
+    ``z = height_m - x tan(pitch) + y tan(roll) / cos(pitch)`` (pitch > 0: the road falls ahead).
+
+    Attributes:
+        height_m: the plane's height at ``base_link``'s origin, relative to that origin (0 at
+            static ride height on a flat road; > 0: the body sits lower than static).
+        roll, pitch: the plane's attitude relative to gravity (rad).
+        height_sigma_m, roll_sigma, pitch_sigma: their 1-sigma.
+        source: ``"map"`` (fitted to the fused map at the four contacts) or ``"body"`` (the map
+            does not hold three contacts yet: the body's own plane at static ride height).
+    """
+
+    height_m: float
+    roll: float
+    pitch: float
+    height_sigma_m: float
+    roll_sigma: float
+    pitch_sigma: float
+    source: str = "map"
+
+    def height_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """[...] the plane's z at (x, y) [...] of the gravity-aligned frame described above."""
+        return self.height_m - np.asarray(x) * math.tan(self.pitch) + np.asarray(y) * (
+            math.tan(self.roll) / math.cos(self.pitch))
+
+
 @dataclass(frozen=True, eq=False)
 class PreviewProfiles:
     """Profiles along every wheel track, sampled at ``start_distance + i * spacing``.
@@ -81,6 +120,11 @@ class PreviewProfiles:
         tracks: one :class:`TrackProfile` per track, all of the same length.
         vehicle_speed: speed along x [m/s], or None when unknown.
         reference_distance: x of the point the times of arrival refer to (e.g. the front axle).
+        reference: what x and the elevations refer to: :data:`REFERENCE_ROAD` (x ahead of the
+            camera in ``roadbev_road``, heights above its plane) or
+            :data:`REFERENCE_CONTACT_PLANE` (x ahead of ``base_link``'s origin along its
+            heading, heights above the contact plane, measured vertically).
+        contact_plane: the contact plane (``REFERENCE_CONTACT_PLANE`` only).
     """
 
     start_distance: float
@@ -88,6 +132,8 @@ class PreviewProfiles:
     tracks: tuple[TrackProfile, ...]
     vehicle_speed: float | None = None
     reference_distance: float = 0.0
+    reference: str = REFERENCE_ROAD
+    contact_plane: ContactPlane | None = None
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.spacing) and self.spacing > 0):
@@ -96,6 +142,10 @@ class PreviewProfiles:
             raise PreviewError("start_distance and reference_distance must be finite")
         if self.vehicle_speed is not None and not math.isfinite(self.vehicle_speed):
             raise PreviewError(f"vehicle_speed must be finite or None, got {self.vehicle_speed}")
+        if self.reference not in (REFERENCE_ROAD, REFERENCE_CONTACT_PLANE):
+            raise PreviewError(f"unknown preview reference {self.reference!r}")
+        if (self.reference == REFERENCE_CONTACT_PLANE) != (self.contact_plane is not None):
+            raise PreviewError("a contact-plane preview carries its contact plane, and only it does")
         lengths = {len(t.elevation) for t in self.tracks}
         if len(lengths) > 1:
             raise PreviewError(f"tracks have different lengths {sorted(lengths)}")

@@ -32,14 +32,22 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from sensor_msgs.msg import Imu as ImuMsg
 
 from msg_bridge import MessageError, RclpyFactory, stamp_from_header
 from msg_bridge.image import check_image_message
 from msg_bridge.imu import imu_orientation
-from msg_bridge.pipeline_io import camera_input, output_messages, speed_from_message, speed_message_type
+from msg_bridge.pipeline_io import (
+    BASE_FRAME,
+    camera_input,
+    odometry_sample,
+    output_messages,
+    speed_from_message,
+    speed_message_type,
+)
+from msg_bridge.tf import transforms_from_tf
 from roadbev_core.config import ParamError, RoadbevConfig
 from roadbev_core.errors import RoadbevError
 from roadbev_core.pipeline import BackendFactory, Pipeline
@@ -67,6 +75,9 @@ SENSOR_QOS = qos_profile_sensor_data
 # the IMU comes in bursts of many small messages per image: a deeper best-effort queue
 IMU_QOS = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
 OUTPUT_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+# /tf_static is latched: transient local, as tf2's static broadcaster publishes it
+TF_STATIC_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
 _FACTORY = RclpyFactory()
 
 
@@ -108,7 +119,18 @@ class RoadBevNode(Node):
         self.create_subscription(ImuMsg, topics.imu, self._on_imu, IMU_QOS)
         if topics.speed:
             self.create_subscription(speed_message_type(topics.speed_type), topics.speed, self._on_speed, SENSOR_QOS)
-        self._out = OutputPublishers(self, OUTPUT_QOS, topics)
+        if topics.odom:
+            from nav_msgs.msg import Odometry
+
+            self.create_subscription(Odometry, topics.odom, self._on_odometry, IMU_QOS)
+        from std_srvs.srv import Trigger
+        from tf2_msgs.msg import TFMessage
+
+        self.create_subscription(TFMessage, "/tf_static", self._on_tf_static, TF_STATIC_QOS)
+        self.create_service(Trigger, "~/clear_map", self._on_clear_map)
+        self._camera_frame: str | None = None  # the left images' frame_id (the TF's parent)
+        self._static: dict[str, Any] = {}  # child frame -> base_link transform from /tf_static
+        self._out = OutputPublishers(self, OUTPUT_QOS, topics, self.config.map)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", OUTPUT_QOS)
         self._diag_timer = self._diagnostics_timer(self.config.diagnostics.period_s)
         self.add_pre_set_parameters_callback(self._report_bad_values)
@@ -208,6 +230,44 @@ class RoadBevNode(Node):
         except RoadbevError as exc:
             self._problem("bad imu", str(exc))
 
+    def _on_odometry(self, msg: Any) -> None:
+        try:
+            self.pipeline.add_odometry(odometry_sample(msg))
+        except RoadbevError as exc:
+            self._problem("bad odometry", str(exc))
+
+    def _on_tf_static(self, msg: Any) -> None:
+        """``base_link`` -> the left camera from ``/tf_static`` wins over vehicle.camera_position_m."""
+        try:
+            for tf in transforms_from_tf(msg):
+                if tf.parent == BASE_FRAME:
+                    self._static[tf.child] = tf
+        except RoadbevError as exc:
+            self._problem("bad tf", str(exc))
+            return
+        self._apply_camera_mount()
+
+    def _apply_camera_mount(self) -> None:
+        tf = self._static.get(self._camera_frame or "")
+        if tf is None:
+            return
+        try:
+            self.pipeline.set_camera_mount(tf.translation, tf.rotation)
+        except RoadbevError as exc:
+            self._problem("bad tf", f"{BASE_FRAME} -> {tf.child}: {exc}")
+            return
+        self._static.pop(tf.child, None)  # applied once; a new /tf_static message brings it again
+        self.get_logger().info(f"camera mount from /tf_static: {BASE_FRAME} -> {tf.child} at "
+                               f"{[round(float(v), 3) for v in tf.translation]} m")
+
+    def _on_clear_map(self, request: Any, response: Any) -> Any:
+        """``~/clear_map`` (std_srvs/Trigger), as elevation_mapping's: the fused map starts afresh."""
+        self.pipeline.clear_map()
+        response.success = True
+        response.message = "fused map cleared"
+        self.get_logger().info("fused map cleared (~/clear_map)")
+        return response
+
     def _on_speed(self, msg: Any) -> None:
         try:
             self.pipeline.add_speed(*speed_from_message(msg))
@@ -275,13 +335,18 @@ class RoadBevNode(Node):
         config = self.config
         t0 = time.perf_counter()
         inputs = camera_input(msgs, config.topics.image_transport)
+        frame_id = str(msgs[0].header.frame_id)
+        if frame_id and frame_id != self._camera_frame:
+            self._camera_frame = frame_id
+            self._apply_camera_mount()
         # IMU messages may arrive after the images: wait for a sample at or after the stamp
         imu_wait = self.pipeline.wait_for_attitude(inputs.stamp_ns, config.imu.wait_s, lambda: self._mailbox.closed)
         self.health.imu_age_s = self.pipeline.imu_age_s(inputs.stamp_ns)
         t1 = time.perf_counter()
         output = self.pipeline.process(inputs)
         t2 = time.perf_counter()
-        messages = output_messages(output, config, _FACTORY, with_points=self._out.points_wanted())
+        messages = output_messages(output, config, _FACTORY, with_points=self._out.points_wanted(),
+                                   camera_frame=self._camera_frame)
         self._out.publish(messages)
         t3 = time.perf_counter()
         latency_ms = (time.monotonic() - arrival) * 1e3

@@ -43,7 +43,9 @@ __all__ = ["OnlineEvalError", "OnlineResult", "evaluate_online", "format_online"
 
 GT_TOPIC = "/ground_truth/elevation"
 ELEVATION_TOPIC = "/roadbev/elevation"
-OUTPUT_TOPICS = (ELEVATION_TOPIC, "/roadbev/preview", "/diagnostics")
+PREVIEW_TOPIC = "/roadbev/preview"
+MAP_TOPIC = "/roadbev/map"
+OUTPUT_TOPICS = (ELEVATION_TOPIC, PREVIEW_TOPIC, MAP_TOPIC, "/diagnostics")
 
 
 class OnlineEvalError(RoadbevError, RuntimeError):
@@ -331,7 +333,42 @@ def evaluate_online(
         "wall_s": elapsed,
         "node": dict(watcher.diagnostics),
     }
+    from msg_bridge.drivebag import is_drive_bag
+
+    if is_drive_bag(bag_path) and frames:
+        metrics.update(drive_scores(bag_path, recorded, frames, all_params, grid.base_height))
     return OnlineResult(metrics, accuracy, recorded, _tail(log_path, 4000), dict(watcher.diagnostics))
+
+
+def drive_scores(bag_path: Path, recorded: Path, frame_stamps: Sequence[int], params: Mapping[str, Any],
+                 base_height: float, lead_time_s: float = 0.1) -> dict[str, Any]:
+    """The recorded previews at the wheels' arrival and the recorded fused map against the drive
+    bag's truth: the JSON keys ``roadbev eval`` gives offline (``preview_at_arrival``, ``map``)."""
+    from msg_bridge.drivebag import evaluate_drive_previews, read_drive_truth
+    from msg_bridge.grid_map import decode_grid_map
+    from msg_bridge.preview import preview_from_message
+    from roadbev_core.arrival import TimedPreview, map_accuracy
+    from roadbev_core.evaluation import json_safe
+    from roadbev_core.fusion import MapWindow
+
+    previews, windows = [], []
+    for item in bag.read_messages(recorded, [PREVIEW_TOPIC, MAP_TOPIC]):
+        if item.topic == PREVIEW_TOPIC:
+            decoded = preview_from_message(item.msg)
+            previews.append(TimedPreview(decoded.stamp_ns, decoded.profiles.reference, decoded.profiles))
+        else:
+            raw = decode_grid_map(item.msg)
+            layers = raw.layers
+            windows.append(MapWindow(layers["elevation"], layers["uncertainty"], layers["observations"],
+                                     layers["age"], raw.resolution, raw.centre, raw.stamp_ns))
+    out: dict[str, Any] = {}
+    if previews:
+        arrival = evaluate_drive_previews(bag_path, previews, list(frame_stamps), params, base_height=base_height,
+                                          lead_time_s=lead_time_s)
+        out["preview_at_arrival"] = dict(json_safe(arrival))
+    if windows:
+        out["map"] = dict(json_safe(map_accuracy(windows, read_drive_truth(bag_path, params).road_map)))
+    return out
 
 
 def _summary(values: Sequence[float]) -> dict[str, float]:

@@ -1,34 +1,42 @@
-"""The node's output publishers: elevation map, preview and (for viewers) point cloud."""
+"""The node's output publishers: elevation map, preview, fused map, TF and (for viewers) point cloud."""
 
 from __future__ import annotations
 
 from typing import Any
 
 from msg_bridge.pipeline_io import OutputMessages
-from roadbev_core.config import TopicsConfig
+from roadbev_core.config import MapConfig, TopicsConfig
 
 __all__ = ["OutputPublishers"]
 
 
 class OutputPublishers:
-    """The elevation map, preview and point cloud publishers, fed from the worker thread."""
+    """The output publishers, fed from the worker thread."""
 
-    def __init__(self, node: Any, qos: Any, topics: TopicsConfig) -> None:
+    def __init__(self, node: Any, qos: Any, topics: TopicsConfig, road_map: MapConfig) -> None:
         from grid_map_msgs.msg import GridMap
         from roadbev_msgs.msg import RoadPreview
         from sensor_msgs.msg import PointCloud2
+        from tf2_msgs.msg import TFMessage
 
         self._elevation = node.create_publisher(GridMap, topics.elevation, qos)
         self._preview = node.create_publisher(RoadPreview, topics.preview, qos)
         self._points = node.create_publisher(PointCloud2, topics.points, qos) if topics.points else None
+        self._map = node.create_publisher(GridMap, road_map.topic, qos)
+        self._tf = node.create_publisher(TFMessage, "/tf", qos)
 
     def points_wanted(self) -> bool:
         """The point cloud is only built for a viewer that listens (it is the largest message)."""
         return self._points is not None and self._points.get_subscription_count() > 0
 
     def publish(self, messages: OutputMessages) -> None:
-        """Publish (the GridMap first: latency is measured on it)."""
+        """Publish (the GridMap first: latency is measured on it; the TF before the messages in
+        ``roadbev_road`` is not needed: tf2 buffers wait for it)."""
         self._elevation.publish(messages.elevation)
+        if messages.tf is not None:
+            self._tf.publish(messages.tf)
         self._preview.publish(messages.preview)
+        if messages.road_map is not None:
+            self._map.publish(messages.road_map)
         if messages.points is not None and self._points is not None:
             self._points.publish(messages.points)

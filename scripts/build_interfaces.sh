@@ -24,7 +24,7 @@ done
 [[ -d "$venv/share/rosidl_default_generators" ]] \
   || die "rosidl_default_generators is not installed in $venv (pip install -r requirements.txt first)"
 
-packages=(grid_map_msgs roadbev_msgs)
+packages=(grid_map_msgs roadbev_msgs tf2_msgs)
 build_root="$venv/var/roadbev-interfaces"
 fix="$root/scripts/ros_wheels_fix.cmake"
 jobs="${ROADBEV_BUILD_JOBS:-2}"

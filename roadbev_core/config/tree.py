@@ -38,6 +38,7 @@ __all__ = [
     "BackendConfig",
     "DiagnosticsConfig",
     "ImuConfig",
+    "MapConfig",
     "ParamSpec",
     "PreviewConfig",
     "RoadbevConfig",
@@ -258,6 +259,38 @@ class PreviewConfig:
     reference_distance_m: float = param("preview.reference_distance_m", 0.0, "x of the point the times of "
                                         "arrival refer to (e.g. the front axle; m ahead of the camera)",
                                         -20.0, 50.0)
+    rear_axle: bool = param("preview.rear_axle", False, "with the map on: also the rear wheels' tracks "
+                            "(all tracks then start at the rear axle)")
+
+
+@dataclass(frozen=True)
+class MapConfig:
+    """The fused road map in ``odom`` (contract, "Fused map"; roadbev_core.fusion)."""
+
+    enabled: bool = param("map.enabled", True, "fuse frames into the road map when odometry (or a speed) "
+                          "arrives; the preview then comes from the map, relative to the contact plane")
+    topic: str = param("map_topic", "/roadbev/map", "fused map output (grid_map_msgs/GridMap)", read_only=True)
+    frame: str = param("map_frame", "odom", "frame of the fused map (the odometry's header.frame_id)",
+                       read_only=True)
+    behind_m: float = param("map.behind_m", 1.0, "the map reaches this far behind the rear axle (m)", 0.0, 20.0)
+    error_correlation: float = param("map.error_correlation", 0.1, "correlation of one cell's errors from "
+                                     "frame to frame (0 = independent: the fused sigma shrinks as 1/sqrt(N))",
+                                     0.0, 1.0)
+    gate_sigma: float = param("map.gate_sigma", 3.0, "observations farther than this many sigmas from a cell "
+                              "are rejected", 1.0, 100.0)
+    reset_after: int = param("map.reset_after", 3, "rejections in a row that restart a cell", 1, 1000)
+    align: bool = param("map.align", True, "align each frame with the map on their overlap (offset)")
+    align_slopes: bool = param("map.align_slopes", True, "align the slopes too (pitch and roll errors)")
+    offset_prior_m: float = param("map.offset_prior_m", 0.05, "1-sigma prior of a frame's vertical offset "
+                                  "around the prediction (m)", 0.001, 10.0)
+    slope_prior_deg: float = param("map.slope_prior_deg", 0.3, "1-sigma prior of a frame's pitch and roll "
+                                   "correction (deg)", 0.001, 10.0)
+    min_overlap_cells: int = param("map.min_overlap_cells", 50, "fewer cells shared with the map: the frame "
+                                   "keeps the predicted offset", 3, 1_000_000)
+    range_exponent: float = param("map.range_exponent", 4.0, "an observation x ahead of the camera weighs "
+                                  "(x_near / x)^k times what its sigma says (nearer is better)", 0.0, 8.0)
+    odom_max_age_s: float = param("map.odom_max_age_s", 0.2, "largest distance from a frame's stamp to the "
+                                  "odometry around it (s); beyond it the frame is not fused", 0.001, 10.0)
 
 
 @dataclass(frozen=True)
@@ -344,7 +377,8 @@ class RoadbevConfig:
     """Everything the pipeline and the node are configured with (validated: build it with
     :meth:`from_params`, or :meth:`with_params` for a change)."""
 
-    SECTIONS: ClassVar[tuple[str, ...]] = ("backend", "topics", "sync", "imu", "preview", "vehicle", "diagnostics")
+    SECTIONS: ClassVar[tuple[str, ...]] = ("backend", "topics", "sync", "imu", "preview", "vehicle", "map",
+                                           "diagnostics")
 
     backend: BackendConfig = field(default_factory=BackendConfig)
     grid: GridSpec = field(default_factory=GridSpec)
@@ -353,6 +387,7 @@ class RoadbevConfig:
     imu: ImuConfig = field(default_factory=ImuConfig)
     preview: PreviewConfig = field(default_factory=PreviewConfig)
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)
+    map: MapConfig = field(default_factory=MapConfig)
     diagnostics: DiagnosticsConfig = field(default_factory=DiagnosticsConfig)
 
     @classmethod
@@ -418,10 +453,33 @@ class RoadbevConfig:
                 f"synchroniser try up to {sets:,.0f} stamp combinations per message (limit {MAX_SYNC_SETS:,}): "
                 "lower one of them"
             )
+        from roadbev_core.fusion import FusionError
+
+        try:
+            self.map_settings()
+        except FusionError as exc:
+            raise ParamError(f"map settings do not work: {exc}") from None
         try:
             check_tracks(grid, self.preview.track_offsets_m, self.preview.tyre_width_m, self.preview.spacing_m)
         except PreviewError as exc:
             raise ParamError(f"preview settings do not fit the grid: {exc}") from None
+
+    def map_settings(self, camera_position_m: Any = None) -> Any:
+        """The fused map's :class:`roadbev_core.fusion.MapSettings`: the corridor from the grid
+        and the camera's position on ``base_link`` (``camera_position_m``: from ``/tf_static``
+        when known, else ``vehicle.camera_position_m``)."""
+        from roadbev_core.fusion import MapSettings
+
+        cam = self.vehicle.camera_position_m if camera_position_m is None else tuple(camera_position_m)
+        m, g = self.map, self.grid
+        return MapSettings(
+            resolution=g.resolution, behind_m=m.behind_m, ahead_m=float(cam[0]) + g.x_max,
+            y_min=float(cam[1]) + g.y_min, y_max=float(cam[1]) + g.y_max, base_height=g.base_height,
+            error_correlation=m.error_correlation, gate_sigma=m.gate_sigma, reset_after=m.reset_after,
+            align=m.align, align_slopes=m.align_slopes, offset_prior_m=m.offset_prior_m,
+            slope_prior_rad=math.radians(m.slope_prior_deg), min_overlap_cells=m.min_overlap_cells,
+            range_exponent=m.range_exponent,
+        )
 
     def to_params(self) -> dict[str, Any]:
         """Flat ROS parameters (lists as lists), backend options included."""
@@ -439,7 +497,8 @@ class RoadbevConfig:
 
 _SECTION_TYPES: dict[str, type] = {
     cls.__name__: cls
-    for cls in (BackendConfig, TopicsConfig, SyncConfig, ImuConfig, PreviewConfig, VehicleConfig, DiagnosticsConfig)
+    for cls in (BackendConfig, TopicsConfig, SyncConfig, ImuConfig, PreviewConfig, VehicleConfig, MapConfig,
+                DiagnosticsConfig)
 }
 
 

@@ -52,6 +52,7 @@ import numpy as np
 from roadbev_core.arrival import RoadMap
 from roadbev_core.attitude import quaternion_from_rotation, slerp
 from roadbev_core.config import GridSpec, StereoCamera, VehicleConfig
+from roadbev_core.ego_motion import PlanarPose
 from roadbev_core.geometry import Attitude, attitude_from_rotation, quaternion_to_rotation, rotation_from_rpy
 from roadbev_core.synth.drive import (
     GRAVITY,
@@ -76,6 +77,7 @@ __all__ = [
     "RidingConfig",
     "RidingDrive",
     "SuspensionSpec",
+    "planar_odometry",
     "simulate_suspension",
 ]
 
@@ -507,6 +509,16 @@ class RidingDrive(SyntheticDrive):
         wy = self._odom_origin[1] + s * gx + c * gy
         z = self.scene.height(wx, wy) - self._odom_origin[2]
         return RoadMap(z.astype(np.float32), float(res), (float(centre[0]), float(centre[1])))
+
+
+def planar_odometry(series: PoseSeries) -> list[PlanarPose]:
+    """A pose series as the planar odometry samples the pipeline takes (x, y, yaw, forward
+    speed, yaw rate), as ``msg_bridge.pipeline_io.odometry_sample`` reads ``/odom``."""
+    R = np.array([quaternion_to_rotation(*q) for q in series.orientation_xyzw])  # [K, 3, 3]
+    yaw = np.unwrap(np.arctan2(R[:, 1, 0], R[:, 0, 0]))
+    return [PlanarPose(int(t), float(p[0]), float(p[1]), float(y), float(v[0]), float(w[2]))
+            for t, p, y, v, w in zip(series.stamp_ns, series.position, yaw, series.linear_velocity,
+                                     series.angular_velocity, strict=True)]
 
 
 def _continuous(q: np.ndarray) -> np.ndarray:

@@ -46,6 +46,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also write every output message (/roadbev/elevation, /roadbev/preview) to this bag")
     parser.add_argument("--lead-time", type=float, default=0.1, metavar="S",
                         help="drive bags: preview at arrival counts messages stamped this long before (default 0.1 s)")
+    fused = parser.add_mutually_exclusive_group()
+    fused.add_argument("--map", dest="map", action="store_true", default=None,
+                       help="run the fused road map (needs odometry in the bag; default: on when the bag has it)")
+    fused.add_argument("--no-map", dest="map", action="store_false", help="the per-frame pipeline only")
 
 
 def _check_bag_path(path: Path) -> None:
@@ -96,22 +100,34 @@ def _read_failures(samples: Any, path: Path) -> Iterator[Any]:
 
 
 def _preview_at_arrival(path: Path, config: Any, result: Any, lead: float) -> dict[str, Any]:
-    """Score the per-frame pipeline's previews at arrival, print one line, return the JSON keys."""
-    from msg_bridge.drivebag import evaluate_drive_previews
-    from roadbev_core.arrival import ArrivalError, per_frame_previews
+    """Score the pipeline's previews at arrival (per frame or from the map: each message says
+    which), print one line, return the JSON keys (with ``"map"`` when the map ran)."""
+    from msg_bridge.drivebag import evaluate_drive_previews, read_drive_truth
+    from roadbev_core.arrival import ArrivalError, map_accuracy, per_frame_previews
     from roadbev_core.evaluation import json_safe
 
     stamps = [int(r["stamp_ns"]) for r in result.per_frame]
+    outputs = result.outputs or []
     try:
-        previews = per_frame_previews(result.outputs or [])
+        previews = per_frame_previews(outputs)
         out = evaluate_drive_previews(path, previews, stamps, config.to_params(), base_height=config.grid.base_height,
                                       lead_time_s=lead)
+        windows = [o.map for o in outputs if o.map is not None]
+        fused = map_accuracy(windows, read_drive_truth(path, config.to_params()).road_map) if windows else None
     except (ArrivalError, ValueError) as exc:
         raise CommandError(f"preview at arrival on {path}: {exc}") from exc
-    print(f"preview at arrival (lead {lead:g} s, {out['points']} points): abs. error {out['abs_err_cm']:.3f} cm, "
-          f"coverage {out['coverage_pct']:.1f} %, features {out['features_abs_err_cm']:.3f} cm, smooth "
-          f"{out['smooth_abs_err_cm']:.3f} cm, vs the contact plane {out['contact_plane_abs_err_cm']:.3f} cm")
-    return dict(json_safe(out))
+    kind = "fused map" if windows else "per frame"
+    print(f"preview at arrival, {kind} (lead {lead:g} s, {out['points']} points): abs. error "
+          f"{out['abs_err_cm']:.3f} cm, coverage {out['coverage_pct']:.1f} %, features "
+          f"{out['features_abs_err_cm']:.3f} cm, smooth {out['smooth_abs_err_cm']:.3f} cm, vs the contact plane "
+          f"{out['contact_plane_abs_err_cm']:.3f} cm")
+    result_keys: dict[str, Any] = {"preview_at_arrival": dict(json_safe(out))}
+    if fused is not None:
+        print(f"fused map vs /ground_truth/road_map ({fused['windows']} windows): abs. error "
+              f"{fused['abs_err_cm']:.3f} cm, coverage {fused['coverage_pct']:.1f} %, confidently wrong "
+              f"{fused['confident_wrong_pct']:.2f} %")
+        result_keys["map"] = dict(json_safe(fused))
+    return result_keys
 
 
 def coverage_hint(pipeline: Any, path: Path, coverage_pct: float | None) -> str | None:
@@ -149,8 +165,13 @@ def run(args: argparse.Namespace) -> int:
     except Exception as exc:  # a damaged bag: rosbags/mcap raise many types; one line, no traceback
         raise CommandError(f"cannot read bag {path}: {type(exc).__name__}: {exc}") from exc
     # the horizontal grid comes from the ground truth's GridMap info (contract)
-    config = RoadbevConfig.from_params({**explicit, **bag.grid.to_dict()})
+    if args.map and not bag.odometry:
+        raise CommandError(f"--map needs odometry: {path} has none on {bag.topics['odom_topic']}")
+    map_params = {} if args.map is None else {"map.enabled": bool(args.map)}
+    config = RoadbevConfig.from_params({**explicit, **map_params, **bag.grid.to_dict()})
     pipeline = Pipeline(config)
+    if bag.camera_mount is not None:  # /tf_static base_link -> camera wins over vehicle.camera_position_m
+        pipeline.set_camera_mount(*bag.camera_mount)
     name = config.backend.name
     from msg_bridge.drivebag import is_drive_bag
 
@@ -159,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
     if args.out:
         from msg_bridge.outputs import OutputBag
 
-        outputs = OutputBag(args.out, config)
+        outputs = OutputBag(args.out, config, camera_frame=bag.camera_frame)
 
     total = len(bag) if args.frames is None else min(len(bag), args.frames)
     if total == 0:
@@ -167,8 +188,8 @@ def run(args: argparse.Namespace) -> int:
     bar = progress_bar(total=total, unit="frame", desc=f"eval {name}", disable=args.no_progress, leave=False)
     progress = bar.update
     try:
-        result = evaluate(pipeline, _read_failures(bag, path), imu=bag.imu, progress=progress,
-                          max_frames=args.frames, keep_estimates=drive,
+        result = evaluate(pipeline, _read_failures(bag, path), imu=bag.imu, odometry=bag.odometry,
+                          progress=progress, max_frames=args.frames, keep_estimates=drive,
                           on_output=None if outputs is None else outputs.write)
     except BaseException:
         if outputs is not None:
@@ -179,6 +200,10 @@ def run(args: argparse.Namespace) -> int:
     if outputs is not None:
         outputs.close()
     metrics = result.to_dict()
+    if pipeline.map_active or pipeline.fused is not None:
+        metrics["map_enabled"] = True
+        if pipeline.map_skipped:
+            metrics["map_skipped"] = dict(pipeline.map_skipped)
     losses = bag.losses()
     metrics["lost_frames"] = bag.lost_frames()
     metrics["losses"] = losses
@@ -192,8 +217,8 @@ def run(args: argparse.Namespace) -> int:
               f"{metrics['frames']} frame(s) ran" + (f", outputs in {args.out}" if args.out else
                                                       "; --out OUT.mcap saves the outputs"))
     else:
-        if drive:  # contract, "Drive bags": the per-frame previews at the wheels' arrival
-            metrics["preview_at_arrival"] = _preview_at_arrival(path, config, result, args.lead_time)
+        if drive:  # contract, "Drive bags": the previews at the wheels' arrival (and the map)
+            metrics.update(_preview_at_arrival(path, config, result, args.lead_time))
         bands = ", ".join("-" if b is None else f"{b:.3f}" for b in metrics["band_abs_err_cm"])
         print(f"abs. error per distance band (cm, near to far): {bands}")
         print(

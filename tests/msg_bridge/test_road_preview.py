@@ -65,3 +65,29 @@ def test_malformed_previews_raise_message_error() -> None:
     msg.time_of_arrival = msg.time_of_arrival[:3]
     with pytest.raises(MessageError, match="3 times of arrival"):
         preview_from_message(msg)
+
+
+def test_a_contact_plane_preview_round_trips_with_its_plane(factory: MessageFactory) -> None:
+    from dataclasses import replace
+
+    from roadbev_core.preview import REFERENCE_CONTACT_PLANE, ContactPlane
+
+    plane = ContactPlane(0.012, 0.004, -0.01, 0.002, 0.0005, 0.0007, "map")
+    profiles = replace(_profiles(8.0), reference=REFERENCE_CONTACT_PLANE, contact_plane=plane)
+    msg = road_preview_message(profiles, factory, stamp_ns=5, frame_id="base_link")
+    assert msg.reference == "contact_plane" and msg.contact_plane_source == "map"
+    out = preview_from_message(msg).profiles
+    assert out.reference == REFERENCE_CONTACT_PLANE and out.contact_plane is not None
+    for name in ("height_m", "roll", "pitch", "height_sigma_m", "roll_sigma", "pitch_sigma"):
+        assert getattr(out.contact_plane, name) == pytest.approx(getattr(plane, name), abs=1e-7)
+    assert out.contact_plane.height_at(np.array(2.0), np.array(0.5)) == pytest.approx(
+        0.012 - 2.0 * math.tan(-0.01) + 0.5 * math.tan(0.004) / math.cos(-0.01), abs=1e-6)
+
+
+def test_a_per_frame_preview_carries_no_plane_and_an_unknown_reference_is_refused(factory: MessageFactory) -> None:
+    msg = road_preview_message(_profiles(None), factory, stamp_ns=5)
+    assert msg.reference == "road" and msg.contact_plane_source == "" and msg.contact_plane_height == 0.0
+    assert preview_from_message(msg).profiles.contact_plane is None
+    msg.reference = "gravity"
+    with pytest.raises(MessageError, match="reference"):
+        preview_from_message(msg)

@@ -176,3 +176,28 @@ def test_a_looped_replay_is_no_warning(drive_bag: Path, tmp_path: Path,
     for status, v in zip(statuses, values, strict=True):
         if float(v["input_rate_hz"]) > 0:  # while the bag plays
             assert status.level != bytes([1]) or "coverage" in status.message, status.message
+
+
+def test_a_drive_replayed_into_the_node_gives_the_fused_map_and_previews_of_eval_map(ros: object,
+                                                                                     tmp_path: Path) -> None:
+    """Online == offline for the map: the node fed over DDS (/odom, /tf_static, images, IMU)
+    publishes the previews and maps that ``roadbev eval --map`` computes, scored the same."""
+    import json
+
+    from roadbev_ros.cli import main
+
+    drive = tmp_path / "drive.mcap"
+    assert main(["synth", str(drive), "--drive", "--duration", "0.8", "--rate", "10", "--speed", "8",
+                 "--image-scale", "0.25", "--features", "speed_bump", "--road-map-resolution", "0.04",
+                 "--quiet"]) == 0
+    offline_json = tmp_path / "offline.json"
+    assert main(["eval", str(drive), "--map", "--backend", "bm", "--json", str(offline_json), "--no-progress"]) == 0
+    offline = json.loads(offline_json.read_text())
+    result = evaluate_online(drive, tmp_path / "online", backend="bm")
+    online = result.metrics
+    assert online["online"]["frames_without_output"] == 0, result.node_log
+    assert bag.bag_topics(result.recorded)["/roadbev/map"].count == 8
+    for section in ("preview_at_arrival", "map"):
+        for key, value in offline[section].items():
+            if isinstance(value, float):
+                assert online[section][key] == pytest.approx(value, rel=1e-5, abs=1e-6), (section, key)

@@ -354,3 +354,48 @@ def test_mono_backend_needs_only_the_left_camera(ros: Any) -> None:
         assert h.elevation_value(h.wait_output(stamp)) == pytest.approx(pitch_ramp(stamp), abs=1e-5)
     finally:
         h.close()
+
+
+def test_with_odometry_the_node_publishes_the_fused_map_its_tf_and_clears_it_on_request(harness: Harness) -> None:
+    from grid_map_msgs.msg import GridMap
+    from nav_msgs.msg import Odometry
+    from std_srvs.srv import Trigger
+    from tf2_msgs.msg import TFMessage
+
+    from msg_bridge.grid_map import decode_grid_map
+    from msg_bridge.tf import transforms_from_tf
+
+    maps: list[Any] = []
+    tfs: list[Any] = []
+    harness.feeder.create_subscription(GridMap, "/roadbev/map", maps.append, 10)
+    harness.feeder.create_subscription(TFMessage, "/tf", tfs.append, 10)
+    odom = harness.feeder.create_publisher(Odometry, "/odom", 50)
+    assert wait_for(lambda: odom.get_subscription_count() > 0)
+
+    def publish_odometry(k: int) -> None:
+        msg = Odometry()
+        stamp = START_NS + k * FRAME_NS
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+        msg.header.frame_id, msg.child_frame_id = "odom", "base_link"
+        msg.pose.pose.position.x = 1.0 * k  # 10 m/s
+        msg.pose.pose.orientation.w = 1.0
+        msg.twist.twist.linear.x = 10.0
+        odom.publish(msg)
+
+    for k in range(8):
+        publish_odometry(k + 1)  # the sample after the frame's stamp: the node waits for it
+        harness.wait_output(feed(harness, k))
+    assert wait_for(lambda: len(maps) == 8 and len(tfs) == 8)
+    decoded = decode_grid_map(maps[-1])
+    assert decoded.frame_id == "odom" and set(decoded.layers) == {"elevation", "uncertainty", "observations", "age"}
+    assert np.isfinite(decoded.layers["elevation"]).sum() > 1000
+    tf = transforms_from_tf(tfs[-1])[0]
+    assert (tf.parent, tf.child) == ("left", "roadbev_road")  # the left images' frame_id
+    np.testing.assert_allclose(tf.translation, tf.rotation @ np.array([0.0, 0.0, -1.10]), atol=1e-5)
+    preview = preview_from_message(harness.previews[-1])
+    assert preview.frame_id == "base_link" and preview.profiles.contact_plane is not None
+    client = harness.feeder.create_client(Trigger, f"/{harness.node.get_name()}/clear_map")
+    assert client.wait_for_service(timeout_sec=10.0)
+    future = client.call_async(Trigger.Request())
+    assert wait_for(future.done) and future.result().success
+    assert harness.node.pipeline.fused is not None and harness.node.pipeline.fused.empty

@@ -87,3 +87,45 @@ def test_synth_drive_writes_a_drive_bag_that_eval_scores_at_arrival(tmp_path: Pa
 def test_synth_frames_and_duration_exclude_each_other(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
     assert main(["synth", str(tmp_path / "x.mcap"), "--frames", "2", "--duration", "1"]) != 0
     assert "--frames or --duration" in capsys.readouterr().err
+
+
+def test_eval_map_on_a_drive_fuses_publishes_and_scores_the_map(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    import json
+
+    from msg_bridge.bag import read_messages
+    from msg_bridge.preview import preview_from_message
+
+    bag = tmp_path / "drive.mcap"
+    args = ["--duration", "1.0", "--rate", "10", "--image-scale", "0.25", "--quiet", "--speed", "8", "--features",
+            "speed_bump", "--road-map-resolution", "0.04"]
+    assert main(["synth", str(bag), "--drive", *args]) == 0
+    runs = {}
+    for flag in ("--map", "--no-map"):
+        metrics, out = tmp_path / f"m{flag}.json", tmp_path / f"out{flag}.mcap"
+        assert main(["eval", str(bag), flag, "--backend", "bm", "--json", str(metrics), "--out", str(out),
+                     "--no-progress"]) == 0
+        runs[flag] = (json.loads(metrics.read_text()), out)
+    fused, per_frame = runs["--map"][0], runs["--no-map"][0]
+    assert fused["map_enabled"] is True and "map" not in per_frame and "map_enabled" not in per_frame
+    assert {"abs_err_cm", "coverage_pct", "confident_wrong_pct"} <= set(fused["map"])
+    assert 0.0 < fused["map"]["coverage_pct"] <= 100.0 and fused["map"]["windows"] == 10
+    assert fused["abs_err_cm"] == per_frame["abs_err_cm"]  # the per-frame estimates do not change
+    topics = {t: i.count for t, i in bag_topics(runs["--map"][1]).items()}
+    assert topics["/roadbev/map"] == topics["/tf"] == topics["/roadbev/preview"] == 10
+    assert "/roadbev/map" not in {t for t in bag_topics(runs["--no-map"][1])}
+    references = [preview_from_message(item.msg) for item in read_messages(runs["--map"][1], ["/roadbev/preview"])]
+    assert references[0].frame_id == "roadbev_road"  # no tyre contact on the map yet: the per-frame preview
+    assert references[-1].frame_id == "base_link" and references[-1].profiles.contact_plane is not None
+    again = tmp_path / "again.json"
+    assert main(["eval", str(bag), "--map", "--backend", "bm", "--json", str(again), "--no-progress"]) == 0
+    second = json.loads(again.read_text())
+    assert second["map"] == fused["map"] and second["preview_at_arrival"] == fused["preview_at_arrival"]
+
+
+def test_eval_map_needs_odometry(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bag = tmp_path / "plain.mcap"
+    assert main(["synth", str(bag), "--frames", "1", "--image-scale", "0.25", "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["eval", str(bag), "--map", "--no-progress"]) == 2
+    assert "--map needs odometry" in capsys.readouterr().err

@@ -1,0 +1,164 @@
+"""The preview a controller uses: wheel-track profiles read from the fused map.
+
+Contract, "Preview from the fused map". For each wheel track of the front axle (and the rear
+axle with ``preview.rear_axle``), samples every ``preview.spacing_m`` from the tyre's contact
+point forward to the map's far edge, x ahead of ``base_link``'s origin along its heading, each
+the mean height over the tyre's footprint (``tyre_width_m`` across, one spacing along; at least
+half of it known, else NaN), **relative to the contact plane**: the least-squares plane through
+the four tyre contacts on the map at the stamp (heights measured vertically), so body heave,
+pitch and roll never appear as road. The plane itself travels with the profiles
+(:class:`roadbev_core.preview.ContactPlane`).
+
+Until the map holds three of the contacts, a prior decides what they leave open: the body's own
+plane at static ride height (its attitude from the IMU, its height from the map's datum; 3 cm
+and 1 degree) (the first metres of a drive: the rear contacts lie ~4 m behind the
+grid's near edge; ``source`` = ``"body"`` then, and the pipeline publishes the per-frame preview
+instead of such a guess). A profile sample's sigma combines the map cells'
+(their mean over the footprint: neighbouring cells' errors are correlated) and the plane's.
+
+Pure numpy; shapes in the comments.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from roadbev_core.config import VehicleConfig
+from roadbev_core.fusion import FramePlacement, FusedMap
+from roadbev_core.preview import REFERENCE_CONTACT_PLANE, ContactPlane, PreviewProfiles, TrackProfile
+from roadbev_core.vehicle import WHEEL_NAMES
+
+__all__ = ["BODY_PLANE_SIGMA", "contact_plane_fit", "footprint_heights", "map_preview"]
+
+# 1-sigma of the body's plane at static ride height against the road's (suspension deflection
+# over bumps and under braking: a few cm and about a degree).
+BODY_PLANE_SIGMA = (0.03, math.radians(1.0))
+
+
+def footprint_heights(fused: FusedMap, x: np.ndarray, y: np.ndarray, heading: float, width: float,
+                      length: float) -> tuple[np.ndarray, np.ndarray]:
+    """Mean fused height and sigma over tyre footprints centred at odom points (x, y) [N].
+
+    The footprint (``width`` across, ``length`` along ``heading``) is sampled every ~1 cm; at
+    least half of the samples must be known, else NaN.
+    """
+    n_w = max(2, int(math.ceil(width / 0.01)))
+    n_l = max(1, int(math.ceil(length / 0.01)))
+    across = (np.arange(n_w) + 0.5) / n_w * width - 0.5 * width  # [n_w]
+    along = (np.arange(n_l) + 0.5) / n_l * length - 0.5 * length  # [n_l]
+    a, b = (g.ravel() for g in np.meshgrid(along, across, indexing="ij"))  # [S]
+    c, s = math.cos(heading), math.sin(heading)
+    px = np.asarray(x)[:, None] + c * a - s * b  # [N, S]
+    py = np.asarray(y)[:, None] + s * a + c * b
+    z, sz = fused.heights(px, py)
+    known = np.isfinite(z) & np.isfinite(sz)
+    count = known.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(known, z, 0.0).sum(axis=1) / count
+        sigma = np.where(known, sz, 0.0).sum(axis=1) / count
+    ok = count >= 0.5 * a.size
+    return np.where(ok, mean, np.nan), np.where(ok, sigma, np.nan)
+
+
+def contact_plane_fit(points: np.ndarray, sigmas: np.ndarray, prior: tuple[np.ndarray, np.ndarray] | None = None
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted least-squares plane ``z = p0 + p1 x + p2 y`` through points [K, 3] (x, y relative
+    to a nearby origin) with 1-sigma heights [K]; a Gaussian prior (coefficients [3], covariance
+    [3, 3]) decides what fewer than three points leave open.
+
+    Returns:
+        coefficients [3] and their covariance [3, 3].
+    """
+    A = np.stack([np.ones(points.shape[0]), points[:, 0], points[:, 1]], 1)  # [K, 3]
+    w = 1.0 / np.square(sigmas)
+    prior_mean, prior_info = (np.zeros(3), np.zeros((3, 3))) if prior is None else (prior[0], np.linalg.inv(prior[1]))
+    cov = np.linalg.inv((A * w[:, None]).T @ A + prior_info)
+    coeffs = cov @ ((A * w[:, None]).T @ points[:, 2] + prior_info @ prior_mean)
+    return coeffs, cov
+
+
+def _plane_from_body(placement: FramePlacement, base_z: float) -> tuple[np.ndarray, np.ndarray]:
+    """The body's x-y plane through its origin (relative coordinates), with BODY_PLANE_SIGMA."""
+    n = placement.R_odom_base[:, 2]  # base_link's z axis in odom
+    coeffs = np.array([base_z, -n[0] / n[2], -n[1] / n[2]])
+    h, ang = BODY_PLANE_SIGMA
+    return coeffs, np.diag([h * h, ang * ang, ang * ang])
+
+
+def _as_contact_plane(coeffs: np.ndarray, cov: np.ndarray, heading: float, base_z: float, source: str
+                      ) -> ContactPlane:
+    """A plane ``z = p0 + p1 dx + p2 dy`` (odom axes, relative to base_link's origin) in the
+    heading frame of ``base_link`` (see :class:`ContactPlane`)."""
+    c, s = math.cos(heading), math.sin(heading)
+    T = np.array([[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]])  # (p0, p1, p2) -> (h, g_along, g_across)
+    h, gx, gy = T @ coeffs
+    C = T @ cov @ T.T
+    pitch = -math.atan(gx)
+    roll = math.atan(gy * math.cos(pitch))
+    return ContactPlane(
+        height_m=float(h - base_z), roll=roll, pitch=pitch,
+        height_sigma_m=float(math.sqrt(C[0, 0])),
+        pitch_sigma=float(math.sqrt(C[1, 1]) / (1.0 + gx * gx)),
+        roll_sigma=float(math.sqrt(C[2, 2]) / (1.0 + gy * gy)),
+        source=source,
+    )
+
+
+def map_preview(
+    fused: FusedMap,
+    placement: FramePlacement,
+    vehicle: VehicleConfig,
+    *,
+    tyre_width_m: float,
+    spacing_m: float,
+    rear_axle: bool = False,
+    vehicle_speed: float | None = None,
+) -> PreviewProfiles:
+    """The contact-plane profiles of every wheel track at the pose of ``placement``.
+
+    Returns:
+        Profiles named ``front_left``, ``front_right`` (then ``rear_left``, ``rear_right``), all
+        sampled at ``x_i = start + i * spacing`` in ``base_link`` (start: the front axle, or the
+        rear axle with ``rear_axle``; a front track is NaN behind its own contact), times of
+        arrival relative to the front axle.
+    """
+    base = placement.base
+    c, s = math.cos(base.yaw), math.sin(base.yaw)
+    wheels = vehicle.wheel_positions()  # [4, 2] base_link
+    wx = base.x + c * wheels[:, 0] - s * wheels[:, 1]  # [4] odom
+    wy = base.y + s * wheels[:, 0] + c * wheels[:, 1]
+    wz, wsig = footprint_heights(fused, wx, wy, base.yaw, tyre_width_m, spacing_m)
+    base_z = fused.base_z if fused.base_z is not None else 0.0
+    known = np.isfinite(wz) & np.isfinite(wsig) & (wsig > 0)
+    rel = np.stack([wx - base.x, wy - base.y, wz], 1)[known]
+    source = "map" if known.sum() >= 3 else "body"
+    coeffs, cov = contact_plane_fit(rel, wsig[known], None if source == "map" else _plane_from_body(placement, base_z))
+    plane = _as_contact_plane(coeffs, cov, base.yaw, base_z, source)
+
+    start = 0.0 if rear_axle else vehicle.wheelbase_m
+    far = fused.settings.ahead_m
+    n = max(int(math.floor((far - start) / spacing_m + 1e-9)) + 1, 1)
+    x = start + np.arange(n) * spacing_m  # [S] base_link x
+    tracks = []
+    for index in range(4 if rear_axle else 2):
+        wheel_x, wheel_y = wheels[index]
+        px = base.x + c * x - s * wheel_y  # [S] odom
+        py = base.y + s * x + c * wheel_y
+        z, sz = footprint_heights(fused, px, py, base.yaw, tyre_width_m, spacing_m)
+        g = np.stack([np.ones(n), px - base.x, py - base.y], 1)  # [S, 3]
+        ref = g @ coeffs
+        ref_var = np.einsum("ni,ij,nj->n", g, cov, g)
+        elevation = z - ref
+        sigma = np.sqrt(sz * sz + ref_var)
+        behind = x < wheel_x - 1e-9  # a front track starts at its own contact
+        elevation[behind] = np.nan
+        sigma[behind | ~np.isfinite(elevation)] = np.nan
+        tracks.append(TrackProfile(WHEEL_NAMES[index], float(wheel_y), float(tyre_width_m),
+                                   elevation.astype(np.float32), sigma.astype(np.float32)))
+    return PreviewProfiles(
+        start_distance=float(start), spacing=float(spacing_m), tracks=tuple(tracks),
+        vehicle_speed=None if vehicle_speed is None else float(vehicle_speed),
+        reference_distance=float(vehicle.wheelbase_m), reference=REFERENCE_CONTACT_PLANE, contact_plane=plane,
+    )

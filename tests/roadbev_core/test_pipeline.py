@@ -1,0 +1,108 @@
+"""The pipeline's map stage: on with odometry, the per-frame pipeline without it, resets and refusals."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from roadbev_core.config import GridSpec, RoadbevConfig, StereoCamera
+from roadbev_core.ego_motion import PlanarPose
+from roadbev_core.errors import RoadbevError
+from roadbev_core.frame import Estimate, Frame
+from roadbev_core.geometry import R_BODY_FROM_OPTICAL, Attitude
+from roadbev_core.pipeline import Pipeline
+from roadbev_core.preview import REFERENCE_CONTACT_PLANE, REFERENCE_ROAD
+
+S = 1_000_000_000
+CAMERA = StereoCamera.rsrd_half().scaled(0.25)
+
+
+class FlatRoad:
+    """A backend that sees a flat road 1 cm above the reference plane everywhere."""
+
+    name = "flat"
+    needs_stereo = False
+
+    def __init__(self, grid: GridSpec, **_: Any) -> None:
+        self.grid = grid
+
+    def estimate(self, frame: Frame) -> Estimate:
+        return Estimate(np.full(self.grid.shape, 0.01, np.float32), np.full(self.grid.shape, 0.004, np.float32))
+
+
+def _pipeline(**params: Any) -> Pipeline:
+    config = RoadbevConfig.from_params({"require_imu": False, **params})
+    return Pipeline(config, backend_factory=lambda name, grid, **o: FlatRoad(grid), configure_process=False)
+
+
+def _frame(k: int) -> Frame:
+    image = np.zeros((CAMERA.height, CAMERA.width, 3), np.uint8)
+    return Frame(image, None, CAMERA, Attitude(0.0, 0.0), (1 + k) * S // 10)
+
+
+def _drive(pipeline: Pipeline, frames: int, speed: float = 10.0) -> list[Any]:
+    outputs = []
+    for k in range(frames + 1):  # odometry one step ahead of the frames, as the node waits for it
+        pipeline.add_odometry(PlanarPose((1 + k) * S // 10, 0.1 * k * speed, 0.0, 0.0, speed, 0.0))
+    for k in range(frames):
+        outputs.append(pipeline.process_frame(_frame(k)))
+    return outputs
+
+
+def test_without_odometry_the_pipeline_is_per_frame() -> None:
+    pipeline = _pipeline()
+    out = pipeline.process_frame(_frame(0))
+    assert not pipeline.map_active and out.map is None and out.fusion is None
+    assert out.preview is not None and out.preview.reference == REFERENCE_ROAD
+
+
+def test_with_odometry_frames_are_fused_and_the_preview_comes_from_the_map() -> None:
+    pipeline = _pipeline()
+    pipeline.set_camera_mount([1.6, 0.0, 1.1], R_BODY_FROM_OPTICAL)
+    outputs = _drive(pipeline, 8)
+    assert all(o.map is not None and o.fusion is not None for o in outputs)
+    first, last = outputs[0].preview, outputs[-1].preview
+    assert first is not None and first.reference == REFERENCE_ROAD  # no tyre contact on the map yet
+    assert last is not None and last.reference == REFERENCE_CONTACT_PLANE
+    assert last.contact_plane is not None and last.contact_plane.source == "map"
+    assert [t.name for t in last.tracks] == ["front_left", "front_right"]
+    assert last.start_distance == pytest.approx(2.8) and last.vehicle_speed == pytest.approx(10.0)
+    values = np.concatenate([t.elevation[np.isfinite(t.elevation)] for t in last.tracks])
+    assert values.size > 100 and np.max(np.abs(values)) < 1e-4  # flat relative to the contact plane
+    assert "map" in outputs[-1].timings_ms
+
+
+def test_rear_axle_tracks_start_at_the_rear_axle() -> None:
+    pipeline = _pipeline(**{"preview.rear_axle": True})
+    preview = _drive(pipeline, 8)[-1].preview
+    assert preview is not None and len(preview.tracks) == 4 and preview.start_distance == 0.0
+    front = preview.track("front_left").elevation
+    assert np.all(np.isnan(front[: int(2.7 / 0.03)]))  # behind the front contact
+
+
+def test_map_off_by_parameter_and_stale_odometry_fall_back_to_the_per_frame_preview() -> None:
+    off = _pipeline(**{"map.enabled": False})
+    assert all(o.map is None for o in _drive(off, 2))
+    pipeline = _pipeline()
+    pipeline.add_odometry(PlanarPose(S // 10, 0.0, 0.0, 0.0, 10.0, 0.0))
+    late = pipeline.process_frame(_frame(20))  # 2 s after the only odometry sample
+    assert late.map is None and late.preview is not None and late.preview.reference == REFERENCE_ROAD
+    assert sum(pipeline.map_skipped.values()) == 1
+
+
+def test_reset_forgets_the_map_and_the_odometry() -> None:
+    pipeline = _pipeline()
+    _drive(pipeline, 3)
+    assert pipeline.fused is not None and not pipeline.fused.empty
+    pipeline.reset()
+    assert pipeline.fused.empty and not pipeline.map_active
+
+
+def test_a_camera_mount_that_is_not_a_rotation_is_refused() -> None:
+    pipeline = _pipeline()
+    with pytest.raises(RoadbevError, match="rotation"):
+        pipeline.set_camera_mount([1.6, 0.0, 1.1], 2 * np.eye(3))
+    with pytest.raises(RoadbevError, match="finite"):
+        pipeline.set_camera_mount([np.nan, 0.0, 1.1], np.eye(3))
