@@ -61,6 +61,7 @@ setup(
         "console_scripts": [
             "roadbev = roadbev_ros.cli:main",
             "roadbev_node = roadbev_ros.node:main",
+            "roadbev_preview_controller = roadbev_ros.preview_controller:main",
         ],
     },
 )

@@ -5,15 +5,18 @@ Run (from the repository root)::
     .venv/bin/python -m benchmarks.bench_node                       # bev_sweep, sgbm, bm
     .venv/bin/python -m benchmarks.bench_node --backends bm --frames 10 --scale 0.5
     .venv/bin/python -m benchmarks.bench_node --backends stereo stereo:runtime=openvino --frames 40
+    .venv/bin/python -m benchmarks.bench_node --drive --rate 10 --backends bev_sweep --frames 40  # map on
 
 A backend may carry options, ``NAME:OPTION=VALUE[,OPTION=VALUE]`` (node parameters
 ``NAME.OPTION``), so that one run compares e.g. the torch and ONNX runtimes of a model.
 
 For every backend the node runs as its own process (``roadbev node``) and a synthetic drive
-(5 Hz, 960 x 528 stereo at ``--scale 1``, 100 Hz IMU) is replayed into it twice:
+(5 Hz, 960 x 528 stereo at ``--scale 1``, 100 Hz IMU; with ``--drive`` a drive bag where the car
+rides on its road at 10 m/s, with ``/odom`` and ``/tf_static``, so the node runs the fused map)
+is replayed into it twice:
 
-* ``5hz``: with the bag's timing, as a camera would deliver it; a backend slower than the camera
-  makes the node drop frames (it keeps the newest);
+* ``5hz``: with the bag's timing, as a camera would deliver it (5 Hz; with ``--drive --rate R``
+  R Hz); a backend slower than the camera makes the node drop frames (it keeps the newest);
 * ``max``: as fast as the node answers (each left image waits for the previous answer), i.e.
   the node's maximum throughput.
 
@@ -46,23 +49,31 @@ TARGET_OVERHEAD_MS = 10.0
 STEREO_TARGET_P95_MS = 300.0
 
 
-def drive_bag(frames: int, scale: float, seed: int = 7) -> Path:
-    """A synthetic drive as an evaluation bag (cached by frames/scale/seed)."""
+def drive_bag(frames: int, scale: float, seed: int = 7, *, riding: bool = False, rate: float = 5.0,
+              speed: float = 10.0) -> Path:
+    """A synthetic drive as an evaluation bag (cached by its arguments); ``riding``: a drive bag
+    where the car rides on its road, with ``/odom`` and ``/tf_static`` (the node fuses the map)."""
+    from msg_bridge.drivebag import write_drive_bag
     from msg_bridge.evalbag import write_eval_bag
     from roadbev_core.config import StereoCamera
-    from roadbev_core.synth import DriveConfig, RoadConfig, SyntheticDrive
+    from roadbev_core.synth import DriveConfig, RidingConfig, RidingDrive, RoadConfig, SyntheticDrive
 
     CACHE.mkdir(exist_ok=True)
-    path = CACHE / f"bench_node_{frames}f_{scale:g}x_s{seed}.mcap"
+    kind = f"_drive_{rate:g}hz_{speed:g}mps" if riding else ""
+    path = CACHE / f"bench_node_{frames}f_{scale:g}x_s{seed}{kind}.mcap"
     if not path.exists():
         camera = StereoCamera.rsrd_half()
         if scale != 1.0:
             camera = camera.scaled(scale)
         road = RoadConfig(road_class="C", features=("pothole", "speed_bump"))
-        drive = SyntheticDrive(DriveConfig(frames=frames, camera=camera, seed=seed, road=road))
         tmp = path.with_suffix(".tmp.mcap")
         tmp.unlink(missing_ok=True)
-        write_eval_bag(tmp, drive)
+        if riding:
+            config = DriveConfig(frames=frames, camera=camera, seed=seed, road=road, frame_rate_hz=rate,
+                                 speed_mps=speed)
+            write_drive_bag(tmp, RidingDrive(RidingConfig(drive=config)))
+        else:
+            write_eval_bag(tmp, SyntheticDrive(DriveConfig(frames=frames, camera=camera, seed=seed, road=road)))
         tmp.replace(path)
     return path
 
@@ -116,6 +127,8 @@ def run_one(
         "e2e_minus_inference_p50_ms": online["latency_ms"]["p50"] - _float(node, "inference_p50_ms"),
         "abs_err_cm": m["abs_err_cm"],
         "coverage_pct": m["coverage_pct"],
+        # a drive bag with odometry: the node's recorded previews at arrival and its fused map
+        **{key: m[key] for key in ("preview_at_arrival", "map") if key in m},
     }
 
 
@@ -210,6 +223,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=20)
     parser.add_argument("--scale", type=float, default=1.0, help="image scale of the 960x528 rig")
     parser.add_argument("--out", type=Path, default=RESULTS / "node.json")
+    parser.add_argument("--drive", action="store_true",
+                        help="a drive where the car rides on its road, with /odom and /tf_static: the map is on")
+    parser.add_argument("--rate", type=float, default=5.0, help="camera rate of the --drive bag (default 5 Hz)")
     parser.add_argument("--node-param", action="append", default=[], metavar="NAME=VALUE",
                         help="a node parameter for every run, e.g. inference_threads=2 (repeatable)")
     args = parser.parse_args(argv)
@@ -222,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_flush_denormal(True)
     t0 = time.monotonic()
-    bag = drive_bag(args.frames, args.scale)
+    bag = drive_bag(args.frames, args.scale, riding=args.drive, rate=args.rate)
     print(f"bag {bag.name} ready in {time.monotonic() - t0:.1f} s", file=sys.stderr)
     try:
         specs = {spec: backend_spec(spec) for spec in args.backends}
@@ -253,7 +269,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"node pipeline overhead (single thread, no DDS): {overhead}", file=sys.stderr)
     record = {
         "what": "node throughput and end-to-end latency over DDS (replay -> node process -> record)",
-        "bag": {"frames": args.frames, "scale": args.scale, "frame_rate_hz": 5.0},
+        "bag": {"frames": args.frames, "scale": args.scale, "frame_rate_hz": args.rate if args.drive else 5.0,
+                "drive_with_odometry": args.drive},
         "node_params": node_params,
         "machine": machine_info(),
         "rows": rows,

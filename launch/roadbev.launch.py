@@ -32,6 +32,7 @@ TOPICS = {
     "left_info": ("/stereo/left/camera_info", "left CameraInfo"),
     "right_info": ("/stereo/right/camera_info", "right CameraInfo"),
     "imu": ("/imu/data", "IMU (sensor_msgs/Imu)"),
+    "odom": ("/odom", "vehicle odometry for the fused road map (nav_msgs/Odometry, odom -> base_link)"),
 }
 
 

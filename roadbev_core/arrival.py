@@ -162,9 +162,9 @@ class RoadMap(NamedTuple):
         r0 = np.clip(np.floor(fr), 0, n_rows - 2).astype(np.int64)
         c0 = np.clip(np.floor(fc), 0, n_cols - 2).astype(np.int64)
         tr, tc = np.clip(fr - r0, 0, 1), np.clip(fc - c0, 0, 1)
-        e = self.elevation.astype(np.float64)
-        top = e[r0, c0] * (1 - tc) + e[r0, c0 + 1] * tc
-        bot = e[r0 + 1, c0] * (1 - tc) + e[r0 + 1, c0 + 1] * tc
+        e = self.elevation  # indexed before converting: the map can hold millions of cells
+        top = e[r0, c0].astype(np.float64) * (1 - tc) + e[r0, c0 + 1].astype(np.float64) * tc
+        bot = e[r0 + 1, c0].astype(np.float64) * (1 - tc) + e[r0 + 1, c0 + 1].astype(np.float64) * tc
         return np.where(inside, top * (1 - tr) + bot * tr, np.nan)
 
     def footprint(self, x: np.ndarray, y: np.ndarray, heading: np.ndarray, width: float,

@@ -63,8 +63,11 @@ __all__ = [
     "FusionError",
     "MapSettings",
     "MapWindow",
+    "Prepared",
     "place_frame",
+    "prepare_bilinear",
     "sample_bilinear",
+    "sample_prepared",
 ]
 
 
@@ -82,12 +85,15 @@ class MapSettings:
         ahead_m: the far edge in ``base_link`` x (camera x + the grid's ``x_max``).
         y_min, y_max: the corridor's lateral extent in ``base_link`` (camera y + the grid's).
         base_height: the road frame lies this far below the camera.
-        error_correlation: ``rho`` of the fused variance (0 = independent frames).
+        error_correlation: ``rho`` of the fused variance: how correlated one cell's errors are
+            from frame to frame (0 = independent frames).
         gate_sigma: observations farther than this many combined sigmas are rejected.
         reset_after: this many rejections in a row restart a cell.
         align: fit the offset (and with ``align_slopes`` the slopes) of each frame on the overlap.
         offset_prior_m, slope_prior_rad: 1-sigma priors of the alignment around the prediction.
         min_overlap_cells: fewer overlapping cells than this: the prediction is kept.
+        align_correlation: correlation of the cell errors of one frame in the alignment fit (the
+            overlap's n cells are worth ``1 / (rho + (1 - rho) / n)`` independent ones).
         range_exponent: an observation at distance x ahead of the camera weighs
             ``(x_near / x)^range_exponent`` times what its sigma alone says (x_near: the grid's
             near edge).
@@ -99,7 +105,7 @@ class MapSettings:
     y_min: float
     y_max: float
     base_height: float
-    error_correlation: float = 0.1
+    error_correlation: float = 1.0
     gate_sigma: float = 3.0
     reset_after: int = 3
     align: bool = True
@@ -108,6 +114,7 @@ class MapSettings:
     slope_prior_rad: float = math.radians(0.3)
     min_overlap_cells: int = 50
     range_exponent: float = 4.0
+    align_correlation: float = 0.1
 
     def __post_init__(self) -> None:
         if not (0.001 <= self.resolution <= 1.0):
@@ -177,7 +184,30 @@ def sample_bilinear(values: np.ndarray, sigma: np.ndarray | None, rows: np.ndarr
     Returns:
         [N] values and [N] sigmas (the same weights; NaN without ``sigma``).
     """
-    n_rows, n_cols = values.shape
+    return sample_prepared(prepare_bilinear(values, sigma), rows, cols, min_weight)
+
+
+class Prepared(NamedTuple):
+    """A [R, C] array (and its sigma) ready for :func:`sample_prepared`: flat, holes zeroed."""
+
+    shape: tuple[int, int]
+    values: np.ndarray  # [R*C] NaN -> 0
+    sigma: np.ndarray | None  # [R*C] NaN -> 0
+    known: np.ndarray  # [R*C] 1.0 where values (and sigma) are finite
+
+
+def prepare_bilinear(values: np.ndarray, sigma: np.ndarray | None) -> Prepared:
+    """Flatten ``values`` [R, C] (and ``sigma``) once for many :func:`sample_prepared` calls."""
+    known = np.isfinite(values) if sigma is None else np.isfinite(values) & np.isfinite(sigma)
+    return Prepared((int(values.shape[0]), int(values.shape[1])), np.where(known, values, 0.0).ravel(),
+                    None if sigma is None else np.where(known, sigma, 0.0).ravel(), known.ravel().astype(np.float64))
+
+
+def sample_prepared(prepared: Prepared, rows: np.ndarray, cols: np.ndarray, min_weight: float = 0.5
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sample_bilinear` of a :class:`Prepared` array."""
+    n_rows, n_cols = prepared.shape
+    v0, s0, k0 = prepared.values, prepared.sigma, prepared.known
     r0 = np.floor(rows).astype(np.int64)
     c0 = np.floor(cols).astype(np.int64)
     tr, tc = rows - r0, cols - c0
@@ -187,19 +217,16 @@ def sample_bilinear(values: np.ndarray, sigma: np.ndarray | None, rows: np.ndarr
     for dr, dc, w in ((0, 0, (1 - tr) * (1 - tc)), (0, 1, (1 - tr) * tc), (1, 0, tr * (1 - tc)), (1, 1, tr * tc)):
         r, c = r0 + dr, c0 + dc
         inside = (r >= 0) & (r < n_rows) & (c >= 0) & (c < n_cols)
-        ri, ci = np.where(inside, r, 0), np.where(inside, c, 0)
-        v = values[ri, ci]
-        ok = inside & np.isfinite(v)
-        if sigma is not None:
-            sv = sigma[ri, ci]
-            ok &= np.isfinite(sv)
-            acc_s += np.where(ok, w * np.where(ok, sv, 0.0), 0.0)
-        acc += np.where(ok, w * np.where(ok, v, 0.0), 0.0)
-        weight += np.where(ok, w, 0.0)
+        flat = np.where(inside, r * n_cols + c, 0)
+        wk = w * inside * k0[flat]  # [N] the weight of this neighbour where it is known
+        acc += wk * v0[flat]
+        if s0 is not None:
+            acc_s += wk * s0[flat]
+        weight += wk
     good = weight >= min_weight - 1e-12
     with np.errstate(invalid="ignore", divide="ignore"):
         out = np.where(good, acc / weight, np.nan)
-        out_s = np.where(good, acc_s / weight, np.nan) if sigma is not None else np.full(rows.shape, np.nan)
+        out_s = np.where(good, acc_s / weight, np.nan) if s0 is not None else np.full(rows.shape, np.nan)
     return out, out_s
 
 
@@ -273,7 +300,7 @@ class FusedMap:
         settings: the map's settings.
     """
 
-    MARGIN_M = 2.0  # the buffer reaches this far beyond the corridor, so it moves every ~2 m
+    MARGIN_M = 1.0  # the buffer reaches this far beyond the corridor, so it moves every ~1 m
 
     def __init__(self, settings: MapSettings) -> None:
         self.settings = settings
@@ -290,6 +317,7 @@ class FusedMap:
         self._base_z: float | None = None  # base_link's origin z in odom, after the last frame
         self.frames = 0
         self._cached: tuple[np.ndarray, np.ndarray] | None = None  # _means() until the next change
+        self._prepared: Prepared | None = None  # the means ready for heights(), likewise
 
     @property
     def empty(self) -> bool:
@@ -363,6 +391,7 @@ class FusedMap:
         once per change of the map."""
         if self._cached is None:
             self._cached = self._compute_means()
+            self._prepared = None
         return self._cached
 
     def _compute_means(self) -> tuple[np.ndarray, np.ndarray]:
@@ -381,11 +410,13 @@ class FusedMap:
         x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
         if not self._n.size:
             return np.full(x.shape, np.nan), np.full(x.shape, np.nan)
-        mean, sigma = self._means()
+        means = self._means()  # recomputed after a change, which also drops the prepared copy
+        if self._prepared is None:
+            self._prepared = prepare_bilinear(*means)
         r = self.settings.resolution
         rows = x / r - 0.5 - self._i0
         cols = y / r - 0.5 - self._j0
-        z, s = sample_bilinear(mean, sigma, rows.ravel(), cols.ravel(), min_weight)
+        z, s = sample_prepared(self._prepared, rows.ravel(), cols.ravel(), min_weight)
         return z.reshape(x.shape), s.reshape(x.shape)
 
     def window(self, base: PlanarPose, stamp_ns: int) -> MapWindow:
@@ -524,8 +555,8 @@ class FusedMap:
         residual = m - z
         keep = np.ones(z.size, bool)
         x = np.zeros(3)
-        # equicorrelated cell errors: n cells are worth n_eff = 1 / (rho + (1 - rho) / n) of one
-        rho = s.error_correlation
+        # spatially correlated cell errors: n cells of one frame are worth 1 / (rho + (1 - rho) / n) of one
+        rho = s.align_correlation
         for _ in range(3):  # refit without the cells the fit cannot explain (a bump moved, a bad cell)
             n = max(int(keep.sum()), 1)
             w = np.where(keep, 1.0 / var, 0.0) / (n * (rho + (1.0 - rho) / n))

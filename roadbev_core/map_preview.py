@@ -30,7 +30,7 @@ from roadbev_core.fusion import FramePlacement, FusedMap
 from roadbev_core.preview import REFERENCE_CONTACT_PLANE, ContactPlane, PreviewProfiles, TrackProfile
 from roadbev_core.vehicle import WHEEL_NAMES
 
-__all__ = ["BODY_PLANE_SIGMA", "contact_plane_fit", "footprint_heights", "map_preview"]
+__all__ = ["BODY_PLANE_SIGMA", "contact_plane_fit", "contact_plane_on_map", "footprint_heights", "map_preview"]
 
 # 1-sigma of the body's plane at static ride height against the road's (suspension deflection
 # over bumps and under braking: a few cm and about a degree).
@@ -41,11 +41,13 @@ def footprint_heights(fused: FusedMap, x: np.ndarray, y: np.ndarray, heading: fl
                       length: float) -> tuple[np.ndarray, np.ndarray]:
     """Mean fused height and sigma over tyre footprints centred at odom points (x, y) [N].
 
-    The footprint (``width`` across, ``length`` along ``heading``) is sampled every ~1 cm; at
-    least half of the samples must be known, else NaN.
+    The footprint (``width`` across, ``length`` along ``heading``) is sampled every half map
+    cell (bilinear between cell centres: finer samples would add no information); at least half
+    of the samples must be known, else NaN.
     """
-    n_w = max(2, int(math.ceil(width / 0.01)))
-    n_l = max(1, int(math.ceil(length / 0.01)))
+    step = 0.5 * fused.settings.resolution
+    n_w = max(2, int(math.ceil(width / step)))
+    n_l = max(1, int(math.ceil(length / step)))
     across = (np.arange(n_w) + 0.5) / n_w * width - 0.5 * width  # [n_w]
     along = (np.arange(n_l) + 0.5) / n_l * length - 0.5 * length  # [n_l]
     a, b = (g.ravel() for g in np.meshgrid(along, across, indexing="ij"))  # [S]
@@ -106,6 +108,25 @@ def _as_contact_plane(coeffs: np.ndarray, cov: np.ndarray, heading: float, base_
     )
 
 
+def contact_plane_on_map(fused: FusedMap, placement: FramePlacement, vehicle: VehicleConfig, *,
+                         tyre_width_m: float, spacing_m: float) -> tuple[np.ndarray, np.ndarray, ContactPlane]:
+    """The contact plane under the car at ``placement``: its coefficients ``z = p0 + p1 dx + p2
+    dy`` (odom axes, relative to ``base_link``'s origin) [3], their covariance [3, 3], and the
+    plane as a :class:`ContactPlane` (see the module docstring)."""
+    base = placement.base
+    c, s = math.cos(base.yaw), math.sin(base.yaw)
+    wheels = vehicle.wheel_positions()  # [4, 2] base_link
+    wx = base.x + c * wheels[:, 0] - s * wheels[:, 1]  # [4] odom
+    wy = base.y + s * wheels[:, 0] + c * wheels[:, 1]
+    wz, wsig = footprint_heights(fused, wx, wy, base.yaw, tyre_width_m, spacing_m)
+    base_z = fused.base_z if fused.base_z is not None else 0.0
+    known = np.isfinite(wz) & np.isfinite(wsig) & (wsig > 0)
+    rel = np.stack([wx - base.x, wy - base.y, wz], 1)[known]
+    source = "map" if known.sum() >= 3 else "body"
+    coeffs, cov = contact_plane_fit(rel, wsig[known], None if source == "map" else _plane_from_body(placement, base_z))
+    return coeffs, cov, _as_contact_plane(coeffs, cov, base.yaw, base_z, source)
+
+
 def map_preview(
     fused: FusedMap,
     placement: FramePlacement,
@@ -127,15 +148,8 @@ def map_preview(
     base = placement.base
     c, s = math.cos(base.yaw), math.sin(base.yaw)
     wheels = vehicle.wheel_positions()  # [4, 2] base_link
-    wx = base.x + c * wheels[:, 0] - s * wheels[:, 1]  # [4] odom
-    wy = base.y + s * wheels[:, 0] + c * wheels[:, 1]
-    wz, wsig = footprint_heights(fused, wx, wy, base.yaw, tyre_width_m, spacing_m)
-    base_z = fused.base_z if fused.base_z is not None else 0.0
-    known = np.isfinite(wz) & np.isfinite(wsig) & (wsig > 0)
-    rel = np.stack([wx - base.x, wy - base.y, wz], 1)[known]
-    source = "map" if known.sum() >= 3 else "body"
-    coeffs, cov = contact_plane_fit(rel, wsig[known], None if source == "map" else _plane_from_body(placement, base_z))
-    plane = _as_contact_plane(coeffs, cov, base.yaw, base_z, source)
+    coeffs, cov, plane = contact_plane_on_map(fused, placement, vehicle, tyre_width_m=tyre_width_m,
+                                              spacing_m=spacing_m)
 
     start = 0.0 if rear_axle else vehicle.wheelbase_m
     far = fused.settings.ahead_m

@@ -45,7 +45,7 @@ from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Estimate, Frame
 from roadbev_core.fusion import FrameFusion, FusedMap, MapWindow, place_frame
 from roadbev_core.geometry import Attitude, quaternion_to_rotation
-from roadbev_core.map_preview import map_preview
+from roadbev_core.map_preview import contact_plane_on_map, map_preview
 from roadbev_core.preview import PreviewError, PreviewProfiles, check_tracks, wheel_track_profiles
 from roadbev_core.runtime import configure_threads, flush_denormals
 from roadbev_core.vehicle import planar_yaw
@@ -438,10 +438,10 @@ class Pipeline:
         fused = self.fused
         placement = place_frame(base, frame.attitude, position, R_mount)
         p = config.preview
-        before = map_preview(fused, placement, config.vehicle, tyre_width_m=p.tyre_width_m, spacing_m=p.spacing_m)
-        plane = before.contact_plane
+        plane = contact_plane_on_map(fused, placement, config.vehicle, tyre_width_m=p.tyre_width_m,
+                                     spacing_m=p.spacing_m)[2]
         plane_z = None
-        if plane is not None and plane.source == "map" and fused.base_z is not None:
+        if plane.source == "map" and fused.base_z is not None:
             plane_z = fused.base_z + plane.height_m  # the contact plane under base_link's origin
         fusion = fused.integrate(estimate.elevation, estimate.uncertainty, config.grid, placement, frame.stamp_ns,
                                  base_z_prediction=fused.predicted_base_z(base, plane_z))

@@ -347,6 +347,8 @@ class RoadBevNode(Node):
         t2 = time.perf_counter()
         messages = output_messages(output, config, _FACTORY, with_points=self._out.points_wanted(),
                                    camera_frame=self._camera_frame)
+        if not self.context.ok():
+            return  # shutting down (SIGINT): publishing on a shut-down context can crash the process
         self._out.publish(messages)
         t3 = time.perf_counter()
         latency_ms = (time.monotonic() - arrival) * 1e3

@@ -273,8 +273,11 @@ class MapConfig:
     frame: str = param("map_frame", "odom", "frame of the fused map (the odometry's header.frame_id)",
                        read_only=True)
     behind_m: float = param("map.behind_m", 1.0, "the map reaches this far behind the rear axle (m)", 0.0, 20.0)
-    error_correlation: float = param("map.error_correlation", 0.1, "correlation of one cell's errors from "
+    error_correlation: float = param("map.error_correlation", 1.0, "correlation of one cell's errors from "
                                      "frame to frame (0 = independent: the fused sigma shrinks as 1/sqrt(N))",
+                                     0.0, 1.0)
+    align_correlation: float = param("map.align_correlation", 0.1, "correlation of one frame's cell errors "
+                                     "in the alignment fit (how much the overlap is worth against the priors)",
                                      0.0, 1.0)
     gate_sigma: float = param("map.gate_sigma", 3.0, "observations farther than this many sigmas from a cell "
                               "are rejected", 1.0, 100.0)
@@ -478,7 +481,7 @@ class RoadbevConfig:
             error_correlation=m.error_correlation, gate_sigma=m.gate_sigma, reset_after=m.reset_after,
             align=m.align, align_slopes=m.align_slopes, offset_prior_m=m.offset_prior_m,
             slope_prior_rad=math.radians(m.slope_prior_deg), min_overlap_cells=m.min_overlap_cells,
-            range_exponent=m.range_exponent,
+            range_exponent=m.range_exponent, align_correlation=m.align_correlation,
         )
 
     def to_params(self) -> dict[str, Any]:

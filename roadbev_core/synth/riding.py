@@ -54,6 +54,7 @@ from roadbev_core.attitude import quaternion_from_rotation, slerp
 from roadbev_core.config import GridSpec, StereoCamera, VehicleConfig
 from roadbev_core.ego_motion import PlanarPose
 from roadbev_core.geometry import Attitude, attitude_from_rotation, quaternion_to_rotation, rotation_from_rpy
+from roadbev_core.ride.lti import expm_integral
 from roadbev_core.synth.drive import (
     GRAVITY,
     DriveConfig,
@@ -230,26 +231,6 @@ class PoseSeries(NamedTuple):
 
 
 # --- the ride model ----------------------------------------------------------------------------
-def _expm(A: np.ndarray, terms: int = 18) -> tuple[np.ndarray, np.ndarray]:
-    """exp(A) and the integral of exp(A s) over s in [0, 1] (Taylor series with scaling and
-    squaring; A is the system matrix times a small step)."""
-    n = A.shape[0]
-    squarings = max(0, int(math.ceil(math.log2(max(np.abs(A).sum(axis=1).max(), 1e-12)))) + 1)
-    As = A / 2**squarings
-    E, I_ = np.eye(n), np.eye(n)  # exp and its integral over [0, 1] at the scaled step
-    term = np.eye(n)
-    for k in range(1, terms):
-        term = term @ As / k  # As^k / k!
-        E = E + term
-        I_ = I_ + term / (k + 1)
-    h = 1.0 / 2**squarings
-    integral = I_ * h
-    for _ in range(squarings):  # int_0^{2h} = int_0^h + exp(Ah) int_0^h
-        integral = integral + E @ integral
-        E = E @ E
-    return E, integral
-
-
 def simulate_suspension(
     spec: SuspensionSpec,
     vehicle: VehicleConfig,
@@ -285,7 +266,7 @@ def simulate_suspension(
     force[:, 1] += h[1] * np.asarray(accel_x)  # braking (a_x < 0) pitches the nose down
     force[:, 2] += h[2] * np.asarray(accel_y)  # turning left (a_y > 0) lifts the left side (roll > 0)
     drive = force @ Minv.T  # [n, 3] accelerations
-    Phi, integral = _expm(F * dt)
+    Phi, integral = expm_integral(F * dt)
     Gamma = (integral * dt)[:, 3:]  # [6, 3] zero-order hold on the accelerations
     x = np.zeros(6)
     x[:3] = np.linalg.solve(K, u[0] @ (k[:, None] * G))  # static equilibrium on the first input
@@ -303,7 +284,8 @@ class RidingDrive(SyntheticDrive):
 
     ``drive[i]`` renders frame i (a :class:`DriveSample` whose labels mark hidden cells NaN);
     ``imu_samples()``, ``ground_truth_poses()``, ``odometry()``, ``road_map()`` and
-    ``base_to_camera`` give everything else a drive bag holds.
+    ``base_to_camera`` give everything else a drive bag holds; ``features_in_odom()`` where the
+    road's features are (for detectors).
     """
 
     def __init__(self, config: RidingConfig | None = None) -> None:
@@ -484,6 +466,18 @@ class RidingDrive(SyntheticDrive):
             "x": self._x.copy(), "y": self._y.copy(), "z": self._z.copy(),
             "yaw": self._yaw.copy(), "speed": self._speed.copy(), "heading": np.array(self._heading),
         }
+
+    def features_in_odom(self) -> list[tuple[str, float, float, float]]:
+        """The road's placed features as (name, x, y, height) in ``odom`` (height: a bump's
+        height, a pothole's depth as a negative number, 0 for other kinds)."""
+        c, s = math.cos(self._odom_yaw), math.sin(self._odom_yaw)
+        out = []
+        for f in self.scene.features:
+            dx, dy = f.x - self._odom_origin[0], f.y - self._odom_origin[1]
+            depth = getattr(f, "depth", None) if f.name == "pothole" else None
+            height = -float(depth) if depth is not None else float(getattr(f, "height", 0.0) or 0.0)
+            out.append((f.name, c * dx + s * dy, -s * dx + c * dy, height))
+        return out
 
     def road_map(self, margin_m: float = 1.5) -> RoadMap:
         """The true road height in ``odom`` over every wheel path and camera window of the drive."""

@@ -34,7 +34,7 @@ def test_backend_overrides_the_params_file_only_when_given() -> None:
 def test_the_topics_it_remaps_are_the_nodes_defaults() -> None:
     topics = RoadbevConfig().topics
     text = LAUNCH.read_text()
-    for topic in (topics.left_image, topics.right_image, topics.left_info, topics.right_info, topics.imu):
+    for topic in (topics.left_image, topics.right_image, topics.left_info, topics.right_info, topics.imu, topics.odom):
         assert f'"{topic}"' in text
 
 

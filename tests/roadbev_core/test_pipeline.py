@@ -106,3 +106,17 @@ def test_a_camera_mount_that_is_not_a_rotation_is_refused() -> None:
         pipeline.set_camera_mount([1.6, 0.0, 1.1], 2 * np.eye(3))
     with pytest.raises(RoadbevError, match="finite"):
         pipeline.set_camera_mount([np.nan, 0.0, 1.1], np.eye(3))
+
+
+def test_without_odometry_a_speed_and_the_imu_yaw_are_dead_reckoned() -> None:
+    pipeline = _pipeline()
+    for k in range(60):  # 100 Hz IMU, level, heading constant
+        pipeline.add_imu(S // 10 + k * S // 100, (0.0, 0.0, 0.0, 1.0))
+    poses = []
+    for k in range(4):
+        pipeline.add_speed((1 + k) * S // 10, 10.0)
+        out = pipeline.process_frame(_frame(k))
+        assert out.base_pose is not None and out.map is not None
+        poses.append(out.base_pose.x)
+    np.testing.assert_allclose(np.diff(poses), 1.0, atol=1e-9)  # 10 m/s for 0.1 s per frame
+    assert pipeline.map_active

@@ -1,0 +1,277 @@
+"""What the preview is worth: a preview suspension controller riding drives over bumps, potholes and rough road.
+
+For every road kind, speed and seed a :class:`roadbev_core.synth.RidingDrive` is built (the car
+riding its road, camera at 10 Hz; the 5 Hz camera is every other frame of the same drive) and a
+quarter car with the preview LQR of Bender (1968) / Tomizuka (1976)
+(:mod:`roadbev_core.ride`) rides the true road under each front wheel, its force computed from
+the true state and one preview source (rows):
+
+* ``passive`` (no actuator), ``no_preview`` (the same controller, feedback only);
+* ``true_road``: the true road under the wheel over the controller's whole 1 s horizon (the ceiling);
+* ``window``: a perfect per-frame camera (the true road cut to the grid's window at each frame's
+  stamp, held from stamp + latency): what the window alone allows;
+* ``map_plane``: a perfect fused map's previews (contact-plane reference, from the front tyre
+  contact to the window's far edge, one per frame), read without the plane's attitude, and
+  ``map_plane_attitude``: the same with the true plane's slopes undone (what the contract's
+  contact-plane fields in ``RoadPreview`` are for);
+* ``<backend>`` (``--backends``, default ``bev_sweep``): the per-frame previews of the pipeline
+  on the rendered frames (only on ``--render-seeds`` drives, ``--render-duration`` s long:
+  rendering costs ~1.5 s a frame on the full 960 x 528 rig here).
+
+Each preview row's ``share`` is the share of the ceiling's gain over the no-preview controller
+in Wk-weighted RMS body acceleration it delivers (:func:`roadbev_core.ride.gain_share`). A new
+preview source (e.g. the fused map's previews) is one more entry in :data:`PREVIEW_MAKERS`: a
+function of (drive, the frames at the camera rate) returning a list of
+:class:`roadbev_core.arrival.TimedPreview`.
+
+Run: ``.venv/bin/python -m benchmarks.bench_ride [--duration 20] [--seeds 3] [--speeds 5 10 20]
+[--rates 5 10] [--render-seeds 1] [--render-duration 6] [--backends bev_sweep]``; writes
+``benchmarks/results/ride.json`` and ``ride.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmarks.common import RESULTS, machine_info, write_json
+
+SEED_BASE = 310_000  # disjoint from training, test, tuning (200000+) and bench_arrival (300000+) seeds
+CAMERA_RATE_HZ = 10.0  # drives are rendered at 10 Hz; slower cameras take every k-th frame
+ROAD_KINDS = ("bumps", "potholes", "rough")
+PreviewMaker = Callable[[Any, Sequence[Any]], list[Any]]
+
+
+def road_config(kind: str, rng: np.random.Generator) -> Any:
+    """The road of one kind: speed bumps and humps on a smooth road (ISO 8608 A), potholes on a
+    class B road, or a rough class D road without features; surface, slopes and noise drawn."""
+    from dataclasses import replace
+
+    from roadbev_core.synth import RoadConfig
+
+    if kind == "bumps":
+        road = RoadConfig(road_class="A", features=("speed_bump", "hump"), feature_spacing_m=12.0)
+    elif kind == "potholes":
+        road = RoadConfig(road_class="B", features=("pothole", "pothole", "patch"), feature_spacing_m=6.0)
+    elif kind == "rough":
+        road = RoadConfig(road_class="D", features=())
+    else:
+        raise ValueError(f"unknown road kind {kind!r} (one of {ROAD_KINDS})")
+    return replace(road, surface=str(rng.choice(["asphalt", "concrete"], p=[0.8, 0.2])),
+                   cross_slope=float(rng.uniform(-0.02, 0.02)), grade=float(rng.uniform(-0.005, 0.005)),
+                   noise_sigma=float(rng.uniform(0.5, 2.0)))
+
+
+def backend_maker(name: str) -> PreviewMaker:
+    """The per-frame previews of backend ``name`` (``roadbev_road``), estimates cached by stamp so
+    that a slower camera rate reuses the frames it shares with the faster one."""
+    cache: dict[int, Any] = {}
+
+    def make(drive: Any, samples: Sequence[Any]) -> list[Any]:
+        from roadbev_core.arrival import per_frame_previews
+        from roadbev_core.backends import create
+        from roadbev_core.evaluation import evaluate
+
+        todo = [s for s in samples if int(s.frame.stamp_ns) not in cache]
+        if todo:
+            result = evaluate(create(name, drive.config.grid), todo, keep_estimates=True)
+            for p in per_frame_previews(result.outputs or []):
+                cache[p.stamp_ns] = p
+        return [cache[int(s.frame.stamp_ns)] for s in samples if int(s.frame.stamp_ns) in cache]
+
+    return make
+
+
+def scores(rows: dict[str, dict[str, Any]]) -> dict[str, float]:
+    """Share of the ceiling's Wk gain over ``no_preview`` per preview row (needs ``no_preview`` and
+    ``true_road``; the other rows but ``passive``)."""
+    from roadbev_core.ride import gain_share
+
+    none, ceiling = rows["no_preview"]["mean"]["wk_rms_mps2"], rows["true_road"]["mean"]["wk_rms_mps2"]
+    return {name: gain_share(none, ceiling, row["mean"]["wk_rms_mps2"]) for name, row in rows.items()
+            if name not in ("passive", "no_preview")}
+
+
+def run_cell(kind: str, speed: float, seed: int, duration: float, rates: Sequence[float], lead: float,
+             makers: dict[str, PreviewMaker]) -> dict[str, Any]:
+    """One drive: every source ridden at every camera rate (rendered only when ``makers``)."""
+    from roadbev_core.arrival import ArrivalSettings, Trajectory
+    from roadbev_core.ride import RideSettings, perfect_map_previews, perfect_previews, ride, true_plane_slopes
+    from roadbev_core.synth import DriveConfig, RidingConfig, RidingDrive
+
+    rng = np.random.default_rng(seed)
+    frames = max(2, int(round(duration * CAMERA_RATE_HZ)))
+    drive = RidingDrive(RidingConfig(drive=DriveConfig(frames=frames, speed_mps=speed, frame_rate_hz=CAMERA_RATE_HZ,
+                                                       seed=seed, road=road_config(kind, rng)), tail_s=1.5))
+    gt = drive.ground_truth_poses()
+    truth = Trajectory(gt.stamp_ns, gt.position, gt.orientation_xyzw)
+    road_map = drive.road_map()
+    grid = drive.config.grid
+    settings = RideSettings(latency_s=lead, arrival=ArrivalSettings(lead_time_s=lead, base_height=grid.base_height,
+                                                                    camera_in_base=drive.base_to_camera))
+    stamps = drive.frame_stamps_ns
+    start, end = stamps[0], int(truth.stamp_ns[-1])
+    score_end = stamps[-1] + int(round(lead * 1e9))  # after the last message arrives the preview runs dry
+    start_time = time.perf_counter()
+    samples = list(drive) if makers else []
+    render_s = time.perf_counter() - start_time
+    window = perfect_previews(truth, road_map, stamps, grid, settings)
+    fused = perfect_map_previews(truth, road_map, stamps, grid, settings)
+    attitude = {"map_plane_attitude": true_plane_slopes(truth, road_map, settings, stamps)}
+    out: dict[str, Any] = {"road": kind, "speed_mps": speed, "seed": seed, "duration_s": frames / CAMERA_RATE_HZ,
+                           "rendered": bool(makers), "render_s": round(render_s, 1), "rates": {}}
+    base: dict[str, Any] | None = None
+    for rate in rates:
+        step = max(1, int(round(CAMERA_RATE_HZ / rate)))
+        sources: dict[str, Any] = {"window": window[::step], "map_plane": fused[::step],
+                                   "map_plane_attitude": fused[::step]}
+        for name, make in makers.items():
+            sources[name] = make(drive, samples[::step])
+        if base is None:  # passive, no-preview and the ceiling do not depend on the camera
+            base = ride(truth, road_map, {"passive": "passive", "no_preview": "none", "true_road": "true"},
+                        settings, start, end, score_end)
+        rows = {**base, **ride(truth, road_map, sources, settings, start, end, score_end, attitude)}
+        out["rates"][f"{rate:g}"] = {"rows": rows, "share": scores(rows)}
+        share = out["rates"][f"{rate:g}"]["share"]
+        wk = {k: v["mean"]["wk_rms_mps2"] for k, v in rows.items()}
+        print(f"  {kind:8s} {speed:4.0f} m/s seed {seed} {rate:4.0f} Hz: Wk passive {wk['passive']:.3f}, "
+              f"no preview {wk['no_preview']:.3f}, true {wk['true_road']:.3f} m/s^2; share "
+              + ", ".join(f"{k} {v:.2f}" for k, v in share.items() if k != "true_road"), file=sys.stderr, flush=True)
+    return out
+
+
+def summarise(cells: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per (rendered or not, speed, rate, row): share mean, std, min, max over roads and seeds,
+    and the mean metrics of every row."""
+    groups: dict[tuple[bool, float, str], list[dict[str, Any]]] = {}
+    for cell in cells:
+        for rate, data in cell["rates"].items():
+            groups.setdefault((cell["rendered"], cell["speed_mps"], rate), []).append(data)
+    table = []
+    for (rendered, speed, rate), items in sorted(groups.items(), key=lambda g: (g[0][0], g[0][1], float(g[0][2]))):
+        rows = sorted({r for d in items for r in d["rows"]}, key=_row_order)
+        entry: dict[str, Any] = {"rendered": rendered, "speed_mps": speed, "rate_hz": float(rate), "drives": len(items),
+                                 "rows": {}}
+        for r in rows:
+            metrics = [d["rows"][r]["mean"] for d in items if r in d["rows"]]
+            shares = [d["share"][r] for d in items if r in d["share"] and math.isfinite(d["share"][r])]
+            row: dict[str, Any] = {k: float(np.mean([m[k] for m in metrics])) for k in
+                                   ("wk_rms_mps2", "peak_travel_m", "tyre_load_rms_ratio", "force_rms_n")}
+            if shares:
+                row.update(share_mean=float(np.mean(shares)), share_std=float(np.std(shares)),
+                           share_min=float(np.min(shares)), share_max=float(np.max(shares)))
+            entry["rows"][r] = row
+        table.append(entry)
+    return table
+
+
+def _row_order(name: str) -> tuple[int, str]:
+    order = {"passive": 0, "no_preview": 1, "true_road": 2, "window": 3, "map_plane": 4, "map_plane_attitude": 5}
+    return (order.get(name, 6), name)
+
+
+def plot(table: Sequence[dict[str, Any]], path: Path) -> None:
+    """Wk RMS (truth-only drives) and the share of the ceiling's gain per preview row against speed:
+    a colour per row, solid 10 Hz / dashed 5 Hz, circles truth-only / squares rendered drives."""
+    from roadbev_core.figures import new_figure
+
+    fig, axes = new_figure(1, 2, figsize=(12, 4.4), dpi=100)
+    names = sorted({r for t in table for r in t["rows"]}, key=_row_order)
+    colours = {name: f"C{i}" for i, name in enumerate(names)}
+    rates = sorted({t["rate_hz"] for t in table})
+    for rendered in (False, True):
+        for rate in rates:
+            items = sorted((t for t in table if t["rendered"] == rendered and t["rate_hz"] == rate),
+                           key=lambda t: t["speed_mps"])
+            if not items:
+                continue
+            speeds = [t["speed_mps"] for t in items]
+            style = ("-" if rate == rates[-1] else "--") + ("s" if rendered else "o")
+            tag = f"{rate:g} Hz{', rendered' if rendered else ''}"
+            for name in names:
+                rows = [t["rows"].get(name) for t in items]
+                if any(r is None for r in rows):
+                    continue
+                if not rendered and (rate == rates[-1] or name not in ("passive", "no_preview", "true_road")):
+                    axes[0].plot(speeds, [r["wk_rms_mps2"] for r in rows], style, color=colours[name],
+                                 label=name if name in ("passive", "no_preview", "true_road") else f"{name} {tag}")
+                if name not in ("passive", "no_preview", "true_road") and all("share_mean" in r for r in rows):
+                    axes[1].errorbar(speeds, [r["share_mean"] for r in rows], yerr=[r["share_std"] for r in rows],
+                                     fmt=style, color=colours[name], capsize=3, label=f"{name} {tag}")
+    axes[0].set_ylabel("Wk-weighted RMS body acceleration (m/s^2)")
+    axes[0].set_title("truth-only drives (20 s)")
+    axes[1].set_ylabel("share of the true road's gain over no preview")
+    axes[1].set_title("preview rows")
+    axes[1].axhline(1.0, color="k", lw=0.5)
+    axes[1].axhline(0.0, color="k", lw=0.5)
+    for ax in axes:
+        ax.set_xlabel("speed (m/s)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=6, ncol=2)
+    fig.suptitle("preview LQR quarter car on drives over bumps, potholes, rough road (latency 0.1 s)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+PREVIEW_MAKERS: dict[str, Callable[[str], PreviewMaker]] = {}  # extra preview rows by name (e.g. a fused map)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--duration", type=float, default=20.0, help="seconds of camera frames per truth-only drive")
+    parser.add_argument("--seeds", type=int, default=3, help="truth-only drives per road kind and speed")
+    parser.add_argument("--speeds", type=float, nargs="+", default=[5.0, 10.0, 20.0])
+    parser.add_argument("--rates", type=float, nargs="+", default=[5.0, 10.0])
+    parser.add_argument("--roads", nargs="+", default=list(ROAD_KINDS), choices=ROAD_KINDS)
+    parser.add_argument("--render-seeds", type=int, default=1, help="rendered drives per road kind and speed")
+    parser.add_argument("--render-duration", type=float, default=6.0,
+                        help="seconds of camera frames per rendered drive")
+    parser.add_argument("--backends", nargs="*", default=["bev_sweep"])
+    parser.add_argument("--latency", type=float, default=0.1)
+    parser.add_argument("--out", default=str(RESULTS / "ride.json"))
+    args = parser.parse_args(argv)
+    info = machine_info()
+    start = time.perf_counter()
+    cells = []
+    for k, kind in enumerate(args.roads):
+        for i, speed in enumerate(args.speeds):
+            for s in range(args.seeds):
+                seed = SEED_BASE + 1000 * k + 100 * i + s
+                print(f"truth-only drive {kind} {speed:g} m/s seed {seed}, {args.duration:g} s", file=sys.stderr,
+                      flush=True)
+                cells.append(run_cell(kind, speed, seed, args.duration, args.rates, args.latency, {}))
+            if args.backends:
+                for s in range(args.render_seeds):
+                    seed = SEED_BASE + 1000 * k + 100 * i + 50 + s
+                    makers = {b: backend_maker(b) for b in args.backends}
+                    makers.update({name: factory(name) for name, factory in PREVIEW_MAKERS.items()})
+                    print(f"rendered drive {kind} {speed:g} m/s seed {seed}, {args.render_duration:g} s",
+                          file=sys.stderr, flush=True)
+                    cells.append(run_cell(kind, speed, seed, args.render_duration, args.rates, args.latency, makers))
+    table = summarise(cells)
+    data = {
+        "what": "preview LQR quarter car (roadbev_core.ride) over the true road of riding drives, per preview source; "
+                "share = share of the true road's Wk-RMS gain over the controller without preview",
+        "command": "python -m benchmarks.bench_ride " + " ".join(argv if argv is not None else sys.argv[1:]),
+        "latency_s": args.latency,
+        "machine": info,
+        "wall_s": round(time.perf_counter() - start, 1),
+        "table": table,
+        "cells": cells,
+    }
+    out = Path(args.out)
+    write_json(out, data)
+    plot(table, out.with_suffix(".png"))
+    print(f"wrote {out} and {out.with_suffix('.png')} in {data['wall_s']} s", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

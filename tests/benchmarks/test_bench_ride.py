@@ -1,0 +1,51 @@
+"""bench_ride's scoring on tiny inputs: shares per row, the summary over drives, road kinds."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+
+from benchmarks.bench_ride import road_config, scores, summarise
+
+
+def _rows(**wk: float) -> dict[str, dict[str, Any]]:
+    return {name: {"mean": {"wk_rms_mps2": v, "peak_travel_m": 0.05, "tyre_load_rms_ratio": 0.1,
+                            "force_rms_n": 100.0}} for name, v in wk.items()}
+
+
+def test_scores_are_shares_of_the_ceilings_gain() -> None:
+    rows = _rows(passive=3.0, no_preview=2.0, true_road=1.0, window=1.2, bev_sweep=1.6)
+    share = scores(rows)
+    assert set(share) == {"true_road", "window", "bev_sweep"}
+    assert share["true_road"] == pytest.approx(1.0)
+    assert share["window"] == pytest.approx(0.8)
+    assert share["bev_sweep"] == pytest.approx(0.4)
+    assert math.isnan(scores(_rows(passive=3.0, no_preview=2.0, true_road=2.0, window=1.0))["window"])
+
+
+def test_summary_groups_drives_and_spreads_the_shares() -> None:
+    def cell(rendered: bool, speed: float, window: float) -> dict[str, Any]:
+        rows = _rows(passive=3.0, no_preview=2.0, true_road=1.0, window=window)
+        return {"rendered": rendered, "speed_mps": speed, "rates": {"5": {"rows": rows, "share": scores(rows)}}}
+
+    table = summarise([cell(False, 10.0, 1.2), cell(False, 10.0, 1.4), cell(True, 10.0, 1.0), cell(False, 5.0, 1.0)])
+    assert [(t["rendered"], t["speed_mps"], t["drives"]) for t in table] == [(False, 5.0, 1), (False, 10.0, 2),
+                                                                             (True, 10.0, 1)]
+    window = table[1]["rows"]["window"]
+    assert window["share_mean"] == pytest.approx(0.7)
+    assert window["share_std"] == pytest.approx(0.1)
+    assert (window["share_min"], window["share_max"]) == pytest.approx((0.6, 0.8))
+    assert window["wk_rms_mps2"] == pytest.approx(1.3)
+    assert list(table[1]["rows"]) == ["passive", "no_preview", "true_road", "window"]
+    assert "share_mean" not in table[1]["rows"]["passive"]
+
+
+def test_road_kinds() -> None:
+    rng = np.random.default_rng(0)
+    assert road_config("bumps", rng).features == ("speed_bump", "hump")
+    assert road_config("rough", rng).road_class == "D"
+    with pytest.raises(ValueError):
+        road_config("gravel", rng)

@@ -1,0 +1,1 @@
+"""Tests of roadbev_core.ride."""
