@@ -6,6 +6,7 @@ An ament_python-compatible package: ``colcon build`` installs it into a ROS 2 wo
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -13,6 +14,14 @@ from setuptools import find_packages, setup
 
 PACKAGE = "roadbev_ros"
 ROOT = Path(__file__).resolve().parent
+
+
+def _version() -> str:
+    """package.xml's version: one number for ROS (colcon, rosdep) and pip (``roadbev --version``)."""
+    found = re.search(r"<version>([^<]+)</version>", (ROOT / "package.xml").read_text())
+    if found is None:
+        raise RuntimeError("package.xml has no <version>")
+    return found.group(1).strip()
 
 
 def _data_files() -> list[tuple[str, Sequence[str]]]:
@@ -29,7 +38,7 @@ def _data_files() -> list[tuple[str, Sequence[str]]]:
 
 setup(
     name=PACKAGE,
-    version="0.1.0",
+    version=_version(),
     description="RoadBEV road surface elevation maps from stereo cameras and an IMU, for ROS 2",
     license="MIT",
     python_requires=">=3.10",

@@ -27,6 +27,7 @@ __all__ = [
     "Encoding",
     "array_to_compressed",
     "array_to_image",
+    "check_image_message",
     "compressed_to_array",
     "compressed_to_rgb",
     "image_to_array",
@@ -54,6 +55,32 @@ ENCODINGS: dict[str, Encoding] = {
     "mono16": Encoding(np.dtype(np.uint16), 1),
     "32FC1": Encoding(np.dtype(np.float32), 1),
 }
+
+
+def check_image_message(msg: Any, max_bytes: int, what: str = "image") -> int:
+    """Refuse an ``Image`` or ``CompressedImage`` from its fields alone (nothing is decoded or
+    copied), before it is queued: data over ``max_bytes``, or a raw image over
+    :data:`roadbev_core.config.MAX_IMAGE_PIXELS`.
+
+    Returns:
+        The size of its data in bytes.
+
+    Raises:
+        MessageError: naming the size and the limit.
+    """
+    from roadbev_core.config import ConfigError, check_image_size
+
+    nbytes = len(field(msg, "data"))
+    if nbytes > max_bytes:
+        raise MessageError(f"{what} of {nbytes / 2**20:.1f} MiB is larger than the limit of "
+                           f"{max_bytes / 2**20:.1f} MiB (max_image_mb)")
+    if hasattr(msg, "width") and hasattr(msg, "height"):
+        try:
+            check_image_size(as_int(field(msg, "width"), "Image.width"), as_int(field(msg, "height"), "Image.height"),
+                             what)
+        except ConfigError as exc:
+            raise MessageError(str(exc)) from None
+    return nbytes
 
 
 def image_to_array(msg: Any) -> np.ndarray:

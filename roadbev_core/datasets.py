@@ -228,7 +228,7 @@ def _progress(items: Sequence[Any], desc: str, enabled: bool) -> Iterable[Any]:
         return items
     from tqdm import tqdm
 
-    return tqdm(items, desc=desc, unit="frame")
+    return tqdm(items, desc=desc, unit="frame", disable=None)  # None: only on a terminal
 
 
 def as_samples(source: FrameSource) -> Iterable[tuple[Frame, np.ndarray]]:

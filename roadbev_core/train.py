@@ -290,7 +290,8 @@ def train(
     if progress and env.main:
         from tqdm import tqdm
 
-        bar = tqdm(total=total_steps, initial=step, desc=f"train {model_config.kind}", unit="step")
+        bar = tqdm(total=total_steps, initial=step, desc=f"train {model_config.kind}", unit="step",
+                   disable=None)  # None: only on a terminal
     for epoch in range(start_epoch, config.epochs):
         batches = _global_batches(len(dataset), config.batch_size, config.seed, epoch)
         loss_sum, err_sum, cells, seen, t0 = 0.0, 0.0, 0.0, 0, time.perf_counter()

@@ -5,6 +5,12 @@ Each sub-command lives in ``roadbev_ros/commands/<name>.py`` with ``HELP`` (one 
 runs, so ``roadbev --help`` stays fast and ``roadbev eval --backend bm`` never imports rclpy.
 Bad input (any :class:`roadbev_core.errors.RoadbevError`, or a file that cannot be opened) ends
 with exit 2 and a one-line reason; anything else is a bug and keeps its traceback.
+
+One prefix for everything a command says on stderr, argparse's own: ``roadbev <command>: error:
+<reason>`` (:func:`error_line`) and ``roadbev <command>: warning: <what>`` (:func:`warn`). Lists
+are space-separated everywhere (``--topics /a /b``, ``--features pothole crack``), as argparse's
+``nargs`` reads them. Progress bars (:func:`progress_bar`) are drawn only when stderr is a
+terminal, one unit per bar.
 """
 
 from __future__ import annotations
@@ -13,10 +19,11 @@ import argparse
 import importlib
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 from roadbev_core.errors import RoadbevError
 
-__all__ = ["COMMANDS", "main"]
+__all__ = ["COMMANDS", "CommandError", "error_line", "list_item", "main", "progress_bar", "version", "warn"]
 
 # name -> one-line help (the module docstring says more)
 COMMANDS: dict[str, str] = {
@@ -38,12 +45,53 @@ class CommandError(RoadbevError):
     """A command refused its input; the message is the one-line reason shown to the user."""
 
 
+def error_line(command: str, reason: object) -> str:
+    """The one-line refusal of a command: ``roadbev <command>: error: <reason>``."""
+    return f"roadbev {command}: error: {reason}"
+
+
+def warn(command: str, text: str) -> None:
+    """A warning on stderr: ``roadbev <command>: warning: <text>``."""
+    print(f"roadbev {command}: warning: {text}", file=sys.stderr, flush=True)
+
+
+def progress_bar(*, unit: str, desc: str, total: int | None = None, disable: bool = False,
+                 leave: bool = True) -> Any:
+    """A tqdm bar on stderr counting ``unit`` (one unit per bar), drawn only when stderr is a
+    terminal (never ``\r`` lines in a CI log); a disabled bar accepts ``update`` all the same."""
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit=unit, desc=desc, file=sys.stderr, leave=leave,
+                disable=disable or not sys.stderr.isatty())
+
+
+def list_item(text: str) -> str:
+    """argparse ``type`` of one item of a list option: lists are space-separated, so an item
+    with a comma is refused with the way to write it (``--features pothole crack``)."""
+    if "," in text:
+        items = " ".join(item.strip() for item in text.split(",") if item.strip())
+        raise argparse.ArgumentTypeError(f"lists are space-separated: write {items!r}, not {text!r}")
+    return text
+
+
+def version() -> str:
+    """The installed version of ``roadbev_ros`` (package.xml's, through setup.py)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+
+    try:
+        return dist_version("roadbev_ros")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
 def _load(name: str):  # type: ignore[no-untyped-def]
     return importlib.import_module(f"roadbev_ros.commands.{name.replace('-', '_')}")
 
 
 def _build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="roadbev", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"roadbev {version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     # Only the chosen command's module is imported: the others show their one-line help.
     chosen = next((a for a in argv if not a.startswith("-")), None)
@@ -70,15 +118,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     if getattr(args, "_missing", None):
-        print(f"roadbev {args.command}: {args._missing}", file=sys.stderr)
+        print(error_line(args.command, args._missing), file=sys.stderr)
         return 2
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:
-        print(f"roadbev {args.command}: interrupted", file=sys.stderr)
+        print(error_line(args.command, "interrupted"), file=sys.stderr)
         return 130
     except (RoadbevError, OSError) as exc:  # bad input; a programming error keeps its traceback
-        print(f"roadbev {args.command}: {exc}", file=sys.stderr)
+        print(error_line(args.command, exc), file=sys.stderr)
         return 2
 
 

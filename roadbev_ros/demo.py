@@ -20,7 +20,6 @@ import math
 import os
 import random
 import shutil
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -304,11 +303,10 @@ def pick_frames(truths: Sequence[np.ndarray | None], count: int) -> list[int]:
 # --------------------------------------------------------------------------------------------
 # the whole demo
 # --------------------------------------------------------------------------------------------
-def _bar(total: int | None, desc: str, enabled: bool) -> Any:
-    from tqdm import tqdm
+def _bar(total: int | None, desc: str, enabled: bool, unit: str = "frame") -> Any:
+    from roadbev_ros.cli import progress_bar
 
-    return tqdm(total=total, desc=f"{desc:<8}", unit="frame", file=sys.stderr, disable=not enabled,
-                leave=True, dynamic_ncols=True)
+    return progress_bar(total=total, desc=f"{desc:<8}", unit=unit, disable=not enabled)
 
 
 def _agreement_note(agreement: dict[str, float], online: dict[str, Any]) -> str:
@@ -477,7 +475,7 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
     }
     data = ReportData(f"RoadBEV demo: {options.backend} over ROS 2", grid, runs, views, timing, notes,
                       settings, stage_s)
-    with _bar(None, "report", options.progress) as bar:
+    with _bar(None, "report", options.progress, unit="file") as bar:
         bar.unit = "figure"
         files = write_report(data, out_dir, progress=lambda name: (bar.update(1), bar.set_postfix_str(name)))
     stage_s["report"] = time.monotonic() - t0

@@ -17,12 +17,18 @@ from dataclasses import dataclass, field
 from typing import Any
 
 __all__ = [
+    "COMPRESSED_SUFFIX",
+    "Check",
     "Health",
     "HealthSnapshot",
     "LatencyWindow",
     "RateMeter",
     "ThrottledLog",
+    "frequency_check",
+    "other_transport",
+    "stamp_check",
     "to_diagnostic_array",
+    "transport_hint",
 ]
 
 OK, WARN, ERROR = 0, 1, 2  # diagnostic_msgs/DiagnosticStatus levels
@@ -38,20 +44,38 @@ class RateMeter:
     """
 
     def __init__(self, window_s: float = 2.0, clock: Callable[[], float] = time.monotonic) -> None:
-        self._window = window_s
+        self.window_s = window_s
         self._clock = clock
         self._times: deque[float] = deque()
+        self._first: float | None = None
+        self._last: float | None = None
         self.total = 0
 
     def tick(self) -> None:
         now = self._clock()
         self._times.append(now)
+        self._last = now
+        self._first = now if self._first is None else self._first
         self.total += 1
         self._trim(now)
 
     def _trim(self, now: float) -> None:
-        while self._times and self._times[0] < now - self._window:
+        while self._times and self._times[0] < now - self.window_s:
             self._times.popleft()
+
+    def in_window(self) -> int:
+        """Events in the last window."""
+        self._trim(self._clock())
+        return len(self._times)
+
+    def full(self) -> bool:
+        """Whether the first event is at least a window ago (before, a rate says little)."""
+        return self._first is not None and self._clock() - self._first >= self.window_s
+
+    def last(self) -> float | None:
+        """Monotonic time of the last event (None before the first)."""
+        return self._last
+
 
     def rate(self) -> float:
         """Events per second in the last window (0 when fewer than two events)."""
@@ -64,30 +88,112 @@ class RateMeter:
 
 
 class LatencyWindow:
-    """The last ``size`` samples of a duration, with percentiles (milliseconds)."""
+    """The samples of a duration from the last ``window_s`` seconds (at most ``size``), with
+    percentiles (milliseconds): after ``window_s`` without a sample it is empty again, so figures
+    of a stream that stopped do not stay on show."""
 
-    def __init__(self, size: int = 200) -> None:
-        self._values: deque[float] = deque(maxlen=size)
+    def __init__(self, size: int = 200, window_s: float = math.inf,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self._values: deque[tuple[float, float]] = deque(maxlen=size)  # (monotonic time, value)
+        self.window_s = window_s
+        self._clock = clock
 
     def add(self, value_ms: float) -> None:
         if math.isfinite(value_ms):
-            self._values.append(float(value_ms))
+            self._values.append((self._clock(), float(value_ms)))
+
+    def _recent(self) -> list[float]:
+        cut = self._clock() - self.window_s
+        while self._values and self._values[0][0] < cut:
+            self._values.popleft()
+        return [v for _, v in self._values]
 
     def __len__(self) -> int:
-        return len(self._values)
+        return len(self._recent())
 
     def percentile(self, q: float) -> float:
         """The q-th percentile (0..100) by linear interpolation; NaN when empty."""
-        if not self._values:
+        values = sorted(self._recent())
+        if not values:
             return math.nan
-        values = sorted(self._values)
         pos = (len(values) - 1) * q / 100.0
         lo = int(math.floor(pos))
         hi = min(lo + 1, len(values) - 1)
         return values[lo] + (values[hi] - values[lo]) * (pos - lo)
 
     def mean(self) -> float:
-        return sum(self._values) / len(self._values) if self._values else math.nan
+        values = self._recent()
+        return sum(values) / len(values) if values else math.nan
+
+    def extremes(self) -> tuple[float, float]:
+        """(smallest, largest) sample in the window; NaNs when empty."""
+        values = self._recent()
+        return (min(values), max(values)) if values else (math.nan, math.nan)
+
+
+@dataclass(frozen=True)
+class Check:
+    """One status of ``/diagnostics`` (a diagnostic_updater task): level, message, values."""
+
+    name: str
+    level: int
+    message: str
+    values: dict[str, str]
+
+
+def frequency_check(rate: RateMeter, min_hz: float, max_hz: float, tolerance: float, *, what: str,
+                    never: str = "waiting for input", silent_s: float | None = None) -> Check:
+    """diagnostic_updater's ``FrequencyStatus`` over ``rate``'s window: ERROR without events in
+    the window (WARN before the first event ever), WARN outside ``[min (1 - tol), max (1 + tol)]``
+    (a bound of 0 is no bound; the lower one only once the first event is a window old), else OK.
+
+    Args:
+        silent_s: seconds since the last event (for the message).
+    """
+    hz = rate.rate()
+    events = rate.in_window()
+    values = {
+        "Events in window": str(events),
+        "Events since startup": str(rate.total),
+        "Duration of window (s)": f"{rate.window_s:.1f}",
+        "Actual frequency (Hz)": f"{hz:.2f}",
+        "Minimum acceptable frequency (Hz)": f"{min_hz * (1 - tolerance):.2f}" if min_hz else "none",
+        "Maximum acceptable frequency (Hz)": f"{max_hz * (1 + tolerance):.2f}" if max_hz else "none",
+    }
+    name = f"{what} rate"
+    if rate.total == 0:
+        return Check(name, WARN, never, values)
+    if events == 0:
+        since = f" for {silent_s:.1f} s" if silent_s is not None else ""
+        return Check(name, ERROR, f"stale: no {what}{since} (window {rate.window_s:g} s)", values)
+    if min_hz and hz < min_hz * (1 - tolerance) and rate.full():
+        return Check(name, WARN, f"{what} rate too low: {hz:.2f} Hz (expected at least {min_hz:g} Hz)", values)
+    if max_hz and hz > max_hz * (1 + tolerance):
+        return Check(name, WARN, f"{what} rate too high: {hz:.2f} Hz (expected at most {max_hz:g} Hz)", values)
+    return Check(name, OK, "desired frequency", values)
+
+
+def stamp_check(delays_ms: LatencyWindow, min_s: float, max_s: float, *, what: str) -> Check:
+    """diagnostic_updater's ``TimeStampStatus`` over the window: the age of each stamp on arrival
+    (the node's clock minus the header stamp) must lie in ``[min_s, max_s]`` (``max_s`` 0: no
+    check). WARN, not ERROR, when out of bounds: everything is matched by stamp, so an offset clock
+    costs nothing but says that a clock is wrong (or a bag is replayed without ``use_sim_time``)."""
+    earliest, latest = (v * 1e-3 for v in delays_ms.extremes())
+    values = {
+        "Earliest timestamp delay (s)": f"{earliest:.3f}",
+        "Latest timestamp delay (s)": f"{latest:.3f}",
+        "Earliest acceptable timestamp delay (s)": f"{min_s:.3f}",
+        "Latest acceptable timestamp delay (s)": f"{max_s:.3f}" if max_s else "none",
+    }
+    name = f"{what} stamps"
+    if math.isnan(earliest):  # no input: the rate check says so
+        return Check(name, OK, "no data in the window", values)
+    if earliest < min_s:
+        return Check(name, WARN, f"{what} stamps up to {-earliest:.3g} s ahead of the node's clock", values)
+    if max_s and latest > max_s:
+        return Check(name, WARN, f"{what} stamps up to {latest:.3g} s old on arrival (the node's clock; replaying "
+                     "a bag? replay --clock with use_sim_time:=true, or --restamp)", values)
+    return Check(name, OK, "timestamps are reasonable", values)
 
 
 class ThrottledLog:
@@ -114,14 +220,16 @@ class HealthSnapshot:
     """What ``/diagnostics`` reports once a period.
 
     Attributes:
-        level: 0 OK, 1 WARN, 2 ERROR.
+        level: 0 OK, 1 WARN, 2 ERROR: the worst of the node's own state and of ``checks``.
         message: one-line summary.
         values: key -> value (strings), in a stable order.
+        checks: the input's rate and stamp checks (one status each in the DiagnosticArray).
     """
 
     level: int
     message: str
     values: dict[str, str]
+    checks: tuple[Check, ...] = ()
 
 
 @dataclass
@@ -129,21 +237,30 @@ class Health:
     """Thread-safe counters of the node, read by the diagnostics timer.
 
     Counters are totals since start; ``problems`` counts input problems by kind (for example
-    ``"bad image"``, ``"imu stale"``) and ``last_error`` keeps the latest reason in words.
+    ``"bad image"``, ``"imu stale"``) and ``last_error`` keeps the latest reason in words. Rates,
+    percentiles and stamp ages cover the last ``window_s`` only (:meth:`configure`), so when the
+    input stops the status goes stale (ERROR, as diagnostic_updater's FrequencyStatus) instead of
+    showing the last figures forever.
     """
 
     backend: str = ""
-    window_s: float = 2.0
+    window_s: float = 5.0
     problem_window_s: float = 5.0
     clock: Callable[[], float] = time.monotonic
+    min_rate_hz: float = 0.0
+    max_rate_hz: float = 0.0
+    rate_tolerance: float = 0.1
+    min_stamp_age_s: float = -1.0
+    max_stamp_age_s: float = 0.0
     input_rate: RateMeter = field(init=False)
     set_rate: RateMeter = field(init=False)
     output_rate: RateMeter = field(init=False)
-    latency_ms: LatencyWindow = field(default_factory=LatencyWindow)
-    stamp_age_ms: LatencyWindow = field(default_factory=LatencyWindow)
-    inference_ms: LatencyWindow = field(default_factory=LatencyWindow)
-    overhead_ms: LatencyWindow = field(default_factory=LatencyWindow)
-    imu_wait_ms: LatencyWindow = field(default_factory=LatencyWindow)
+    latency_ms: LatencyWindow = field(init=False)
+    stamp_age_ms: LatencyWindow = field(init=False)
+    arrival_age_ms: LatencyWindow = field(init=False)  # node clock minus stamp when a left image arrives
+    inference_ms: LatencyWindow = field(init=False)
+    overhead_ms: LatencyWindow = field(init=False)
+    imu_wait_ms: LatencyWindow = field(init=False)
     frames_in: int = 0
     sets: int = 0
     outputs: int = 0
@@ -151,24 +268,44 @@ class Health:
     dropped_sync: int = 0
     dropped_invalid: int = 0
     problems: Counter[str] = field(default_factory=Counter)
+    time_jumps: int = 0
     last_error: str = ""
     last_error_time: float = -math.inf
     imu_age_s: float | None = None
     coverage_pct: float | None = None  # the latest frame's (roadbev_core.selfcheck)
     coverage_ok: bool = True
     coverage_hint: str = ""
+    input_hint: str = ""  # why nothing may arrive (the node looks at the graph: another transport)
 
     def __post_init__(self) -> None:
         self._lock = threading.Lock()
         self.input_rate = RateMeter(self.window_s, self.clock)
         self.set_rate = RateMeter(self.window_s, self.clock)
         self.output_rate = RateMeter(self.window_s, self.clock)
+        windows = ("latency_ms", "stamp_age_ms", "arrival_age_ms", "inference_ms", "overhead_ms", "imu_wait_ms")
+        for name in windows:
+            setattr(self, name, LatencyWindow(window_s=self.window_s, clock=self.clock))
 
-    def frame_in(self) -> None:
-        """A left image arrived."""
+    def configure(self, config: Any) -> None:
+        """Take the window and the bounds from a :class:`roadbev_core.config.tree.DiagnosticsConfig`."""
+        with self._lock:
+            self.window_s = config.window_s
+            for meter in (self.input_rate, self.set_rate, self.output_rate):
+                meter.window_s = config.window_s
+            for window in (self.latency_ms, self.stamp_age_ms, self.arrival_age_ms, self.inference_ms,
+                           self.overhead_ms, self.imu_wait_ms):
+                window.window_s = config.window_s
+            self.min_rate_hz, self.max_rate_hz = config.min_rate_hz, config.max_rate_hz
+            self.rate_tolerance = config.rate_tolerance
+            self.min_stamp_age_s, self.max_stamp_age_s = config.min_stamp_age_s, config.max_stamp_age_s
+
+    def frame_in(self, stamp_age_s: float | None = None) -> None:
+        """A left image arrived; ``stamp_age_s``: the node's clock minus its stamp."""
         with self._lock:
             self.frames_in += 1
             self.input_rate.tick()
+            if stamp_age_s is not None:
+                self.arrival_age_ms.add(stamp_age_s * 1e3)
 
     def set_in(self) -> None:
         """A synchronised set reached the worker's mailbox."""
@@ -182,7 +319,7 @@ class Health:
 
         Args:
             latency_ms: set complete (last message received) to outputs published.
-            stamp_age_ms: outputs published minus the image stamp (end to end on a live clock).
+            stamp_age_ms: outputs published minus the image stamp, by the node's clock.
             inference_ms: the backend's ``estimate``.
             overhead_ms: the node's own work (conversions, preview, publishing).
             imu_wait_ms: time spent waiting for an IMU sample at or after the image stamp.
@@ -215,6 +352,11 @@ class Health:
             self.coverage_ok = bool(ok)
             self.coverage_hint = hint
 
+    def time_jump(self) -> None:
+        """The stamps jumped back (a looped bag): counted, not a problem."""
+        with self._lock:
+            self.time_jumps += 1
+
     def problem(self, kind: str, reason: str) -> None:
         """An input or processing problem (counted by kind; the reason is kept as last error)."""
         with self._lock:
@@ -223,12 +365,23 @@ class Health:
             self.last_error_time = self.clock()
 
     def snapshot(self) -> HealthSnapshot:
-        """The figures now, with a level: WARN while a problem was reported in the last
-        ``problem_window_s`` or nothing is produced although sets arrive."""
+        """The figures now, with a level: the worst of the input checks (rate: ERROR when stale,
+        WARN outside the expected window or before any input; stamps: WARN outside their bounds)
+        and the node's own state (WARN while a problem was reported in the last
+        ``problem_window_s``, while input arrives but nothing is published, or on low coverage)."""
         with self._lock:
-            recent_problem = self.clock() - self.last_error_time < self.problem_window_s
+            now = self.clock()
+            recent_problem = now - self.last_error_time < self.problem_window_s
             out_rate = self.output_rate.rate()
             in_rate = self.input_rate.rate()
+            last_in = self.input_rate.last()
+            hint = f" ({self.input_hint})" if self.input_hint else ""
+            rate = frequency_check(self.input_rate, self.min_rate_hz, self.max_rate_hz, self.rate_tolerance,
+                                   what="left image", never="waiting for input" + hint,
+                                   silent_s=None if last_in is None else now - last_in)
+            if rate.level == ERROR:
+                rate = Check(rate.name, rate.level, rate.message + hint, rate.values)
+            stamps = stamp_check(self.arrival_age_ms, self.min_stamp_age_s, self.max_stamp_age_s, what="left image")
             values = {
                 "backend": self.backend,
                 "input_rate_hz": f"{in_rate:.2f}",
@@ -242,6 +395,8 @@ class Health:
                 "overhead_mean_ms": f"{self.overhead_ms.mean():.2f}",
                 "overhead_p95_ms": f"{self.overhead_ms.percentile(95):.2f}",
                 "imu_wait_mean_ms": f"{self.imu_wait_ms.mean():.2f}",
+                "window_s": f"{self.window_s:g}",
+                "last_input_age_s": "never" if last_in is None else f"{now - last_in:.1f}",
                 "frames_in": str(self.frames_in),
                 "sets": str(self.sets),
                 "outputs": str(self.outputs),
@@ -249,6 +404,7 @@ class Health:
                 "dropped_sync": str(self.dropped_sync),
                 "dropped_invalid": str(self.dropped_invalid),
                 "imu_age_s": "none" if self.imu_age_s is None else f"{self.imu_age_s:.3f}",
+                "time_jumps": str(self.time_jumps),
                 "last_error": self.last_error,
                 "coverage_pct": "none" if self.coverage_pct is None else f"{self.coverage_pct:.1f}",
                 "self_check": self.coverage_hint,
@@ -256,20 +412,24 @@ class Health:
             low_coverage = not self.coverage_ok
             for kind, count in sorted(self.problems.items()):
                 values[f"problem.{kind}"] = str(count)
+        # the node's own state, most telling first; the worst level wins, its first message is shown
+        states: list[tuple[int, str]] = [(rate.level, rate.message)] if rate.level == ERROR else []
         if recent_problem:
-            level, message = WARN, self.last_error
-        elif in_rate > 0 and out_rate == 0:
-            level, message = WARN, "input arrives but nothing is published"
-        elif low_coverage:
-            level, message = WARN, self.coverage_hint or "low coverage"
-        else:
-            level, message = OK, "ok" if self.outputs else "waiting for input"
-        return HealthSnapshot(level, message, values)
+            states.append((WARN, self.last_error))
+        if in_rate > 0 and self.output_rate.in_window() == 0:
+            states.append((WARN, "input arrives but nothing is published"))
+        if low_coverage:
+            states.append((WARN, self.coverage_hint or "low coverage"))
+        states += [(c.level, c.message) for c in (rate, stamps) if c.level not in (OK, ERROR)]
+        level = max((lv for lv, _ in states), default=OK)
+        message = next((m for lv, m in states if lv == level), "ok")
+        return HealthSnapshot(level, message, values, (rate, stamps))
 
 
 def to_diagnostic_array(snapshot: HealthSnapshot, stamp: Any, name: str = "roadbev: pipeline",
                         hardware_id: str = "roadbev") -> Any:
-    """A ``diagnostic_msgs/DiagnosticArray`` holding one status built from ``snapshot``.
+    """A ``diagnostic_msgs/DiagnosticArray`` built from ``snapshot``: the pipeline's status, then
+    one per input check.
 
     Args:
         snapshot: the figures.
@@ -277,15 +437,22 @@ def to_diagnostic_array(snapshot: HealthSnapshot, stamp: Any, name: str = "roadb
     """
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
-    status = DiagnosticStatus()
-    status.level = bytes([snapshot.level])
-    status.name = name
-    status.message = snapshot.message[:500]
-    status.hardware_id = hardware_id
-    status.values = [KeyValue(key=k, value=v) for k, v in snapshot.values.items()]
+    def status(name: str, level: int, message: str, values: dict[str, str]) -> Any:
+        out = DiagnosticStatus()
+        out.level = bytes([level])
+        out.name = name
+        out.message = message[:500]
+        out.hardware_id = hardware_id
+        out.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        return out
+
     array = DiagnosticArray()
     array.header.stamp = stamp
-    array.status = [status]
+    # the pipeline first (the overall level, every figure), then one status per input check, as
+    # diagnostic_updater's tasks: "roadbev: left image rate", "roadbev: left image stamps"
+    array.status = [status(name, snapshot.level, snapshot.message, snapshot.values)] + [
+        status(f"{name.split(':')[0]}: {c.name}", c.level, c.message, c.values) for c in snapshot.checks
+    ]
     return array
 
 
@@ -302,3 +469,23 @@ def problem_kind(exc: Exception) -> str:
 
     kinds = ((ImuStale, "imu stale"), (FrameError, "bad frame"), (PreviewError, "preview"))
     return next((kind for cls, kind in kinds if isinstance(exc, cls)), "bad input")
+
+
+COMPRESSED_SUFFIX = "/compressed"  # image_transport's topic of the compressed stream
+
+
+def other_transport(topic: str) -> str:
+    """The same image stream's topic on the other transport: ``T`` <-> ``T/compressed``."""
+    return topic[: -len(COMPRESSED_SUFFIX)] if topic.endswith(COMPRESSED_SUFFIX) else topic + COMPRESSED_SUFFIX
+
+
+def transport_hint(node: Any, topic: str) -> str:
+    """Why nothing may arrive on ``topic``: nobody publishes it but its other transport has a
+    publisher (the graph of ``node``); "" otherwise."""
+    if node.count_publishers(topic) > 0:
+        return ""
+    other = other_transport(topic)
+    if node.count_publishers(other) == 0:
+        return f"nothing publishes {topic}"
+    transport = "raw" if topic.endswith(COMPRESSED_SUFFIX) else "compressed"
+    return f"nothing publishes {topic}, but {other} has a publisher: set image_transport:={transport}"

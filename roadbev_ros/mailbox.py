@@ -42,6 +42,12 @@ class Mailbox(Generic[T]):
             item, self._item = self._item, None
         return item
 
+    def clear(self) -> bool:
+        """Discard the waiting item; True when there was one."""
+        with self._cond:
+            had, self._item = self._item is not None, None
+        return had
+
     @property
     def waiting(self) -> bool:
         """Whether an item waits."""

@@ -29,6 +29,7 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -36,6 +37,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from sensor_msgs.msg import Imu as ImuMsg
 
 from msg_bridge import MessageError, RclpyFactory, stamp_from_header
+from msg_bridge.image import check_image_message
 from msg_bridge.imu import imu_orientation
 from msg_bridge.pipeline_io import (
     BASE_FRAME,
@@ -49,18 +51,26 @@ from msg_bridge.tf import transforms_from_tf
 from roadbev_core.config import ParamError, RoadbevConfig
 from roadbev_core.errors import RoadbevError
 from roadbev_core.pipeline import BackendFactory, Pipeline
-from roadbev_ros.diagnostics import Health, ThrottledLog, problem_kind, to_diagnostic_array
+from roadbev_ros.diagnostics import Health, ThrottledLog, problem_kind, to_diagnostic_array, transport_hint
 from roadbev_ros.mailbox import Mailbox
-from roadbev_ros.node_params import check_params_files, config_of, declare_parameters, plain, value_error
+from roadbev_ros.node_params import (
+    ROS_PARAMETERS,
+    check_params_files,
+    config_of,
+    declare_parameters,
+    plain,
+    value_error,
+)
 from roadbev_ros.publishers import OutputPublishers
 from roadbev_ros.sync import ApproximateTimeSync, DropReason
 
 __all__ = ["RoadBevNode", "main"]
 
 LEFT_IMAGE, RIGHT_IMAGE, LEFT_INFO, RIGHT_INFO = "left image", "right image", "left info", "right info"
-# A left image this much older than the last processed one means the clock jumped back (a bag
-# started again): the synchroniser and the IMU history start afresh.
-TIME_JUMP_BACK_S = 1.0
+# A camera message this much older than the last paired one means the clock jumped back (a bag
+# looped or started again): the synchroniser, the IMU history and the pipeline start afresh.
+# (Half a second: a looped bag of one second jumps back by one second less one frame.)
+TIME_JUMP_BACK_S = 0.5
 SENSOR_QOS = qos_profile_sensor_data
 # the IMU comes in bursts of many small messages per image: a deeper best-effort queue
 IMU_QOS = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -94,8 +104,10 @@ class RoadBevNode(Node):
         except RoadbevError as exc:
             raise ParamError(str(exc)) from None
         self.health = Health(backend=self.pipeline.backend.name)
+        self.health.configure(self.config.diagnostics)
         self._log_gate = ThrottledLog(self.config.diagnostics.log_throttle_s)
         self._mailbox: Mailbox[tuple[Any, ...]] = Mailbox()
+        self._passes = 0  # time jumps back so far: a frame of an earlier pass fails quietly
         self.sync = self._make_sync()
         topics = self.config.topics
         image_type = CompressedImage if topics.image_transport == "compressed" else Image
@@ -120,7 +132,7 @@ class RoadBevNode(Node):
         self._static: dict[str, Any] = {}  # child frame -> base_link transform from /tf_static
         self._out = OutputPublishers(self, OUTPUT_QOS, topics, self.config.map)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", OUTPUT_QOS)
-        self._diag_timer = self.create_timer(self.config.diagnostics.period_s, self._publish_diagnostics)
+        self._diag_timer = self._diagnostics_timer(self.config.diagnostics.period_s)
         self.add_pre_set_parameters_callback(self._report_bad_values)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._worker = threading.Thread(target=self._work, name="roadbev-inference", daemon=True)
@@ -135,7 +147,12 @@ class RoadBevNode(Node):
         n = 4 if self.pipeline.backend.needs_stereo else 2
         s = self.config.sync
         return ApproximateTimeSync(n, s.queue_size, s.slop_s, self._on_set, self._on_sync_drop,
-                                   jump_back_s=TIME_JUMP_BACK_S, on_reset=self._on_time_jump)
+                                   jump_back_s=TIME_JUMP_BACK_S, on_reset=self._on_time_jump,
+                                   max_bytes=int(s.queue_mb * 2**20))
+
+    def _diagnostics_timer(self, period_s: float) -> Any:
+        """On the steady clock: diagnostics go on while a simulated /clock stops or jumps back."""
+        return self.create_timer(period_s, self._publish_diagnostics, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _image_topic(self, base: str) -> str:
         return base + "/compressed" if self.config.topics.image_transport == "compressed" else base
@@ -149,8 +166,6 @@ class RoadBevNode(Node):
 
     # --- callbacks (executor thread) -------------------------------------------------------------
     def _on_input(self, which: str, msg: Any) -> None:
-        if which == LEFT_IMAGE:
-            self.health.frame_in()
         index = {LEFT_IMAGE: 0, RIGHT_IMAGE: 1, LEFT_INFO: 2, RIGHT_INFO: 3}[which]
         if self.sync.n_topics == 2:
             if index in (1, 3):
@@ -161,24 +176,46 @@ class RoadBevNode(Node):
             if stamp <= 0:
                 raise MessageError("header has no stamp (0)")
         except MessageError as exc:
-            self._problem("bad stamp", f"{which}: {exc}")
             if which == LEFT_IMAGE:
+                self.health.frame_in()
                 self.health.drop("invalid")
+            self._problem("bad stamp", f"{which}: {exc}")
             return
-        self.sync.add(index, stamp, (which, msg))
+        if which == LEFT_IMAGE:  # the stamp's age by the node's clock (sim time under use_sim_time)
+            self.health.frame_in((self.get_clock().now().nanoseconds - stamp) * 1e-9)
+        nbytes = 0
+        if which in (LEFT_IMAGE, RIGHT_IMAGE):  # refused before it is held (issue 19: 46 MB images)
+            try:
+                nbytes = check_image_message(msg, int(self.config.sync.max_image_mb * 2**20), which)
+            except MessageError as exc:
+                if which == LEFT_IMAGE:
+                    self.health.drop("invalid")
+                self._problem("image too large", str(exc))
+                return
+        self.sync.add(index, stamp, (which, msg), nbytes)
 
     def _on_time_jump(self, topic: int, jump_ns: int) -> None:
+        """A looped or restarted bag (the synchroniser saw a stamp jump back and has reset
+        itself): not an error (rosbag2 stacks expect it), a reset, logged and counted once."""
+        self._passes += 1
         self.pipeline.reset()
-        self._problem("time jump", f"stamps went back {jump_ns * 1e-9:.2f} s (a bag started again?); "
-                      "the synchroniser and the IMU history start afresh")
+        if self._mailbox.clear():  # a set of the old pass must not meet the new pass's IMU
+            self.health.drop("sync")
+        self.health.time_jump()
+        self.get_logger().info(f"stamps went back {jump_ns * 1e-9:.2f} s (a bag started again?): the "
+                               "synchroniser, the IMU history and the pipeline state start afresh")
 
     def _on_sync_drop(self, topic: int, stamp: int, item: Any, reason: str) -> None:
         which = item[0]
-        if reason in (DropReason.OUT_OF_ORDER, DropReason.DUPLICATE):
+        if reason == DropReason.RESET:
+            pass  # counted below; the jump itself is logged once by _on_time_jump
+        elif reason in (DropReason.OUT_OF_ORDER, DropReason.DUPLICATE):
             self._problem("stamp order", f"{which} at {stamp * 1e-9:.6f} s: {reason}")
         elif which == LEFT_IMAGE:
             self._problem("unpaired", f"left image at {stamp * 1e-9:.6f} s dropped: {reason} "
                           "(no matching right image / camera infos within the slop)")
+        elif reason == DropReason.OVERFLOW_BYTES:
+            self._problem("unpaired", f"{which} at {stamp * 1e-9:.6f} s dropped: {reason} (sync_queue_mb)")
         if which == LEFT_IMAGE:
             self.health.drop("sync")
 
@@ -250,8 +287,11 @@ class RoadBevNode(Node):
         error = next(filter(None, (value_error(p.name, plain(p.value)) for p in parameters)), None)
         if error:  # already reported by _report_bad_values
             return SetParametersResult(successful=False, reason=error)
+        changes = {p.name: plain(p.value) for p in parameters if p.name not in ROS_PARAMETERS}
+        if not changes:  # use_sim_time: rclpy's time source takes it
+            return SetParametersResult(successful=True)
         try:
-            config = self.config.with_params({p.name: plain(p.value) for p in parameters if p.name != "use_sim_time"})
+            config = self.config.with_params(changes)
             self.pipeline.reconfigure(config)  # builds a new backend first; the old one runs on failure
         except RoadbevError as exc:
             self._problem("parameter", f"rejected: {exc}")
@@ -262,10 +302,11 @@ class RoadBevNode(Node):
         if (self.sync.n_topics == 4) != self.pipeline.backend.needs_stereo:
             self.sync = self._make_sync()
         else:
-            self.sync.configure(config.sync.queue_size, config.sync.slop_s)
+            self.sync.configure(config.sync.queue_size, config.sync.slop_s, int(config.sync.queue_mb * 2**20))
         if old.diagnostics.period_s != config.diagnostics.period_s:
             self.destroy_timer(self._diag_timer)
-            self._diag_timer = self.create_timer(config.diagnostics.period_s, self._publish_diagnostics)
+            self._diag_timer = self._diagnostics_timer(config.diagnostics.period_s)
+        self.health.configure(config.diagnostics)
         self.get_logger().info("parameters updated")
         return SetParametersResult(successful=True)
 
@@ -277,9 +318,13 @@ class RoadBevNode(Node):
             if taken is None:
                 return
             msgs, arrival = taken
+            passes = self._passes
             try:
                 self._process(msgs, arrival)
             except RoadbevError as exc:
+                if passes != self._passes:  # the clock jumped back meanwhile (IMU history reset)
+                    self.health.drop("sync")
+                    continue
                 self.health.drop("invalid")
                 self._problem(problem_kind(exc), str(exc))
             except Exception as exc:  # a backend failure must not end the node
@@ -307,13 +352,15 @@ class RoadBevNode(Node):
         self._out.publish(messages)
         t3 = time.perf_counter()
         latency_ms = (time.monotonic() - arrival) * 1e3
-        stamp_age_ms = (time.time_ns() - inputs.stamp_ns) * 1e-6
+        stamp_age_ms = (self.get_clock().now().nanoseconds - inputs.stamp_ns) * 1e-6
         estimate_ms = output.timings_ms["estimate"]
         overhead_ms = ((t1 - t0) - imu_wait + (t2 - t1) - estimate_ms * 1e-3 + (t3 - t2)) * 1e3
         self.health.output(latency_ms, stamp_age_ms, estimate_ms, overhead_ms, imu_wait * 1e3)
 
     # --- diagnostics -----------------------------------------------------------------------------
     def _publish_diagnostics(self) -> None:
+        quiet = self.health.input_rate.in_window() == 0
+        self.health.input_hint = transport_hint(self, self._image_topic(self.config.topics.left_image)) if quiet else ""
         snapshot = self.health.snapshot()
         snapshot.values["queued_sets"] = "1" if self._mailbox.waiting else "0"
         snapshot.values["queued_left_images"] = str(self.sync.queued()[0])
@@ -347,7 +394,7 @@ def main(args: Sequence[str] | None = None) -> int:
         rclpy = init_ros(argv)
         node = RoadBevNode()
     except ParamError as exc:
-        print(f"roadbev_node: {exc}", file=sys.stderr)
+        print(f"roadbev node: error: {exc}", file=sys.stderr)
         if rclpy is not None:
             rclpy.try_shutdown()
         return 2

@@ -30,7 +30,13 @@ from msg_bridge import bag
 from roadbev_core.errors import RoadbevError
 from roadbev_ros.dds import DdsError, message_class
 
-__all__ = ["ReplayError", "ReplayStats", "header_stamp_ns", "replay_bag", "restamp_cdr", "starts_with_header"]
+__all__ = [
+    "IMAGE_TYPES", "ReplayError", "ReplayStats", "header_stamp_ns", "replay_bag", "restamp_cdr", "starts_with_header",
+]
+
+# Message types a perception node subscribes to first: ``roadbev replay`` waits for subscribers
+# on the bag's topics of these types by default.
+IMAGE_TYPES = frozenset({"sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage"})
 
 
 class ReplayError(RoadbevError, RuntimeError):
@@ -52,6 +58,8 @@ class ReplayStats:
         lost: topic -> messages of the bag left out because their chunk is damaged (last pass).
         read_problems: what was damaged or missing in the bag (empty for a sound bag).
         bag_complete: the bag was read whole (closed cleanly, nothing damaged).
+        waited_s: time spent waiting for subscribers before the first message.
+        unmatched: topics waited on that still had no subscriber when the wait timed out.
     """
 
     messages: int = 0
@@ -66,6 +74,8 @@ class ReplayStats:
     lost: dict[str, int] = field(default_factory=dict)
     read_problems: list[str] = field(default_factory=list)
     bag_complete: bool = True
+    waited_s: float = 0.0
+    unmatched: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -158,6 +168,8 @@ def replay_bag(
     restamp: bool = False,
     publish_clock: bool = False,
     wait_for_subscribers: float = 0.0,
+    wait_topics: Sequence[str] | None = None,
+    on_wait_timeout: Callable[[list[str]], object] | None = None,
     qos_depth: int = 10,
     stop: threading.Event | None = None,
     progress: Callable[[int], object] | None = None,
@@ -175,8 +187,14 @@ def replay_bag(
         topics: only these topics (None = all topics whose message type is installed).
         restamp: set header stamps to the wall-clock publication time.
         publish_clock: publish ``/clock`` (rosgraph_msgs/Clock) with the bag time.
-        wait_for_subscribers: wait up to this many seconds until every replayed topic has a
-            subscriber before starting (0 = do not wait).
+        wait_for_subscribers: wait up to this many seconds until every topic of ``wait_topics``
+            has a subscriber before starting (0 = do not wait); on a timeout the replay starts
+            anyway and :attr:`ReplayStats.unmatched` names the topics still without one.
+        wait_topics: the topics to wait for (None = every replayed topic; topics not replayed
+            are ignored). ``/clock`` is not waited for: a node on ``use_sim_time`` subscribes to
+            it as it starts, before its own subscriptions.
+        on_wait_timeout: called with the topics still without a subscriber when the wait timed
+            out, before the first message goes out.
         qos_depth: reliable keep-last depth of the publishers.
         stop: set it to end the replay early.
         progress: called with the number of messages published so far, every message.
@@ -219,7 +237,11 @@ def replay_bag(
         except DdsError as exc:
             stats.skipped_topics[topic] = str(exc)
     if not publishers:
-        raise ReplayError(f"nothing to replay from {path}: {stats.skipped_topics or 'empty bag'}")
+        if not stats.skipped_topics:
+            raise ReplayError(f"nothing to replay from {path}: the bag holds no messages")
+        reasons = "; ".join(f"{t}: {why}" for t, why in stats.skipped_topics.items())
+        raise ReplayError(f"nothing to replay from {path} ({reasons}); the bag holds {', '.join(sorted(available))}"
+                          if available else f"nothing to replay from {path} ({reasons})")
     clock_pub = None
     clock_msg = None
     if publish_clock:
@@ -228,16 +250,25 @@ def replay_bag(
         clock_pub = node.create_publisher(Clock, "/clock", qos)
         clock_msg = Clock()
     stop = stop or threading.Event()
-    if wait_for_subscribers > 0:
-        deadline = time.monotonic() + wait_for_subscribers
-        while time.monotonic() < deadline and not stop.is_set():
-            if all(p.get_subscription_count() > 0 for p in publishers.values()):
+    waited_on = [publishers[t] for t in (publishers if wait_topics is None else wait_topics) if t in publishers]
+    named = {id(p): t for t, p in publishers.items()}
+    if wait_for_subscribers > 0 and waited_on:
+        began = time.monotonic()
+        deadline = began + wait_for_subscribers
+        while not stop.is_set():
+            if all(p.get_subscription_count() > 0 for p in waited_on):
                 # Discovery is two-sided: the writer seeing a reader does not mean that reader
                 # has matched the writer yet, and best-effort samples sent before it has are
                 # lost (measured: the first 3 of 6 frames of a 10 Hz replay, now and then).
                 time.sleep(settle_s)
                 break
+            if time.monotonic() >= deadline:
+                stats.unmatched = [named[id(p)] for p in waited_on if p.get_subscription_count() == 0]
+                if on_wait_timeout is not None:
+                    on_wait_timeout(stats.unmatched)
+                break
             time.sleep(0.02)
+        stats.waited_s = time.monotonic() - began
     per_topic: Counter[str] = Counter()
     lateness_ms: list[float] = []
     first_wall = None

@@ -17,7 +17,9 @@ Two additions make it suitable for a node that must account for every frame:
   overflow the queue);
 * a message older than the last emitted set on its topic (out of order) is refused and reported;
   one older by more than ``jump_back_s`` means the clock jumped back (a bag started again): the
-  synchroniser resets itself (reported through ``on_reset``) and goes on from that message.
+  synchroniser resets itself (reported through ``on_reset``) and goes on from that message;
+* the queues are bounded by bytes as well as by count (``max_bytes``, all topics together): large
+  unpaired images are dropped, oldest first, before they can hold the memory of a whole queue.
 
 Stamps are integer nanoseconds; ``slop`` is in seconds like ``message_filters``. Not thread-safe:
 call :meth:`ApproximateTimeSync.add` from one thread (an rclpy single-threaded executor).
@@ -43,9 +45,11 @@ class DropReason:
     """Why a message left a queue without being emitted (strings, for diagnostics)."""
 
     OVERFLOW = "queue overflow"
+    OVERFLOW_BYTES = "queue over its byte bound"
     SUPERSEDED = "older than an emitted set"
     OUT_OF_ORDER = "out of order"
     DUPLICATE = "duplicate stamp"
+    RESET = "the clock jumped back (reset)"
 
 
 @dataclass
@@ -67,6 +71,8 @@ class ApproximateTimeSync:
         jump_back_s: a stamp this much older than its topic's last emitted one resets the
             synchroniser (None: never; such messages are refused as out of order).
         on_reset: called ``(topic_index, jump_ns)`` when a jump back reset the synchroniser.
+        max_bytes: largest total size of the queued messages (as given to :meth:`add`); beyond
+            it the oldest messages are dropped (None: no bound).
     """
 
     def __init__(
@@ -78,10 +84,14 @@ class ApproximateTimeSync:
         on_drop: Callable[[int, int, Any, str], None] | None = None,
         jump_back_s: float | None = 1.0,
         on_reset: Callable[[int, int], None] | None = None,
+        max_bytes: int | None = None,
     ) -> None:
         if n_topics < 1:
             raise SyncError(f"need at least one topic, got {n_topics}")
         self._queues: list[dict[int, Any]] = [{} for _ in range(n_topics)]
+        self._sizes: list[dict[int, int]] = [{} for _ in range(n_topics)]
+        self.queued_bytes = 0
+        self.max_bytes = max_bytes
         self._last_emitted: list[int | None] = [None] * n_topics
         self._callback = callback
         self._on_drop = on_drop
@@ -92,14 +102,18 @@ class ApproximateTimeSync:
         self.slop_ns = 0
         self.configure(queue_size, slop)
 
-    def configure(self, queue_size: int, slop: float) -> None:
-        """Change queue size and slop (queues are trimmed to the new size at the next message)."""
+    def configure(self, queue_size: int, slop: float, max_bytes: int | None = None) -> None:
+        """Change queue size, slop and byte bound (queues are trimmed at the next message)."""
         if int(queue_size) < 1:
             raise SyncError(f"queue size must be >= 1, got {queue_size}")
         if not slop >= 0:  # also refuses NaN
             raise SyncError(f"slop must be >= 0 s, got {slop}")
+        if max_bytes is not None and max_bytes < 1:
+            raise SyncError(f"byte bound must be >= 1, got {max_bytes}")
         self.queue_size = int(queue_size)
         self.slop_ns = int(round(slop * 1e9))
+        if max_bytes is not None:
+            self.max_bytes = int(max_bytes)
 
     @property
     def n_topics(self) -> int:
@@ -109,13 +123,18 @@ class ApproximateTimeSync:
         """Number of messages waiting per topic."""
         return [len(q) for q in self._queues]
 
+    def _pop(self, topic: int, stamp: int) -> Any:
+        self.queued_bytes -= self._sizes[topic].pop(stamp)
+        return self._queues[topic].pop(stamp)
+
     def _drop(self, topic: int, stamp: int, msg: Any, reason: str) -> None:
         self.stats.dropped += 1
         if self._on_drop is not None:
             self._on_drop(topic, stamp, msg, reason)
 
-    def add(self, topic: int, stamp_ns: int, msg: Any) -> bool:
-        """Queue one message of input ``topic``; emit a set if it completes one.
+    def add(self, topic: int, stamp_ns: int, msg: Any, nbytes: int = 0) -> bool:
+        """Queue one message of input ``topic`` (``nbytes``: its size, for the byte bound); emit a
+        set if it completes one.
 
         Returns:
             True when a set was emitted.
@@ -135,11 +154,17 @@ class ApproximateTimeSync:
             return False
         queue = self._queues[topic]
         if stamp_ns in queue:  # message_filters: the newer message replaces the queued one
-            self._drop(topic, stamp_ns, queue[stamp_ns], DropReason.DUPLICATE)
+            self._drop(topic, stamp_ns, self._pop(topic, stamp_ns), DropReason.DUPLICATE)
         queue[stamp_ns] = msg
+        self._sizes[topic][stamp_ns] = int(nbytes)
+        self.queued_bytes += int(nbytes)
         while len(queue) > self.queue_size:
             oldest = min(queue)
-            self._drop(topic, oldest, queue.pop(oldest), DropReason.OVERFLOW)
+            self._drop(topic, oldest, self._pop(topic, oldest), DropReason.OVERFLOW)
+        while self.max_bytes is not None and self.queued_bytes > self.max_bytes:
+            # the oldest message of all (on a tie, of the lowest topic); the new one last
+            index, oldest = min(((i, min(q)) for i, q in enumerate(self._queues) if q), key=lambda t: (t[1], t[0]))
+            self._drop(index, oldest, self._pop(index, oldest), DropReason.OVERFLOW_BYTES)
         if stamp_ns not in queue:  # the new message itself was the oldest
             return False
         return self._try_emit(topic, stamp_ns)
@@ -167,19 +192,20 @@ class ApproximateTimeSync:
         if best is None:
             return False
         chosen = best[2]
-        msgs = [self._queues[i].pop(s) for i, s in enumerate(chosen)]
+        msgs = [self._pop(i, s) for i, s in enumerate(chosen)]
         for index, stamp in enumerate(chosen):
             self._last_emitted[index] = stamp
             queue = self._queues[index]
             for old in sorted(s for s in queue if s < stamp):
-                self._drop(index, old, queue.pop(old), DropReason.SUPERSEDED)
+                self._drop(index, old, self._pop(index, old), DropReason.SUPERSEDED)
         self.stats.emitted += 1
         self._callback(*msgs)
         return True
 
     def reset(self) -> None:
-        """Forget every queued message and the emitted history (e.g. after a clock jump back)."""
+        """Forget every queued message (reported as :attr:`DropReason.RESET`) and the emitted
+        history (e.g. after a clock jump back)."""
         for index, queue in enumerate(self._queues):
             for stamp in sorted(queue):
-                self._drop(index, stamp, queue.pop(stamp), DropReason.SUPERSEDED)
+                self._drop(index, stamp, self._pop(index, stamp), DropReason.RESET)
         self._last_emitted = [None] * self.n_topics

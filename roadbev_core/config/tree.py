@@ -211,6 +211,16 @@ class SyncConfig:
 
     queue_size: int = param("sync_queue_size", 10, "approximate-time synchroniser queue per topic", 1, 1000)
     slop_s: float = param("sync_slop_s", 0.02, "largest stamp spread within a synchronised set (s)", 0.0, 1.0)
+    queue_mb: float = param("sync_queue_mb", 256.0, "largest total size of the messages the synchroniser "
+                            "holds (MiB, all topics); beyond it the oldest are dropped (queue overflow)", 1.0, 65536.0)
+    max_image_mb: float = param("max_image_mb", 64.0, "an image message larger than this (MiB of data) is refused "
+                                "on arrival, counted as 'image too large' (the shipped Fast DDS profile's "
+                                "shared-memory segment is 64 MiB)", 0.001, 4096.0)
+
+    def __post_init__(self) -> None:
+        if self.queue_mb < 2 * self.max_image_mb:
+            raise ParamError(f"sync_queue_mb = {self.queue_mb:g} must hold a stereo pair of the largest images: "
+                             f"at least 2 x max_image_mb = {2 * self.max_image_mb:g}")
 
     def sets_per_message(self, topics: int) -> float:
         """Upper bound of the stamp combinations one new message makes the synchroniser try."""
@@ -327,6 +337,26 @@ class DiagnosticsConfig:
     period_s: float = param("diagnostics_period_s", 1.0, "diagnostics publication period (s)", 0.05, 60.0)
     log_throttle_s: float = param("log_throttle_s", 5.0, "minimum period between repeated warnings (s)",
                                   0.0, 3600.0)
+    window_s: float = param("diagnostics.window_s", 5.0, "window of the rates, latency percentiles and stamp "
+                            "ages (s): older figures are forgotten, so the status goes stale when input stops",
+                            0.5, 600.0)
+    min_rate_hz: float = param("diagnostics.min_rate_hz", 1.0, "lowest acceptable left-image rate (Hz; 0 = no "
+                               "bound), as diagnostic_updater's FrequencyStatus", 0.0, 1000.0)
+    max_rate_hz: float = param("diagnostics.max_rate_hz", 100.0, "highest acceptable left-image rate (Hz; 0 = "
+                               "no bound)", 0.0, 10000.0)
+    rate_tolerance: float = param("diagnostics.rate_tolerance", 0.1, "relative tolerance of the rate bounds",
+                                  0.0, 1.0)
+    min_stamp_age_s: float = param("diagnostics.min_stamp_age_s", -1.0, "earliest acceptable age of a left "
+                                   "image's stamp on arrival, by the node's clock (s; negative = ahead of the "
+                                   "clock), as diagnostic_updater's TimeStampStatus", -3600.0, 0.0)
+    max_stamp_age_s: float = param("diagnostics.max_stamp_age_s", 5.0, "latest acceptable age of a left image's "
+                                   "stamp on arrival, by the node's clock (s; 0 = no check; replaying a bag: "
+                                   "use_sim_time with replay --clock)", 0.0, 1e9)
+
+    def __post_init__(self) -> None:
+        if self.max_rate_hz and self.min_rate_hz > self.max_rate_hz:
+            raise ParamError(f"diagnostics.min_rate_hz = {self.min_rate_hz} is above diagnostics.max_rate_hz "
+                             f"= {self.max_rate_hz}")
 
 
 # Grid parameters are GridSpec's fields under their own names (GridSpec validates the whole).

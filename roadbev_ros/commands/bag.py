@@ -17,8 +17,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
+
+from roadbev_ros.cli import progress_bar
 
 HELP = "what a bag holds (and whether it was closed cleanly); recover what is readable"
 
@@ -52,16 +53,10 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.out.exists():
         raise OSError(f"{args.out} exists already; not overwriting it")
-    bar = None
-    if not args.no_progress and sys.stderr.isatty():
-        from tqdm import tqdm
-
-        bar = tqdm(unit="msg", desc="recover", file=sys.stderr, leave=False)
+    bar = progress_bar(unit="msg", desc="recover", disable=args.no_progress, leave=False)
     try:
-        stats = recover_bag(args.bag, args.out, compression=args.compression,
-                            progress=bar.update if bar is not None else None)
+        stats = recover_bag(args.bag, args.out, compression=args.compression, progress=bar.update)
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
     print(f"recovered {sum(stats.read.values())} message(s) to {args.out}: {stats.summary()}")
     return 0

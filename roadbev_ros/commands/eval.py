@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from roadbev_core.errors import RoadbevError
-from roadbev_ros.cli import CommandError
+from roadbev_ros.cli import CommandError, progress_bar, warn
 
 HELP = "run a backend over every frame of a bag (no DDS) and report the metrics"
 DEFAULT_BACKEND = "bev_sweep"
@@ -71,8 +71,9 @@ def _explicit_params(args: argparse.Namespace) -> dict[str, Any]:
     explicit: dict[str, Any] = {}
     if args.params is not None:
         loaded = load_params_file(args.params)
-        if loaded.note():
-            print(f"roadbev eval: {loaded.note()}", file=sys.stderr)
+        note = loaded.note()
+        if note:
+            warn("eval", note)
         explicit.update(loaded.values)
     if args.backend:
         explicit["backend"] = args.backend
@@ -184,13 +185,8 @@ def run(args: argparse.Namespace) -> int:
     total = len(bag) if args.frames is None else min(len(bag), args.frames)
     if total == 0:
         raise CommandError(f"bag {path} has no complete frames to evaluate")
-    progress = None
-    bar = None
-    if not args.no_progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=total, unit="frame", desc=f"eval {name}", file=sys.stderr, leave=False)
-        progress = bar.update
+    bar = progress_bar(total=total, unit="frame", desc=f"eval {name}", disable=args.no_progress, leave=False)
+    progress = bar.update
     try:
         result = evaluate(pipeline, _read_failures(bag, path), imu=bag.imu, odometry=bag.odometry,
                           progress=progress, max_frames=args.frames, keep_estimates=drive,
@@ -200,8 +196,7 @@ def run(args: argparse.Namespace) -> int:
             outputs.abort()
         raise
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
     if outputs is not None:
         outputs.close()
     metrics = result.to_dict()

@@ -10,17 +10,23 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from roadbev_ros.cli import list_item
+
 HELP = "render the geometry and label figures (voxel columns, GT elevation map)"
+DEFAULT_FEATURES = ("pothole", "speed_bump", "crack")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("figures"), help="output directory (default: ./figures)")
     parser.add_argument("--seed", type=int, default=0, help="synthetic scene seed (default 0)")
     parser.add_argument("--road-class", default="C", help="ISO 8608 roughness class A..E (default C)")
+    from roadbev_core.synth import FEATURE_NAMES
+
     parser.add_argument(
-        "--features",
-        default="pothole,speed_bump,crack",
-        help="comma-separated road features placed in the grid (default pothole,speed_bump,crack; '' for none)",
+        "--features", nargs="*", type=list_item, metavar="FEATURE", choices=FEATURE_NAMES,
+        default=list(DEFAULT_FEATURES),
+        help=f"road features placed in the grid, space-separated, from: {', '.join(FEATURE_NAMES)} "
+             f"(default {' '.join(DEFAULT_FEATURES)}; give the flag alone for none)",
     )
     parser.add_argument("--surface", default="asphalt", choices=("asphalt", "concrete"))
     parser.add_argument("--step", type=int, default=8, help="draw every STEP-th grid row and column (default 8)")
@@ -32,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     from roadbev_core.figures import elevation_figure, voxel_columns_figure
     from roadbev_core.synth import RoadConfig, make_sample
 
-    features = tuple(f.strip() for f in str(args.features).split(",") if f.strip())
+    features = tuple(args.features)
     road = RoadConfig(road_class=str(args.road_class).upper(), features=features, surface=args.surface)
     grid = GridSpec()
     sample = make_sample(int(args.seed), camera=StereoCamera.rsrd_half(), grid=grid, road=road)

@@ -21,11 +21,10 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 from pathlib import Path
 from typing import Any
 
-from roadbev_ros.cli import CommandError
+from roadbev_ros.cli import CommandError, progress_bar
 
 HELP = "label a recorded drive from its LiDAR: an evaluation/training bag with /ground_truth/elevation"
 EXTRINSIC = "label.lidar_extrinsic_xyz_rpy_deg"
@@ -58,7 +57,6 @@ def _numbers(name: str, value: Any, n: int) -> list[float]:
 def run(args: argparse.Namespace) -> int:
     """Label the bag, write OUT, print a summary; non-zero exit (CommandError) on bad input."""
     import numpy as np
-    from tqdm import tqdm
 
     from msg_bridge.bag import BagError, bag_topics
     from msg_bridge.labelbag import Extrinsic, label_bag
@@ -89,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
             if lidar in topics
             else sum(t.count for t in topics.values() if t.msgtype == "sensor_msgs/msg/PointCloud2")
         )
-        with tqdm(total=total or None, unit="scan", desc="label", disable=args.quiet or None, file=sys.stderr) as bar:
+        with progress_bar(total=total or None, unit="scan", desc="label", disable=args.quiet) as bar:
             report = label_bag(
                 args.bag,
                 args.out,

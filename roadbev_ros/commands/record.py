@@ -16,14 +16,15 @@ import threading
 import time
 from pathlib import Path
 
-from roadbev_ros.cli import CommandError
+from roadbev_ros.cli import CommandError, list_item, warn
 
 HELP = "record topics to an MCAP bag"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("out", type=Path, help="output .mcap file (or rosbag2 directory); must not exist")
-    parser.add_argument("--topics", nargs="+", required=True, metavar="TOPIC", help="topics to record")
+    parser.add_argument("--topics", nargs="+", type=list_item, required=True, metavar="TOPIC",
+                        help="topics to record (space-separated)")
     parser.add_argument("--duration", type=float, default=0.0, metavar="S", help="stop after S seconds")
     parser.add_argument("--max-messages", type=int, default=0, metavar="N", help="stop after N messages")
     parser.add_argument("--compression", choices=("zstd", "none"), default="zstd",
@@ -67,5 +68,5 @@ def run(args: argparse.Namespace) -> int:
         summary = ", ".join(f"{t}: {n}" for t, n in sorted(counts.items())) or "nothing"
         print(f"recorded {sum(counts.values())} messages to {args.out} ({summary})")
     for problem in recorder.problems:
-        print(f"not recorded: {problem}", file=sys.stderr)
+        warn("record", f"not recorded: {problem}")
     return 0

@@ -3,6 +3,12 @@
 Messages go out as the bag's raw CDR bytes (no re-serialisation), paced by their log times and
 the rate factor; the Fast DDS profile for large images is applied (``config/fastdds.xml``).
 
+Before the first message the replay waits (``--wait-for-subscribers S``, default 10 s;
+``--no-wait`` to start at once) until every replayed image topic has a subscriber (every replayed
+topic when the bag has no images), so a node started just before misses no frame. When the wait
+times out the replay says which topics have no subscriber (and when a subscriber listens on the
+other transport: ``/compressed`` versus raw) and starts anyway: a viewer alone still gets the bag.
+
 A truncated, unfinished or partly damaged bag is published as far as it is readable; what was
 left out is printed, and the exit is 0. Only a bag of which nothing could be published exits 2
 (the rule of every command that reads a bag: README, "Damaged and truncated bags").
@@ -15,10 +21,12 @@ import signal
 import sys
 import threading
 from pathlib import Path
+from typing import Any
 
-from roadbev_ros.cli import CommandError
+from roadbev_ros.cli import CommandError, list_item, progress_bar, warn
 
 HELP = "publish a bag's topics over ROS 2 with their original timing"
+DEFAULT_WAIT_S = 10.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,14 +34,41 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rate", type=float, default=1.0,
                         help="speed factor (default 1.0; 0 = as fast as possible)")
     parser.add_argument("--loop", action="store_true", help="start again at the end (Ctrl-C stops)")
-    parser.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics")
+    parser.add_argument("--topics", nargs="+", type=list_item, metavar="TOPIC",
+                        help="only these topics (space-separated)")
     parser.add_argument("--restamp", action="store_true",
                         help="set header stamps to the wall-clock publication time")
     parser.add_argument("--clock", action="store_true", help="publish /clock with the bag time")
-    parser.add_argument("--wait-for-subscribers", type=float, default=0.0, metavar="S",
-                        help="wait up to S seconds for a subscriber on every topic before starting")
+    wait = parser.add_mutually_exclusive_group()
+    wait.add_argument("--wait-for-subscribers", type=float, default=DEFAULT_WAIT_S, metavar="S",
+                      help="wait up to S seconds for a subscriber on every replayed image topic (every "
+                           f"topic when the bag has no images) before starting (default {DEFAULT_WAIT_S:g}); "
+                           "on a timeout say which topics have none and replay anyway")
+    wait.add_argument("--no-wait", action="store_true", help="start at once, subscribed or not")
     parser.add_argument("--json", type=Path, metavar="OUT", help="write the replay statistics here")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
+
+
+def waited_topics(bag_path: Path, topics: list[str] | None) -> list[str] | None:
+    """The topics the replay waits for: the replayed image topics (None = all, when none)."""
+    from msg_bridge import bag
+    from roadbev_ros.replay import IMAGE_TYPES
+
+    available = bag.bag_topics(bag_path)
+    images = [t for t, info in available.items() if info.msgtype in IMAGE_TYPES and (topics is None or t in topics)]
+    return images or None
+
+
+def transport_hint(node: Any, topic: str) -> str:
+    """Why ``topic`` may have no subscriber: someone listens on its other image transport."""
+    from roadbev_ros.diagnostics import COMPRESSED_SUFFIX, other_transport
+
+    other = other_transport(topic)
+    if node.count_subscribers(other) == 0:
+        return ""
+    transport = "compressed" if topic.endswith(COMPRESSED_SUFFIX) else "raw"
+    return (f" ({other} has a subscriber: the bag's images are {transport}, start the node with "
+            f"-p image_transport:={transport})")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -43,18 +78,24 @@ def run(args: argparse.Namespace) -> int:
 
     if args.rate < 0 or args.rate != args.rate:
         raise CommandError(f"--rate must be >= 0, got {args.rate}")
+    if not args.wait_for_subscribers >= 0:
+        raise CommandError(f"--wait-for-subscribers must be >= 0 s, got {args.wait_for_subscribers}")
     if not args.bag.exists():
         raise OSError(f"bag not found: {args.bag}")
+    wait_s = 0.0 if args.no_wait else args.wait_for_subscribers
+    wait_topics = waited_topics(args.bag, args.topics) if wait_s > 0 else None
     rclpy = init_ros(handle_signals=False)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     node = rclpy.create_node("roadbev_replay")
-    bar = None
-    if not args.quiet and sys.stderr.isatty():
-        from tqdm import tqdm
+    bar = progress_bar(unit="msg", desc="replay", disable=args.quiet)
 
-        bar = tqdm(unit="msg", desc="replay")
+    def unmatched(topics: list[str]) -> None:
+        for topic in topics:
+            warn("replay", f"no subscriber on {topic} after {wait_s:g} s{transport_hint(node, topic)}; "
+                 "replaying anyway")
+
     try:
         stats = replay_bag(
             node,
@@ -64,20 +105,21 @@ def run(args: argparse.Namespace) -> int:
             topics=args.topics,
             restamp=args.restamp,
             publish_clock=args.clock,
-            wait_for_subscribers=args.wait_for_subscribers,
+            wait_for_subscribers=wait_s,
+            wait_topics=wait_topics,
             stop=stop,
-            progress=(lambda n: bar.update(1)) if bar is not None else None,
+            progress=lambda n: bar.update(1),
+            on_wait_timeout=unmatched,
         )
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
         node.destroy_node()
         rclpy.try_shutdown()
     for topic, reason in stats.skipped_topics.items():
-        print(f"skipped {topic}: {reason}", file=sys.stderr)
+        warn("replay", f"skipped {topic}: {reason}")
     if not stats.bag_complete:
         lost = ", ".join(f"{t}: {n}" for t, n in sorted(stats.lost.items())) or "none known"
-        print(f"the bag is not whole: published what is readable; messages left out: {lost}", file=sys.stderr)
+        warn("replay", f"the bag is not whole: published what is readable; messages left out: {lost}")
         for problem in stats.read_problems:
             print(f"  {problem}", file=sys.stderr)
     if not args.quiet:

@@ -15,11 +15,10 @@ arguments always give the same bytes (no wall-clock time is stored).
 from __future__ import annotations
 
 import argparse
-import sys
 from dataclasses import replace
 from pathlib import Path
 
-from roadbev_ros.cli import CommandError
+from roadbev_ros.cli import CommandError, list_item, progress_bar
 
 HELP = "write a synthetic evaluation/training bag (MCAP)"
 
@@ -41,8 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--imu-rate", type=float, default=100.0, metavar="HZ", help="IMU rate (default 100 Hz)")
     parser.add_argument("--road-class", default="C", choices=list("ABCDE"),
                         help="ISO 8608 roughness class (default C)")
-    parser.add_argument("--features", nargs="*", metavar="FEATURE", choices=FEATURE_NAMES,
-                        help=f"road features repeated along the drive, from: {', '.join(FEATURE_NAMES)} "
+    parser.add_argument("--features", nargs="*", type=list_item, metavar="FEATURE", choices=FEATURE_NAMES,
+                        help=f"road features repeated along the drive, space-separated, from: "
+                        f"{', '.join(FEATURE_NAMES)} "
                         "(default: the synthesiser's mix; give the flag alone for none)")
     parser.add_argument("--surface", choices=["asphalt", "concrete"], default="asphalt")
     parser.add_argument("--grade", type=float, default=None, help="road grade dz/dx (default 0; |g| <= 0.012)")
@@ -77,7 +77,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
 
     from msg_bridge.evalbag import write_eval_bag
     from roadbev_core.synth import DriveConfig, OdometryNoise, RidingConfig, RidingDrive, RoadConfig, SyntheticDrive
@@ -132,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         drive = SyntheticDrive(config)
         write = write_eval_bag
-    with tqdm(total=len(drive), unit="frame", desc="synth", disable=args.quiet or None, file=sys.stderr) as bar:
+    with progress_bar(total=len(drive), unit="frame", desc="synth", disable=args.quiet) as bar:
         counts = write(
             args.out,
             drive,

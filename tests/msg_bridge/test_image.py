@@ -12,6 +12,7 @@ from msg_bridge.image import (
     ENCODINGS,
     array_to_compressed,
     array_to_image,
+    check_image_message,
     compressed_to_array,
     compressed_to_rgb,
     image_to_array,
@@ -173,3 +174,19 @@ def test_building_rejects_arrays_that_are_not_images(factory: MessageFactory) ->
         array_to_image(np.zeros((2, 2), np.uint8), factory, encoding="mono16")
     with pytest.raises(MessageError, match="need uint8 RGB"):
         array_to_compressed(np.zeros((2, 2), np.float32), factory)
+
+
+def test_an_oversized_image_is_refused_from_its_fields_alone(factory: MessageFactory) -> None:
+    small = array_to_image(_pixels("rgb8", 48, 64), factory, stamp_ns=1, frame_id="cam")
+    assert check_image_message(small, 48 * 64 * 3) == 48 * 64 * 3
+    with pytest.raises(MessageError, match=r"left image of 0.0 MiB is larger than the limit .*max_image_mb"):
+        check_image_message(small, 48 * 64 * 3 - 1, "left image")
+    # 8000 x 8000 in the header: refused by its size before the (here missing) pixels are looked at
+    huge = array_to_image(_pixels("mono8", 2, 2), factory, stamp_ns=1, frame_id="cam")
+    huge.width = huge.height = 8000
+    with pytest.raises(MessageError, match="8000 x 8000 pixels is larger than the limit"):
+        check_image_message(huge, 2**30, "right image")
+    jpeg = array_to_compressed(_pixels("rgb8", 48, 64), factory, stamp_ns=1, frame_id="cam", fmt="jpeg")
+    assert check_image_message(jpeg, 2**20) == len(jpeg.data)
+    with pytest.raises(MessageError, match="larger than the limit"):
+        check_image_message(jpeg, 10)

@@ -59,7 +59,100 @@ def test_bad_input_is_one_line_and_a_bug_keeps_its_traceback(
 
     monkeypatch.setattr(cli, "_load", lambda _name: command(RoadbevError("the bag has no frames")))
     assert cli.main(["eval"]) == 2
-    assert capsys.readouterr().err == "roadbev eval: the bag has no frames\n"
+    assert capsys.readouterr().err == "roadbev eval: error: the bag has no frames\n"
     monkeypatch.setattr(cli, "_load", lambda _name: command(ValueError("a bug")))
     with pytest.raises(ValueError, match="a bug"):  # not hidden as "bad input"
         cli.main(["eval"])
+
+
+def test_version_is_package_xml_s(capsys: pytest.CaptureFixture[str]) -> None:
+    import re
+    from pathlib import Path
+
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["--version"])
+    assert exc.value.code == 0
+    xml = (Path(__file__).resolve().parents[2] / "package.xml").read_text()
+    found = re.search(r"<version>([^<]+)</version>", xml)
+    assert found is not None
+    assert capsys.readouterr().out.strip() == f"roadbev {found.group(1)}"
+
+
+@pytest.mark.parametrize("argv", [
+    ["figures", "--features", "pothole,crack"],
+    ["synth", "out.mcap", "--features", "pothole,crack"],
+    ["replay", "bag.mcap", "--topics", "/a,/b"],
+    ["record", "out.mcap", "--topics", "/a,/b"],
+])
+def test_lists_are_space_separated_everywhere(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        cli.main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.splitlines()[-1]
+    assert err.startswith(f"roadbev {argv[0]}: error: ") and "lists are space-separated" in err, err
+
+
+def test_figures_takes_its_features_space_separated(tmp_path: object, monkeypatch: pytest.MonkeyPatch) -> None:
+    import argparse
+
+    from roadbev_ros.commands import figures
+
+    parser = argparse.ArgumentParser()
+    figures.add_arguments(parser)
+    assert parser.parse_args(["--features", "pothole", "crack"]).features == ["pothole", "crack"]
+    assert parser.parse_args(["--features"]).features == []
+    assert parser.parse_args([]).features == list(figures.DEFAULT_FEATURES)
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--features", "volcano"])
+
+
+@pytest.mark.parametrize("argv", [
+    ["replay", "/nonexistent/bag.mcap"],
+    ["eval", "/nonexistent/bag.mcap"],
+    ["bag", "info", "/nonexistent/bag.mcap"],
+    ["record", "README.md", "--topics", "/a"],
+    ["node", "--params", "/nonexistent/params.yaml"],
+])
+def test_every_command_refuses_with_one_prefix(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith(f"roadbev {argv[0]}: error: "), err
+
+
+def test_replay_of_unknown_topics_says_so_in_a_sentence() -> None:
+    from pathlib import Path
+
+    sample = Path(__file__).resolve().parents[2] / "bags" / "sample_drive.mcap"
+    proc = subprocess.run([sys.executable, "-m", "roadbev_ros.cli", "replay", str(sample), "--topics", "/nope",
+                           "--no-wait"], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    err = proc.stderr.strip()
+    assert err.startswith("roadbev replay: error: nothing to replay from ") and "/nope: not in the bag" in err
+    assert "{" not in err and "/imu/data" in err  # a sentence naming what the bag holds, not a dict
+
+
+@pytest.mark.parametrize("tty", [False, True])
+def test_progress_bars_only_on_a_terminal(tty: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    import io
+
+    stream = io.StringIO()
+    monkeypatch.setattr(stream, "isatty", lambda: tty)
+    monkeypatch.setattr(sys, "stderr", stream)
+    bar = cli.progress_bar(unit="frame", desc="eval", total=3)
+    for _ in range(3):
+        bar.update(1)
+    bar.close()
+    assert ("\r" in stream.getvalue()) == tty
+    assert ("frame" in stream.getvalue()) == tty
+    if tty:
+        assert "3/3" in stream.getvalue()
+
+
+def test_the_demo_report_bar_counts_files(monkeypatch: pytest.MonkeyPatch) -> None:
+    from roadbev_ros import demo
+
+    units: list[str] = []
+    monkeypatch.setattr(cli, "progress_bar", lambda **kw: units.append(kw["unit"]))
+    demo._bar(None, "report", True, unit="file")
+    demo._bar(3, "offline", True)
+    assert units == ["file", "frame"]

@@ -6,7 +6,18 @@ import math
 
 import pytest
 
-from roadbev_ros.diagnostics import OK, WARN, Health, LatencyWindow, RateMeter, ThrottledLog, to_diagnostic_array
+from roadbev_ros.diagnostics import (
+    ERROR,
+    OK,
+    WARN,
+    Health,
+    LatencyWindow,
+    RateMeter,
+    ThrottledLog,
+    other_transport,
+    to_diagnostic_array,
+    transport_hint,
+)
 
 
 class FakeClock:
@@ -57,7 +68,7 @@ def test_health_levels_and_values() -> None:
     clock = FakeClock()
     health = Health(backend="bm", clock=clock)
     snap = health.snapshot()
-    assert snap.level == OK and snap.message == "waiting for input"
+    assert snap.level == WARN and snap.message == "waiting for input"
     health.frame_in()
     health.set_in()
     health.output(30.0, 40.0, 20.0, 2.0, 1.0)
@@ -73,7 +84,8 @@ def test_health_levels_and_values() -> None:
     snap = health.snapshot()
     assert snap.level == WARN and "IMU gap" in snap.message
     assert snap.values["problem.imu stale"] == "1" and "IMU gap" in snap.values["last_error"]
-    clock.t += 10.0  # the problem is old: back to OK, the count and last error stay
+    clock.t += 5.5  # the problem is old: back to OK, the count and last error stay
+    health.frame_in()
     snap = health.snapshot()
     assert snap.level == OK and snap.values["problem.imu stale"] == "1"
 
@@ -101,6 +113,7 @@ def test_zero_coverage_warns_with_the_self_check_hint() -> None:
     empty = np.full(grid.shape, np.nan, np.float32)
     check = self_check(Estimate(empty, empty.copy()), Frame(flat, flat.copy(), camera, Attitude(0.0, 0.3)), grid)
     health = Health(backend="bev_sweep", clock=FakeClock())
+    health.frame_in()
     health.output(30.0, 40.0, 20.0, 2.0)
     health.coverage(check.coverage_pct, check.ok, check.message)
     snap = health.snapshot()
@@ -117,5 +130,117 @@ def test_diagnostic_array_message() -> None:
     array = to_diagnostic_array(health.snapshot(), Time(sec=5))
     status = array.status[0]
     assert array.header.stamp.sec == 5
-    assert status.name == "roadbev: pipeline" and status.level == bytes([OK])
+    assert status.name == "roadbev: pipeline" and status.level == bytes([WARN])
+    assert status.message == "waiting for input"
     assert {kv.key: kv.value for kv in status.values}["backend"] == "bev_sweep"
+    # one status per input check after the pipeline's, named as diagnostic_updater tasks
+    assert [s.name for s in array.status[1:]] == ["roadbev: left image rate", "roadbev: left image stamps"]
+    rate = {kv.key: kv.value for kv in array.status[1].values}
+    assert rate["Events since startup"] == "0" and array.status[1].level == bytes([WARN])
+
+
+def test_latency_window_forgets_old_samples() -> None:
+    clock = FakeClock()
+    window = LatencyWindow(size=100, window_s=5.0, clock=clock)
+    window.add(10.0)
+    clock.t += 3.0
+    window.add(20.0)
+    assert window.percentile(50) == pytest.approx(15.0) and window.extremes() == (10.0, 20.0)
+    clock.t += 3.0  # the first sample is 6 s old
+    assert window.percentile(50) == pytest.approx(20.0) and len(window) == 1
+    clock.t += 3.0
+    assert math.isnan(window.percentile(95)) and math.isnan(window.mean()) and len(window) == 0
+
+
+def diag_config(**changes: float) -> object:
+    from roadbev_core.config import RoadbevConfig
+
+    return RoadbevConfig.from_params(changes).diagnostics
+
+
+def feed(health: Health, clock: FakeClock, seconds: float, hz: float, age_s: float = 0.05) -> None:
+    for _ in range(round(seconds * hz)):
+        health.frame_in(age_s)
+        health.set_in()
+        health.output(30.0, 60.0, 20.0, 2.0)
+        clock.t += 1.0 / hz
+
+
+def test_the_status_goes_stale_when_input_stops_and_recovers_when_it_resumes() -> None:
+    clock = FakeClock()
+    health = Health(backend="bm", clock=clock)
+    health.configure(diag_config())  # the node's defaults: 5 s window, 1..100 Hz, stamps -1..5 s
+    feed(health, clock, 3.0, 10.0)
+    snap = health.snapshot()
+    assert snap.level == OK, snap.message
+    assert float(snap.values["input_rate_hz"]) == pytest.approx(10.0, rel=0.1)
+    assert float(snap.values["latency_p95_ms"]) == pytest.approx(30.0)
+    clock.t += 6.0  # the camera stops: after the window nothing recent is left
+    snap = health.snapshot()
+    assert snap.level == ERROR and snap.message.startswith("stale: no left image for 6.1 s"), snap.message
+    assert snap.values["input_rate_hz"] == "0.00" and snap.values["latency_p50_ms"] == "nan"
+    assert snap.values["last_input_age_s"] == "6.1" and snap.values["frames_in"] == "30"
+    assert snap.checks[0].level == ERROR and snap.checks[0].values["Events in window"] == "0"
+    feed(health, clock, 1.0, 10.0)  # it comes back
+    snap = health.snapshot()
+    assert snap.level == OK and snap.message == "ok", snap.message
+    assert float(snap.values["latency_p50_ms"]) == pytest.approx(30.0)
+
+
+def test_rate_outside_the_expected_window_warns() -> None:
+    clock = FakeClock()
+    health = Health(clock=clock)
+    health.configure(diag_config(**{"diagnostics.min_rate_hz": 5.0, "diagnostics.max_rate_hz": 20.0}))
+    feed(health, clock, 3.0, 2.0)
+    assert health.snapshot().level == OK  # the window is not full yet: no verdict on a low rate
+    feed(health, clock, 3.0, 2.0)
+    snap = health.snapshot()
+    assert snap.level == WARN and "rate too low" in snap.message and "at least 5 Hz" in snap.message
+    assert snap.checks[0].values["Minimum acceptable frequency (Hz)"] == "4.50"
+    feed(health, clock, 5.0, 40.0)
+    snap = health.snapshot()
+    assert snap.level == WARN and "rate too high" in snap.message
+    feed(health, clock, 5.0, 21.0)  # inside the tolerance (10 %)
+    assert health.snapshot().level == OK
+
+
+@pytest.mark.parametrize(("age_s", "words"), [(30.0, "s old on arrival"), (-3.0, "ahead of the node's clock")])
+def test_stamp_ages_outside_their_bounds_warn(age_s: float, words: str) -> None:
+    clock = FakeClock()
+    health = Health(clock=clock)
+    health.configure(diag_config())
+    feed(health, clock, 2.0, 10.0, age_s=age_s)
+    snap = health.snapshot()
+    assert snap.level == WARN and words in snap.message, snap.message
+    assert snap.checks[1].level == WARN
+    assert float(snap.checks[1].values["Latest timestamp delay (s)"]) == pytest.approx(age_s)
+    health.configure(diag_config(**{"diagnostics.max_stamp_age_s": 0.0, "diagnostics.min_stamp_age_s": -3600.0}))
+    assert health.snapshot().level == OK  # both checks off
+
+
+class Graph:
+    """count_publishers of a fake ROS graph."""
+
+    def __init__(self, *topics: str) -> None:
+        self.topics = topics
+
+    def count_publishers(self, topic: str) -> int:
+        return self.topics.count(topic)
+
+
+def test_the_other_transport_on_the_graph_is_named() -> None:
+    assert other_transport("/cam/image_rect") == "/cam/image_rect/compressed"
+    assert other_transport("/cam/image_rect/compressed") == "/cam/image_rect"
+    raw, compressed = "/cam/image_rect", "/cam/image_rect/compressed"
+    assert transport_hint(Graph(raw), raw) == ""
+    assert "set image_transport:=compressed" in transport_hint(Graph(compressed), raw)
+    assert "set image_transport:=raw" in transport_hint(Graph(raw), compressed)
+    assert transport_hint(Graph(), raw) == f"nothing publishes {raw}"
+    clock = FakeClock()
+    health = Health(clock=clock)
+    health.input_hint = transport_hint(Graph(compressed), raw)
+    assert "image_transport:=compressed" in health.snapshot().message  # before any input
+    feed(health, clock, 1.0, 10.0)
+    clock.t += 10.0
+    snap = health.snapshot()
+    assert snap.level == ERROR and "image_transport:=compressed" in snap.message  # and once it stopped

@@ -144,6 +144,40 @@ def test_sample_bag_compressed_images_online_match_offline(ros: object, tmp_path
         assert result.metrics[key] == pytest.approx(offline[key], rel=1e-6, abs=1e-9), key
 
 
+def test_a_looped_replay_is_no_warning(drive_bag: Path, tmp_path: Path,
+                                       processes: list[subprocess.Popen[bytes]]) -> None:
+    """`roadbev replay --loop --clock` into a node on use_sim_time: each pass is one INFO reset,
+    never a WARN (the bag's 1 s of stamps jumps back at every loop)."""
+    node_log, recorded = tmp_path / "node.log", tmp_path / "diag.mcap"
+    processes.append(start(["node", "--backend", "bm", "--ros-args", "-p", "use_sim_time:=true",
+                            "-p", "diagnostics_period_s:=0.25"], node_log))
+    processes.append(start(["record", str(recorded), "--topics", "/diagnostics"], tmp_path / "record.log"))
+    replay = start(["replay", str(drive_bag), "--loop", "--clock", "--json", str(tmp_path / "replay.json")],
+                   tmp_path / "replay.log")
+    processes.append(replay)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and node_log.read_text().count("stamps went back") < 2:
+        time.sleep(0.2)
+    time.sleep(0.5)
+    replay.send_signal(signal.SIGINT)
+    assert replay.wait(20) == 0, (tmp_path / "replay.log").read_text()
+    time.sleep(1.0)
+    for proc in (processes[1], processes[0]):  # the recorder, then the node
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(20) == 0
+    log = node_log.read_text()
+    jumps = log.count("stamps went back")
+    assert jumps >= 2, log
+    assert "[WARN]" not in log and "[ERROR]" not in log, log
+    statuses = [m.msg.status[0] for m in bag.read_messages(recorded, ["/diagnostics"])]
+    values = [{kv.key: kv.value for kv in s.values} for s in statuses]
+    assert int(values[-1]["time_jumps"]) == jumps
+    assert not any(k.startswith("problem.") for k in values[-1]), values[-1]
+    for status, v in zip(statuses, values, strict=True):
+        if float(v["input_rate_hz"]) > 0:  # while the bag plays
+            assert status.level != bytes([1]) or "coverage" in status.message, status.message
+
+
 def test_a_drive_replayed_into_the_node_gives_the_fused_map_and_previews_of_eval_map(ros: object,
                                                                                      tmp_path: Path) -> None:
     """Online == offline for the map: the node fed over DDS (/odom, /tf_static, images, IMU)

@@ -158,3 +158,47 @@ def test_a_truncated_bag_is_replayed_as_far_as_it_is_readable(listener: Listener
         assert any("breaks off" in p for p in stats.read_problems)
     assert wait_for(lambda: len(listener.imu) == len(readable), 5.0), len(listener.imu)
     assert [s for _, s in listener.imu] == [START + k * PERIOD_NS for k in range(len(readable))]
+
+
+SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "sample_drive.mcap"
+
+
+@pytest.mark.skipif(not SAMPLE.exists(), reason="bags/sample_drive.mcap is not in this checkout")
+def test_the_replay_command_waits_then_says_who_is_missing_and_replays_anyway(ros: Any) -> None:
+    """Nobody on the bag's (compressed) image topic, a node on the raw one: after the wait the
+    command names the topic and the setting, then replays (exit 0)."""
+    import subprocess
+    import sys
+
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import Image
+
+    from roadbev_ros.dds import child_env
+
+    listener = ros.create_node("raw_image_listener")
+    listener.create_subscription(Image, "/stereo/left/image_rect", lambda _m: None, qos_profile_sensor_data)
+    try:
+        topic = "/stereo/left/image_rect/compressed"
+        before = time.monotonic()
+        # (4 s: the replay process must discover the listener first, slow on a loaded machine)
+        proc = subprocess.run([sys.executable, "-m", "roadbev_ros.cli", "replay", str(SAMPLE), "--topics", topic,
+                               "--wait-for-subscribers", "4", "--rate", "0"],
+                              capture_output=True, text=True, timeout=120, env=child_env())
+        took = time.monotonic() - before
+    finally:
+        listener.destroy_node()
+    assert proc.returncode == 0, proc.stderr
+    warning = next(line for line in proc.stderr.splitlines() if "no subscriber" in line)
+    assert warning.startswith(f"roadbev replay: warning: no subscriber on {topic} after 4 s"), warning
+    assert "start the node with -p image_transport:=compressed" in warning and warning.endswith("replaying anyway")
+    assert "published 20 messages" in proc.stdout and took >= 4.0
+
+
+def test_replay_waits_only_for_the_topics_it_is_told(listener: Listener, imu_bag: Path) -> None:
+    """Only the named topics are waited for; once they have a subscriber the replay starts, with
+    nothing reported (the timeout case: the command test above)."""
+    missed: list[list[str]] = []
+    stats = replay_bag(listener.pub_node, imu_bag, rate=0.0, wait_for_subscribers=10.0, wait_topics=["/imu/data"],
+                       on_wait_timeout=missed.append)
+    assert stats.unmatched == [] and missed == [] and stats.waited_s < 10.0
+    assert stats.per_topic["/imu/data"] == N

@@ -152,7 +152,7 @@ def test_a_jump_back_resets_instead_of_refusing_everything() -> None:
     assert not sync.add(1, 4_500 * MS, "late")  # half a second back: only out of order
     assert sync.add(1, 100 * MS, "b0") is False  # five seconds back: a reset, then queued
     assert resets == [(1, 4_900 * MS)]
-    assert (0, 5_100 * MS, DropReason.SUPERSEDED) in rec.drops
+    assert (0, 5_100 * MS, DropReason.RESET) in rec.drops
     assert sync.add(0, 100 * MS, "a0")
     assert rec.sets[-1] == ("a0", "b0")
     never = ApproximateTimeSync(2, 10, 0.01, rec.emit, rec.drop, jump_back_s=None)
@@ -160,3 +160,22 @@ def test_a_jump_back_resets_instead_of_refusing_everything() -> None:
     never.add(1, 5_000 * MS, "b")
     never.add(0, 100 * MS, "x")
     assert rec.drops[-1] == (0, 100 * MS, DropReason.OUT_OF_ORDER)
+
+
+def test_the_queues_are_bounded_by_bytes_too() -> None:
+    rec = Recorder()
+    sync = ApproximateTimeSync(2, 100, 0.01, rec.emit, rec.drop, max_bytes=100)
+    for k in range(5):  # unpaired left images of 46 bytes: at most two fit the 100-byte bound
+        sync.add(0, (k + 1) * 1000 * MS, f"left{k}", nbytes=46)
+    assert sync.queued() == [2, 0] and sync.queued_bytes == 92
+    assert [(t, s // MS, r) for t, s, r in rec.drops] == [(0, k * 1000 + 1000, DropReason.OVERFLOW_BYTES)
+                                                        for k in range(3)]
+    assert sync.add(1, 5000 * MS, "right4", nbytes=8)  # pairs with the newest left image
+    assert rec.sets[-1] == ("left4", "right4")
+    assert sync.queued_bytes == 0 and sync.queued() == [0, 0]  # left3 was superseded
+    sync.configure(100, 0.01, max_bytes=10)
+    sync.add(0, 6000 * MS, "a", nbytes=6)
+    sync.add(1, 6500 * MS, "b", nbytes=6)  # over the new bound: the oldest of all goes
+    assert rec.drops[-1] == (0, 6000 * MS, DropReason.OVERFLOW_BYTES) and sync.queued_bytes == 6
+    with pytest.raises(SyncError):
+        sync.configure(10, 0.01, max_bytes=0)

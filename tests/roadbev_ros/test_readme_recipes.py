@@ -1,0 +1,104 @@
+"""The README's recipes, run as a user pastes them: the shell block is taken from README.md itself.
+
+The block runs in bash with job control (as in a terminal: ``&`` jobs, ``%1``), in a scratch
+folder holding ``.venv/bin/roadbev`` (this interpreter with this checkout) and ``bags/`` (the
+repository's), so every line is executed unchanged.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from msg_bridge import bag
+from roadbev_ros.dds import child_env
+
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLE = ROOT / "bags" / "sample_drive.mcap"
+SAMPLE_FRAMES = 20
+
+
+def shell_block_after(text: str, lead: str) -> str:
+    """The first fenced ``sh`` block after the paragraph that starts with ``lead``."""
+    start = text.index(lead)
+    found = re.compile(r"```sh\n(.*?)```", re.DOTALL).search(text, start)
+    assert found is not None, f"no sh block after {lead!r}"
+    return found.group(1)
+
+
+def test_the_recipe_block_is_found_and_starts_the_recorder_before_the_blocking_replay() -> None:
+    block = shell_block_after((ROOT / "README.md").read_text(), "Replay a bag into the node and record")
+    lines = [line for line in block.splitlines() if line.strip()]
+    record = next(i for i, line in enumerate(lines) if " record " in line)
+    replay = next(i for i, line in enumerate(lines) if " replay " in line)
+    assert lines[record].rstrip().endswith("&") and not lines[replay].rstrip().endswith("&")
+    assert record < replay
+
+
+@pytest.fixture
+def user_folder(tmp_path: Path) -> Path:
+    """A folder laid out like the repository root after ``make setup``."""
+    bin_dir = tmp_path / ".venv" / "bin"
+    bin_dir.mkdir(parents=True)
+    roadbev = bin_dir / "roadbev"
+    roadbev.write_text(f'#!/bin/sh\nPYTHONPATH="{ROOT}${{PYTHONPATH:+:$PYTHONPATH}}" '
+                       f'exec "{sys.executable}" -m roadbev_ros.cli "$@"\n')
+    roadbev.chmod(0o755)
+    (tmp_path / "bags").symlink_to(ROOT / "bags")
+    return tmp_path
+
+
+@pytest.fixture
+def shell() -> Iterator[list[subprocess.Popen[bytes]]]:
+    """Shells started by a test; their whole process group is killed in teardown."""
+    procs: list[subprocess.Popen[bytes]] = []
+    yield procs
+    for proc in procs:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(10)
+
+
+def diagnostics_values(msg: object) -> dict[str, str]:
+    status = msg.status[0]  # type: ignore[attr-defined]
+    return {kv.key: kv.value for kv in status.values}
+
+
+@pytest.mark.skipif(not SAMPLE.exists(), reason="bags/sample_drive.mcap is not in this checkout")
+def test_replay_into_the_node_and_record(user_folder: Path, shell: list[subprocess.Popen[bytes]]) -> None:
+    block = shell_block_after((ROOT / "README.md").read_text(), "Replay a bag into the node and record")
+    log = user_folder / "shell.log"
+    with log.open("wb") as out:
+        # set -m: job control as in a terminal (background jobs keep SIGINT; %1 names a job)
+        proc = subprocess.Popen(["bash", "-c", "set -m\n" + block], cwd=user_folder, stdout=out,
+                                stderr=subprocess.STDOUT, env=child_env(), start_new_session=True)
+    shell.append(proc)
+    assert proc.wait(120) == 0, log.read_text()
+    text = log.read_text()
+    assert "no subscriber" not in text, text  # the replay found the node's subscriptions in time
+    recorded = user_folder / "out.mcap"
+    topics = bag.bag_topics(recorded)
+    assert set(topics) == {"/roadbev/elevation", "/roadbev/preview", "/diagnostics"}, text
+    diagnostics = [m.msg for m in bag.read_messages(recorded, ["/diagnostics"])]
+    final = diagnostics_values(diagnostics[-1])
+    outputs = int(final["outputs"])
+    drops = sum(int(final[k]) for k in ("dropped_busy", "dropped_sync", "dropped_invalid"))
+    # every frame of the bag reached the node, and each is an output or a counted drop
+    assert int(final["frames_in"]) == SAMPLE_FRAMES, final
+    assert outputs + drops == SAMPLE_FRAMES, final
+    assert outputs >= 1
+    # the node ran on the bag's clock (use_sim_time, replay --clock): its stamps were never "old"
+    stamp_checks = [m.status[2] for m in diagnostics]
+    assert all(s.name == "roadbev: left image stamps" for s in stamp_checks)
+    assert not any("old on arrival" in s.message or "ahead of" in s.message for s in stamp_checks), \
+        [s.message for s in stamp_checks]
+    # the recording holds every output the node published
+    assert topics["/roadbev/elevation"].count == outputs, final
+    assert topics["/roadbev/preview"].count == outputs, final
