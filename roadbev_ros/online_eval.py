@@ -221,7 +221,10 @@ def evaluate_online(
     grid = eval_bag.grid
     truths = _truths(bag_path, grid)
     left_topic = eval_bag.topics.get("left_image_topic", "/stereo/left/image_rect")
-    input_topics = [t for t in bag.bag_topics(bag_path) if t != GT_TOPIC and not t.startswith("/roadbev/")]
+    # what a vehicle delivers: no ground truth (a drive's /ground_truth/odom and road map have no
+    # subscriber: the replay would wait for one) and no earlier outputs
+    input_topics = [t for t in bag.bag_topics(bag_path)
+                    if t != GT_TOPIC and not t.startswith(("/ground_truth/", "/roadbev/"))]
     recorded = out_dir / "online.mcap"
     if recorded.exists():
         recorded.unlink()
