@@ -15,11 +15,32 @@ from types import TracebackType
 
 from msg_bridge._common import TypestoreFactory
 from msg_bridge.bag import BagWriter, typestore
+from msg_bridge.grid_map import fused_map_message
 from msg_bridge.pipeline_io import output_messages
 from roadbev_core.config import RoadbevConfig
+from roadbev_core.fusion import MapWindow
 from roadbev_core.pipeline import PipelineOutput
 
-__all__ = ["OutputBag"]
+
+def save_map_bag(path: str | os.PathLike[str], window: MapWindow, config: RoadbevConfig) -> None:
+    """Write one fused map (``~/save_map``) as an MCAP bag: one ``grid_map_msgs/GridMap`` on
+    ``map_topic`` in ``map_frame``, as the node publishes it.
+
+    Raises:
+        BagError: the path exists or cannot be written.
+    """
+    writer = BagWriter(path)
+    writer.open()
+    try:
+        writer.add_topic(config.map.topic, "grid_map_msgs/msg/GridMap", latched=True)
+        factory = TypestoreFactory(typestore())
+        writer.write(config.map.topic, fused_map_message(window, factory, frame_id=config.map.frame), window.stamp_ns)
+    except BaseException:
+        writer.abort()
+        raise
+    writer.close()
+
+__all__ = ["OutputBag", "save_map_bag"]
 
 
 class OutputBag:

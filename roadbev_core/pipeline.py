@@ -169,6 +169,7 @@ class Pipeline:
             np.array(config.vehicle.camera_position_m, np.float64), None)
         self._mount_from_tf = False
         self.fused: FusedMap | None = None
+        self.last_map: MapWindow | None = None  # the newest window (``~/save_map``)
         self.map_skipped: dict[str, int] = {}
         if configure_process:
             configure_threads(config.backend.inference_threads)
@@ -218,8 +219,8 @@ class Pipeline:
             self.ego.max_age_s = config.map.odom_max_age_s
             if not self._mount_from_tf:
                 self._camera_mount = (np.array(config.vehicle.camera_position_m, np.float64), None)
-            if (config.map, config.grid, config.vehicle) != (old.map, old.grid, old.vehicle):
-                self.fused = None  # rebuilt with the new settings at the next frame
+            if (config.map_settings(), config.vehicle) != (old.map_settings(), old.vehicle):
+                self.fused = None  # rebuilt with the new settings at the next frame (not for map.save_dir)
         if self._configure_process and config.backend.inference_threads != old.backend.inference_threads:
             configure_threads(config.backend.inference_threads)
 
@@ -233,12 +234,14 @@ class Pipeline:
             self._odometry_seen = False
             if self.fused is not None:
                 self.fused.reset()
+            self.last_map = None
 
     def clear_map(self) -> None:
         """Forget the fused map only (``~/clear_map``)."""
         with self._lock:
             if self.fused is not None:
                 self.fused.reset()
+            self.last_map = None
 
     def set_camera_mount(self, position: Iterable[float], R_base_optical: np.ndarray) -> None:
         """The left camera on ``base_link`` from ``/tf_static`` (wins over
@@ -452,7 +455,9 @@ class Pipeline:
             # the map does not hold three tyre contacts yet (the first metres): the per-frame
             # preview, which says so (reference roadbev_road), rather than a guessed plane
             preview = self._frame_preview(estimate, frame, config)
-        return preview, fused.window(base, frame.stamp_ns), fusion, base
+        window = fused.window(base, frame.stamp_ns)
+        self.last_map = window
+        return preview, window, fusion, base
 
     def _frame_preview(self, estimate: Estimate, frame: Frame, config: RoadbevConfig) -> PreviewProfiles | None:
         """The per-frame wheel-track profiles of an estimate (``roadbev_road``)."""

@@ -128,6 +128,7 @@ class RoadBevNode(Node):
 
         self.create_subscription(TFMessage, "/tf_static", self._on_tf_static, TF_STATIC_QOS)
         self.create_service(Trigger, "~/clear_map", self._on_clear_map)
+        self.create_service(Trigger, "~/save_map", self._on_save_map)
         self._camera_frame: str | None = None  # the left images' frame_id (the TF's parent)
         self._static: dict[str, Any] = {}  # child frame -> base_link transform from /tf_static
         self._out = OutputPublishers(self, OUTPUT_QOS, topics, self.config.map)
@@ -266,6 +267,29 @@ class RoadBevNode(Node):
         response.success = True
         response.message = "fused map cleared"
         self.get_logger().info("fused map cleared (~/clear_map)")
+        return response
+
+    def _on_save_map(self, request: Any, response: Any) -> Any:
+        """``~/save_map`` (std_srvs/Trigger): the newest fused map to ``map.save_dir`` as an MCAP
+        bag (one GridMap, as published); the reply names the file or says why not."""
+        from pathlib import Path
+
+        from msg_bridge.outputs import save_map_bag
+
+        window = self.pipeline.last_map
+        if window is None:
+            response.success, response.message = False, "no fused map yet (no odometry, or map.enabled false)"
+            return response
+        path = Path(self.config.map.save_dir) / f"roadbev_map_{window.stamp_ns}.mcap"
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            save_map_bag(path, window, self.config)
+        except (RoadbevError, OSError) as exc:
+            response.success, response.message = False, f"cannot save the map to {path}: {exc}"
+            self._problem("save map", response.message)
+            return response
+        response.success, response.message = True, str(path)
+        self.get_logger().info(f"fused map saved to {path}")
         return response
 
     def _on_speed(self, msg: Any) -> None:

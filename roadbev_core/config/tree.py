@@ -292,6 +292,8 @@ class MapConfig:
                                    "keeps the predicted offset", 3, 1_000_000)
     range_exponent: float = param("map.range_exponent", 4.0, "an observation x ahead of the camera weighs "
                                   "(x_near / x)^k times what its sigma says (nearer is better)", 0.0, 8.0)
+    save_dir: str = param("map.save_dir", ".", "folder where ~/save_map writes the current map "
+                          "(roadbev_map_<stamp>.mcap)")
     odom_max_age_s: float = param("map.odom_max_age_s", 0.2, "largest distance from a frame's stamp to the "
                                   "odometry around it (s); beyond it the frame is not fused", 0.001, 10.0)
 

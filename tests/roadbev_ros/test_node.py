@@ -356,7 +356,8 @@ def test_mono_backend_needs_only_the_left_camera(ros: Any) -> None:
         h.close()
 
 
-def test_with_odometry_the_node_publishes_the_fused_map_its_tf_and_clears_it_on_request(harness: Harness) -> None:
+def test_with_odometry_the_node_publishes_the_fused_map_its_tf_and_clears_it_on_request(harness: Harness,
+                                                                                         tmp_path: Any) -> None:
     from grid_map_msgs.msg import GridMap
     from nav_msgs.msg import Odometry
     from std_srvs.srv import Trigger
@@ -394,6 +395,17 @@ def test_with_odometry_the_node_publishes_the_fused_map_its_tf_and_clears_it_on_
     np.testing.assert_allclose(tf.translation, tf.rotation @ np.array([0.0, 0.0, -1.10]), atol=1e-5)
     preview = preview_from_message(harness.previews[-1])
     assert preview.frame_id == "base_link" and preview.profiles.contact_plane is not None
+    from rclpy.parameter import Parameter
+
+    from msg_bridge.bag import read_messages
+
+    assert harness.node.set_parameters([Parameter("map.save_dir", value=str(tmp_path))])[0].successful
+    saver = harness.feeder.create_client(Trigger, f"/{harness.node.get_name()}/save_map")
+    assert saver.wait_for_service(timeout_sec=10.0)
+    saved = saver.call_async(Trigger.Request())
+    assert wait_for(saved.done) and saved.result().success, saved.result().message
+    stored = [item.msg for item in read_messages(saved.result().message, ["/roadbev/map"])]
+    assert len(stored) == 1 and set(decode_grid_map(stored[0]).layers) == set(decoded.layers)
     client = harness.feeder.create_client(Trigger, f"/{harness.node.get_name()}/clear_map")
     assert client.wait_for_service(timeout_sec=10.0)
     future = client.call_async(Trigger.Request())
