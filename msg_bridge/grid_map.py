@@ -44,6 +44,7 @@ __all__ = [
     "grid_map_message",
     "grid_map_message_at",
     "grid_map_to_arrays",
+    "map_window_from_message",
 ]
 
 ROAD_FRAME = "roadbev_road"
@@ -182,6 +183,21 @@ def fused_map_message(window: MapWindow, factory: MessageFactory, *, frame_id: s
     r = window.resolution
     return grid_map_message_at(window.layers(), factory, resolution=r, length=(n_rows * r, n_cols * r),
                                centre=window.centre, stamp_ns=window.stamp_ns, frame_id=frame_id)
+
+
+def map_window_from_message(msg: Any) -> MapWindow:
+    """The :class:`roadbev_core.fusion.MapWindow` of a fused-map GridMap (:func:`fused_map_message`).
+
+    Raises:
+        MessageError: a malformed GridMap, or one without the fused map's layers.
+    """
+    raw = decode_grid_map(msg)
+    missing = [name for name in ("elevation", "uncertainty", "observations", "age") if name not in raw.layers]
+    if missing:
+        raise MessageError(f"GridMap is not a fused map: no layer(s) {missing}")
+    layers = raw.layers
+    return MapWindow(layers["elevation"], layers["uncertainty"], layers["observations"], layers["age"],
+                     raw.resolution, raw.centre, raw.stamp_ns)
 
 
 def elevation_grid_map(

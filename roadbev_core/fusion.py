@@ -370,14 +370,8 @@ class FusedMap:
 
     def _forget_outside(self, base: PlanarPose) -> None:
         """Clear every cell outside the corridor at ``base`` (behind the car, beside it)."""
-        s = self.settings
         x, y = self._centres()
-        c, sn = math.cos(base.yaw), math.sin(base.yaw)
-        dx, dy = x[:, None] - base.x, y[None, :] - base.y
-        along = c * dx + sn * dy  # [n_i, n_j] base_link x
-        across = -sn * dx + c * dy
-        outside = (along < -s.behind_m) | (along > s.ahead_m) | (across < s.y_min) | (across > s.y_max)
-        outside &= self._n > 0
+        outside = ~self._inside_corridor(x[:, None], y[None, :], base) & (self._n > 0)  # [n_i, n_j]
         if outside.any():
             for v in self._sums.values():
                 v[outside] = 0.0

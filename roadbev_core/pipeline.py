@@ -395,9 +395,8 @@ class Pipeline:
         timings = {"estimate": 1e3 * (t1 - t0)}
         mapped = self._map_stage(frame, estimate, config)
         if mapped is not None:
-            output = PipelineOutput(frame, estimate, mapped[0], timings, *mapped[1:])
             timings["map"] = 1e3 * (time.perf_counter() - t1)
-            return output
+            return PipelineOutput(frame, estimate, mapped[0], timings, *mapped[1:])
         preview = self._frame_preview(estimate, frame, config)
         timings["preview"] = 1e3 * (time.perf_counter() - t1)
         return PipelineOutput(frame, estimate, preview, timings)
@@ -412,16 +411,16 @@ class Pipeline:
         with self._lock:
             if self._odometry_seen:
                 return self.ego.pose_at(stamp_ns)
-            speed = self._speed
             try:
                 q = self.imu.orientation_at(stamp_ns)
             except ImuStale as exc:
                 raise EgoMotionStale(f"no IMU yaw to dead reckon with: {exc}") from None
-        if speed is None or abs(stamp_ns - speed[0]) > SPEED_MAX_AGE_S * 1e9:
+        speed = self.speed_at(stamp_ns)
+        if speed is None:
             raise EgoMotionStale("no odometry and no recent speed")
         yaw = float(planar_yaw(quaternion_to_rotation(*q)))
         with self._lock:
-            return self.ego.dead_reckon(stamp_ns, speed[1], yaw)
+            return self.ego.dead_reckon(stamp_ns, speed, yaw)
 
     def _map_stage(self, frame: Frame, estimate: Estimate, config: RoadbevConfig
                    ) -> tuple[PreviewProfiles | None, MapWindow, FrameFusion, PlanarPose] | None:

@@ -348,11 +348,10 @@ def drive_scores(bag_path: Path, recorded: Path, frame_stamps: Sequence[int], pa
     """The recorded previews at the wheels' arrival and the recorded fused map against the drive
     bag's truth: the JSON keys ``roadbev eval`` gives offline (``preview_at_arrival``, ``map``)."""
     from msg_bridge.drivebag import evaluate_drive_previews, read_drive_truth
-    from msg_bridge.grid_map import decode_grid_map
+    from msg_bridge.grid_map import map_window_from_message
     from msg_bridge.preview import preview_from_message
     from roadbev_core.arrival import TimedPreview, map_accuracy
     from roadbev_core.evaluation import json_safe
-    from roadbev_core.fusion import MapWindow
 
     previews, windows = [], []
     for item in bag.read_messages(recorded, [PREVIEW_TOPIC, MAP_TOPIC]):
@@ -360,10 +359,7 @@ def drive_scores(bag_path: Path, recorded: Path, frame_stamps: Sequence[int], pa
             decoded = preview_from_message(item.msg)
             previews.append(TimedPreview(decoded.stamp_ns, decoded.profiles.reference, decoded.profiles))
         else:
-            raw = decode_grid_map(item.msg)
-            layers = raw.layers
-            windows.append(MapWindow(layers["elevation"], layers["uncertainty"], layers["observations"],
-                                     layers["age"], raw.resolution, raw.centre, raw.stamp_ns))
+            windows.append(map_window_from_message(item.msg))
     out: dict[str, Any] = {}
     if previews:
         arrival = evaluate_drive_previews(bag_path, previews, list(frame_stamps), params, base_height=base_height,

@@ -69,7 +69,7 @@ from roadbev_core.synth.drive import (
 from roadbev_core.synth.heightfield import SynthError
 from roadbev_core.synth.render import LOOK_AHEAD_M, CameraPose
 from roadbev_core.synth.scene import build_scene
-from roadbev_core.vehicle import camera_extrinsic
+from roadbev_core.vehicle import camera_extrinsic, planar_yaw
 
 __all__ = [
     "DRIVE_VERSION",
@@ -509,7 +509,7 @@ def planar_odometry(series: PoseSeries) -> list[PlanarPose]:
     """A pose series as the planar odometry samples the pipeline takes (x, y, yaw, forward
     speed, yaw rate), as ``msg_bridge.pipeline_io.odometry_sample`` reads ``/odom``."""
     R = np.array([quaternion_to_rotation(*q) for q in series.orientation_xyzw])  # [K, 3, 3]
-    yaw = np.unwrap(np.arctan2(R[:, 1, 0], R[:, 0, 0]))
+    yaw = np.unwrap(planar_yaw(R))
     return [PlanarPose(int(t), float(p[0]), float(p[1]), float(y), float(v[0]), float(w[2]))
             for t, p, y, v, w in zip(series.stamp_ns, series.position, yaw, series.linear_velocity,
                                      series.angular_velocity, strict=True)]

@@ -114,3 +114,21 @@ def test_building_checks_shapes_and_basic_layers(factory: MessageFactory) -> Non
         grid_map_message({"height": np.zeros(GRID.shape)}, GRID, factory, stamp_ns=0)
     with pytest.raises(MessageError, match="at least one layer"):
         grid_map_message({}, GRID, factory, stamp_ns=0)
+
+
+def test_a_fused_map_window_round_trips_and_an_elevation_map_is_not_one(factory: MessageFactory) -> None:
+    from msg_bridge.grid_map import fused_map_message, map_window_from_message
+    from roadbev_core.fusion import MapWindow
+
+    rng = np.random.default_rng(3)
+    elevation, sigma, count, age = (rng.normal(0, 0.02, (30, 12)).astype(np.float32) for _ in range(4))
+    elevation[0, 0] = np.nan
+    window = MapWindow(elevation, sigma, count, age, resolution=0.03, centre=(12.345, -1.5), stamp_ns=77)
+    out = map_window_from_message(fused_map_message(window, factory, frame_id="odom"))
+    for a, b in zip(out.layers().values(), window.layers().values(), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert out.resolution == pytest.approx(0.03) and out.stamp_ns == 77
+    assert out.centre == pytest.approx((12.345, -1.5))
+    per_frame, uncertainty = _maps()
+    with pytest.raises(MessageError, match="not a fused map"):
+        map_window_from_message(elevation_grid_map(per_frame, uncertainty, GRID, factory, stamp_ns=1))
