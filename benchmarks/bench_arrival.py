@@ -38,6 +38,19 @@ SEED_BASE = 310_000  # disjoint from training (< 1e5), test (1e5+), tuning (2e5+
 FEATURES = ("speed_bump", "pothole")  # added to each drive's random features: the feature points a controller needs
 
 
+def make_drive(speed: float, rate: float, duration: float, seed: int) -> Any:
+    """The benchmark's drive (a :class:`roadbev_core.synth.RidingDrive`, not yet rendered): a
+    random road of the test-scene distribution plus FEATURES, a feature every 3 m."""
+    from roadbev_core.synth import DriveConfig, RidingConfig, RidingDrive
+    from roadbev_core.synth.drive import random_road
+
+    road = random_road(np.random.default_rng(seed))  # class, surface, slopes, noise as the test scenes
+    road = replace(road, features=tuple(dict.fromkeys((*FEATURES, *road.features))), feature_spacing_m=3.0)
+    frames = max(2, int(round(duration * rate)))
+    return RidingDrive(RidingConfig(drive=DriveConfig(frames=frames, speed_mps=speed, frame_rate_hz=rate,
+                                                      seed=seed, road=road)))
+
+
 def run_drive(speed: float, rate: float, duration: float, seed: int, backends: list[str], lead: float,
               ) -> dict[str, Any]:
     """Render one drive, run every backend on it, score the previews at arrival."""
@@ -45,15 +58,10 @@ def run_drive(speed: float, rate: float, duration: float, seed: int, backends: l
     from roadbev_core.config import RoadbevConfig
     from roadbev_core.evaluation import evaluate
     from roadbev_core.pipeline import Pipeline
-    from roadbev_core.synth import DriveConfig, RidingConfig, RidingDrive
-    from roadbev_core.synth.drive import random_road
     from roadbev_core.synth.riding import planar_odometry
 
-    road = random_road(np.random.default_rng(seed))  # class, surface, slopes, noise as the test scenes
-    road = replace(road, features=tuple(dict.fromkeys((*FEATURES, *road.features))), feature_spacing_m=3.0)
-    frames = max(2, int(round(duration * rate)))
-    drive = RidingDrive(RidingConfig(drive=DriveConfig(frames=frames, speed_mps=speed, frame_rate_hz=rate,
-                                                       seed=seed, road=road)))
+    drive = make_drive(speed, rate, duration, seed)
+    road, frames = drive.config.road, drive.config.frames
     start = time.perf_counter()
     samples = list(drive)
     render_s = time.perf_counter() - start

@@ -22,7 +22,16 @@ is put where the static ride height puts it (``base_link`` on the road), later f
 to the map where they overlap it (offset ``a`` at the camera and slopes ``b``, ``c`` along and
 across the camera's heading, with Gaussian priors ``offset_prior_m`` and ``slope_prior_rad``
 around the prediction), and without overlap they keep the prediction (the map's contact plane
-under the car at static ride height, else the last frame's body height).
+under the car at static ride height, else the last frame's body height). The datum therefore
+drifts: a backend whose heights lean with distance (a pitch bias, a scale error) hands each frame
+a slightly different offset against the map, and these add up with the distance driven (bev_sweep
+mm, stereo centimetres, mono decimetres over a few tens of metres on the drives). The published
+``uncertainty`` is a sigma in ``odom`` z, so it carries the datum's 1-sigma too: the cells of a
+frame fused ``s`` metres after the datum was fixed add ``datum_sigma_m + datum_drift * s`` (in
+quadrature to their own sigma; fused per cell like the sigmas, as one correlated error), the two
+calibrated per backend on tuning drives (:func:`datum_calibration_for`). The gate, the alignment
+and the preview use the cells' own sigma: the datum is common to the cells they compare, and the
+contact plane the preview is relative to lies on the same datum.
 
 **Fusion.** A cell keeps the weighted mean of the observations it accepted, with weights
 ``w = 1 / (s^2 (x / x_near)^k)``: ``s`` the observation's sigma, ``x`` its distance ahead of the
@@ -43,9 +52,11 @@ Pure numpy; shapes in the comments.
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -57,6 +68,7 @@ from roadbev_core.geometry import R_BODY_FROM_OPTICAL, Attitude, rotation_from_r
 from roadbev_core.vehicle import planar_yaw
 
 __all__ = [
+    "DATUM_CALIBRATION_FILE",
     "FrameFusion",
     "FramePlacement",
     "FusedMap",
@@ -64,6 +76,7 @@ __all__ = [
     "MapSettings",
     "MapWindow",
     "Prepared",
+    "datum_calibration_for",
     "place_frame",
     "prepare_bilinear",
     "sample_bilinear",
@@ -73,6 +86,24 @@ __all__ = [
 
 class FusionError(RoadbevError, ValueError):
     """Map settings or inputs the fusion cannot use."""
+
+
+# per backend: the map datum's 1-sigma when fixed and its growth per metre driven, fitted on
+# tuning drives by ``python -m benchmarks.calibrate_datum`` (never on the benchmark drives)
+DATUM_CALIBRATION_FILE = Path(__file__).resolve().parent / "data" / "datum_calibration.json"
+
+
+def datum_calibration_for(backend: str, path: Path = DATUM_CALIBRATION_FILE) -> tuple[float, float] | None:
+    """``(datum_sigma_m, datum_drift)`` fitted for ``backend`` (None when the table has none, or
+    the file is missing or unreadable)."""
+    try:
+        entry = json.loads(path.read_text())["backends"][backend]
+        sigma, drift = float(entry["datum_sigma_m"]), float(entry["datum_drift"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if not (math.isfinite(sigma) and math.isfinite(drift) and sigma >= 0 and drift >= 0):
+        return None
+    return sigma, drift
 
 
 @dataclass(frozen=True)
@@ -97,6 +128,10 @@ class MapSettings:
         range_exponent: an observation at distance x ahead of the camera weighs
             ``(x_near / x)^range_exponent`` times what its sigma alone says (x_near: the grid's
             near edge).
+        datum_sigma_m, datum_drift: 1-sigma of the map's vertical datum (``odom`` z, which
+            nothing observes) when the datum is fixed (the first frame), and its growth per metre
+            driven since (m/m): a frame's cells carry ``datum_sigma_m + datum_drift * s`` in
+            the published uncertainty (see the module docstring).
     """
 
     resolution: float
@@ -115,6 +150,8 @@ class MapSettings:
     min_overlap_cells: int = 50
     range_exponent: float = 4.0
     align_correlation: float = 0.1
+    datum_sigma_m: float = 0.0
+    datum_drift: float = 0.0
 
     def __post_init__(self) -> None:
         if not (0.001 <= self.resolution <= 1.0):
@@ -123,6 +160,8 @@ class MapSettings:
             raise FusionError("the map corridor is empty")
         if not 0.0 <= self.error_correlation <= 1.0:
             raise FusionError(f"error_correlation must be in [0, 1], got {self.error_correlation}")
+        if self.datum_sigma_m < 0 or self.datum_drift < 0:
+            raise FusionError("datum_sigma_m and datum_drift must be >= 0")
         if self.gate_sigma <= 0 or self.reset_after < 1:
             raise FusionError("gate_sigma must be > 0 and reset_after >= 1")
         cells = (self.ahead_m + self.behind_m) * (self.y_max - self.y_min) / self.resolution ** 2
@@ -184,49 +223,70 @@ def sample_bilinear(values: np.ndarray, sigma: np.ndarray | None, rows: np.ndarr
     Returns:
         [N] values and [N] sigmas (the same weights; NaN without ``sigma``).
     """
-    return sample_prepared(prepare_bilinear(values, sigma), rows, cols, min_weight)
+    # one NaN cell around the array: outside is a hole, and every sample has its neighbours inside
+    padded = np.pad(values, 1, constant_values=np.nan)
+    padded_sigma = None if sigma is None else np.pad(sigma, 1, constant_values=np.nan)
+    return sample_prepared(prepare_bilinear(padded, padded_sigma), np.clip(rows + 1.0, 0.0, values.shape[0] + 1.0),
+                           np.clip(cols + 1.0, 0.0, values.shape[1] + 1.0), min_weight, with_sigma=sigma is not None)
 
 
 class Prepared(NamedTuple):
-    """A [R, C] array (and its sigma) ready for :func:`sample_prepared`: flat, holes zeroed."""
+    """A [R, C] array (and its sigma) ready for :func:`sample_prepared`: flat, holes zeroed.
+
+    Attributes:
+        shape: (R, C).
+        values: [R*C] the values, 0 in a hole.
+        sigma: [R*C] the sigmas, 0 in a hole (all 0 without sigma).
+        known: [R*C] 1.0 where the value (and the sigma) is finite, else 0.
+    """
 
     shape: tuple[int, int]
-    values: np.ndarray  # [R*C] NaN -> 0
-    sigma: np.ndarray | None  # [R*C] NaN -> 0
-    known: np.ndarray  # [R*C] 1.0 where values (and sigma) are finite
+    values: np.ndarray
+    sigma: np.ndarray
+    known: np.ndarray
 
 
 def prepare_bilinear(values: np.ndarray, sigma: np.ndarray | None) -> Prepared:
     """Flatten ``values`` [R, C] (and ``sigma``) once for many :func:`sample_prepared` calls."""
     known = np.isfinite(values) if sigma is None else np.isfinite(values) & np.isfinite(sigma)
-    return Prepared((int(values.shape[0]), int(values.shape[1])), np.where(known, values, 0.0).ravel(),
-                    None if sigma is None else np.where(known, sigma, 0.0).ravel(), known.ravel().astype(np.float64))
+    sigma_flat = np.zeros(values.size) if sigma is None else np.where(known, sigma, 0.0).ravel()
+    return Prepared((int(values.shape[0]), int(values.shape[1])), np.where(known, values, 0.0).ravel(), sigma_flat,
+                    known.ravel().astype(np.float64))
 
 
-def sample_prepared(prepared: Prepared, rows: np.ndarray, cols: np.ndarray, min_weight: float = 0.5
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`sample_bilinear` of a :class:`Prepared` array."""
+def sample_prepared(prepared: Prepared, rows: np.ndarray, cols: np.ndarray, min_weight: float = 0.5,
+                    with_sigma: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sample_bilinear` of a :class:`Prepared` array (sigma NaN unless ``with_sigma``)."""
     n_rows, n_cols = prepared.shape
-    v0, s0, k0 = prepared.values, prepared.sigma, prepared.known
-    r0 = np.floor(rows).astype(np.int64)
-    c0 = np.floor(cols).astype(np.int64)
-    tr, tc = rows - r0, cols - c0
+    r0f, c0f = np.floor(rows), np.floor(cols)
+    tr, tc = rows - r0f, cols - c0f
+    r0, c0 = r0f.astype(np.intp), c0f.astype(np.intp)
+    if rows.size and r0.min() >= 0 and r0.max() < n_rows - 1 and c0.min() >= 0 and c0.max() < n_cols - 1:
+        # every sample has its four neighbours inside (the usual case): no clipping, no masks
+        flat = r0 * n_cols + c0
+        corners = (flat, flat + 1, flat + n_cols, flat + n_cols + 1)
+        weights = ((1.0 - tr) * (1.0 - tc), (1.0 - tr) * tc, tr * (1.0 - tc), tr * tc)
+    else:
+        # per-axis weights of the two neighbours, 0 outside the array
+        wr = (np.where((r0 >= 0) & (r0 < n_rows), 1.0 - tr, 0.0), np.where((r0 >= -1) & (r0 < n_rows - 1), tr, 0.0))
+        wc = (np.where((c0 >= 0) & (c0 < n_cols), 1.0 - tc, 0.0), np.where((c0 >= -1) & (c0 < n_cols - 1), tc, 0.0))
+        rr = (np.clip(r0, 0, n_rows - 1) * n_cols, np.clip(r0 + 1, 0, n_rows - 1) * n_cols)
+        cc = (np.clip(c0, 0, n_cols - 1), np.clip(c0 + 1, 0, n_cols - 1))
+        corners = (rr[0] + cc[0], rr[0] + cc[1], rr[1] + cc[0], rr[1] + cc[1])
+        weights = (wr[0] * wc[0], wr[0] * wc[1], wr[1] * wc[0], wr[1] * wc[1])
     acc = np.zeros(rows.shape)
     acc_s = np.zeros(rows.shape)
     weight = np.zeros(rows.shape)
-    for dr, dc, w in ((0, 0, (1 - tr) * (1 - tc)), (0, 1, (1 - tr) * tc), (1, 0, tr * (1 - tc)), (1, 1, tr * tc)):
-        r, c = r0 + dr, c0 + dc
-        inside = (r >= 0) & (r < n_rows) & (c >= 0) & (c < n_cols)
-        flat = np.where(inside, r * n_cols + c, 0)
-        wk = w * inside * k0[flat]  # [N] the weight of this neighbour where it is known
-        acc += wk * v0[flat]
-        if s0 is not None:
-            acc_s += wk * s0[flat]
+    for flat_k, w in zip(corners, weights, strict=True):
+        wk = w * np.take(prepared.known, flat_k)  # [N] the weight of this neighbour where it is known
+        acc += w * np.take(prepared.values, flat_k)  # values are 0 where unknown
+        if with_sigma:
+            acc_s += w * np.take(prepared.sigma, flat_k)
         weight += wk
     good = weight >= min_weight - 1e-12
     with np.errstate(invalid="ignore", divide="ignore"):
         out = np.where(good, acc / weight, np.nan)
-        out_s = np.where(good, acc_s / weight, np.nan) if s0 is not None else np.full(rows.shape, np.nan)
+        out_s = np.where(good, acc_s / weight, np.nan) if with_sigma else np.full(rows.shape, np.nan)
     return out, out_s
 
 
@@ -241,6 +301,9 @@ class FrameFusion:
         residual_rms_m: weighted RMS of the overlap residuals after alignment.
         accepted, rejected, restarted: cells updated, rejected by the gate, restarted.
         cost_ms: wall time.
+        datum_sigma_m: the 1-sigma of the map's datum this frame's cells carry.
+        driven_m: the distance driven since the datum was fixed.
+        base_z_m: ``base_link``'s origin z in odom after the frame (the datum it put the map on).
     """
 
     offset_m: float
@@ -253,6 +316,9 @@ class FrameFusion:
     rejected: int
     restarted: int
     cost_ms: float
+    datum_sigma_m: float = 0.0
+    driven_m: float = 0.0
+    base_z_m: float = math.nan
 
 
 class MapWindow(NamedTuple):
@@ -290,7 +356,8 @@ class MapWindow(NamedTuple):
         return x, y
 
 
-_LAYERS = ("w", "s1", "s2", "wsig", "w2var")  # sums of w, w z, w z^2, w sigma, w^2 sigma^2
+# the sums per cell: w, w z, w z^2, w sigma, w^2 sigma^2, w datum_sigma
+_W, _S1, _S2, _WSIG, _W2VAR, _WDATUM = range(6)
 
 
 class FusedMap:
@@ -310,14 +377,19 @@ class FusedMap:
         """Forget everything (a new drive, a clock that jumped back, ``~/clear_map``)."""
         self._i0 = 0  # lattice index of buffer row 0 (x)
         self._j0 = 0  # lattice index of buffer column 0 (y)
-        self._sums = {k: np.zeros((0, 0)) for k in _LAYERS}
+        self._sums = np.zeros((_WDATUM + 1, 0, 0))  # [6, n_i, n_j] see _W ... _WDATUM
         self._n = np.zeros((0, 0), np.int32)
         self._rejected = np.zeros((0, 0), np.int16)
         self._t_last = np.zeros((0, 0), np.int64)
+        # the fused mean and sigma [n_i, n_j] (NaN where nothing was accepted), and the same as a
+        # bilinear table for heights(): kept up to date cell by cell as frames change them
+        self._mean = np.zeros((0, 0))
+        self._sigma = np.zeros((0, 0))
+        self._table = prepare_bilinear(self._mean, self._sigma)
         self._base_z: float | None = None  # base_link's origin z in odom, after the last frame
+        self._driven = 0.0  # metres driven since the datum was fixed
+        self._last_xy: tuple[float, float] | None = None
         self.frames = 0
-        self._cached: tuple[np.ndarray, np.ndarray] | None = None  # _means() until the next change
-        self._prepared: Prepared | None = None  # the means ready for heights(), likewise
 
     @property
     def empty(self) -> bool:
@@ -350,17 +422,19 @@ class FusedMap:
         a_lo, a_hi = max(i_lo, self._i0), min(i_hi, self._i0 + n_i)
         b_lo, b_hi = max(j_lo, self._j0), min(j_hi, self._j0 + n_j)
 
-        def moved(old: np.ndarray) -> np.ndarray:
-            new = np.zeros(shape, old.dtype)
+        def moved(old: np.ndarray, fill: float = 0.0) -> np.ndarray:  # [..., n_i, n_j] -> [..., shape]
+            new = np.full(old.shape[:-2] + shape, fill, old.dtype)
             if a_hi > a_lo and b_hi > b_lo:
-                new[a_lo - i_lo:a_hi - i_lo, b_lo - j_lo:b_hi - j_lo] = \
-                    old[a_lo - self._i0:a_hi - self._i0, b_lo - self._j0:b_hi - self._j0]
+                new[..., a_lo - i_lo:a_hi - i_lo, b_lo - j_lo:b_hi - j_lo] = \
+                    old[..., a_lo - self._i0:a_hi - self._i0, b_lo - self._j0:b_hi - self._j0]
             return new
 
-        self._sums = {k: moved(v) for k, v in self._sums.items()}
+        self._sums = moved(self._sums)
         self._n, self._rejected, self._t_last = moved(self._n), moved(self._rejected), moved(self._t_last)
+        self._mean, self._sigma = moved(self._mean, np.nan), moved(self._sigma, np.nan)
+        table = self._table
+        self._table = Prepared(shape, *(moved(a.reshape(n_i, n_j)).ravel() for a in table[1:]))
         self._i0, self._j0 = i_lo, j_lo
-        self._cached = None
 
     def _centres(self) -> tuple[np.ndarray, np.ndarray]:
         """[n_i] x and [n_j] y of the buffer's cell centres in odom."""
@@ -370,47 +444,50 @@ class FusedMap:
 
     def _forget_outside(self, base: PlanarPose) -> None:
         """Clear every cell outside the corridor at ``base`` (behind the car, beside it)."""
-        x, y = self._centres()
-        outside = ~self._inside_corridor(x[:, None], y[None, :], base) & (self._n > 0)  # [n_i, n_j]
-        if outside.any():
-            for v in self._sums.values():
-                v[outside] = 0.0
-            self._n[outside] = 0
-            self._rejected[outside] = 0
-            self._cached = None
+        n_j = self._n.shape[1]
+        known = np.flatnonzero(self._n)  # [K] flat indices of the cells that hold something
+        r = self.settings.resolution
+        i, j = np.divmod(known, n_j)
+        x = (self._i0 + i + 0.5) * r
+        y = (self._j0 + j + 0.5) * r
+        outside = known[~self._inside_corridor(x, y, base)]
+        if outside.size:
+            for row in self._sums.reshape(_WDATUM + 1, -1):
+                row[outside] = 0.0
+            self._n.ravel()[outside] = 0
+            self._rejected.ravel()[outside] = 0
+            self._mean.ravel()[outside] = np.nan
+            self._sigma.ravel()[outside] = np.nan
+            for a in self._table[1:]:
+                a[outside] = 0.0
 
     # --- reading -------------------------------------------------------------------------------
     def _means(self) -> tuple[np.ndarray, np.ndarray]:
-        """[n_i, n_j] fused elevation and 1-sigma (NaN where nothing was accepted); computed
-        once per change of the map."""
-        if self._cached is None:
-            self._cached = self._compute_means()
-            self._prepared = None
-        return self._cached
+        """[n_i, n_j] fused elevation and 1-sigma (NaN where nothing was accepted)."""
+        return self._mean, self._sigma
 
-    def _compute_means(self) -> tuple[np.ndarray, np.ndarray]:
-        w, s1, s2, wsig, w2var = (self._sums[k] for k in _LAYERS)
+    def _refresh(self, flat: np.ndarray) -> None:
+        """Recompute the mean and sigma of cells at flat buffer indices [K] that hold observations."""
+        w, s1, s2, wsig, w2var = (row[flat] for row in self._sums.reshape(_WDATUM + 1, -1)[:_WDATUM])  # [K] each
         rho = self.settings.error_correlation
-        known = self._n > 0
-        with np.errstate(invalid="ignore", divide="ignore"):
-            mean = np.where(known, s1 / w, np.nan)
-            model = (1.0 - rho) * w2var / w ** 2 + rho * (wsig / w) ** 2
-            spread = np.maximum(s2 / w - mean * mean, 0.0)
-            sigma = np.where(known, np.sqrt(np.maximum(model, spread)), np.nan)
-        return mean, sigma
+        mean = s1 / w
+        model = (1.0 - rho) * w2var / (w * w) + rho * (wsig / w) ** 2
+        sigma = np.sqrt(np.maximum(model, np.maximum(s2 / w - mean * mean, 0.0)))  # never below the spread
+        self._mean.ravel()[flat] = mean
+        self._sigma.ravel()[flat] = sigma
+        self._table.values[flat] = mean
+        self._table.sigma[flat] = sigma
+        self._table.known[flat] = 1.0
 
     def heights(self, x: np.ndarray, y: np.ndarray, min_weight: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
         """Bilinear fused height and 1-sigma at odom points [...] (NaN where the map has none)."""
         x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
         if not self._n.size:
             return np.full(x.shape, np.nan), np.full(x.shape, np.nan)
-        means = self._means()  # recomputed after a change, which also drops the prepared copy
-        if self._prepared is None:
-            self._prepared = prepare_bilinear(*means)
         r = self.settings.resolution
         rows = x / r - 0.5 - self._i0
         cols = y / r - 0.5 - self._j0
-        z, s = sample_prepared(self._prepared, rows.ravel(), cols.ravel(), min_weight)
+        z, s = sample_prepared(self._table, rows.ravel(), cols.ravel(), min_weight)
         return z.reshape(x.shape), s.reshape(x.shape)
 
     def window(self, base: PlanarPose, stamp_ns: int) -> MapWindow:
@@ -429,7 +506,10 @@ class FusedMap:
             dst = (slice(a_lo - i_lo, a_hi - i_lo), slice(b_lo - j_lo, b_hi - j_lo))
             known = self._n[src] > 0
             layers["elevation"][dst] = mean[src]
-            layers["uncertainty"][dst] = sigma[src]
+            # the published sigma is in odom z: the cell's own and its datum's (module docstring)
+            w, w_datum = self._sums[_W][src], self._sums[_WDATUM][src]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                layers["uncertainty"][dst] = np.sqrt(sigma[src] ** 2 + np.where(known, w_datum / w, np.nan) ** 2)
             layers["age"][dst] = np.where(known, (stamp_ns - self._t_last[src]) * 1e-9, np.nan)
             observations[dst] = self._n[src]
         flip = (slice(None, None, -1), slice(None, None, -1))  # index order (+x, +y) -> grid_map's
@@ -443,7 +523,7 @@ class FusedMap:
         return self._base_z
 
     # --- fusing a frame ------------------------------------------------------------------------
-    def predicted_base_z(self, base: PlanarPose, plane_at_base: float | None) -> float:
+    def predicted_base_z(self, plane_at_base: float | None) -> float:
         """Where ``base_link``'s origin is expected (static ride height): on the map's contact
         plane when the map holds it, else where the last frame left it (0 before any frame:
         ``odom`` is ``base_link`` at the first stamp)."""
@@ -471,28 +551,36 @@ class FusedMap:
         base = placement.base
         self._ensure(np.concatenate([self._corridor_corners(base), self._frame_corners(grid, placement)]))
         self._forget_outside(base)
+        if self.empty or self._last_xy is None:
+            self._driven = 0.0  # this frame fixes the datum
+        else:
+            self._driven += math.hypot(base.x - self._last_xy[0], base.y - self._last_xy[1])
+        self._last_xy = (base.x, base.y)
+        datum_sigma = s.datum_sigma_m + s.datum_drift * self._driven
         datum = base_z_prediction + placement.camera_height_over_base - s.base_height  # road plane z in odom
         # the map cells under the frame, and the frame sampled there
-        ii, jj, u, v = self._cells_under(grid, placement)
+        flat, u, v = self._cells_under(grid, placement)
         rows = (grid.x_max - u) / grid.resolution - 0.5
         cols = (grid.y_max - v) / grid.resolution - 0.5
         z, sz = sample_bilinear(np.asarray(elevation, np.float64), np.asarray(sigma, np.float64), rows, cols)
         ok = np.isfinite(z) & np.isfinite(sz) & (sz > 0)
-        ii, jj, u, v, z, sz = ii[ok], jj[ok], u[ok], v[ok], z[ok] + datum, sz[ok]
+        flat, u, v, z, sz = flat[ok], u[ok], v[ok], z[ok] + datum, sz[ok]
         range_factor = np.maximum(u / grid.x_min, 1.0) ** s.range_exponent if grid.x_min > 0 else np.ones_like(u)
         mean, msig = self._means()
-        m, ms = mean[ii, jj], msig[ii, jj]
+        m, ms = np.take(mean, flat), np.take(msig, flat)
         both = np.isfinite(m)
         a, b, c, cov, rms, aligned = self._align(z[both], sz[both] * np.sqrt(range_factor[both]), u[both], v[both],
                                                  m[both], ms[both])
-        g = np.stack([np.ones_like(u), u, v], 1)  # [N, 3]
-        z = z + g @ np.array([a, b, c])
-        var = sz ** 2 + np.einsum("ni,ij,nj->n", g, cov, g)
-        accepted, rejected, restarted = self._update(ii, jj, z, var, range_factor, stamp_ns)
+        z = z + (a + b * u + c * v)
+        # the alignment's variance at (u, v): g^T cov g with g = (1, u, v)
+        var = sz ** 2 + (cov[0, 0] + 2.0 * cov[0, 1] * u + 2.0 * cov[0, 2] * v + cov[1, 1] * u * u
+                         + 2.0 * cov[1, 2] * u * v + cov[2, 2] * v * v)
+        accepted, rejected, restarted = self._update(flat, m, ms, z, var, range_factor, datum_sigma, stamp_ns)
         self._base_z = datum + a + s.base_height - placement.camera_height_over_base
         self.frames += 1
         return FrameFusion(float(a), float(b), float(c), aligned, int(both.sum()), rms, accepted, rejected, restarted,
-                           1e3 * (time.perf_counter() - t0))
+                           1e3 * (time.perf_counter() - t0), float(datum_sigma), float(self._driven),
+                           float(self._base_z))
 
     @staticmethod
     def _frame_corners(grid: GridSpec, placement: FramePlacement) -> np.ndarray:
@@ -503,8 +591,8 @@ class FusedMap:
         return np.stack([ox + c * local[:, 0] - s * local[:, 1], oy + s * local[:, 0] + c * local[:, 1]], 1)
 
     def _cells_under(self, grid: GridSpec, placement: FramePlacement
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Buffer indices [N] of the cells under the frame, and their road-frame (u, v) [N]."""
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Flat buffer indices [N] of the cells under the frame, and their road-frame (u, v) [N]."""
         r = self.settings.resolution
         i_lo, i_hi, j_lo, j_hi = self._index_box(self._frame_corners(grid, placement), 0.0)
         i_lo, j_lo = max(i_lo, self._i0), max(j_lo, self._j0)
@@ -516,7 +604,8 @@ class FusedMap:
         u, v = c * dx + s * dy, -s * dx + c * dy
         inside = (u >= grid.x_min) & (u <= grid.x_max) & (v >= grid.y_min) & (v <= grid.y_max)
         inside &= self._inside_corridor(x, y, placement.base)
-        return gi.ravel()[inside] - self._i0, gj.ravel()[inside] - self._j0, u[inside], v[inside]
+        flat = (gi.ravel() - self._i0) * self._n.shape[1] + (gj.ravel() - self._j0)
+        return flat[inside], u[inside], v[inside]
 
     def _inside_corridor(self, x: np.ndarray, y: np.ndarray, base: PlanarPose) -> np.ndarray:
         s = self.settings
@@ -554,8 +643,8 @@ class FusedMap:
         for _ in range(3):  # refit without the cells the fit cannot explain (a bump moved, a bad cell)
             n = max(int(keep.sum()), 1)
             w = np.where(keep, 1.0 / var, 0.0) / (n * (rho + (1.0 - rho) / n))
-            A = (g * w[:, None]).T @ g + prior
-            x = np.linalg.solve(A, (g * w[:, None]).T @ residual)
+            gw = (g * w[:, None]).T  # [3, K]
+            x = np.linalg.solve(gw @ g + prior, gw @ residual)
             fit = residual - g @ x
             new_keep = np.abs(fit) <= s.gate_sigma * np.sqrt(var)
             if np.array_equal(new_keep, keep) or new_keep.sum() < s.min_overlap_cells:
@@ -571,32 +660,33 @@ class FusedMap:
         a, b, c = T @ x
         return float(a), float(b), float(c), T @ cov_c @ T.T, rms, True
 
-    def _update(self, ii: np.ndarray, jj: np.ndarray, z: np.ndarray, var: np.ndarray, range_factor: np.ndarray,
-                stamp_ns: int) -> tuple[int, int, int]:
+    def _update(self, flat: np.ndarray, m: np.ndarray, ms: np.ndarray, z: np.ndarray, var: np.ndarray,
+                range_factor: np.ndarray, datum_sigma: float, stamp_ns: int) -> tuple[int, int, int]:
         """Gate and fuse observations z [N] with variances var [N] and range factors [N] (the
-        weight is ``1 / (var * range_factor)``) into cells (ii, jj) [N]."""
+        weight is ``1 / (var * range_factor)``), all on the datum of 1-sigma ``datum_sigma``, into
+        the cells at flat buffer indices [N] (distinct), whose fused mean and sigma are m, ms [N]
+        (NaN: never seen)."""
         s = self.settings
-        mean, msig = self._means()
-        m, ms = mean[ii, jj], msig[ii, jj]
         seen = np.isfinite(m)
         with np.errstate(invalid="ignore"):
             far = seen & (np.abs(z - m) > s.gate_sigma * np.sqrt(var + ms ** 2))
-        rejected = self._rejected[ii, jj].astype(np.int32) + far
+        n, sums = self._n.ravel(), self._sums.reshape(_WDATUM + 1, -1)  # views
+        rejected_cells = self._rejected.ravel()
+        rejected = rejected_cells[flat].astype(np.int32) + far
         restart = far & (rejected >= s.reset_after)
         take = ~far | restart
         # restart: the cell starts again from this observation
-        for arr in self._sums.values():
-            arr[ii[restart], jj[restart]] = 0.0
-        self._n[ii[restart], jj[restart]] = 0
-        ti, tj, tz, tv, tr = ii[take], jj[take], z[take], var[take], range_factor[take]
-        w = 1.0 / (tv * tr)  # nearer observations weigh more (see the module docstring)
-        self._sums["w"][ti, tj] += w
-        self._sums["s1"][ti, tj] += w * tz
-        self._sums["s2"][ti, tj] += w * tz * tz
-        self._sums["wsig"][ti, tj] += w * np.sqrt(tv)
-        self._sums["w2var"][ti, tj] += w * w * tv
-        self._n[ti, tj] += 1
-        self._t_last[ti, tj] = stamp_ns
-        self._cached = None
-        self._rejected[ii, jj] = np.where(take, 0, np.minimum(rejected, 1000)).astype(np.int16)
+        tf, tz, tv = flat[take], z[take], var[take]
+        w = 1.0 / (tv * range_factor[take])  # nearer observations weigh more (see the module docstring)
+        wz = w * tz
+        restarted = restart[take]
+        any_restart = bool(restarted.any())
+        for row, add in zip(sums, (w, wz, wz * tz, w * np.sqrt(tv), w * w * tv, w * datum_sigma), strict=True):
+            row[tf] = (np.where(restarted, 0.0, row[tf]) if any_restart else row[tf]) + add
+        if any_restart:
+            n[flat[restart]] = 0
+        n[tf] += 1
+        self._t_last.ravel()[tf] = stamp_ns
+        rejected_cells[flat] = np.where(take, 0, np.minimum(rejected, 1000)).astype(np.int16)
+        self._refresh(tf)
         return int(take.sum()), int(far.sum() - restart.sum()), int(restart.sum())

@@ -155,22 +155,23 @@ def map_preview(
     far = fused.settings.ahead_m
     n = max(int(math.floor((far - start) / spacing_m + 1e-9)) + 1, 1)
     x = start + np.arange(n) * spacing_m  # [S] base_link x
-    tracks = []
-    for index in range(4 if rear_axle else 2):
-        wheel_x, wheel_y = wheels[index]
-        px = base.x + c * x - s * wheel_y  # [S] odom
-        py = base.y + s * x + c * wheel_y
-        z, sz = footprint_heights(fused, px, py, base.yaw, tyre_width_m, spacing_m)
-        g = np.stack([np.ones(n), px - base.x, py - base.y], 1)  # [S, 3]
-        ref = g @ coeffs
-        ref_var = np.einsum("ni,ij,nj->n", g, cov, g)
-        elevation = z - ref
-        sigma = np.sqrt(sz * sz + ref_var)
-        behind = x < wheel_x - 1e-9  # a front track starts at its own contact
-        elevation[behind] = np.nan
-        sigma[behind | ~np.isfinite(elevation)] = np.nan
-        tracks.append(TrackProfile(WHEEL_NAMES[index], float(wheel_y), float(tyre_width_m),
-                                   elevation.astype(np.float32), sigma.astype(np.float32)))
+    n_tracks = 4 if rear_axle else 2
+    wheel_y = wheels[:n_tracks, 1][:, None]  # [T, 1]
+    px = base.x + c * x[None, :] - s * wheel_y  # [T, S] odom
+    py = base.y + s * x[None, :] + c * wheel_y
+    z, sz = footprint_heights(fused, px.ravel(), py.ravel(), base.yaw, tyre_width_m, spacing_m)  # all tracks at once
+    dx, dy = px - base.x, py - base.y  # [T, S]
+    ref = coeffs[0] + coeffs[1] * dx + coeffs[2] * dy
+    ref_var = (cov[0, 0] + 2.0 * cov[0, 1] * dx + 2.0 * cov[0, 2] * dy + cov[1, 1] * dx * dx
+               + 2.0 * cov[1, 2] * dx * dy + cov[2, 2] * dy * dy)  # g^T cov g, g = (1, dx, dy)
+    elevation = z.reshape(px.shape) - ref
+    sigma = np.sqrt(sz.reshape(px.shape) ** 2 + ref_var)
+    behind = x[None, :] < wheels[:n_tracks, 0][:, None] - 1e-9  # a front track starts at its own contact
+    elevation[behind] = np.nan
+    sigma[behind | ~np.isfinite(elevation)] = np.nan
+    tracks = [TrackProfile(WHEEL_NAMES[index], float(wheels[index, 1]), float(tyre_width_m),
+                           elevation[index].astype(np.float32), sigma[index].astype(np.float32))
+              for index in range(n_tracks)]
     return PreviewProfiles(
         start_distance=float(start), spacing=float(spacing_m), tracks=tuple(tracks),
         vehicle_speed=None if vehicle_speed is None else float(vehicle_speed),

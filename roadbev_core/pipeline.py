@@ -446,7 +446,7 @@ class Pipeline:
         if plane.source == "map" and fused.base_z is not None:
             plane_z = fused.base_z + plane.height_m  # the contact plane under base_link's origin
         fusion = fused.integrate(estimate.elevation, estimate.uncertainty, config.grid, placement, frame.stamp_ns,
-                                 base_z_prediction=fused.predicted_base_z(base, plane_z))
+                                 base_z_prediction=fused.predicted_base_z(plane_z))
         preview: PreviewProfiles | None = map_preview(
             fused, placement, config.vehicle, tyre_width_m=p.tyre_width_m, spacing_m=p.spacing_m,
             rear_axle=p.rear_axle, vehicle_speed=base.speed if self._odometry_seen else self.speed_at(frame.stamp_ns))

@@ -292,6 +292,11 @@ class MapConfig:
                                    "keeps the predicted offset", 3, 1_000_000)
     range_exponent: float = param("map.range_exponent", 4.0, "an observation x ahead of the camera weighs "
                                   "(x_near / x)^k times what its sigma says (nearer is better)", 0.0, 8.0)
+    datum_sigma_m: float = param("map.datum_sigma_m", -1.0, "1-sigma of the map's vertical datum when it is "
+                                 "fixed (m), in the published uncertainty; -1 = the backend's calibrated value "
+                                 "(roadbev_core/data/datum_calibration.json, 0 without one)", -1.0, 10.0)
+    datum_drift: float = param("map.datum_drift", -1.0, "growth of that 1-sigma per metre driven (m/m); -1 = the "
+                               "backend's calibrated value (0 without one)", -1.0, 1.0)
     save_dir: str = param("map.save_dir", ".", "folder where ~/save_map writes the current map "
                           "(roadbev_map_<stamp>.mcap)")
     odom_max_age_s: float = param("map.odom_max_age_s", 0.2, "largest distance from a frame's stamp to the "
@@ -473,10 +478,13 @@ class RoadbevConfig:
         """The fused map's :class:`roadbev_core.fusion.MapSettings`: the corridor from the grid
         and the camera's position on ``base_link`` (``camera_position_m``: from ``/tf_static``
         when known, else ``vehicle.camera_position_m``)."""
-        from roadbev_core.fusion import MapSettings
+        from roadbev_core.fusion import MapSettings, datum_calibration_for
 
         cam = self.vehicle.camera_position_m if camera_position_m is None else tuple(camera_position_m)
         m, g = self.map, self.grid
+        calibrated = datum_calibration_for(self.backend.name) or (0.0, 0.0)
+        datum_sigma = calibrated[0] if m.datum_sigma_m < 0 else m.datum_sigma_m
+        datum_drift = calibrated[1] if m.datum_drift < 0 else m.datum_drift
         return MapSettings(
             resolution=g.resolution, behind_m=m.behind_m, ahead_m=float(cam[0]) + g.x_max,
             y_min=float(cam[1]) + g.y_min, y_max=float(cam[1]) + g.y_max, base_height=g.base_height,
@@ -484,6 +492,7 @@ class RoadbevConfig:
             align=m.align, align_slopes=m.align_slopes, offset_prior_m=m.offset_prior_m,
             slope_prior_rad=math.radians(m.slope_prior_deg), min_overlap_cells=m.min_overlap_cells,
             range_exponent=m.range_exponent, align_correlation=m.align_correlation,
+            datum_sigma_m=datum_sigma, datum_drift=datum_drift,
         )
 
     def to_params(self) -> dict[str, Any]:

@@ -2,15 +2,26 @@
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from roadbev_core.config import GridSpec, RoadbevConfig, VehicleConfig
 from roadbev_core.ego_motion import PlanarPose
-from roadbev_core.fusion import FusedMap, FusionError, MapSettings, place_frame, sample_bilinear
+from roadbev_core.fusion import (
+    FusedMap,
+    FusionError,
+    MapSettings,
+    datum_calibration_for,
+    place_frame,
+    prepare_bilinear,
+    sample_bilinear,
+    sample_prepared,
+)
 from roadbev_core.geometry import R_BODY_FROM_OPTICAL, Attitude
 from roadbev_core.map_preview import map_preview
 
@@ -52,7 +63,7 @@ def _drive(fused: FusedMap, road: Road, frames: int, step_m: float, *, noise: fl
             estimate[hide(k, estimate)] = np.nan
         sigma = np.full(truth.shape, max(noise, 0.002))
         placement = place_frame(base, Attitude(0.0, p), CAMERA, LEVEL_MOUNT)
-        fused.integrate(estimate, sigma, GRID, placement, 1 + k, base_z_prediction=fused.predicted_base_z(base, None))
+        fused.integrate(estimate, sigma, GRID, placement, 1 + k, base_z_prediction=fused.predicted_base_z(None))
         errors.append(estimate - truth)
     return errors
 
@@ -165,6 +176,79 @@ def test_sample_bilinear_keeps_holes() -> None:
     values = np.array([[0.0, 1.0], [2.0, np.nan]])
     z, _ = sample_bilinear(values, None, np.array([0.0, 0.5, 1.0]), np.array([0.5, 0.5, 1.0]))
     assert z[0] == pytest.approx(0.5) and z[1] == pytest.approx(1.0) and np.isnan(z[2])
+
+
+def test_bilinear_samples_at_and_beyond_the_edges() -> None:
+    rng = np.random.default_rng(3)
+    values, sigma = rng.normal(size=(5, 4)), rng.uniform(0.1, 1.0, (5, 4))
+    rows = np.array([0.0, 4.0, -0.4, 4.4, -0.6, 2.5, 1.25, -3.0, 9.0])
+    cols = np.array([0.0, 3.0, 1.0, 2.0, 1.0, -0.45, 2.75, 1.0, 1.0])
+    z, s = sample_bilinear(values, sigma, rows, cols)
+    assert z[0] == values[0, 0] and z[1] == values[4, 3] and s[0] == sigma[0, 0]
+    # half a cell outside, the edge cell alone decides (its weight 0.6 >= 0.5); beyond that, nothing
+    assert z[2] == pytest.approx(values[0, 1]) and z[3] == pytest.approx(values[4, 2])
+    assert np.isnan(z[4]) and np.isnan(z[7]) and np.isnan(z[8]) and np.isnan(s[4])
+    assert z[5] == pytest.approx(0.5 * (values[2, 0] + values[3, 0]))
+    expected = (0.75 * (0.25 * values[1, 2] + 0.75 * values[1, 3]) + 0.25 * (0.25 * values[2, 2] + 0.75 * values[2, 3]))
+    assert z[6] == pytest.approx(expected)
+    # the prepared table of the map (every sample inside: the path without masks) agrees
+    inside_rows, inside_cols = rows[[0, 5, 6]].clip(0, 3.9), cols[[0, 5, 6]].clip(0, 2.9)
+    z2, s2 = sample_prepared(prepare_bilinear(values, sigma), inside_rows, inside_cols)
+    z3, s3 = sample_bilinear(values, sigma, inside_rows, inside_cols)
+    np.testing.assert_allclose(z2, z3)
+    np.testing.assert_allclose(s2, s3)
+
+
+def test_the_published_sigma_carries_the_datum_and_grows_with_the_distance_driven() -> None:
+    plain = FusedMap(_settings(datum_sigma_m=0.0, datum_drift=0.0))
+    drifting = FusedMap(_settings(datum_sigma_m=0.01, datum_drift=0.004))
+    for fused in (plain, drifting):
+        _drive(fused, _bumpy, 12, 0.5, noise=0.004, heave=0.01)
+    base = PlanarPose(0, 11 * 0.5, 0.0, 0.0)
+    w0, w1 = plain.window(base, 0), drifting.window(base, 0)
+    np.testing.assert_array_equal(w0.elevation, w1.elevation)  # the datum term only widens the sigma
+    held = np.isfinite(w0.elevation)
+    datum = np.sqrt(w1.uncertainty[held].astype(np.float64) ** 2 - w0.uncertainty[held].astype(np.float64) ** 2)
+    assert datum.min() >= 0.01 - 1e-5 and datum.max() <= 0.01 + 0.004 * 5.5 + 1e-5
+    # the far cells, first seen by the last frames (5 m and more driven), carry the most
+    x, _ = w1.cell_centres()
+    far = np.broadcast_to((x > x.max() - 0.5)[:, None], held.shape)[held]
+    assert datum[far].mean() > 0.01 + 0.004 * 4.5
+    # the gate, the alignment and the preview use the cells' own sigma: unchanged
+    px, py = np.array([6.0, 8.0]), np.array([0.1, -0.2])
+    np.testing.assert_array_equal(plain.heights(px, py)[1], drifting.heights(px, py)[1])
+
+
+def test_the_datum_is_fixed_again_when_the_map_starts_over() -> None:
+    fused = FusedMap(_settings(datum_sigma_m=0.01, datum_drift=0.004))
+    _drive(fused, _bumpy, 4, 0.5)
+    fused.reset()
+    base = PlanarPose(9, 30.0, 0.0, 0.0, 10.0, 0.0)
+    est = _frame(_bumpy, base, 0.0)
+    first = fused.integrate(est, np.full(est.shape, 0.003), GRID, place_frame(base, Attitude(0.0, 0.0), CAMERA,
+                            LEVEL_MOUNT), 9, base_z_prediction=0.0)
+    assert first.driven_m == 0.0 and first.datum_sigma_m == pytest.approx(0.01)
+
+
+def test_the_datum_calibration_is_read_per_backend_and_params_override_it(tmp_path: Path) -> None:
+    path = tmp_path / "datum.json"
+    path.write_text(json.dumps({"backends": {"a": {"datum_sigma_m": 0.002, "datum_drift": 0.0003},
+                                             "bad": {"datum_sigma_m": -1.0, "datum_drift": 0.0}}}))
+    assert datum_calibration_for("a", path) == (0.002, 0.0003)
+    assert datum_calibration_for("bad", path) is None and datum_calibration_for("none", path) is None
+    path.write_text("{not json")
+    assert datum_calibration_for("a", path) is None
+    assert datum_calibration_for("a", tmp_path / "missing.json") is None
+    # -1 (the default) takes the shipped calibration of the chosen backend; a value given wins
+    for backend in ("bev_sweep", "bm"):
+        calibrated = datum_calibration_for(backend) or (0.0, 0.0)
+        settings = RoadbevConfig.from_params({"backend": backend}).map_settings()
+        assert (settings.datum_sigma_m, settings.datum_drift) == calibrated
+    settings = RoadbevConfig.from_params({"map.datum_drift": 0.001, "map.datum_sigma_m": 0.0}).map_settings()
+    assert (settings.datum_sigma_m, settings.datum_drift) == (0.0, 0.001)
+    with pytest.raises(FusionError):
+        MapSettings(resolution=0.03, behind_m=1.0, ahead_m=8.0, y_min=-1.0, y_max=1.0, base_height=1.1,
+                    datum_drift=-0.1)
 
 
 def test_settings_refuse_an_empty_or_costly_corridor() -> None:
