@@ -51,6 +51,7 @@ from msg_bridge.tf import transforms_from_tf
 from roadbev_core.config import ParamError, RoadbevConfig
 from roadbev_core.errors import RoadbevError
 from roadbev_core.pipeline import BackendFactory, Pipeline
+from roadbev_core.selfcheck import self_check
 from roadbev_ros.diagnostics import Health, ThrottledLog, problem_kind, to_diagnostic_array, transport_hint
 from roadbev_ros.mailbox import Mailbox
 from roadbev_ros.node_params import (
@@ -380,6 +381,9 @@ class RoadBevNode(Node):
         estimate_ms = output.timings_ms["estimate"]
         overhead_ms = ((t1 - t0) - imu_wait + (t2 - t1) - estimate_ms * 1e-3 + (t3 - t2)) * 1e3
         self.health.output(latency_ms, stamp_age_ms, estimate_ms, overhead_ms, imu_wait * 1e3)
+        # coverage of every frame, and when it is low the likely causes (measured on such frames only)
+        check = self_check(output.estimate, output.frame, config.grid, measure_when_ok=False)
+        self.health.coverage(check.coverage_pct, check.ok, check.message)
 
     # --- diagnostics -----------------------------------------------------------------------------
     def _publish_diagnostics(self) -> None:

@@ -411,3 +411,41 @@ def test_with_odometry_the_node_publishes_the_fused_map_its_tf_and_clears_it_on_
     future = client.call_async(Trigger.Request())
     assert wait_for(future.done) and future.result().success
     assert harness.node.pipeline.fused is not None and harness.node.pipeline.fused.empty
+
+
+def test_a_frame_without_coverage_warns_on_diagnostics_with_its_likely_cause(ros: Any) -> None:
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    from ._ros_harness import PitchBackend
+
+    class Blind(PitchBackend):
+        """Answers nothing while ``blind`` (as bev_sweep on a textureless road)."""
+
+        blind = True
+
+        def estimate(self, frame: Any) -> Any:
+            out = super().estimate(frame)
+            if self.blind:
+                out.elevation[:] = np.nan
+            return out
+
+    backends: list[Blind] = []
+
+    def factory(name: str, grid: Any, **options: Any) -> Blind:
+        backends.append(Blind(grid))
+        return backends[-1]
+
+    h = Harness(ros, backend_factory=factory, params={"diagnostics_period_s": 0.1})
+    try:
+        h.wait_output(feed(h, 0))
+        assert wait_for(lambda: h.latest_diagnostics().get("coverage_pct") == "0.0", 5.0)
+        values = h.latest_diagnostics()
+        # the harness's images have texture and a clean rectification: the hint names base_height
+        assert values["self_check"].startswith("coverage 0.0 % (low): ") and "base_height" in values["self_check"]
+        assert h.diagnostics[-1].status[0].level == DiagnosticStatus.WARN
+        backends[-1].blind = False
+        h.wait_output(feed(h, 1))
+        assert wait_for(lambda: h.latest_diagnostics().get("coverage_pct") == "100.0", 5.0)
+        assert h.latest_diagnostics()["self_check"] == "coverage 100.0 %"
+    finally:
+        h.close()
