@@ -178,7 +178,8 @@ def grid_map_message_at(
 
 def fused_map_message(window: MapWindow, factory: MessageFactory, *, frame_id: str) -> Any:
     """The fused road map (contract ``/roadbev/map``): layers elevation, uncertainty,
-    observations and age of a :class:`roadbev_core.fusion.MapWindow`, in ``frame_id`` (odom)."""
+    observations and age of a :class:`roadbev_core.fusion.MapWindow` (and datum_uncertainty, the
+    part of uncertainty nearby cells share), in ``frame_id`` (odom)."""
     n_rows, n_cols = window.elevation.shape
     r = window.resolution
     return grid_map_message_at(window.layers(), factory, resolution=r, length=(n_rows * r, n_cols * r),
@@ -197,7 +198,7 @@ def map_window_from_message(msg: Any) -> MapWindow:
         raise MessageError(f"GridMap is not a fused map: no layer(s) {missing}")
     layers = raw.layers
     return MapWindow(layers["elevation"], layers["uncertainty"], layers["observations"], layers["age"],
-                     raw.resolution, raw.centre, raw.stamp_ns)
+                     raw.resolution, raw.centre, raw.stamp_ns, layers.get("datum_uncertainty"))
 
 
 def elevation_grid_map(

@@ -326,12 +326,17 @@ class MapWindow(NamedTuple):
 
     Attributes:
         elevation: [n_rows, n_cols] float32 z in ``odom`` (m), NaN = never seen.
-        uncertainty: [n_rows, n_cols] float32 1-sigma (m).
+        uncertainty: [n_rows, n_cols] float32 1-sigma of z in ``odom`` (m): the cell's own and
+            its datum's.
         observations: [n_rows, n_cols] float32 accepted observations.
         age: [n_rows, n_cols] float32 seconds since the cell's last update (NaN = never).
         resolution: cell size (m).
         centre: (x, y) of the window's centre in ``odom``.
         stamp_ns: the frame it was made after.
+        datum_uncertainty: [n_rows, n_cols] float32, the part of ``uncertainty`` that nearby
+            cells share (the 1-sigma of the datum their frames were fused on, module docstring);
+            None for a map without that layer. Compare cells with each other (a bump's height
+            above the road around it, a slope) with :meth:`local_uncertainty`.
     """
 
     elevation: np.ndarray
@@ -341,11 +346,24 @@ class MapWindow(NamedTuple):
     resolution: float
     centre: tuple[float, float]
     stamp_ns: int
+    datum_uncertainty: np.ndarray | None = None
 
     def layers(self) -> dict[str, np.ndarray]:
-        """The contract's layers by name."""
-        return {"elevation": self.elevation, "uncertainty": self.uncertainty, "observations": self.observations,
-                "age": self.age}
+        """The contract's layers by name (and ``datum_uncertainty`` when known)."""
+        layers = {"elevation": self.elevation, "uncertainty": self.uncertainty, "observations": self.observations,
+                  "age": self.age}
+        if self.datum_uncertainty is not None:
+            layers["datum_uncertainty"] = self.datum_uncertainty
+        return layers
+
+    def local_uncertainty(self) -> np.ndarray:
+        """[n_rows, n_cols] float32 1-sigma of a cell against the cells around it: ``uncertainty``
+        without the datum's part (all of ``uncertainty`` when the datum's is unknown)."""
+        if self.datum_uncertainty is None:
+            return self.uncertainty
+        with np.errstate(invalid="ignore"):
+            return np.sqrt(np.maximum(self.uncertainty.astype(np.float64) ** 2
+                                      - self.datum_uncertainty.astype(np.float64) ** 2, 0.0)).astype(np.float32)
 
     def cell_centres(self) -> tuple[np.ndarray, np.ndarray]:
         """[n_rows] x and [n_cols] y of the cell centres in ``odom``."""
@@ -496,7 +514,7 @@ class FusedMap:
         i_lo, i_hi, j_lo, j_hi = self._index_box(self._corridor_corners(base), 0.0)
         shape = (i_hi - i_lo, j_hi - j_lo)
         mean, sigma = self._means() if self._n.size else (np.zeros((0, 0)), np.zeros((0, 0)))
-        layers = {name: np.full(shape, np.nan, np.float32) for name in ("elevation", "uncertainty", "age")}
+        layers = {name: np.full(shape, np.nan, np.float32) for name in ("elevation", "uncertainty", "age", "datum")}
         observations = np.zeros(shape, np.float32)
         n_i, n_j = self._n.shape
         a_lo, a_hi = max(i_lo, self._i0), min(i_hi, self._i0 + n_i)
@@ -509,13 +527,15 @@ class FusedMap:
             # the published sigma is in odom z: the cell's own and its datum's (module docstring)
             w, w_datum = self._sums[_W][src], self._sums[_WDATUM][src]
             with np.errstate(invalid="ignore", divide="ignore"):
-                layers["uncertainty"][dst] = np.sqrt(sigma[src] ** 2 + np.where(known, w_datum / w, np.nan) ** 2)
+                datum_sigma = np.where(known, w_datum / w, np.nan)
+            layers["uncertainty"][dst] = np.sqrt(sigma[src] ** 2 + datum_sigma ** 2)
+            layers["datum"][dst] = datum_sigma
             layers["age"][dst] = np.where(known, (stamp_ns - self._t_last[src]) * 1e-9, np.nan)
             observations[dst] = self._n[src]
         flip = (slice(None, None, -1), slice(None, None, -1))  # index order (+x, +y) -> grid_map's
         centre = (0.5 * (i_lo + i_hi) * r, 0.5 * (j_lo + j_hi) * r)
         return MapWindow(layers["elevation"][flip], layers["uncertainty"][flip], observations[flip],
-                         layers["age"][flip], r, centre, int(stamp_ns))
+                         layers["age"][flip], r, centre, int(stamp_ns), layers["datum"][flip])
 
     @property
     def base_z(self) -> float | None:

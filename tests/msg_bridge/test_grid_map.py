@@ -129,6 +129,11 @@ def test_a_fused_map_window_round_trips_and_an_elevation_map_is_not_one(factory:
         np.testing.assert_array_equal(a, b)
     assert out.resolution == pytest.approx(0.03) and out.stamp_ns == 77
     assert out.centre == pytest.approx((12.345, -1.5))
+    assert out.datum_uncertainty is None  # a map without the layer
+    with_datum = window._replace(datum_uncertainty=np.full(elevation.shape, 0.004, np.float32))
+    out = map_window_from_message(fused_map_message(with_datum, factory, frame_id="odom"))
+    assert out.datum_uncertainty is not None
+    np.testing.assert_array_equal(out.datum_uncertainty, with_datum.datum_uncertainty)
     per_frame, uncertainty = _maps()
     with pytest.raises(MessageError, match="not a fused map"):
         map_window_from_message(elevation_grid_map(per_frame, uncertainty, GRID, factory, stamp_ns=1))

@@ -163,7 +163,7 @@ def test_window_layers_and_grid_map_order() -> None:
     fused = FusedMap(_settings())
     _drive(fused, _bumpy, 2, 0.5)
     window = fused.window(PlanarPose(0, 0.5, 0.0, 0.0), 5)
-    assert set(window.layers()) == {"elevation", "uncertainty", "observations", "age"}
+    assert set(window.layers()) == {"elevation", "uncertainty", "observations", "age", "datum_uncertainty"}
     x, y = window.cell_centres()
     assert x[0] > x[-1] and y[0] > y[-1]  # row 0 at +x, column 0 at +y
     held = np.isfinite(window.elevation)
@@ -214,6 +214,10 @@ def test_the_published_sigma_carries_the_datum_and_grows_with_the_distance_drive
     x, _ = w1.cell_centres()
     far = np.broadcast_to((x > x.max() - 0.5)[:, None], held.shape)[held]
     assert datum[far].mean() > 0.01 + 0.004 * 4.5
+    # the datum layer says how much of the sigma nearby cells share; without it, the cell's own
+    np.testing.assert_allclose(w1.datum_uncertainty[held], datum, atol=2e-4)
+    np.testing.assert_allclose(w1.local_uncertainty()[held], w0.uncertainty[held], atol=2e-4)
+    assert np.all(w0.datum_uncertainty[held] == 0.0)
     # the gate, the alignment and the preview use the cells' own sigma: unchanged
     px, py = np.array([6.0, 8.0]), np.array([0.1, -0.2])
     np.testing.assert_array_equal(plain.heights(px, py)[1], drifting.heights(px, py)[1])

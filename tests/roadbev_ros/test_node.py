@@ -388,7 +388,8 @@ def test_with_odometry_the_node_publishes_the_fused_map_its_tf_and_clears_it_on_
         harness.wait_output(feed(harness, k))
     assert wait_for(lambda: len(maps) == 8 and len(tfs) == 8)
     decoded = decode_grid_map(maps[-1])
-    assert decoded.frame_id == "odom" and set(decoded.layers) == {"elevation", "uncertainty", "observations", "age"}
+    assert decoded.frame_id == "odom" and set(decoded.layers) == {"elevation", "uncertainty", "observations", "age",
+                                                                 "datum_uncertainty"}
     assert np.isfinite(decoded.layers["elevation"]).sum() > 1000
     tf = transforms_from_tf(tfs[-1])[0]
     assert (tf.parent, tf.child) == ("left", "roadbev_road")  # the left images' frame_id
