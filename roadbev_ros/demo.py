@@ -443,6 +443,8 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
 
     # 4. the drive: map on and off, previews at arrival, hazards, ride
     drive, drive_note = _drive_stage(options, bag_path, stage_s)
+    if drive is not None and drive.bag == bag_path and "preview_at_arrival" in result.metrics:
+        drive.online = {k: result.metrics[k] for k in ("preview_at_arrival", "map") if k in result.metrics}
 
     # 5. report
     t0 = time.monotonic()
@@ -556,6 +558,8 @@ def _drive_stage(options: DemoOptions, bag_path: Path, stage_s: dict[str, float]
     try:
         section = run_drive_section(path, backend=options.backend, reused=reused, seed=seed, bar=bar_for)
     except DriveDemoError as exc:
+        if options.bag is not None:  # the user's drive bag cannot be scored (no ground truth...): say so
+            return None, f"No drive section: {exc}"
         raise DemoError(str(exc)) from exc
     stage_s.update(section.seconds)
     return section, ""

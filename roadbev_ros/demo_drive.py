@@ -259,6 +259,9 @@ class DriveSection:
         ride: source -> ``ride()`` rows (``mean`` and per wheel), ``share`` per preview row.
         ride_span_s: (warm-up, scored seconds).
         notes: how it was made.
+        seconds: wall time per stage.
+        online: ``preview_at_arrival`` and ``map`` of the ROS 2 node's recorded outputs when the
+            demo's ROS 2 stage ran on this same bag (``roadbev demo --bag DRIVE``), else None.
     """
 
     bag: Path
@@ -280,6 +283,7 @@ class DriveSection:
     ride_span_s: tuple[float, float]
     notes: list[str] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
+    online: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The numbers of the section (report.json)."""
@@ -291,6 +295,7 @@ class DriveSection:
             "seed": self.seed,
             "map_on": self.map_on,
             "map_off": self.map_off,
+            "online": self.online,
             "hazards": {
                 "detected": [hazard(h) for h in self.hazards],
                 "reference": self.reference_kind,

@@ -289,7 +289,10 @@ def drive_html(section: DriveSection, figures: Sequence[str]) -> str:
     """The drive section of ``index.html``."""
     on, off = section.map_on, section.map_off
     arrival_rows = []
-    for label, m in (("map on (roadbev eval --map)", on), ("map off (roadbev eval --no-map)", off)):
+    runs = [("map on (roadbev eval --map)", on), ("map off (roadbev eval --no-map)", off)]
+    if section.online is not None and "preview_at_arrival" in section.online:
+        runs.insert(0, ("ROS 2 node (recorded outputs of this bag)", section.online))
+    for label, m in runs:
         a = m["preview_at_arrival"]
         fused = m.get("map") or {}
         arrival_rows.append([html.escape(label), str(a["points"]),

@@ -196,6 +196,43 @@ def test_the_arrival_figure_draws_the_points_the_metric_scores(demo: tuple[DemoR
             assert np.all(np.isnan(p.preview_z[~np.isfinite(p.error) & p.known]))
 
 
+def test_the_demo_on_a_drive_bag_shows_the_nodes_previews_at_arrival_next_to_eval_map(
+    demo: tuple[DemoResult, DemoOptions], tmp_path: Path
+) -> None:
+    """``roadbev demo --bag DRIVE``: the ROS 2 stage runs on the drive (the node with its map on)
+    and the drive section on the same bag; the node's recorded previews score as ``eval --map``."""
+    result, _options = demo
+    assert result.drive is not None
+    options = DemoOptions(bag=result.drive.bag, out_dir=tmp_path / "out", backend="bm", report_frames=1,
+                          progress=False)
+    run = run_demo(options)
+    drive = run.drive
+    assert drive is not None and drive.bag == result.drive.bag and drive.seed is None and drive.online is not None
+    assert run.online["online"]["frames_without_output"] == 0
+    for section in ("preview_at_arrival", "map"):
+        for key, value in drive.map_on[section].items():
+            if isinstance(value, float):
+                assert drive.online[section][key] == pytest.approx(value, rel=1e-5, abs=1e-6), (section, key)
+    assert "ROS 2 node (recorded outputs of this bag)" in (options.out_dir / "index.html").read_text()
+
+
+def test_a_given_drive_bag_that_cannot_be_scored_leaves_the_section_out_with_the_reason(
+    demo: tuple[DemoResult, DemoOptions], tmp_path: Path
+) -> None:
+    from roadbev_ros.demo import _drive_stage
+
+    from ._damaged_bags import rewrite
+
+    result, _options = demo
+    assert result.drive is not None
+    no_odom = tmp_path / "no_odom.mcap"
+    rewrite(result.drive.bag, no_odom, drop=["/odom"])
+    stages: dict[str, float] = {}
+    section, note = _drive_stage(DemoOptions(bag=no_odom, progress=False), no_odom, stages)
+    assert section is None and note.startswith("No drive section") and "odometry" in note
+    assert _drive_stage(DemoOptions(drive=False), no_odom, stages) == (None, "")
+
+
 def test_pick_frames_prefers_relief_and_spreads() -> None:
     flat = np.zeros((4, 4), np.float32)
     bumpy = flat.copy()
