@@ -9,7 +9,12 @@ Stages (each with a progress bar):
    ``ROS_DOMAIN_ID``), the outputs are recorded to MCAP and scored against the ground truth.
 3. **offline**: the same backend over the same bag without DDS (:func:`roadbev_core.evaluation.evaluate`,
    exactly what ``roadbev eval`` runs), to show that both agree.
-4. **report**: figures and an HTML page (:mod:`roadbev_ros.report`).
+4. **drive** (:mod:`roadbev_ros.demo_drive`): a synthetic drive where the car rides on its road
+   (cached too; or ``--bag`` when it is a drive bag) through ``roadbev eval --map`` and
+   ``--no-map``'s code: the fused map over the drive, both front wheels' previews at arrival,
+   hazards on the fused map and the preview controller's ride (``--no-drive`` leaves it out).
+5. **report**: figures and an HTML page (:mod:`roadbev_ros.report`, the drive's
+   :mod:`roadbev_ros.drive_report`).
 """
 
 from __future__ import annotations
