@@ -57,16 +57,19 @@ __all__ = [
     "REFERENCE_CONTACT_PLANE",
     "REFERENCE_ROAD",
     "ArrivalError",
+    "ArrivalPoints",
     "ArrivalSettings",
     "RoadMap",
     "TimedPreview",
     "Trajectory",
     "WheelPath",
+    "arrival_points",
     "feature_mask",
     "map_accuracy",
     "per_frame_previews",
     "preview_at_arrival",
     "read_profile",
+    "summarise_points",
     "wheel_paths",
 ]
 
@@ -360,28 +363,46 @@ def _stats(err: np.ndarray) -> tuple[float, float, float]:
     return float(a.mean()), float(np.sqrt(np.mean(a * a))), float(np.percentile(a, 95))
 
 
-def preview_at_arrival(
+class ArrivalPoints(NamedTuple):
+    """One front wheel's path points as the metric scored them (what a plot of the preview at
+    arrival draws).
+
+    Attributes:
+        path: the wheel's path points (arrival, true height, feature points).
+        along_m: [P] distance along the wheel's path from its first scored point (m).
+        preview_z: [P] the road height in ``odom`` the preview promised there (the profile's
+            value plus the true height of the reference it declares; NaN = missing).
+        error: [P] ``preview_z`` - the true height (m; NaN where missing or the truth is unknown).
+        error_contact_plane: [P] the same profile value against the true contact plane at the
+            message's stamp.
+        known: [P] bool the true height is known.
+        covered: [P] bool known and a message covered the point.
+    """
+
+    path: WheelPath
+    along_m: np.ndarray
+    preview_z: np.ndarray
+    error: np.ndarray
+    error_contact_plane: np.ndarray
+    known: np.ndarray
+    covered: np.ndarray
+
+
+def arrival_points(
     previews: Sequence[TimedPreview],
     truth: Trajectory,
     road_map: RoadMap,
     settings: ArrivalSettings | None = None,
     *,
     frame_stamps_ns: Sequence[int] | None = None,
-) -> dict[str, Any]:
-    """Score preview messages at the moment each front wheel arrives (contract keys).
+) -> list[ArrivalPoints]:
+    """Read the preview messages at every front-wheel path point (see the module docstring);
+    :func:`preview_at_arrival` is the summary of these points.
 
-    Args:
-        previews: the messages, any order.
-        truth: the true ``base_link`` poses in ``odom`` (covering the arrivals).
-        road_map: the true road in ``odom``.
-        settings: lead time, footprint, vehicle, camera mounting.
-        frame_stamps_ns: the camera frames' stamps (default: the previews' stamps); arrivals
-            run from the first + lead to the last + lead.
+    Args: as :func:`preview_at_arrival`.
 
     Returns:
-        The contract's ``preview_at_arrival`` keys (:data:`ARRIVAL_KEYS`; errors in cm, NaN
-        without a covered point) plus ``covered_points``, ``features_points``,
-        ``smooth_points``, ``features_coverage_pct`` and ``per_wheel`` (the same per front wheel).
+        One :class:`ArrivalPoints` per front wheel (``front_left``, ``front_right``).
 
     Raises:
         ArrivalError: no previews or frames, or truth that does not cover the arrivals.
@@ -422,8 +443,7 @@ def preview_at_arrival(
         if np.all(np.isfinite(wz[m])):
             planes[m] = contact_plane(np.stack([wx[m], wy[m], wz[m]], axis=1))
 
-    result_per_wheel: dict[str, dict[str, Any]] = {}
-    pooled: dict[str, list[np.ndarray]] = {"err": [], "err_cp": [], "feature": [], "known": [], "covered": []}
+    out: list[ArrivalPoints] = []
     for path in paths:
         P = path.arrival_ns.size
         value = np.full(P, np.nan)
@@ -452,19 +472,57 @@ def preview_at_arrival(
             if not hit.any():
                 continue
             sel = idx[hit]
-            value[sel] = read[hit]  # later messages overwrite earlier ones: the latest one wins
+            value[sel] = read[hit] + ref[hit]  # later messages overwrite earlier ones: the latest one wins
             err[sel] = read[hit] - (path.height[sel] - ref[hit])
             cp = planes[m, 0] + planes[m, 1] * x[hit] + planes[m, 2] * y[hit]
             err_cp[sel] = read[hit] - (path.height[sel] - cp)
         known = np.isfinite(path.height)
         covered = known & np.isfinite(err)
-        result_per_wheel[path.name] = _summary(err, err_cp, path.feature, known, covered, settings.lead_time_s)
-        for key, arr in (("err", err), ("err_cp", err_cp), ("feature", path.feature), ("known", known),
-                         ("covered", covered)):
-            pooled[key].append(arr)
-    cat = {k: np.concatenate(v) for k, v in pooled.items()}
-    out = _summary(cat["err"], cat["err_cp"], cat["feature"], cat["known"], cat["covered"], settings.lead_time_s)
-    out["per_wheel"] = result_per_wheel
+        along = np.arange(P) * settings.spacing_m
+        out.append(ArrivalPoints(path, along, value, err, err_cp, known, covered))
+    return out
+
+
+def preview_at_arrival(
+    previews: Sequence[TimedPreview],
+    truth: Trajectory,
+    road_map: RoadMap,
+    settings: ArrivalSettings | None = None,
+    *,
+    frame_stamps_ns: Sequence[int] | None = None,
+) -> dict[str, Any]:
+    """Score preview messages at the moment each front wheel arrives (contract keys).
+
+    Args:
+        previews: the messages, any order.
+        truth: the true ``base_link`` poses in ``odom`` (covering the arrivals).
+        road_map: the true road in ``odom``.
+        settings: lead time, footprint, vehicle, camera mounting.
+        frame_stamps_ns: the camera frames' stamps (default: the previews' stamps); arrivals
+            run from the first + lead to the last + lead.
+
+    Returns:
+        The contract's ``preview_at_arrival`` keys (:data:`ARRIVAL_KEYS`; errors in cm, NaN
+        without a covered point) plus ``covered_points``, ``features_points``,
+        ``smooth_points``, ``features_coverage_pct`` and ``per_wheel`` (the same per front wheel).
+
+    Raises:
+        ArrivalError: no previews or frames, or truth that does not cover the arrivals.
+    """
+    settings = settings or ArrivalSettings()
+    points = arrival_points(previews, truth, road_map, settings, frame_stamps_ns=frame_stamps_ns)
+    return summarise_points(points, settings.lead_time_s)
+
+
+def summarise_points(points: Sequence[ArrivalPoints], lead_time_s: float) -> dict[str, Any]:
+    """The contract's keys over :func:`arrival_points` (pooled over the wheels, and ``per_wheel``)."""
+    per_wheel = {p.path.name: _summary(p.error, p.error_contact_plane, p.path.feature, p.known, p.covered, lead_time_s)
+                 for p in points}
+    cat = {k: np.concatenate([getattr(p, k) for p in points]) for k in ("error", "error_contact_plane", "known",
+                                                                         "covered")}
+    feature = np.concatenate([p.path.feature for p in points])
+    out = _summary(cat["error"], cat["error_contact_plane"], feature, cat["known"], cat["covered"], lead_time_s)
+    out["per_wheel"] = per_wheel
     return out
 
 

@@ -9,7 +9,12 @@ Stages (each with a progress bar):
    ``ROS_DOMAIN_ID``), the outputs are recorded to MCAP and scored against the ground truth.
 3. **offline**: the same backend over the same bag without DDS (:func:`roadbev_core.evaluation.evaluate`,
    exactly what ``roadbev eval`` runs), to show that both agree.
-4. **report**: figures and an HTML page (:mod:`roadbev_ros.report`).
+4. **drive** (:mod:`roadbev_ros.demo_drive`): a synthetic drive where the car rides on its road
+   (cached too; or ``--bag`` when it is a drive bag) through ``roadbev eval --map`` and
+   ``--no-map``'s code: the fused map over the drive, both front wheels' previews at arrival,
+   hazards on the fused map and the preview controller's ride (``--no-drive`` leaves it out).
+5. **report**: figures and an HTML page (:mod:`roadbev_ros.report`, the drive's
+   :mod:`roadbev_ros.drive_report`).
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ import numpy as np
 from roadbev_core.errors import RoadbevError
 from roadbev_core.evaluation import to_json
 from roadbev_core.metrics import differences
+from roadbev_ros.demo_drive import DEFAULT_DRIVE_FRAMES, DRIVE_SEED, RIDE_ROWS, DriveDemoError, DriveSection
 from roadbev_ros.report import FrameView, ReportData, RunSummary, TimingTrace, TrackProfile, write_report
 
 __all__ = [
@@ -42,6 +48,7 @@ __all__ = [
     "DemoOptions",
     "DemoResult",
     "demo_drive_config",
+    "drive_lines",
     "ensure_demo_bag",
     "pick_frames",
     "run_demo",
@@ -75,6 +82,9 @@ class DemoOptions:
         image_scale: image size factor of the synthetic drive (tests use small images).
         report_frames: frames shown in the figures.
         progress: show progress bars.
+        drive: also the drive section (:mod:`roadbev_ros.demo_drive`): a synthetic drive where
+            the car rides on its road (or ``bag`` when it is a drive bag), map on and off.
+        drive_frames, drive_seed: that drive's camera frames (10 Hz) and seed.
     """
 
     frames: int = DEFAULT_FRAMES
@@ -86,10 +96,15 @@ class DemoOptions:
     image_scale: float = 1.0
     report_frames: int = 3
     progress: bool = True
+    drive: bool = True
+    drive_frames: int = DEFAULT_DRIVE_FRAMES
+    drive_seed: int = DRIVE_SEED
 
     def __post_init__(self) -> None:
         if self.frames < 1:
             raise DemoError(f"--frames must be >= 1, got {self.frames}")
+        if self.drive_frames < 5:
+            raise DemoError(f"--drive-frames must be >= 5 (0.4 s at 10 Hz), got {self.drive_frames}")
         if not 0 < self.image_scale <= 1.0:
             raise DemoError(f"image scale must be in (0, 1], got {self.image_scale}")
         if self.report_frames < 1:
@@ -108,6 +123,7 @@ class DemoResult:
     agreement: dict[str, float]
     files: dict[str, Path]
     stage_seconds: dict[str, float] = field(default_factory=dict)
+    drive: DriveSection | None = None
 
 
 # --------------------------------------------------------------------------------------------
@@ -126,13 +142,16 @@ def demo_drive_config(frames: int, seed: int = 0, image_scale: float = 1.0) -> A
 
 
 def _source_digest() -> str:
-    """Hash of the code that makes a bag (synth + evalbag), so a changed renderer refreshes the cache."""
+    """Hash of the code that makes a bag (synth + evalbag + drivebag), so a changed renderer
+    refreshes the cache."""
+    import msg_bridge.drivebag
     import msg_bridge.evalbag
     import roadbev_core.synth
 
     digest = hashlib.sha256()
     synth_dir = Path(roadbev_core.synth.__file__).parent
-    for path in sorted([*synth_dir.glob("*.py"), Path(msg_bridge.evalbag.__file__)]):
+    for path in sorted([*synth_dir.glob("*.py"), Path(msg_bridge.evalbag.__file__),
+                        Path(msg_bridge.drivebag.__file__)]):
         digest.update(path.name.encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()
@@ -148,23 +167,36 @@ def ensure_demo_bag(
 ) -> tuple[Path, bool]:
     """The cached bag for ``config``, written first when missing.
 
-    The bag is written under a temporary name and renamed when complete, so an interrupted run
-    never leaves a half bag that a later run would reuse.
+    A :class:`roadbev_core.synth.DriveConfig` gives an evaluation bag (``demo_*.mcap``), a
+    :class:`roadbev_core.synth.RidingConfig` a drive bag (``drive_*.mcap``, as ``roadbev synth
+    --drive``) with the road's true features next to it
+    (:func:`roadbev_ros.demo_drive.features_path`). The bag is written under a temporary name and
+    renamed when complete, so an interrupted run never leaves a half bag that a later run would reuse.
 
     Returns:
         (path of the ``.mcap`` bag, whether it was reused).
     """
+    from msg_bridge.drivebag import write_drive_bag
     from msg_bridge.evalbag import write_eval_bag
-    from roadbev_core.synth import SyntheticDrive
+    from roadbev_core.synth import RidingConfig, RidingDrive, SyntheticDrive
+    from roadbev_ros.demo_drive import features_path
 
     cache_dir.mkdir(parents=True, exist_ok=True)
-    path = cache_dir / f"demo_{config.frames}f_seed{config.seed}_{_cache_key(config)}.mcap"
-    if path.is_file():
+    riding = isinstance(config, RidingConfig)
+    frames, seed = (config.drive.frames, config.drive.seed) if riding else (config.frames, config.seed)
+    path = cache_dir / f"{'drive' if riding else 'demo'}_{frames}f_seed{seed}_{_cache_key(config)}.mcap"
+    if path.is_file() and (not riding or features_path(path).is_file()):
         return path, True
     # write_eval_bag writes a single file only for a name ending in .mcap
     partial = cache_dir / f".partial-{os.getpid()}-{path.name}"
     try:
-        write_eval_bag(partial, SyntheticDrive(config), progress=progress)
+        if riding:
+            drive = RidingDrive(config)
+            write_drive_bag(partial, drive, progress=progress)
+            features_path(path).write_text(json.dumps([[f[0], float(f[1]), float(f[2]), float(f[3])]
+                                                       for f in drive.features_in_odom()]))
+        else:
+            write_eval_bag(partial, SyntheticDrive(config), progress=progress)
         partial.replace(path)
     finally:
         if partial.exists():
@@ -414,7 +446,12 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
     frames = {o.frame.stamp_ns: o.frame for o in offline_result.outputs or []}
     stage_s["offline eval"] = time.monotonic() - t0
 
-    # 4. report
+    # 4. the drive: map on and off, previews at arrival, hazards, ride
+    drive, drive_note = _drive_stage(options, bag_path, stage_s)
+    if drive is not None and drive.bag == bag_path and "preview_at_arrival" in result.metrics:
+        drive.online = {k: result.metrics[k] for k in ("preview_at_arrival", "map") if k in result.metrics}
+
+    # 5. report
     t0 = time.monotonic()
     recorded = _read_recorded(result.recorded, grid)
     shown = pick_frames(truths, options.report_frames)
@@ -458,6 +495,7 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
         "frames per second on this machine without DDS.",
         f"Offline check: roadbev eval {bag_path} --backend {options.backend}",
         *(f"Lost from the bag: {line}" for line in eval_bag.losses()),
+        *([drive_note] if drive_note else []),
     ]
     if not any(t is not None for t in truths):
         notes.insert(0, "The bag has no ground truth: nothing to score. The figures show what the node made "
@@ -474,7 +512,7 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
         "node log": "node.log",
     }
     data = ReportData(f"RoadBEV demo: {options.backend} over ROS 2", grid, runs, views, timing, notes,
-                      settings, stage_s)
+                      settings, stage_s, drive)
     with _bar(None, "report", options.progress, unit="file") as bar:
         bar.unit = "figure"
         files = write_report(data, out_dir, progress=lambda name: (bar.update(1), bar.set_postfix_str(name)))
@@ -488,7 +526,48 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
     payload["lost_frames"] = eval_bag.lost_frames()
     payload["losses"] = eval_bag.losses()
     report_json.write_text(to_json(payload))
-    return DemoResult(bag_path, reused, out_dir, online, offline, agreement, files, stage_s)
+    return DemoResult(bag_path, reused, out_dir, online, offline, agreement, files, stage_s, drive)
+
+
+def _drive_stage(options: DemoOptions, bag_path: Path, stage_s: dict[str, float]) -> tuple[DriveSection | None, str]:
+    """The drive section (or None and the reason it was left out)."""
+    from msg_bridge.drivebag import is_drive_bag
+    from roadbev_ros.demo_drive import drive_config, run_drive_section
+
+    if not options.drive:
+        return None, ""
+    t0 = time.monotonic()
+    seed: int | None = None
+    if options.bag is not None:
+        if not is_drive_bag(bag_path):
+            return None, (f"No drive section: {bag_path} is not a drive bag (no /ground_truth/odom and "
+                          "/ground_truth/road_map); `roadbev synth --drive` writes one.")
+        path, reused = bag_path, True
+    else:
+        seed = options.drive_seed
+        config = drive_config(options.drive_frames, seed, options.image_scale)
+        cache = Path(options.cache_dir) if options.cache_dir else Path(".cache") / "roadbev"
+        with _bar(options.drive_frames, "drive", options.progress) as bar:
+            try:
+                path, reused = ensure_demo_bag(config, cache, progress=bar.update)
+            except (ValueError, OSError) as exc:
+                raise DemoError(f"writing the synthetic drive failed: {exc}") from exc
+            if reused:
+                bar.update(options.drive_frames - bar.n)
+                bar.set_postfix_str("cached")
+    stage_s["drive bag"] = time.monotonic() - t0
+
+    def bar_for(total: int, label: str) -> Any:
+        return _bar(total, label, options.progress)
+
+    try:
+        section = run_drive_section(path, backend=options.backend, reused=reused, seed=seed, bar=bar_for)
+    except DriveDemoError as exc:
+        if options.bag is not None:  # the user's drive bag cannot be scored (no ground truth...): say so
+            return None, f"No drive section: {exc}"
+        raise DemoError(str(exc)) from exc
+    stage_s.update(section.seconds)
+    return section, ""
 
 
 def summary_lines(result: DemoResult) -> list[str]:
@@ -508,8 +587,31 @@ def summary_lines(result: DemoResult) -> list[str]:
         f"latency (image published -> map received): median {_num(lat.get('p50'), 0)} ms, "
         f"p95 {_num(lat.get('p95'), 0)} ms (after the first frame); online vs offline: max |diff| {worst:.1e} cm"
     )
+    if result.drive is not None:
+        lines.extend(drive_lines(result.drive))
     lines.append(f"report: {(result.out_dir / 'index.html').resolve()}")
     return lines
+
+
+def drive_lines(drive: DriveSection) -> list[str]:
+    """The drive section in three lines: previews at arrival map on / off, hazards, the ride."""
+    on, off = drive.map_on["preview_at_arrival"], drive.map_off["preview_at_arrival"]
+    fused = drive.map_on.get("map") or {}
+    where = f"seed {drive.seed}" if drive.seed is not None else str(drive.bag)
+    rows, share = drive.ride["rows"], drive.ride["share"]
+    found = sum(d is not None for _, d in drive.matches)
+    return [
+        f"drive ({where}, {drive.map_on['frames']} frames): preview at arrival map on / off: abs. error "
+        f"{_num(on['abs_err_cm'], 3)} / {_num(off['abs_err_cm'], 3)} cm, features {_num(on['features_abs_err_cm'], 3)}"
+        f" / {_num(off['features_abs_err_cm'], 3)} cm, coverage {_num(on['coverage_pct'], 1)} / "
+        f"{_num(off['coverage_pct'], 1)} %; fused map {_num(fused.get('abs_err_cm'), 3)} cm",
+        f"drive hazards on the fused map: {found} of {len(drive.matches)} features >= 3 cm found, "
+        f"{len(drive.false_alarms)} false alarm(s)",
+        "drive ride, Wk RMS m/s^2: " + ", ".join(
+            f"{label.split(' (')[0]} {rows[k]['mean']['wk_rms_mps2']:.3f}"
+            + (f" ({share[k]:.2f} of gain)" if k in ("per_frame", "fused") and math.isfinite(share[k]) else "")
+            for k, label in RIDE_ROWS if k in rows),
+    ]
 
 
 def _num(value: Any, digits: int) -> str:

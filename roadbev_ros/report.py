@@ -153,6 +153,7 @@ class ReportData:
     notes: list[str] = field(default_factory=list)
     settings: dict[str, Any] = field(default_factory=dict)
     stage_seconds: dict[str, float] = field(default_factory=dict)
+    drive: Any = None  # a roadbev_ros.demo_drive.DriveSection: the drive section (roadbev_ros.drive_report)
 
 
 # --------------------------------------------------------------------------------------------
@@ -534,7 +535,7 @@ _CAPTIONS: dict[str, str] = {
 }
 
 
-def _html_page(data: ReportData, figures: list[str]) -> str:
+def _html_page(data: ReportData, figures: list[str], drive_figures: Sequence[str] = ()) -> str:
     settings = "".join(
         f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(str(v))}</td></tr>" for k, v in data.settings.items()
     )
@@ -547,6 +548,11 @@ def _html_page(data: ReportData, figures: list[str]) -> str:
         f"<figcaption>{html.escape(_CAPTIONS.get(name, name))}</figcaption></figure>"
         for name in figures
     )
+    drive = ""
+    if data.drive is not None:
+        from roadbev_ros.drive_report import drive_html
+
+        drive = drive_html(data.drive, drive_figures)
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(data.title)}</title>
 <style>
@@ -563,7 +569,7 @@ figcaption {{ font-size: 0.9em; color: #444; }}
 <ul>{notes}</ul>
 <h2>Figures</h2>
 {figs}
-<h2>Settings</h2><table>{settings}</table>
+{drive}<h2>Settings</h2><table>{settings}</table>
 <h2>Stage times</h2><table>{stages}</table>
 <p>Numbers: <a href="report.json">report.json</a>.</p>
 </body></html>
@@ -616,6 +622,13 @@ def write_report(
         tell("timing.png")
         written["timing.png"] = plot_timing(data.timing, out / "timing.png")
     figures = [name for name in FIGURE_NAMES if name in written]
+    drive_figures: list[str] = []
+    if data.drive is not None:
+        from roadbev_ros.drive_report import write_drive_figures
+
+        drawn = write_drive_figures(data.drive, out, tell)
+        written.update(drawn)
+        drive_figures = list(drawn)
     payload = {
         "title": data.title,
         "runs": [{"label": r.label, "backend": r.backend, "mode": r.mode, "metrics": r.metrics} for r in data.runs],
@@ -624,8 +637,10 @@ def write_report(
         "stage_seconds": data.stage_seconds,
         "grid": data.grid.to_dict(),
         "frames_shown": [f.index for f in data.frames],
-        "figures": figures,
+        "figures": figures + drive_figures,
     }
+    if data.drive is not None:
+        payload["drive"] = data.drive.to_json()
     if data.timing is not None:
         payload["timing"] = {
             "stamp_s": data.timing.stamp_s, "latency_ms": data.timing.latency_ms, "receive_s": data.timing.receive_s,
@@ -634,6 +649,6 @@ def write_report(
     json_path.write_text(to_json(payload))
     written["report.json"] = json_path
     html_path = out / "index.html"
-    html_path.write_text(_html_page(data, figures))
+    html_path.write_text(_html_page(data, figures, drive_figures))
     written["index.html"] = html_path
     return written

@@ -12,12 +12,13 @@ from pathlib import Path
 
 from roadbev_ros.cli import CommandError
 
-HELP = "the main job: synthetic drive -> node over ROS 2 -> recorded outputs -> report"
+HELP = "the main job: synthetic drive -> node over ROS 2 -> recorded outputs -> report (+ a drive, map on/off)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``roadbev demo``."""
     from roadbev_ros.demo import DEFAULT_FRAMES, DEFAULT_OUT
+    from roadbev_ros.demo_drive import DEFAULT_DRIVE_FRAMES, DRIVE_SEED
 
     parser.add_argument("--frames", type=int, default=DEFAULT_FRAMES, metavar="N",
                         help=f"frames of the synthetic drive (default {DEFAULT_FRAMES}; ignored with --bag)")
@@ -30,6 +31,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic drive (default 0)")
     parser.add_argument("--cache", type=Path, default=None, metavar="DIR",
                         help="cache of synthetic bags (default ./.cache/roadbev)")
+    parser.add_argument("--no-drive", action="store_true",
+                        help="leave out the drive section (the fused map, previews at arrival, hazards, ride)")
+    parser.add_argument("--drive-frames", type=int, default=DEFAULT_DRIVE_FRAMES, metavar="N",
+                        help=f"camera frames (10 Hz, 10 m/s) of the drive section's synthetic drive "
+                        f"(default {DEFAULT_DRIVE_FRAMES}; with --bag the section runs on BAG when it is a drive bag)")
+    parser.add_argument("--drive-seed", type=int, default=DRIVE_SEED,
+                        help=f"seed of the drive section's synthetic drive (default {DRIVE_SEED})")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
@@ -43,7 +51,8 @@ def run(args: argparse.Namespace) -> int:
     if args.backend not in available():
         raise CommandError(f"unknown backend {args.backend!r}; choose from {', '.join(available())}")
     options = DemoOptions(frames=args.frames, out_dir=args.out, backend=args.backend, bag=args.bag,
-                          cache_dir=args.cache, seed=args.seed, progress=not args.no_progress)
+                          cache_dir=args.cache, seed=args.seed, progress=not args.no_progress,
+                          drive=not args.no_drive, drive_frames=args.drive_frames, drive_seed=args.drive_seed)
     result = run_demo(options)
     for line in summary_lines(result):
         print(line)

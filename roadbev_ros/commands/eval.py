@@ -4,7 +4,8 @@ The bag (a rosbag2 directory with ``metadata.yaml`` or a single ``.mcap`` file) 
 stereo images, camera infos, the IMU and ``/ground_truth/elevation``; the horizontal grid comes
 from the ground truth's GridMap info, ``base_height`` and the vertical range from ``--params``
 (a standard ROS 2 params YAML; defaults otherwise). The metrics are those of
-:mod:`roadbev_core.evaluation`, the same code the demo and the benchmarks use.
+:mod:`roadbev_core.evaluation`, the same code the demo and the benchmarks use; the bag, the pipeline
+and the drive keys are :mod:`roadbev_ros.offline_eval` (which the demo runs on its drive too).
 
 Backend options may be given in the params file as ``<backend>.<option>`` (for example
 ``bev_sweep.patch_cells: 5``); the learned backends take ``checkpoint`` (or ``--checkpoint``).
@@ -20,11 +21,9 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from roadbev_core.errors import RoadbevError
 from roadbev_ros.cli import CommandError, progress_bar, warn
 
 HELP = "run a backend over every frame of a bag (no DDS) and report the metrics"
@@ -86,48 +85,25 @@ def _explicit_params(args: argparse.Namespace) -> dict[str, Any]:
     return explicit
 
 
-def _read_failures(samples: Any, path: Path) -> Iterator[Any]:
-    """Re-raise bag read/decode failures during iteration as a one-line CommandError."""
-    iterator = iter(samples)
-    while True:
-        try:
-            sample = next(iterator)
-        except StopIteration:
-            return
-        except Exception as exc:  # rosbags/mcap raise many types for a damaged bag
-            raise CommandError(f"cannot read bag {path}: {type(exc).__name__}: {exc}") from exc
-        yield sample
-
-
-def _preview_at_arrival(path: Path, config: Any, result: Any, lead: float) -> dict[str, Any]:
-    """Score the pipeline's previews at arrival (per frame or from the map: each message says
-    which), print one line, return the JSON keys (with ``"map"`` when the map ran)."""
-    from msg_bridge.drivebag import evaluate_drive_previews, read_drive_truth
-    from roadbev_core.arrival import ArrivalError, map_accuracy, per_frame_previews
-    from roadbev_core.evaluation import json_safe
-
-    stamps = [int(r["stamp_ns"]) for r in result.per_frame]
-    outputs = result.outputs or []
-    try:
-        previews = per_frame_previews(outputs)
-        out = evaluate_drive_previews(path, previews, stamps, config.to_params(), base_height=config.grid.base_height,
-                                      lead_time_s=lead)
-        windows = [o.map for o in outputs if o.map is not None]
-        fused = map_accuracy(windows, read_drive_truth(path, config.to_params()).road_map) if windows else None
-    except (ArrivalError, ValueError) as exc:
-        raise CommandError(f"preview at arrival on {path}: {exc}") from exc
-    kind = "fused map" if windows else "per frame"
-    print(f"preview at arrival, {kind} (lead {lead:g} s, {out['points']} points): abs. error "
-          f"{out['abs_err_cm']:.3f} cm, coverage {out['coverage_pct']:.1f} %, features "
-          f"{out['features_abs_err_cm']:.3f} cm, smooth {out['smooth_abs_err_cm']:.3f} cm, vs the contact plane "
-          f"{out['contact_plane_abs_err_cm']:.3f} cm")
-    result_keys: dict[str, Any] = {"preview_at_arrival": dict(json_safe(out))}
+def _print_drive_keys(metrics: dict[str, Any]) -> None:
+    """One line for the previews at arrival (per frame or from the map) and one for the map."""
+    out = metrics.get("preview_at_arrival")
+    if out is None:
+        return
+    kind = "fused map" if "map" in metrics else "per frame"
+    print(f"preview at arrival, {kind} (lead {out['lead_time_s']:g} s, {out['points']} points): abs. error "
+          f"{_cm(out['abs_err_cm'])} cm, coverage {_cm(out['coverage_pct'], 1)} %, features "
+          f"{_cm(out['features_abs_err_cm'])} cm, smooth {_cm(out['smooth_abs_err_cm'])} cm, vs the contact plane "
+          f"{_cm(out['contact_plane_abs_err_cm'])} cm")
+    fused = metrics.get("map")
     if fused is not None:
         print(f"fused map vs /ground_truth/road_map ({fused['windows']} windows): abs. error "
-              f"{fused['abs_err_cm']:.3f} cm, coverage {fused['coverage_pct']:.1f} %, confidently wrong "
-              f"{fused['confident_wrong_pct']:.2f} %")
-        result_keys["map"] = dict(json_safe(fused))
-    return result_keys
+              f"{_cm(fused['abs_err_cm'])} cm, coverage {_cm(fused['coverage_pct'], 1)} %, confidently wrong "
+              f"{_cm(fused['confident_wrong_pct'], 2)} %")
+
+
+def _cm(value: Any, digits: int = 3) -> str:
+    return "nan" if value is None else f"{float(value):.{digits}f}"
 
 
 def coverage_hint(pipeline: Any, path: Path, coverage_pct: float | None) -> str | None:
@@ -148,10 +124,8 @@ def coverage_hint(pipeline: Any, path: Path, coverage_pct: float | None) -> str 
 
 def run(args: argparse.Namespace) -> int:
     """Evaluate, print the table, write the JSON; non-zero exit (via CommandError) on bad input."""
-    from msg_bridge.evalbag import read_eval_bag
-    from roadbev_core.config import RoadbevConfig
-    from roadbev_core.evaluation import evaluate, format_table, to_json
-    from roadbev_core.pipeline import Pipeline
+    from roadbev_core.evaluation import format_table, to_json
+    from roadbev_ros.offline_eval import OfflineEvalError, prepare_bag, run_prepared
 
     path = Path(args.bag)
     _check_bag_path(path)
@@ -159,23 +133,10 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError(f"--frames must be >= 1, got {args.frames}")
     explicit = _explicit_params(args)
     try:
-        bag = read_eval_bag(path, explicit)
-    except (RoadbevError, OSError):
-        raise
-    except Exception as exc:  # a damaged bag: rosbags/mcap raise many types; one line, no traceback
-        raise CommandError(f"cannot read bag {path}: {type(exc).__name__}: {exc}") from exc
-    # the horizontal grid comes from the ground truth's GridMap info (contract)
-    if args.map and not bag.odometry:
-        raise CommandError(f"--map needs odometry: {path} has none on {bag.topics['odom_topic']}")
-    map_params = {} if args.map is None else {"map.enabled": bool(args.map)}
-    config = RoadbevConfig.from_params({**explicit, **map_params, **bag.grid.to_dict()})
-    pipeline = Pipeline(config)
-    if bag.camera_mount is not None:  # /tf_static base_link -> camera wins over vehicle.camera_position_m
-        pipeline.set_camera_mount(*bag.camera_mount)
-    name = config.backend.name
-    from msg_bridge.drivebag import is_drive_bag
-
-    drive = is_drive_bag(path)  # a drive bag: the previews are scored at the wheels' arrival too
+        prepared = prepare_bag(path, explicit, map_enabled=args.map)
+    except OfflineEvalError as exc:
+        raise CommandError(str(exc)) from exc
+    bag, config, pipeline = prepared.bag, prepared.config, prepared.pipeline
     outputs = None
     if args.out:
         from msg_bridge.outputs import OutputBag
@@ -183,14 +144,15 @@ def run(args: argparse.Namespace) -> int:
         outputs = OutputBag(args.out, config, camera_frame=bag.camera_frame)
 
     total = len(bag) if args.frames is None else min(len(bag), args.frames)
-    if total == 0:
-        raise CommandError(f"bag {path} has no complete frames to evaluate")
-    bar = progress_bar(total=total, unit="frame", desc=f"eval {name}", disable=args.no_progress, leave=False)
-    progress = bar.update
+    bar = progress_bar(total=total, unit="frame", desc=f"eval {config.backend.name}", disable=args.no_progress,
+                       leave=False)
     try:
-        result = evaluate(pipeline, _read_failures(bag, path), imu=bag.imu, odometry=bag.odometry,
-                          progress=progress, max_frames=args.frames, keep_estimates=drive,
-                          on_output=None if outputs is None else outputs.write)
+        evaluation = run_prepared(prepared, lead_time_s=args.lead_time, max_frames=args.frames, progress=bar.update,
+                                  on_output=None if outputs is None else outputs.write)
+    except OfflineEvalError as exc:
+        if outputs is not None:
+            outputs.abort()
+        raise CommandError(str(exc)) from exc
     except BaseException:
         if outputs is not None:
             outputs.abort()
@@ -199,15 +161,8 @@ def run(args: argparse.Namespace) -> int:
         bar.close()
     if outputs is not None:
         outputs.close()
-    metrics = result.to_dict()
-    if pipeline.map_active or pipeline.fused is not None:
-        metrics["map_enabled"] = True
-        if pipeline.map_skipped:
-            metrics["map_skipped"] = dict(pipeline.map_skipped)
-    losses = bag.losses()
-    metrics["lost_frames"] = bag.lost_frames()
-    metrics["losses"] = losses
-    for line in losses:
+    metrics, result = evaluation.metrics, evaluation.result
+    for line in metrics["losses"]:
         print(f"lost: {line}", file=sys.stderr)
     print(format_table([metrics]))
     for reason, count in sorted(result.refused.items()):
@@ -217,8 +172,7 @@ def run(args: argparse.Namespace) -> int:
               f"{metrics['frames']} frame(s) ran" + (f", outputs in {args.out}" if args.out else
                                                       "; --out OUT.mcap saves the outputs"))
     else:
-        if drive:  # contract, "Drive bags": the previews at the wheels' arrival (and the map)
-            metrics.update(_preview_at_arrival(path, config, result, args.lead_time))
+        _print_drive_keys(metrics)  # contract, "Drive bags": the previews at the wheels' arrival (and the map)
         bands = ", ".join("-" if b is None else f"{b:.3f}" for b in metrics["band_abs_err_cm"])
         print(f"abs. error per distance band (cm, near to far): {bands}")
         print(

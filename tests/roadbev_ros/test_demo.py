@@ -14,6 +14,7 @@ from matplotlib import image as mpimg
 
 from msg_bridge import bag
 from msg_bridge.grid_map import grid_map_to_arrays
+from roadbev_core.arrival import ARRIVAL_KEYS
 from roadbev_core.config import GridSpec
 from roadbev_core.metrics import MetricAccumulator
 from roadbev_ros.dds import child_env
@@ -28,17 +29,20 @@ from roadbev_ros.demo import (
     run_demo,
     summary_lines,
 )
+from roadbev_ros.demo_drive import DRIVE_SEED, drive_config, features_path
 
 FRAMES = 4
 SCALE = 0.25  # 240 x 132 images: the whole demo in seconds
 FIGURES = ("frames.png", "surface.png", "preview.png", "band_error.png", "timing.png")
+DRIVE_FRAMES = 12  # 1.1 s at 10 Hz: the ride scores 0.7 s after a 0.5 s warm-up
+DRIVE_FIGURES = ("drive_map.png", "drive_hazards.png", "drive_arrival.png", "drive_ride.png")
 
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory: pytest.TempPathFactory) -> tuple[DemoResult, DemoOptions]:
     root = tmp_path_factory.mktemp("demo")
     options = DemoOptions(frames=FRAMES, out_dir=root / "out", cache_dir=root / "cache", image_scale=SCALE,
-                          report_frames=2, progress=False)
+                          report_frames=2, progress=False, drive_frames=DRIVE_FRAMES)
     return run_demo(options), options
 
 
@@ -112,6 +116,121 @@ def test_the_bag_is_cached_by_options(demo: tuple[DemoResult, DemoOptions], tmp_
     from roadbev_ros.demo import _cache_key
 
     assert _cache_key(demo_drive_config(FRAMES, 1, SCALE)) != _cache_key(config)
+    # the drive section's drive, with its true features beside it
+    assert result.drive is not None
+    drive_path, reused = ensure_demo_bag(drive_config(DRIVE_FRAMES, DRIVE_SEED, SCALE), options.cache_dir)
+    assert reused and drive_path == result.drive.bag and features_path(drive_path).is_file()
+
+
+def test_the_drive_section_shows_the_fused_map_previews_at_arrival_hazards_and_the_ride(
+    demo: tuple[DemoResult, DemoOptions],
+) -> None:
+    result, options = demo
+    drive = result.drive
+    assert drive is not None and drive.seed == DRIVE_SEED
+    out = options.out_dir
+    page = (out / "index.html").read_text()
+    for name in DRIVE_FIGURES:
+        img = mpimg.imread(out / name)
+        assert img.shape[0] > 200 and img.shape[1] > 300, name
+        assert float(img[..., :3].std()) > 0.05, f"{name} looks blank"
+        assert f'src="{name}"' in page
+    for heading in ("Preview at arrival", "Hazards on the fused map", "The ride"):
+        assert heading in page
+    payload = json.loads((out / "report.json").read_text())["drive"]
+    on, off = payload["map_on"], payload["map_off"]
+    assert set(ARRIVAL_KEYS) <= set(on["preview_at_arrival"]) and set(ARRIVAL_KEYS) <= set(off["preview_at_arrival"])
+    assert on["map_enabled"] is True and "map" in on and "map" not in off and "map_enabled" not in off
+    assert on["frames"] == off["frames"] == DRIVE_FRAMES
+    # the fused map over the drive holds cells along the car's path, with sigma and counts where it holds them
+    fused = drive.fused
+    held = np.isfinite(fused.elevation)
+    assert held.mean() > 0.2 and np.all(np.isfinite(fused.uncertainty[held])) and np.all(fused.observations[held] >= 1)
+    x0, x1, _, _ = fused.extent()
+    assert x0 < float(drive.path_xy[:, 0].max()) and x1 > drive.points_on[0].path.xy[-1, 0]
+    # hazards: every scored feature is one of the road's (>= 3 cm), matched or reported missed
+    assert payload["hazards"]["reference"] == "placed by the synthesiser"
+    assert all(abs(f["height_m"]) >= 0.03 for f in payload["hazards"]["features"])
+    # the ride: every source, the ceiling beats the controller without preview, and is the whole gain
+    rows = payload["ride"]["rows"]
+    assert set(rows) == {"passive", "no_preview", "per_frame", "fused", "true_road"}
+    assert rows["true_road"]["mean"]["wk_rms_mps2"] < rows["no_preview"]["mean"]["wk_rms_mps2"]
+    assert payload["ride"]["share"]["true_road"] == pytest.approx(1.0)
+    assert payload["ride_scored_s"] > 0.3
+    lines = summary_lines(result)
+    assert any(line.startswith("drive (seed") for line in lines) and any("drive ride" in line for line in lines)
+
+
+def test_the_drive_numbers_are_those_of_roadbev_eval_map_on_and_off(
+    demo: tuple[DemoResult, DemoOptions], tmp_path: Path
+) -> None:
+    from roadbev_ros.cli import main
+
+    result, _options = demo
+    assert result.drive is not None
+    for flag, shown in (("--map", result.drive.map_on), ("--no-map", result.drive.map_off)):
+        out = tmp_path / f"eval{flag}.json"
+        assert main(["eval", str(result.drive.bag), flag, "--json", str(out), "--no-progress"]) == 0
+        cli = json.loads(out.read_text())
+        for key in ("frames", "cells", "abs_err_cm", "coverage_pct", "band_abs_err_cm", "preview_at_arrival"):
+            assert shown[key] == cli[key], (flag, key)
+        assert shown.get("map") == cli.get("map"), flag
+
+
+def test_the_arrival_figure_draws_the_points_the_metric_scores(demo: tuple[DemoResult, DemoOptions]) -> None:
+    from roadbev_core.arrival import summarise_points
+    from roadbev_core.evaluation import json_safe
+
+    result, _options = demo
+    drive = result.drive
+    assert drive is not None
+    for points, shown in ((drive.points_on, drive.map_on), (drive.points_off, drive.map_off)):
+        assert [p.path.name for p in points] == ["front_left", "front_right"]
+        summary = json_safe(summarise_points(points, shown["preview_at_arrival"]["lead_time_s"]))
+        for key in ARRIVAL_KEYS:
+            assert summary[key] == pytest.approx(shown["preview_at_arrival"][key], nan_ok=True), key
+        for p in points:  # the plotted height minus the truth is the scored error
+            ok = p.covered
+            assert ok.any()
+            assert p.preview_z[ok] - p.path.height[ok] == pytest.approx(p.error[ok], abs=1e-9)
+            assert np.all(np.isnan(p.preview_z[~np.isfinite(p.error) & p.known]))
+
+
+def test_the_demo_on_a_drive_bag_shows_the_nodes_previews_at_arrival_next_to_eval_map(
+    demo: tuple[DemoResult, DemoOptions], tmp_path: Path
+) -> None:
+    """``roadbev demo --bag DRIVE``: the ROS 2 stage runs on the drive (the node with its map on)
+    and the drive section on the same bag; the node's recorded previews score as ``eval --map``."""
+    result, _options = demo
+    assert result.drive is not None
+    options = DemoOptions(bag=result.drive.bag, out_dir=tmp_path / "out", backend="bm", report_frames=1,
+                          progress=False)
+    run = run_demo(options)
+    drive = run.drive
+    assert drive is not None and drive.bag == result.drive.bag and drive.seed is None and drive.online is not None
+    assert run.online["online"]["frames_without_output"] == 0
+    for section in ("preview_at_arrival", "map"):
+        for key, value in drive.map_on[section].items():
+            if isinstance(value, float):
+                assert drive.online[section][key] == pytest.approx(value, rel=1e-5, abs=1e-6), (section, key)
+    assert "ROS 2 node (recorded outputs of this bag)" in (options.out_dir / "index.html").read_text()
+
+
+def test_a_given_drive_bag_that_cannot_be_scored_leaves_the_section_out_with_the_reason(
+    demo: tuple[DemoResult, DemoOptions], tmp_path: Path
+) -> None:
+    from roadbev_ros.demo import _drive_stage
+
+    from ._damaged_bags import rewrite
+
+    result, _options = demo
+    assert result.drive is not None
+    no_odom = tmp_path / "no_odom.mcap"
+    rewrite(result.drive.bag, no_odom, drop=["/odom"])
+    stages: dict[str, float] = {}
+    section, note = _drive_stage(DemoOptions(bag=no_odom, progress=False), no_odom, stages)
+    assert section is None and note.startswith("No drive section") and "odometry" in note
+    assert _drive_stage(DemoOptions(drive=False), no_odom, stages) == (None, "")
 
 
 def test_pick_frames_prefers_relief_and_spreads() -> None:
@@ -136,6 +255,8 @@ def test_options_refuse_bad_values() -> None:
         DemoOptions(frames=0)
     with pytest.raises(DemoError):
         DemoOptions(image_scale=0.0)
+    with pytest.raises(DemoError, match="drive-frames"):
+        DemoOptions(drive_frames=2)
 
 
 def test_cli_missing_bag_exits_with_one_line(tmp_path: Path) -> None:
@@ -167,4 +288,7 @@ def test_demo_on_a_truncated_bag_without_ground_truth_writes_the_report(demo, tm
     # every whole frame the node got was answered (a frame cut in half is not waited for)
     assert 0 < partial.online["frames"] < FRAMES and partial.online["online"]["frames_without_output"] == 0
     assert partial.online["frames"] <= partial.offline["frames"] < FRAMES and partial.offline["cells"] == 0
-    assert "nothing to score" in (options.out_dir / "index.html").read_text()
+    page = (options.out_dir / "index.html").read_text()
+    assert "nothing to score" in page
+    # not a drive bag: no drive section, and the page says why
+    assert partial.drive is None and "No drive section" in page and "drive_map.png" not in files
