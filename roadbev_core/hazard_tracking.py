@@ -13,7 +13,10 @@ Each :meth:`HazardTracker.update` takes one published map window (:class:`roadbe
    extent on each axis (greedy, nearest first); an unmatched detection opens a tentative track.
 3. **Keep.** A track takes its position, extent, height and sigma from its latest detection (the
    map already fuses every frame per cell, so averaging the detections again would count the same
-   observations twice and shrink the sigma dishonestly); ``position_sigma_m`` is the spread (RMS
+   observations twice and shrink the sigma dishonestly), except a detection cut by the window's
+   edge (only part of the feature in view) or of a feature the front axle has already reached
+   (out of the camera's view: the map there changes only by re-alignment), which only keep the
+   track alive; ``position_sigma_m`` is the spread (RMS
    distance) of its detections' centroids around their mean, at least half a cell. Its
    confidence is the latest detection's, times ``min(1, detections / confirm_hits)``.
 4. **Report and forget.** A track is reported (``confirmed``) from its ``confirm_hits``-th
@@ -116,6 +119,7 @@ class TrackedHazard:
         first_seen_ns, last_seen_ns: stamps of the first and latest detection.
         first_reported_ns: stamp of the window that confirmed it (None while tentative).
         first_reported_distance_m: front axle to near edge then (m; NaN without a pose).
+        first_reported_height_m: the height reported then (m).
         distance_ahead_m: front axle to near edge at the latest update (m; < 0: under or behind
             the front axle; NaN without a pose).
     """
@@ -137,6 +141,7 @@ class TrackedHazard:
     last_seen_ns: int
     first_reported_ns: int | None = None
     first_reported_distance_m: float = math.nan
+    first_reported_height_m: float = math.nan
     distance_ahead_m: float = math.nan
     _centroids: list[tuple[float, float]] = field(default_factory=list, repr=False)
 
@@ -327,9 +332,10 @@ class HazardTracker:
     def _hit(self, t: TrackedHazard, h: Hazard, window: MapWindow, e: np.ndarray) -> None:
         s = self.settings
         t.detections += 1
-        if t.detections > 1 and _cut_by_edge(window, h):
-            # a feature leaving (or entering) the window shows only part of itself: the track
-            # keeps what the last whole view measured
+        if t.detections > 1 and (_cut_by_edge(window, h) or t.distance_ahead_m < 0.0):
+            # a feature leaving (or entering) the window shows only part of itself, and one the
+            # front axle has reached is out of the camera's view (the map there changes only by
+            # re-alignment): the track keeps what the last whole view ahead measured
             t.misses = 0
             t.last_seen_ns = int(window.stamp_ns)
             return
@@ -347,6 +353,7 @@ class HazardTracker:
         t.level_z = z - h.height_m if math.isfinite(z) else t.level_z
         if not t.confirmed and t.detections >= s.confirm_hits:
             t.first_reported_ns = int(window.stamp_ns)
+            t.first_reported_height_m = t.height_m
 
     # --- roughness ------------------------------------------------------------------------------
     def _roughness(self, window: MapWindow, e: np.ndarray, sig: np.ndarray, base: PlanarPose,

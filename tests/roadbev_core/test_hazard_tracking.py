@@ -12,7 +12,7 @@ import pytest
 
 from roadbev_core.ego_motion import PlanarPose
 from roadbev_core.fusion import MapWindow
-from roadbev_core.hazard_tracking import HazardTracker, TrackerError, TrackerSettings, distance_ahead
+from roadbev_core.hazard_tracking import HazardReport, HazardTracker, TrackerError, TrackerSettings, distance_ahead
 from roadbev_core.synth.heightfield import roughness_field
 
 RES = 0.03
@@ -54,11 +54,13 @@ def _window(base_x: float, stamp_ns: int, noise: float = 0.0, rng: np.random.Gen
     return MapWindow(z, sigma, np.ones_like(z), np.zeros_like(z), RES, centre, stamp_ns)
 
 
-def _drive(tracker: HazardTracker, start: float, stop: float, step: float, **kw: object) -> list[object]:
+def _drive(tracker: HazardTracker, start: float, stop: float, step: float, noise: float = 0.0,
+           rng: np.random.Generator | None = None, rough_class: str | None = None) -> list[HazardReport]:
     reports = []
     for k, bx in enumerate(np.arange(start, stop, step)):
         stamp = 1_000_000_000 + int(k * step / 10.0 * 1e9)  # 10 m/s
-        reports.append(tracker.update(_window(float(bx), stamp, **kw), PlanarPose(stamp, float(bx), 0.0, 0.0, 10.0)))
+        window = _window(float(bx), stamp, noise, rng, rough_class)
+        reports.append(tracker.update(window, PlanarPose(stamp, float(bx), 0.0, 0.0, 10.0)))
     return reports
 
 
