@@ -44,9 +44,10 @@ def factory(request: pytest.FixtureRequest) -> MessageFactory:
 
 def _report(speed: float = 8.0) -> HazardReport:
     bump = TrackedHazard(3, "bump", 20.0, 0.1, 0.2, 0.02, 0.45, 1.92, 0.05, 0.004, 0.9, 6, 0, 1_000_000_000,
-                         1_500_000_000, 1_100_000_000, 5.2, 2.4)
+                         1_500_000_000, first_reported_ns=1_100_000_000, first_reported_distance_m=5.2,
+                         distance_ahead_m=2.4)
     pothole = TrackedHazard(4, "pothole", 26.0, 0.5, 0.26, 0.015, 0.6, 0.6, -0.04, 0.005, 0.7, 2, 0,
-                            1_400_000_000, 1_500_000_000, 1_500_000_000, math.nan, math.nan)
+                            1_400_000_000, 1_500_000_000, first_reported_ns=1_500_000_000)
     cost = np.zeros((5, 3), np.int8)
     cost[0, 0], cost[4, 2], cost[2, 1] = 100, -1, 40
     roughness = [TrackRoughness("front_left", 0.8, 6e-5, "B", 9.6), TrackRoughness("front_right", -0.8, math.nan,
