@@ -62,6 +62,7 @@ setup(
             "roadbev = roadbev_ros.cli:main",
             "roadbev_node = roadbev_ros.node:main",
             "roadbev_preview_controller = roadbev_ros.preview_controller:main",
+            "roadbev_hazard_monitor = roadbev_ros.hazard_monitor:main",
         ],
     },
 )

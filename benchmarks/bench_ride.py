@@ -15,14 +15,16 @@ the true state and one preview source (rows):
   ``map_plane_attitude``: the same with the true plane's slopes undone (what the contract's
   contact-plane fields in ``RoadPreview`` are for);
 * ``<backend>`` (``--backends``, default ``bev_sweep``): the per-frame previews of the pipeline
-  on the rendered frames (only on ``--render-seeds`` drives, ``--render-duration`` s long:
-  rendering costs ~1.5 s a frame on the full 960 x 528 rig here).
+  on the rendered frames, and ``<backend>_map``: the previews of the same pipeline with the fused
+  map on (``roadbev eval --map``: the drive's own drifting, noisy odometry, the camera mount of its
+  ``/tf_static``), read with the contact plane each message carries (as the reference node
+  does); only on ``--render-seeds`` drives, ``--render-duration`` s long (rendering costs
+  ~1.5 s a frame on the full 960 x 528 rig here). Both rows share one estimate per frame.
 
 Each preview row's ``share`` is the share of the ceiling's gain over the no-preview controller
-in Wk-weighted RMS body acceleration it delivers (:func:`roadbev_core.ride.gain_share`). A new
-preview source (e.g. the fused map's previews) is one more entry in :data:`PREVIEW_MAKERS`: a
-function of (drive, the frames at the camera rate) returning a list of
-:class:`roadbev_core.arrival.TimedPreview`.
+in Wk-weighted RMS body acceleration it delivers (:func:`roadbev_core.ride.gain_share`). Another
+preview source is one more entry in :data:`PREVIEW_MAKERS`: a function of (drive, the frames at
+the camera rate) returning a list of :class:`roadbev_core.arrival.TimedPreview`.
 
 Run: ``.venv/bin/python -m benchmarks.bench_ride [--duration 20] [--seeds 3] [--speeds 5 10 20]
 [--rates 5 10] [--render-seeds 1] [--render-duration 6] [--backends bev_sweep]``; writes
@@ -47,6 +49,7 @@ SEED_BASE = 310_000  # disjoint from training, test, tuning (200000+) and bench_
 CAMERA_RATE_HZ = 10.0  # drives are rendered at 10 Hz; slower cameras take every k-th frame
 ROAD_KINDS = ("bumps", "potholes", "rough")
 PreviewMaker = Callable[[Any, Sequence[Any]], list[Any]]
+MAP_SUFFIX = "_map"  # the fused-map row of a backend: "bev_sweep_map"
 
 
 def road_config(kind: str, rng: np.random.Generator) -> Any:
@@ -69,24 +72,72 @@ def road_config(kind: str, rng: np.random.Generator) -> Any:
                    noise_sigma=float(rng.uniform(0.5, 2.0)))
 
 
-def backend_maker(name: str) -> PreviewMaker:
-    """The per-frame previews of backend ``name`` (``roadbev_road``), estimates cached by stamp so
-    that a slower camera rate reuses the frames it shares with the faster one."""
-    cache: dict[int, Any] = {}
+class CachedBackend:
+    """A backend whose estimates are kept by frame stamp, so that the per-frame and the fused-map
+    rows, and a slower camera rate, reuse the estimates of the frames they share (one drive's
+    frames: a new drive needs a new cache)."""
+
+    def __init__(self, inner: Any) -> None:
+        self.inner = inner
+        self.name: str = inner.name
+        self.grid: Any = inner.grid
+        self.needs_stereo: bool = inner.needs_stereo
+        self.estimates: dict[int, Any] = {}
+
+    def estimate(self, frame: Any) -> Any:
+        stamp = int(frame.stamp_ns)
+        if stamp not in self.estimates:
+            self.estimates[stamp] = self.inner.estimate(frame)
+        return self.estimates[stamp]
+
+
+def _pipeline(backend: CachedBackend, drive: Any, fused: bool) -> Any:
+    """A pipeline around ``backend`` on the drive's grid and camera mount, map on or off, as
+    ``roadbev eval --map`` / ``--no-map`` runs a drive bag."""
+    from roadbev_core.config import RoadbevConfig
+    from roadbev_core.pipeline import Pipeline
+
+    config = RoadbevConfig.from_params({**drive.config.grid.to_dict(), "backend": backend.name, "map.enabled": fused})
+    pipeline = Pipeline(config, backend_factory=lambda *_a, **_k: backend, configure_process=False)
+    pipeline.set_camera_mount(*drive.base_to_camera)
+    return pipeline
+
+
+def backend_maker(name: str, caches: dict[str, CachedBackend] | None = None, fused: bool = False) -> PreviewMaker:
+    """The previews of backend ``name`` on the rendered frames: per frame (``roadbev_road``), or
+    with ``fused`` those of the fused map (``map.enabled``, fed with the drive's own drifting,
+    noisy odometry and its ``/tf_static`` camera mount: contact-plane previews once the map holds
+    three tyre contacts, the per-frame one before). Estimates are shared through ``caches``
+    (backend name -> :class:`CachedBackend`; makers of one drive share one dict)."""
+    caches = {} if caches is None else caches
 
     def make(drive: Any, samples: Sequence[Any]) -> list[Any]:
         from roadbev_core.arrival import per_frame_previews
         from roadbev_core.backends import create
         from roadbev_core.evaluation import evaluate
+        from roadbev_core.synth.riding import planar_odometry
 
-        todo = [s for s in samples if int(s.frame.stamp_ns) not in cache]
-        if todo:
-            result = evaluate(create(name, drive.config.grid), todo, keep_estimates=True)
-            for p in per_frame_previews(result.outputs or []):
-                cache[p.stamp_ns] = p
-        return [cache[int(s.frame.stamp_ns)] for s in samples if int(s.frame.stamp_ns) in cache]
+        if name not in caches:
+            caches[name] = CachedBackend(create(name, drive.config.grid))
+        pipeline = _pipeline(caches[name], drive, fused)
+        odometry = planar_odometry(drive.odometry()) if fused else None
+        outputs: list[Any] = []  # only the previews are kept (a map window per frame is ~1 MB)
+        evaluate(pipeline, samples, odometry=odometry, on_output=lambda o: outputs.extend(per_frame_previews([o])))
+        return outputs
 
     return make
+
+
+def rendered_makers(backends: Sequence[str]) -> dict[str, PreviewMaker]:
+    """The rows of one rendered drive: ``<backend>`` (per frame) and ``<backend>_map`` (the fused
+    map's previews) for each backend, sharing the estimates, plus :data:`PREVIEW_MAKERS`."""
+    caches: dict[str, CachedBackend] = {}
+    makers: dict[str, PreviewMaker] = {}
+    for b in backends:
+        makers[b] = backend_maker(b, caches)
+        makers[f"{b}{MAP_SUFFIX}"] = backend_maker(b, caches, fused=True)
+    makers.update({name: factory(name) for name, factory in PREVIEW_MAKERS.items()})
+    return makers
 
 
 def scores(rows: dict[str, dict[str, Any]]) -> dict[str, float]:
@@ -103,7 +154,14 @@ def run_cell(kind: str, speed: float, seed: int, duration: float, rates: Sequenc
              makers: dict[str, PreviewMaker]) -> dict[str, Any]:
     """One drive: every source ridden at every camera rate (rendered only when ``makers``)."""
     from roadbev_core.arrival import ArrivalSettings, Trajectory
-    from roadbev_core.ride import RideSettings, perfect_map_previews, perfect_previews, ride, true_plane_slopes
+    from roadbev_core.ride import (
+        RideSettings,
+        carried_plane_slopes,
+        perfect_map_previews,
+        perfect_previews,
+        ride,
+        true_plane_slopes,
+    )
     from roadbev_core.synth import DriveConfig, RidingConfig, RidingDrive
 
     rng = np.random.default_rng(seed)
@@ -124,7 +182,10 @@ def run_cell(kind: str, speed: float, seed: int, duration: float, rates: Sequenc
     render_s = time.perf_counter() - start_time
     window = perfect_previews(truth, road_map, stamps, grid, settings)
     fused = perfect_map_previews(truth, road_map, stamps, grid, settings)
-    attitude = {"map_plane_attitude": true_plane_slopes(truth, road_map, settings, stamps)}
+    # contact-plane rows read with a plane: the true one for the perfect map, the one each
+    # message carries for the rendered rows (per-frame messages carry none)
+    attitude = {"map_plane_attitude": true_plane_slopes(truth, road_map, settings, stamps),
+                **{name: carried_plane_slopes for name in makers}}
     out: dict[str, Any] = {"road": kind, "speed_mps": speed, "seed": seed, "duration_s": frames / CAMERA_RATE_HZ,
                            "rendered": bool(makers), "render_s": round(render_s, 1), "rates": {}}
     base: dict[str, Any] | None = None
@@ -220,7 +281,46 @@ def plot(table: Sequence[dict[str, Any]], path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
-PREVIEW_MAKERS: dict[str, Callable[[str], PreviewMaker]] = {}  # extra preview rows by name (e.g. a fused map)
+class BenchError(Exception):
+    """An earlier run that cannot stand in for the drives asked for."""
+
+
+def truth_cells_from(path: Path, wanted: Sequence[tuple[str, float, int]], duration: float, rates: Sequence[float],
+                     latency: float) -> tuple[dict[tuple[str, float, int], dict[str, Any]], dict[str, Any]]:
+    """The truth-only cells ``wanted`` ((road, speed, seed)) of an earlier run's JSON, and where
+    they came from (that run's command, commit, time and wall time; an earlier reuse is carried
+    through).
+
+    Raises:
+        BenchError: an unreadable file, another latency, or a wanted drive missing or ridden with
+            another duration or camera rates.
+    """
+    import json
+
+    try:
+        data = json.loads(path.read_text())
+        cells = {(c["road"], float(c["speed_mps"]), int(c["seed"])): c for c in data["cells"] if not c["rendered"]}
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise BenchError(f"--truth-from {path}: not a bench_ride result ({type(exc).__name__}: {exc})") from None
+    if not math.isclose(float(data.get("latency_s", math.nan)), latency):
+        raise BenchError(f"--truth-from {path}: latency {data.get('latency_s')} s, not {latency} s")
+    out = {}
+    for key in wanted:
+        cell = cells.get(key)
+        if cell is None:
+            raise BenchError(f"--truth-from {path}: no truth-only drive {key[0]} {key[1]:g} m/s seed {key[2]}")
+        if not math.isclose(cell["duration_s"], round(duration * CAMERA_RATE_HZ) / CAMERA_RATE_HZ) or \
+                sorted(float(r) for r in cell["rates"]) != sorted(float(r) for r in rates):
+            raise BenchError(f"--truth-from {path}: drive {key[0]} {key[1]:g} m/s seed {key[2]} was ridden "
+                             f"{cell['duration_s']} s at {sorted(cell['rates'])} Hz")
+        out[key] = cell
+    provenance = data.get("truth_only_from") or {
+        "path": str(path), "command": data.get("command"), "git_commit": data.get("machine", {}).get("git_commit"),
+        "time_utc": data.get("machine", {}).get("time_utc"), "wall_s": data.get("wall_s")}
+    return out, provenance
+
+
+PREVIEW_MAKERS: dict[str, Callable[[str], PreviewMaker]] = {}  # extra preview rows by name (factory(name) -> maker)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -236,22 +336,38 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--backends", nargs="*", default=["bev_sweep"])
     parser.add_argument("--latency", type=float, default=0.1)
     parser.add_argument("--out", default=str(RESULTS / "ride.json"))
+    parser.add_argument("--truth-from", default=None, metavar="JSON",
+                        help="take the truth-only drives from an earlier run's JSON (they depend on the "
+                             "settings only, not on any backend: every one asked for must be there with the same "
+                             "duration, rates and latency) instead of riding them again")
     args = parser.parse_args(argv)
     info = machine_info()
     start = time.perf_counter()
+    wanted = [(kind, speed, SEED_BASE + 1000 * k + 100 * i + s) for k, kind in enumerate(args.roads)
+              for i, speed in enumerate(args.speeds) for s in range(args.seeds)]
+    reused: dict[tuple[str, float, int], dict[str, Any]] = {}
+    provenance: dict[str, Any] | None = None
+    if args.truth_from:
+        try:
+            reused, provenance = truth_cells_from(Path(args.truth_from), wanted, args.duration, args.rates,
+                                                  args.latency)
+        except BenchError as exc:
+            parser.error(str(exc))
     cells = []
     for k, kind in enumerate(args.roads):
         for i, speed in enumerate(args.speeds):
             for s in range(args.seeds):
                 seed = SEED_BASE + 1000 * k + 100 * i + s
+                if (kind, speed, seed) in reused:
+                    cells.append(reused[(kind, speed, seed)])
+                    continue
                 print(f"truth-only drive {kind} {speed:g} m/s seed {seed}, {args.duration:g} s", file=sys.stderr,
                       flush=True)
                 cells.append(run_cell(kind, speed, seed, args.duration, args.rates, args.latency, {}))
             if args.backends:
                 for s in range(args.render_seeds):
                     seed = SEED_BASE + 1000 * k + 100 * i + 50 + s
-                    makers = {b: backend_maker(b) for b in args.backends}
-                    makers.update({name: factory(name) for name, factory in PREVIEW_MAKERS.items()})
+                    makers = rendered_makers(args.backends)
                     print(f"rendered drive {kind} {speed:g} m/s seed {seed}, {args.render_duration:g} s",
                           file=sys.stderr, flush=True)
                     cells.append(run_cell(kind, speed, seed, args.render_duration, args.rates, args.latency, makers))
@@ -263,6 +379,7 @@ def main(argv: list[str] | None = None) -> int:
         "latency_s": args.latency,
         "machine": info,
         "wall_s": round(time.perf_counter() - start, 1),
+        "truth_only_from": provenance,
         "table": table,
         "cells": cells,
     }

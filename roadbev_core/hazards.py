@@ -40,7 +40,8 @@ import numpy as np
 
 from roadbev_core.errors import RoadbevError
 
-__all__ = ["Hazard", "HazardError", "HazardSettings", "band", "detect_hazards", "road_residual", "severity_cost"]
+__all__ = ["Hazard", "HazardError", "HazardSettings", "band", "detect_hazards", "hazards_in_residual", "road_residual",
+           "severity_cost"]
 
 
 class HazardError(RoadbevError, ValueError):
@@ -201,6 +202,18 @@ def detect_hazards(elevation: np.ndarray, sigma: np.ndarray | None, resolution: 
     """
     s = settings or HazardSettings()
     residual, noise = road_residual(elevation, resolution, s)
+    return hazards_in_residual(residual, noise, sigma, resolution, centre, s)
+
+
+def hazards_in_residual(residual: np.ndarray, noise: float, sigma: np.ndarray | None, resolution: float,
+                        centre: tuple[float, float], settings: HazardSettings | None = None) -> list[Hazard]:
+    """:func:`detect_hazards` on a residual already computed by :func:`road_residual` (so a
+    caller that also needs the residual, e.g. for :func:`severity_cost`, computes it once).
+
+    Raises:
+        HazardError: a sigma of another shape than the residual.
+    """
+    s = settings or HazardSettings()
     if sigma is not None and np.shape(sigma) != residual.shape:
         raise HazardError(f"sigma {np.shape(sigma)} does not match the map {residual.shape}")
     sig = np.zeros(residual.shape, np.float32) if sigma is None else np.nan_to_num(np.asarray(sigma, np.float32))

@@ -24,7 +24,8 @@ the road velocity ahead, which comes from one of the sources:
 cut to the grid's window at each frame's stamp): what the window alone allows;
 :func:`perfect_map_previews` those of a perfect fused map (contact-plane reference, from the
 front tyre contact to the window's far edge), and :func:`true_plane_slopes` the attitude of
-their plane, so that the cost of a contact-plane preview without its plane can be measured.
+their plane, so that the cost of a contact-plane preview without its plane can be measured;
+:func:`carried_plane_slopes` reads the plane a real message carries (the fused map's estimate).
 
 Metrics per wheel over the scored span (:class:`RideMetrics`): ISO 2631-1 Wk-weighted RMS body
 acceleration, peak suspension travel, RMS dynamic tyre load relative to the static load, RMS and
@@ -63,6 +64,7 @@ __all__ = [
     "RideMetrics",
     "RideSettings",
     "WheelRoad",
+    "carried_plane_slopes",
     "gain_share",
     "perfect_map_previews",
     "perfect_previews",
@@ -468,3 +470,18 @@ def true_plane_slopes(truth: Trajectory, road_map: RoadMap, settings: RideSettin
         return table[msg.stamp_ns]
 
     return slopes
+
+
+def carried_plane_slopes(msg: TimedPreview) -> tuple[float, float] | None:
+    """The slopes (dz/dx, dz/dy along ``base_link``'s heading axes) of the contact plane a
+    message carries itself (:class:`roadbev_core.preview.ContactPlane`: ``z = height - x tan(pitch)
+    + y tan(roll) / cos(pitch)``), as a controller reading ``RoadPreview``'s contact-plane fields
+    would undo it; None for messages without one (per-frame previews) or with a non-finite or
+    implausible (> ~27 deg) attitude."""
+    plane = msg.profiles.contact_plane
+    if msg.reference != REFERENCE_CONTACT_PLANE or plane is None:
+        return None
+    roll, pitch = float(plane.roll), float(plane.pitch)
+    if not (math.isfinite(roll) and math.isfinite(pitch) and abs(roll) < 0.5 and abs(pitch) < 0.5):
+        return None
+    return -math.tan(pitch), math.tan(roll) / math.cos(pitch)

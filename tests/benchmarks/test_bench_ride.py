@@ -49,3 +49,48 @@ def test_road_kinds() -> None:
     assert road_config("rough", rng).road_class == "D"
     with pytest.raises(ValueError):
         road_config("gravel", rng)
+
+
+def test_truth_only_drives_are_taken_from_an_earlier_run(tmp_path: Any) -> None:
+    import json
+
+    from benchmarks.bench_ride import BenchError, truth_cells_from
+
+    rows = _rows(passive=3.0, no_preview=2.0, true_road=1.0)
+    cell = {"road": "bumps", "speed_mps": 5.0, "seed": 7, "duration_s": 20.0, "rendered": False,
+            "rates": {"5": {"rows": rows}, "10": {"rows": rows}}}
+    path = tmp_path / "ride.json"
+    path.write_text(json.dumps({"latency_s": 0.1, "command": "python -m benchmarks.bench_ride", "wall_s": 9.0,
+                                "machine": {"git_commit": "abc"}, "cells": [cell, {**cell, "rendered": True}]}))
+    cells, where = truth_cells_from(path, [("bumps", 5.0, 7)], 20.0, [5.0, 10.0], 0.1)
+    assert cells[("bumps", 5.0, 7)]["rendered"] is False
+    assert where["git_commit"] == "abc" and where["command"] == "python -m benchmarks.bench_ride"
+    with pytest.raises(BenchError, match="no truth-only drive"):
+        truth_cells_from(path, [("bumps", 10.0, 7)], 20.0, [5.0, 10.0], 0.1)
+    with pytest.raises(BenchError, match="ridden"):
+        truth_cells_from(path, [("bumps", 5.0, 7)], 6.0, [5.0, 10.0], 0.1)
+    with pytest.raises(BenchError, match="latency"):
+        truth_cells_from(path, [("bumps", 5.0, 7)], 20.0, [5.0, 10.0], 0.2)
+    (tmp_path / "bad.json").write_text("{")
+    with pytest.raises(BenchError, match="not a bench_ride result"):
+        truth_cells_from(tmp_path / "bad.json", [], 20.0, [5.0], 0.1)
+
+
+def test_cached_backend_estimates_each_frame_once() -> None:
+    from types import SimpleNamespace
+
+    from benchmarks.bench_ride import CachedBackend
+
+    calls: list[int] = []
+
+    class Inner:
+        name, grid, needs_stereo = "stub", None, False
+
+        def estimate(self, frame: Any) -> Any:
+            calls.append(frame.stamp_ns)
+            return SimpleNamespace(stamp=frame.stamp_ns)
+
+    backend = CachedBackend(Inner())
+    for stamp in (1, 2, 1, 2, 3):
+        assert backend.estimate(SimpleNamespace(stamp_ns=stamp)).stamp == stamp
+    assert calls == [1, 2, 3]
