@@ -6,8 +6,9 @@ Each :meth:`HazardTracker.update` takes one published map window (:class:`roadbe
 ``odom``, grid_map order) and, when known, ``base_link``'s planar pose at its stamp:
 
 1. **Detect.** :func:`roadbev_core.hazards.road_residual` (height above the road's own level) and
-   :func:`roadbev_core.hazards.hazards_in_residual` on it, with the map's ``uncertainty`` layer as
-   sigma: bumps and potholes with centroid, extent, signed height, its 1-sigma and a confidence.
+   :func:`roadbev_core.hazards.hazards_in_residual` on it, with the map's ``uncertainty`` layer
+   without the datum's part (``MapWindow.local_uncertainty``) as sigma: bumps and potholes with
+   centroid, extent, signed height, its 1-sigma and a confidence.
 2. **Associate** (in ``odom``, where a road feature stands still): each detection goes to the
    nearest track of the same kind whose centroid lies within ``gate_m`` plus half of the larger
    extent on each axis (greedy, nearest first); an unmatched detection opens a tentative track.
@@ -257,7 +258,8 @@ class HazardTracker:
         """
         s = self.settings
         e = np.asarray(window.elevation, np.float32)  # [R, C]
-        sig = np.asarray(window.uncertainty, np.float32)
+        # a hazard is a height against the road around it: the datum's part of the sigma cancels
+        sig = np.asarray(window.local_uncertainty(), np.float32)
         if e.ndim != 2 or sig.shape != e.shape or not (math.isfinite(window.resolution) and window.resolution > 0):
             raise TrackerError(f"map window layers {e.shape} / {sig.shape} at resolution {window.resolution} "
                                "cannot be tracked")

@@ -98,6 +98,9 @@ class MapMosaic(NamedTuple):
         elevation, uncertainty, observations: [R, C] float32 (NaN = never held).
         resolution: cell size (m).
         centre: (x, y) of the mosaic's centre.
+        local_uncertainty: [R, C] float32, ``uncertainty`` without the datum's part
+            (:meth:`roadbev_core.fusion.MapWindow.local_uncertainty`): what a cell's height is
+            worth against the cells around it (hazards).
     """
 
     elevation: np.ndarray
@@ -105,6 +108,7 @@ class MapMosaic(NamedTuple):
     observations: np.ndarray
     resolution: float
     centre: tuple[float, float]
+    local_uncertainty: np.ndarray
 
     def extent(self) -> tuple[float, float, float, float]:
         """(x_min, x_max, y_min, y_max) of the mosaic's cells' outer edges."""
@@ -139,7 +143,8 @@ def mosaic(windows: Sequence[Any]) -> MapMosaic:
     x_bottom = min(w.centre[0] - 0.5 * w.elevation.shape[0] * res for w in windows)
     y_right = min(w.centre[1] - 0.5 * w.elevation.shape[1] * res for w in windows)
     n_rows, n_cols = int(round((x_top - x_bottom) / res)), int(round((y_left - y_right) / res))
-    layers = {k: np.full((n_rows, n_cols), np.nan, np.float32) for k in ("elevation", "uncertainty", "observations")}
+    names = ("elevation", "uncertainty", "observations", "local_uncertainty")
+    layers = {k: np.full((n_rows, n_cols), np.nan, np.float32) for k in names}
     for w, top, left in zip(windows, tops, lefts, strict=True):
         r0f, c0f = (x_top - top) / res, (y_left - left) / res
         r0, c0 = int(round(r0f)), int(round(c0f))
@@ -147,11 +152,13 @@ def mosaic(windows: Sequence[Any]) -> MapMosaic:
             raise DriveDemoError("fused-map windows off one cell lattice")
         rows, cols = w.elevation.shape
         known = np.isfinite(w.elevation)
+        sources = {**w.layers(), "local_uncertainty": w.local_uncertainty()}
         for name in layers:
             dest = layers[name][r0: r0 + rows, c0: c0 + cols]
-            dest[known] = np.asarray(getattr(w, name), np.float32)[known]
+            dest[known] = np.asarray(sources[name], np.float32)[known]
     centre = (0.5 * (x_top + x_bottom), 0.5 * (y_left + y_right))
-    return MapMosaic(layers["elevation"], layers["uncertainty"], layers["observations"], res, centre)
+    return MapMosaic(layers["elevation"], layers["uncertainty"], layers["observations"], res, centre,
+                     layers["local_uncertainty"])
 
 
 # --------------------------------------------------------------------------------------------
@@ -397,7 +404,7 @@ def run_drive_section(
     notes = list(truth.notes)
     # hazards on the fused map against the true features (or the detector on the true road)
     try:
-        hazards = detect_hazards(fused.elevation, fused.uncertainty, fused.resolution, fused.centre)
+        hazards = detect_hazards(fused.elevation, fused.local_uncertainty, fused.resolution, fused.centre)
         known = _read_features(bag_path)
         if known is None:
             reference, reference_kind = _truth_hazards(truth.road_map, fused), "detected on the true road map"

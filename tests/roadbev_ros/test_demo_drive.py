@@ -64,7 +64,7 @@ def test_mosaic_refuses_nothing_and_windows_off_the_lattice() -> None:
 def _flat_map() -> MapMosaic:
     e = np.zeros((100, 20), np.float32)  # x 0..10, y -1..1 at 0.1 m
     e[:, :5] = np.nan  # y > 0.5 never seen
-    return MapMosaic(e, np.zeros_like(e), np.ones_like(e), 0.1, (5.0, 0.0))
+    return MapMosaic(e, np.zeros_like(e), np.ones_like(e), 0.1, (5.0, 0.0), np.zeros_like(e))
 
 
 def _hazard(kind: str, x: float, y: float, h: float) -> Hazard:
