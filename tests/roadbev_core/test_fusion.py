@@ -215,6 +215,7 @@ def test_the_published_sigma_carries_the_datum_and_grows_with_the_distance_drive
     far = np.broadcast_to((x > x.max() - 0.5)[:, None], held.shape)[held]
     assert datum[far].mean() > 0.01 + 0.004 * 4.5
     # the datum layer says how much of the sigma nearby cells share; without it, the cell's own
+    assert w0.datum_uncertainty is not None and w1.datum_uncertainty is not None
     np.testing.assert_allclose(w1.datum_uncertainty[held], datum, atol=2e-4)
     np.testing.assert_allclose(w1.local_uncertainty()[held], w0.uncertainty[held], atol=2e-4)
     assert np.all(w0.datum_uncertainty[held] == 0.0)
