@@ -149,3 +149,20 @@ def spin_until_shutdown(rclpy: Any, node: Any, on_exit: Callable[[], None] | Non
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
+
+
+def run_node(make_node: Callable[[], Any], program: str, refused: tuple[type[BaseException], ...],
+             args: list[str] | None = None) -> int:
+    """A small node's ``main``: init rclpy with ``args`` (default ``sys.argv``), build the node,
+    spin it until Ctrl-C / SIGTERM. Returns 0, or 2 when building it raised one of ``refused``
+    (bad parameters: the reason goes to stderr as ``<program>: <reason>``)."""
+    rclpy = init_ros(list(sys.argv if args is None else args))
+    try:
+        node = make_node()
+    except refused as exc:
+        print(f"{program}: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    spin_until_shutdown(rclpy, node)
+    return 0
+

@@ -166,18 +166,9 @@ class HazardMonitorNode(Node):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the node until Ctrl-C / SIGTERM; 2 on bad parameters."""
-    from roadbev_ros.dds import init_ros, spin_until_shutdown
+    from roadbev_ros.dds import run_node
 
-    argv = list(sys.argv if args is None else args)
-    rclpy = init_ros(argv)
-    try:
-        node = HazardMonitorNode()
-    except RoadbevError as exc:
-        print(f"roadbev_hazard_monitor: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    spin_until_shutdown(rclpy, node)
-    return 0
+    return run_node(HazardMonitorNode, "roadbev_hazard_monitor", (RoadbevError,), None if args is None else list(args))
 
 
 if __name__ == "__main__":

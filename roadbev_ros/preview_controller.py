@@ -190,18 +190,10 @@ class PreviewControllerNode(Node):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the node until Ctrl-C / SIGTERM; 2 on bad parameters."""
-    from roadbev_ros.dds import init_ros, spin_until_shutdown
+    from roadbev_ros.dds import run_node
 
-    argv = list(sys.argv if args is None else args)
-    rclpy = init_ros(argv)
-    try:
-        node = PreviewControllerNode()
-    except RideError as exc:
-        print(f"roadbev_preview_controller: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    spin_until_shutdown(rclpy, node)
-    return 0
+    return run_node(PreviewControllerNode, "roadbev_preview_controller", (RideError,),
+                    None if args is None else list(args))
 
 
 if __name__ == "__main__":
