@@ -382,19 +382,29 @@ class Health:
             if rate.level == ERROR:
                 rate = Check(rate.name, rate.level, rate.message + hint, rate.values)
             stamps = stamp_check(self.arrival_age_ms, self.min_stamp_age_s, self.max_stamp_age_s, what="left image")
+            # a stale stream shows no figures: its last outputs were recorded a processing time
+            # after its last input, so their windows would still hold them for that long
+            stale = rate.level == ERROR
+
+            def pct(window: LatencyWindow, q: float) -> float:
+                return math.nan if stale else window.percentile(q)
+
+            def mean(window: LatencyWindow) -> float:
+                return math.nan if stale else window.mean()
+
             values = {
                 "backend": self.backend,
                 "input_rate_hz": f"{in_rate:.2f}",
                 "set_rate_hz": f"{self.set_rate.rate():.2f}",
                 "output_rate_hz": f"{out_rate:.2f}",
-                "latency_p50_ms": f"{self.latency_ms.percentile(50):.1f}",
-                "latency_p95_ms": f"{self.latency_ms.percentile(95):.1f}",
-                "stamp_age_p50_ms": f"{self.stamp_age_ms.percentile(50):.1f}",
-                "inference_mean_ms": f"{self.inference_ms.mean():.1f}",
-                "inference_p50_ms": f"{self.inference_ms.percentile(50):.1f}",
-                "overhead_mean_ms": f"{self.overhead_ms.mean():.2f}",
-                "overhead_p95_ms": f"{self.overhead_ms.percentile(95):.2f}",
-                "imu_wait_mean_ms": f"{self.imu_wait_ms.mean():.2f}",
+                "latency_p50_ms": f"{pct(self.latency_ms, 50):.1f}",
+                "latency_p95_ms": f"{pct(self.latency_ms, 95):.1f}",
+                "stamp_age_p50_ms": f"{pct(self.stamp_age_ms, 50):.1f}",
+                "inference_mean_ms": f"{mean(self.inference_ms):.1f}",
+                "inference_p50_ms": f"{pct(self.inference_ms, 50):.1f}",
+                "overhead_mean_ms": f"{mean(self.overhead_ms):.2f}",
+                "overhead_p95_ms": f"{pct(self.overhead_ms, 95):.2f}",
+                "imu_wait_mean_ms": f"{mean(self.imu_wait_ms):.2f}",
                 "window_s": f"{self.window_s:g}",
                 "last_input_age_s": "never" if last_in is None else f"{now - last_in:.1f}",
                 "frames_in": str(self.frames_in),

@@ -244,3 +244,20 @@ def test_the_other_transport_on_the_graph_is_named() -> None:
     clock.t += 10.0
     snap = health.snapshot()
     assert snap.level == ERROR and "image_transport:=compressed" in snap.message  # and once it stopped
+
+
+def test_a_stale_stream_shows_no_figures_even_while_its_last_outputs_are_inside_the_window() -> None:
+    clock = FakeClock()
+    health = Health(backend="bm", clock=clock)
+    health.configure(diag_config(**{"diagnostics.window_s": 1.0, "diagnostics.min_rate_hz": 0.0}))
+    for _ in range(5):
+        health.frame_in(0.05)
+        health.set_in()
+        clock.t += 0.05  # each output is recorded a processing time after its input
+        health.output(30.0, 60.0, 20.0, 2.0)
+        clock.t += 0.05
+    clock.t += 1.0 - 0.06  # the last input is a window old, the last output not yet
+    snap = health.snapshot()
+    assert snap.level == ERROR and snap.message.startswith("stale"), snap.message
+    for key in ("latency_p50_ms", "latency_p95_ms", "inference_mean_ms", "overhead_p95_ms"):
+        assert snap.values[key] == "nan", (key, snap.values[key])
