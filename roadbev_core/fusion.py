@@ -52,7 +52,6 @@ Pure numpy; shapes in the comments.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass
@@ -65,6 +64,7 @@ from roadbev_core.config import GridSpec
 from roadbev_core.ego_motion import PlanarPose
 from roadbev_core.errors import RoadbevError
 from roadbev_core.geometry import R_BODY_FROM_OPTICAL, Attitude, rotation_from_rpy
+from roadbev_core.tables import json_table
 from roadbev_core.vehicle import planar_yaw
 
 __all__ = [
@@ -97,9 +97,9 @@ def datum_calibration_for(backend: str, path: Path = DATUM_CALIBRATION_FILE) -> 
     """``(datum_sigma_m, datum_drift)`` fitted for ``backend`` (None when the table has none, or
     the file is missing or unreadable)."""
     try:
-        entry = json.loads(path.read_text())["backends"][backend]
+        entry = json_table(path)["backends"][backend]
         sigma, drift = float(entry["datum_sigma_m"]), float(entry["datum_drift"])
-    except (OSError, ValueError, KeyError, TypeError):
+    except (ValueError, KeyError, TypeError):
         return None
     if not (math.isfinite(sigma) and math.isfinite(drift) and sigma >= 0 and drift >= 0):
         return None
@@ -399,11 +399,9 @@ class FusedMap:
         self._n = np.zeros((0, 0), np.int32)
         self._rejected = np.zeros((0, 0), np.int16)
         self._t_last = np.zeros((0, 0), np.int64)
-        # the fused mean and sigma [n_i, n_j] (NaN where nothing was accepted), and the same as a
-        # bilinear table for heights(): kept up to date cell by cell as frames change them
-        self._mean = np.zeros((0, 0))
-        self._sigma = np.zeros((0, 0))
-        self._table = prepare_bilinear(self._mean, self._sigma)
+        # the fused mean and sigma of every cell as a bilinear table (0 and known = 0 where nothing
+        # was accepted), kept up to date cell by cell as frames change them: heights() samples it
+        self._table = prepare_bilinear(np.zeros((0, 0)), np.zeros((0, 0)))
         self._base_z: float | None = None  # base_link's origin z in odom, after the last frame
         self._driven = 0.0  # metres driven since the datum was fixed
         self._last_xy: tuple[float, float] | None = None
@@ -440,8 +438,8 @@ class FusedMap:
         a_lo, a_hi = max(i_lo, self._i0), min(i_hi, self._i0 + n_i)
         b_lo, b_hi = max(j_lo, self._j0), min(j_hi, self._j0 + n_j)
 
-        def moved(old: np.ndarray, fill: float = 0.0) -> np.ndarray:  # [..., n_i, n_j] -> [..., shape]
-            new = np.full(old.shape[:-2] + shape, fill, old.dtype)
+        def moved(old: np.ndarray) -> np.ndarray:  # [..., n_i, n_j] -> [..., shape]
+            new = np.zeros(old.shape[:-2] + shape, old.dtype)
             if a_hi > a_lo and b_hi > b_lo:
                 new[..., a_lo - i_lo:a_hi - i_lo, b_lo - j_lo:b_hi - j_lo] = \
                     old[..., a_lo - self._i0:a_hi - self._i0, b_lo - self._j0:b_hi - self._j0]
@@ -449,16 +447,8 @@ class FusedMap:
 
         self._sums = moved(self._sums)
         self._n, self._rejected, self._t_last = moved(self._n), moved(self._rejected), moved(self._t_last)
-        self._mean, self._sigma = moved(self._mean, np.nan), moved(self._sigma, np.nan)
-        table = self._table
-        self._table = Prepared(shape, *(moved(a.reshape(n_i, n_j)).ravel() for a in table[1:]))
+        self._table = Prepared(shape, *(moved(a.reshape(n_i, n_j)).ravel() for a in self._table[1:]))
         self._i0, self._j0 = i_lo, j_lo
-
-    def _centres(self) -> tuple[np.ndarray, np.ndarray]:
-        """[n_i] x and [n_j] y of the buffer's cell centres in odom."""
-        r = self.settings.resolution
-        n_i, n_j = self._n.shape
-        return (self._i0 + np.arange(n_i) + 0.5) * r, (self._j0 + np.arange(n_j) + 0.5) * r
 
     def _forget_outside(self, base: PlanarPose) -> None:
         """Clear every cell outside the corridor at ``base`` (behind the car, beside it)."""
@@ -474,15 +464,16 @@ class FusedMap:
                 row[outside] = 0.0
             self._n.ravel()[outside] = 0
             self._rejected.ravel()[outside] = 0
-            self._mean.ravel()[outside] = np.nan
-            self._sigma.ravel()[outside] = np.nan
             for a in self._table[1:]:
                 a[outside] = 0.0
 
     # --- reading -------------------------------------------------------------------------------
-    def _means(self) -> tuple[np.ndarray, np.ndarray]:
-        """[n_i, n_j] fused elevation and 1-sigma (NaN where nothing was accepted)."""
-        return self._mean, self._sigma
+    def _fused_at(self, flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Fused elevation and 1-sigma [K] of the cells at flat buffer indices [K] (NaN where
+        nothing was accepted)."""
+        table = self._table
+        known = np.take(table.known, flat) > 0
+        return np.where(known, np.take(table.values, flat), np.nan), np.where(known, np.take(table.sigma, flat), np.nan)
 
     def _refresh(self, flat: np.ndarray) -> None:
         """Recompute the mean and sigma of cells at flat buffer indices [K] that hold observations."""
@@ -491,8 +482,6 @@ class FusedMap:
         mean = s1 / w
         model = (1.0 - rho) * w2var / (w * w) + rho * (wsig / w) ** 2
         sigma = np.sqrt(np.maximum(model, np.maximum(s2 / w - mean * mean, 0.0)))  # never below the spread
-        self._mean.ravel()[flat] = mean
-        self._sigma.ravel()[flat] = sigma
         self._table.values[flat] = mean
         self._table.sigma[flat] = sigma
         self._table.known[flat] = 1.0
@@ -513,7 +502,6 @@ class FusedMap:
         r = self.settings.resolution
         i_lo, i_hi, j_lo, j_hi = self._index_box(self._corridor_corners(base), 0.0)
         shape = (i_hi - i_lo, j_hi - j_lo)
-        mean, sigma = self._means() if self._n.size else (np.zeros((0, 0)), np.zeros((0, 0)))
         layers = {name: np.full(shape, np.nan, np.float32) for name in ("elevation", "uncertainty", "age", "datum")}
         observations = np.zeros(shape, np.float32)
         n_i, n_j = self._n.shape
@@ -523,12 +511,13 @@ class FusedMap:
             src = (slice(a_lo - self._i0, a_hi - self._i0), slice(b_lo - self._j0, b_hi - self._j0))
             dst = (slice(a_lo - i_lo, a_hi - i_lo), slice(b_lo - j_lo, b_hi - j_lo))
             known = self._n[src] > 0
-            layers["elevation"][dst] = mean[src]
+            mean, sigma = (a.reshape(n_i, n_j)[src] for a in (self._table.values, self._table.sigma))
+            layers["elevation"][dst] = np.where(known, mean, np.nan)
             # the published sigma is in odom z: the cell's own and its datum's (module docstring)
             w, w_datum = self._sums[_W][src], self._sums[_WDATUM][src]
             with np.errstate(invalid="ignore", divide="ignore"):
                 datum_sigma = np.where(known, w_datum / w, np.nan)
-            layers["uncertainty"][dst] = np.sqrt(sigma[src] ** 2 + datum_sigma ** 2)
+            layers["uncertainty"][dst] = np.sqrt(sigma ** 2 + datum_sigma ** 2)
             layers["datum"][dst] = datum_sigma
             layers["age"][dst] = np.where(known, (stamp_ns - self._t_last[src]) * 1e-9, np.nan)
             observations[dst] = self._n[src]
@@ -586,8 +575,7 @@ class FusedMap:
         ok = np.isfinite(z) & np.isfinite(sz) & (sz > 0)
         flat, u, v, z, sz = flat[ok], u[ok], v[ok], z[ok] + datum, sz[ok]
         range_factor = np.maximum(u / grid.x_min, 1.0) ** s.range_exponent if grid.x_min > 0 else np.ones_like(u)
-        mean, msig = self._means()
-        m, ms = np.take(mean, flat), np.take(msig, flat)
+        m, ms = self._fused_at(flat)
         both = np.isfinite(m)
         a, b, c, cov, rms, aligned = self._align(z[both], sz[both] * np.sqrt(range_factor[both]), u[both], v[both],
                                                  m[both], ms[both])

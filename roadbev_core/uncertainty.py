@@ -23,11 +23,9 @@ likelihood), never on the test frames, by ``python -m benchmarks.calibrate_sigma
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from functools import cache
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -36,6 +34,7 @@ import numpy as np
 
 from roadbev_core.config import GridSpec
 from roadbev_core.frame import Estimate, Frame
+from roadbev_core.tables import json_table
 from roadbev_core.visibility import Visibility, analyse
 
 __all__ = [
@@ -228,15 +227,7 @@ def fit_sigma_model(features: Sequence[SigmaFeatures], errors: Sequence[np.ndarr
     return SigmaModel(**{n: float(c) for n, c in zip(names, fitted, strict=True)})
 
 
-@cache
-def _calibration_table(path: Path) -> dict[str, Any]:
-    try:
-        return dict(json.loads(path.read_text()))
-    except (OSError, ValueError):
-        return {}
-
-
 def calibration_for(backend: str, path: Path = CALIBRATION_FILE) -> SigmaModel | None:
     """The fitted :class:`SigmaModel` of ``backend`` (None when the table has none)."""
-    entry = _calibration_table(path).get("models", {}).get(backend)
+    entry = json_table(path).get("models", {}).get(backend)
     return None if entry is None else SigmaModel.from_dict(entry)

@@ -241,8 +241,9 @@ def test_the_datum_calibration_is_read_per_backend_and_params_override_it(tmp_pa
                                              "bad": {"datum_sigma_m": -1.0, "datum_drift": 0.0}}}))
     assert datum_calibration_for("a", path) == (0.002, 0.0003)
     assert datum_calibration_for("bad", path) is None and datum_calibration_for("none", path) is None
-    path.write_text("{not json")
-    assert datum_calibration_for("a", path) is None
+    garbage = tmp_path / "garbage.json"  # tables are read once per path
+    garbage.write_text("{not json")
+    assert datum_calibration_for("a", garbage) is None
     assert datum_calibration_for("a", tmp_path / "missing.json") is None
     # -1 (the default) takes the shipped calibration of the chosen backend; a value given wins
     for backend in ("bev_sweep", "bm"):
