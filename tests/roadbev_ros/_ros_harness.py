@@ -78,6 +78,67 @@ def wait_for(predicate: Callable[[], bool], timeout: float = 10.0, step: float =
     return predicate()
 
 
+class Spinning:
+    """Nodes spinning in one executor on a background thread, with a ``feeder`` node for the
+    test's publishers and subscribers (outputs kept in lists under one lock).
+
+    Use as a context manager: on exit the thread stops and every node is destroyed.
+
+    Args:
+        rclpy: the initialised rclpy module.
+        nodes: the nodes under test (destroyed on exit too).
+    """
+
+    def __init__(self, rclpy: Any, *nodes: Any) -> None:
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+        self.nodes = nodes
+        self.feeder = rclpy.create_node(f"feeder_{uuid.uuid4().hex[:8]}")
+        self.qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+        self.lock = threading.Lock()
+        self.subscriptions: list[Any] = []
+        self._executor = SingleThreadedExecutor()
+        for node in (*nodes, self.feeder):
+            self._executor.add_node(node)
+        self._running = True
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+
+    def _spin(self) -> None:
+        while self._running:
+            self._executor.spin_once(timeout_sec=0.02)
+
+    def publisher(self, msg_type: Any, topic: str) -> Any:
+        return self.feeder.create_publisher(msg_type, topic, self.qos)
+
+    def collect(self, msg_type: Any, topic: str) -> list[Any]:
+        """Subscribe ``topic``; returns the list its messages are appended to (under ``lock``)."""
+        into: list[Any] = []
+
+        def callback(msg: Any) -> None:
+            with self.lock:
+                into.append(msg)
+
+        self.subscriptions.append(self.feeder.create_subscription(msg_type, topic, callback, self.qos))
+        return into
+
+    def connected(self, *publishers: Any, timeout: float = 15.0) -> bool:
+        """Whether every publisher has a subscriber and every collecting subscription a publisher."""
+        return wait_for(lambda: all(p.get_subscription_count() > 0 for p in publishers)
+                        and all(s.get_publisher_count() > 0 for s in self.subscriptions), timeout)
+
+    def __enter__(self) -> Spinning:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._running = False
+        self._thread.join(5.0)
+        self._executor.shutdown()
+        for node in (*self.nodes, self.feeder):
+            node.destroy_node()
+
+
 class Harness:
     """Node under test + feeder, spinning on a background thread.
 

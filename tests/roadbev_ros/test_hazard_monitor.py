@@ -4,7 +4,6 @@ hazards, the severity cost and diagnostics out."""
 from __future__ import annotations
 
 import math
-import threading
 import uuid
 from typing import Any
 
@@ -19,7 +18,7 @@ from roadbev_core.errors import RoadbevError
 
 from ..msg_bridge.test_hazards import NOT_BUILT, rclpy_hazard_messages_built
 from ..roadbev_core.test_hazard_tracking import _window
-from ._ros_harness import wait_for
+from ._ros_harness import Spinning, wait_for
 
 pytestmark = pytest.mark.skipif(not rclpy_hazard_messages_built(), reason=NOT_BUILT)
 SPEED = 10.0
@@ -29,8 +28,6 @@ def test_node_reports_a_bump_ahead_with_its_distance_and_cost(ros: Any) -> None:
     from diagnostic_msgs.msg import DiagnosticArray
     from grid_map_msgs.msg import GridMap
     from nav_msgs.msg import OccupancyGrid, Odometry
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
     from roadbev_msgs.msg import RoadHazardArray
 
     from roadbev_ros.hazard_monitor import HazardMonitorNode
@@ -39,39 +36,15 @@ def test_node_reports_a_bump_ahead_with_its_distance_and_cost(ros: Any) -> None:
     topics = {"map_topic": f"/t{tag}/map", "odom_topic": f"/t{tag}/odom", "hazards_topic": f"/t{tag}/hazards",
               "cost_topic": f"/t{tag}/cost"}
     node = HazardMonitorNode(node_name=f"haz_{tag}", parameter_overrides={**topics, "diagnostics_period_s": 0.2})
-    feeder = ros.create_node(f"feeder_{tag}")
-    qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-    map_pub = feeder.create_publisher(GridMap, topics["map_topic"], qos)
-    odom_pub = feeder.create_publisher(Odometry, topics["odom_topic"], qos)
-    lock = threading.Lock()
-    hazards: list[Any] = []
-    costs: list[Any] = []
-    diagnostics: list[Any] = []
-
-    def keep(into: list[Any]) -> Any:
-        def callback(msg: Any) -> None:
-            with lock:
-                into.append(msg)
-        return callback
-
-    subs = [feeder.create_subscription(RoadHazardArray, topics["hazards_topic"], keep(hazards), qos),
-            feeder.create_subscription(OccupancyGrid, topics["cost_topic"], keep(costs), qos),
-            feeder.create_subscription(DiagnosticArray, "/diagnostics", keep(diagnostics), qos)]
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    executor.add_node(feeder)
-    running = True
-
-    def spin() -> None:
-        while running:
-            executor.spin_once(timeout_sec=0.02)
-
-    thread = threading.Thread(target=spin, daemon=True)
-    thread.start()
     factory = RclpyFactory()
-    try:
-        assert wait_for(lambda: map_pub.get_subscription_count() > 0 and odom_pub.get_subscription_count() > 0
-                        and all(s.get_publisher_count() > 0 for s in subs), 15.0)
+    with Spinning(ros, node) as spun:
+        map_pub = spun.publisher(GridMap, topics["map_topic"])
+        odom_pub = spun.publisher(Odometry, topics["odom_topic"])
+        hazards = spun.collect(RoadHazardArray, topics["hazards_topic"])
+        costs = spun.collect(OccupancyGrid, topics["cost_topic"])
+        diagnostics = spun.collect(DiagnosticArray, "/diagnostics")
+        lock = spun.lock
+        assert spun.connected(map_pub, odom_pub)
         bad = fused_map_message(_window(10.0, 500_000_000), factory, frame_id="odom")
         bad.layers = ["elevation"]  # not a fused map: refused and counted
         bad.data = bad.data[:1]
@@ -114,12 +87,6 @@ def test_node_reports_a_bump_ahead_with_its_distance_and_cost(ros: Any) -> None:
 
         assert wait_for(reported, 5.0)
         assert "not a fused map" in node.last_refusal
-    finally:
-        running = False
-        thread.join(5.0)
-        executor.shutdown()
-        node.destroy_node()
-        feeder.destroy_node()
 
 
 def test_node_refuses_bad_parameters(ros: Any) -> None:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import threading
 import uuid
 from typing import Any
 
@@ -14,7 +13,7 @@ from msg_bridge.preview import road_preview_message
 from roadbev_core.preview import PreviewProfiles, TrackProfile
 from roadbev_core.ride import RideError
 
-from ._ros_harness import wait_for
+from ._ros_harness import Spinning, wait_for
 
 
 def _bump_profiles(speed: float | None) -> PreviewProfiles:
@@ -29,8 +28,6 @@ def _bump_profiles(speed: float | None) -> PreviewProfiles:
 def test_node_commands_forces_from_previews(ros: Any) -> None:
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import WrenchStamped
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
     from roadbev_msgs.msg import RoadPreview
 
     from roadbev_ros.preview_controller import PreviewControllerNode
@@ -40,35 +37,12 @@ def test_node_commands_forces_from_previews(ros: Any) -> None:
     node = PreviewControllerNode(node_name=f"ctl_{tag}", parameter_overrides={
         "preview_topic": preview_topic, "force_topic": force_topic, "control_rate_hz": 100.0,
         "diagnostics_period_s": 0.2})
-    feeder = ros.create_node(f"feeder_{tag}")
-    qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-    pub = feeder.create_publisher(RoadPreview, preview_topic, qos)
-    lock = threading.Lock()
-    forces: list[Any] = []
-    diagnostics: list[Any] = []
-
-    def keep(into: list[Any]) -> Any:
-        def callback(msg: Any) -> None:
-            with lock:
-                into.append(msg)
-        return callback
-
-    subs = [feeder.create_subscription(WrenchStamped, force_topic, keep(forces), qos),
-            feeder.create_subscription(DiagnosticArray, "/diagnostics", keep(diagnostics), qos)]
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    executor.add_node(feeder)
-    running = True
-
-    def spin() -> None:
-        while running:
-            executor.spin_once(timeout_sec=0.02)
-
-    thread = threading.Thread(target=spin, daemon=True)
-    thread.start()
-    try:
-        assert wait_for(lambda: pub.get_subscription_count() > 0
-                        and all(s.get_publisher_count() > 0 for s in subs), 15.0)
+    with Spinning(ros, node) as spun:
+        pub = spun.publisher(RoadPreview, preview_topic)
+        forces = spun.collect(WrenchStamped, force_topic)
+        diagnostics = spun.collect(DiagnosticArray, "/diagnostics")
+        lock = spun.lock
+        assert spun.connected(pub)
         assert wait_for(lambda: len(forces) >= 4, 5.0)
         with lock:
             idle = [f.wrench.force.z for f in forces]
@@ -94,12 +68,6 @@ def test_node_commands_forces_from_previews(ros: Any) -> None:
 
         assert wait_for(reported, 5.0)
         assert "vehicle_speed" in node.last_refusal
-    finally:
-        running = False
-        thread.join(5.0)
-        executor.shutdown()
-        node.destroy_node()
-        feeder.destroy_node()
 
 
 def test_node_refuses_bad_parameters(ros: Any) -> None:
