@@ -47,21 +47,21 @@ def run(checkpoints: list[Path], kind: str, drives: Path) -> dict[str, Any]:
     grid = GridSpec()
     sets = []
     for i, bag in enumerate(bags):
-        bag_grid, frames = bag_frames(bag)
-        sets.append((VALIDATION_SEED_BASE + i, SPEEDS[i % len(SPEEDS)], LabelledFrames(bag_grid, frames, str(bag))))
+        bag_grid, labelled = bag_frames(bag)
+        sets.append((VALIDATION_SEED_BASE + i, SPEEDS[i % len(SPEEDS)], LabelledFrames(bag_grid, labelled, str(bag))))
     table1 = eval_samples(24, grid=grid)
-    rows = []
+    rows: list[dict[str, Any]] = []
     for path in checkpoints:
         backend = create(kind, grid, checkpoint=str(path))
         start = time.perf_counter()
-        per_drive = []
-        everything = []
+        per_drive: list[dict[str, Any]] = []
+        everything: list[tuple[Any, Any]] = []
         for seed, speed, frames in sets:
-            result = evaluate(backend, frames)
+            result = evaluate(backend, frames.samples)
             per_drive.append({"seed": seed, "speed_mps": speed, **_scores(result)})
             everything.extend(frames.samples)
         pooled = _scores(evaluate(backend, everything))
-        row = {"checkpoint": str(path), "drives": per_drive, "all_drive_frames": pooled,
+        row: dict[str, Any] = {"checkpoint": str(path), "drives": per_drive, "all_drive_frames": pooled,
                "table1": _scores(evaluate(backend, table1)), "seconds": round(time.perf_counter() - start, 1)}
         rows.append(row)
         print(f"{path}: drive frames {pooled['abs_err_cm']:.3f} cm, Table I {row['table1']['abs_err_cm']:.4f} cm; "
