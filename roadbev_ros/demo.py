@@ -341,6 +341,20 @@ def _bar(total: int | None, desc: str, enabled: bool, unit: str = "frame") -> An
     return progress_bar(total=total, desc=f"{desc:<8}", unit=unit, disable=not enabled)
 
 
+def _cached_bag(config: Any, frames: int, label: str, options: DemoOptions) -> tuple[Path, bool]:
+    """:func:`ensure_demo_bag` in the options' cache folder behind a progress bar labelled ``label``."""
+    cache = Path(options.cache_dir) if options.cache_dir else Path(".cache") / "roadbev"
+    with _bar(frames, label, options.progress) as bar:
+        try:
+            path, reused = ensure_demo_bag(config, cache, progress=bar.update)
+        except (ValueError, OSError) as exc:
+            raise DemoError(f"writing the synthetic {label} failed: {exc}") from exc
+        if reused:
+            bar.update(frames - bar.n)
+            bar.set_postfix_str("cached")
+    return path, reused
+
+
 def _agreement_note(agreement: dict[str, float], online: dict[str, Any]) -> str:
     missing = online.get("online", {}).get("frames_without_output", 0)
     worst = max((v for k, v in agreement.items() if k.endswith("_cm") and math.isfinite(v)), default=math.nan)
@@ -378,15 +392,7 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
         reused = True
     else:
         config = demo_drive_config(options.frames, options.seed, options.image_scale)
-        cache = Path(options.cache_dir) if options.cache_dir else Path(".cache") / "roadbev"
-        with _bar(options.frames, "bag", options.progress) as bar:
-            try:
-                bag_path, reused = ensure_demo_bag(config, cache, progress=bar.update)
-            except (ValueError, OSError) as exc:
-                raise DemoError(f"writing the synthetic bag failed: {exc}") from exc
-            if reused:
-                bar.update(options.frames - bar.n)
-                bar.set_postfix_str("cached")
+        bag_path, reused = _cached_bag(config, options.frames, "bag", options)
     stage_s["bag"] = time.monotonic() - t0
 
     from msg_bridge.evalbag import read_eval_bag
@@ -546,15 +552,7 @@ def _drive_stage(options: DemoOptions, bag_path: Path, stage_s: dict[str, float]
     else:
         seed = options.drive_seed
         config = drive_config(options.drive_frames, seed, options.image_scale)
-        cache = Path(options.cache_dir) if options.cache_dir else Path(".cache") / "roadbev"
-        with _bar(options.drive_frames, "drive", options.progress) as bar:
-            try:
-                path, reused = ensure_demo_bag(config, cache, progress=bar.update)
-            except (ValueError, OSError) as exc:
-                raise DemoError(f"writing the synthetic drive failed: {exc}") from exc
-            if reused:
-                bar.update(options.drive_frames - bar.n)
-                bar.set_postfix_str("cached")
+        path, reused = _cached_bag(config, options.drive_frames, "drive", options)
     stage_s["drive bag"] = time.monotonic() - t0
 
     def bar_for(total: int, label: str) -> Any:
