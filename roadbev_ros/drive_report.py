@@ -26,6 +26,7 @@ from matplotlib import patches
 
 from roadbev_core.figures import new_figure
 from roadbev_ros.demo_drive import RIDE_ROWS, DriveSection, MapMosaic
+from roadbev_ros.report import format_cell
 
 __all__ = [
     "DRIVE_CAPTIONS",
@@ -273,12 +274,6 @@ _ARRIVAL_COLUMNS: tuple[tuple[str, str, str], ...] = (
 )
 
 
-def _fmt(value: Any, pattern: str) -> str:
-    if value is None or (isinstance(value, float) and not math.isfinite(value)):
-        return "–"
-    return pattern.format(float(value))
-
-
 def _table(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     h = "".join(f"<th>{html.escape(t)}</th>" for t in head)
     body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
@@ -296,9 +291,10 @@ def drive_html(section: DriveSection, figures: Sequence[str]) -> str:
         a = m["preview_at_arrival"]
         fused = m.get("map") or {}
         arrival_rows.append([html.escape(label), str(a["points"]),
-                             *(_fmt(a.get(k), p) for k, _, p in _ARRIVAL_COLUMNS),
-                             _fmt(fused.get("abs_err_cm"), "{:.3f}"), _fmt(fused.get("coverage_pct"), "{:.1f}"),
-                             _fmt(m.get("abs_err_cm"), "{:.3f}")])
+                             *(format_cell(a.get(k), p) for k, _, p in _ARRIVAL_COLUMNS),
+                             format_cell(fused.get("abs_err_cm"), "{:.3f}"),
+                             format_cell(fused.get("coverage_pct"), "{:.1f}"),
+                             format_cell(m.get("abs_err_cm"), "{:.3f}")])
     arrival = _table(["run", "points", *(t for _, t, _ in _ARRIVAL_COLUMNS), "map abs. error (cm)",
                       "map coverage (%)", "per-frame grid abs. error (cm)"], arrival_rows)
     hazard_rows = []
@@ -316,7 +312,7 @@ def drive_html(section: DriveSection, figures: Sequence[str]) -> str:
     ride_rows = [[html.escape(label), f"{rows[k]['mean']['wk_rms_mps2']:.3f}",
                   f"{rows[k]['mean']['peak_travel_m'] * 100:.2f}",
                   f"{rows[k]['mean']['tyre_load_rms_ratio'] * 100:.1f}",
-                  f"{rows[k]['mean']['force_rms_n']:.0f}", _fmt(share.get(k), "{:.2f}")]
+                  f"{rows[k]['mean']['force_rms_n']:.0f}", format_cell(share.get(k), "{:.2f}")]
                  for k, label in RIDE_ROWS if k in rows]
     ride = _table(["source", "Wk RMS (m/s²)", "peak travel (cm)", "tyre load RMS (%)", "force RMS (N)",
                    "share of the ceiling's gain"], ride_rows)

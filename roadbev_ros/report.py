@@ -501,7 +501,8 @@ _TABLE_KEYS: tuple[tuple[str, str, str], ...] = (
 )
 
 
-def _fmt(value: Any, pattern: str) -> str:
+def format_cell(value: Any, pattern: str) -> str:
+    """A table cell: ``value`` formatted with ``pattern``, "–" for a missing or non-finite value."""
     if value is None:
         return "–"
     if isinstance(value, float) and not math.isfinite(value):
@@ -516,7 +517,7 @@ def _metrics_table(runs: Sequence[RunSummary]) -> str:
     head = "".join(f"<th>{html.escape(t)}</th>" for _, t, _ in _TABLE_KEYS)
     rows = []
     for run in runs:
-        cells = "".join(f"<td>{_fmt(run.metrics.get(k), p)}</td>" for k, _, p in _TABLE_KEYS)
+        cells = "".join(f"<td>{format_cell(run.metrics.get(k), p)}</td>" for k, _, p in _TABLE_KEYS)
         rows.append(f"<tr><th>{html.escape(run.label)}</th>{cells}</tr>")
     return f"<table><tr><th>run</th>{head}</tr>{''.join(rows)}</table>"
 
