@@ -26,28 +26,15 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.common import EVAL_SEED_BASE, RESULTS, eval_samples, machine_info, write_json
+from benchmarks.common import EVAL_SEED_BASE, RESULTS, ReplayBackend, eval_samples, machine_info, write_json
 from roadbev_core.backends import Backend, BackendError, create
 from roadbev_core.config import GridSpec
 from roadbev_core.deploy import RUNTIMES
 from roadbev_core.evaluation import evaluate
-from roadbev_core.frame import Estimate, Frame
+from roadbev_core.frame import Estimate
 
 TARGET_SPEEDUP = 1.5  # the best CPU runtime against torch, stereo
 TARGET_ACCURACY_CM = 0.01  # |abs. err. - torch's abs. err.| on the Table I frames
-
-
-class _Replay:
-    """A backend that hands back estimates already made (to score them with ``evaluate``)."""
-
-    def __init__(self, name: str, grid: GridSpec, estimates: list[Estimate], needs_stereo: bool) -> None:
-        self.name = name
-        self.grid = grid
-        self.needs_stereo = needs_stereo
-        self._estimates = iter(estimates)
-
-    def estimate(self, frame: Frame) -> Estimate:
-        return next(self._estimates)
 
 
 def run(frames: int, kinds: list[str], runtimes: list[str], threads: int | None) -> dict[str, Any]:
@@ -89,7 +76,7 @@ def run(frames: int, kinds: list[str], runtimes: list[str], threads: int | None)
     rows = []
     for key in keys:
         kind, runtime = key
-        metrics = evaluate(_Replay(kind, grid, estimates[key], kind == "stereo"), samples).metrics
+        metrics = evaluate(ReplayBackend(kind, grid, estimates[key], kind == "stereo"), samples).metrics
         timed = seconds[key][1:] if len(seconds[key]) > 1 else seconds[key]
         stages: dict[str, float] = {}
         for estimate in estimates[key][1:] or estimates[key]:

@@ -19,6 +19,7 @@ from typing import Any
 
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.evaluation import to_json
+from roadbev_core.frame import Estimate, Frame
 
 __all__ = [
     "EVAL_SEED_BASE",
@@ -32,6 +33,20 @@ __all__ = [
 
 RESULTS = Path(__file__).resolve().parent / "results"
 EVAL_SEED_BASE = 100_000
+
+class ReplayBackend:
+    """A backend that hands back estimates already made, in order (to score them again with
+    :func:`roadbev_core.evaluation.evaluate`, e.g. pooled or interleaved runs)."""
+
+    def __init__(self, name: str, grid: GridSpec, estimates: Iterable[Estimate], needs_stereo: bool) -> None:
+        self.name = name
+        self.grid = grid
+        self.needs_stereo = needs_stereo
+        self._estimates = iter(estimates)
+
+    def estimate(self, frame: Frame) -> Estimate:
+        return next(self._estimates)
+
 
 def eval_samples(
     n_frames: int,
