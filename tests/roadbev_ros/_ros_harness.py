@@ -154,8 +154,6 @@ class Harness:
                  compressed: bool = False) -> None:
         from diagnostic_msgs.msg import DiagnosticArray
         from grid_map_msgs.msg import GridMap
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.qos import QoSProfile, ReliabilityPolicy
         from roadbev_msgs.msg import RoadPreview
         from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu
 
@@ -171,9 +169,10 @@ class Harness:
             backend_factory=backend_factory or stub_factory(delay_s),
             parameter_overrides=self.params,
         )
-        self.feeder = rclpy.create_node(f"feeder_{tag}")
+        self._spun = Spinning(rclpy, self.node)  # the node and a feeder, spun once started below
+        self.feeder = self._spun.feeder
         self.factory = RclpyFactory()
-        qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+        qos = self._spun.qos
         f = self.feeder
         self.pub = {
             "left": f.create_publisher(CompressedImage, "/stereo/left/image_rect/compressed", qos)
@@ -184,7 +183,7 @@ class Harness:
             "right_info": f.create_publisher(CameraInfo, "/stereo/right/camera_info", qos),
             "imu": f.create_publisher(Imu, "/imu/data", qos),
         }
-        self.lock = threading.Lock()
+        self.lock = self._spun.lock
         # outputs kept (the last ``keep`` of each; all when None) and the stamps of every map
         self.elevation: deque[Any] = deque(maxlen=keep)
         self.previews: deque[Any] = deque(maxlen=keep)
@@ -204,28 +203,15 @@ class Harness:
             f.create_subscription(RoadPreview, "/roadbev/preview", store(self.previews), qos),
             f.create_subscription(DiagnosticArray, "/diagnostics", store(self.diagnostics), qos),
         ]
-        self.executor = SingleThreadedExecutor()
-        self.executor.add_node(self.node)
-        self.executor.add_node(f)
-        self._running = True
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
+        self._spun.__enter__()
         ok = wait_for(lambda: all(p.get_subscription_count() > 0 for p in self.pub.values())
                       and all(s.get_publisher_count() > 0 for s in self.subs), 15.0)
         assert ok, "discovery between the feeder and the node did not complete"
         self.left_image = np.random.default_rng(0).integers(0, 255, (CAMERA.height, CAMERA.width, 3), np.uint8)
 
-    def _spin(self) -> None:
-        while self._running:
-            self.executor.spin_once(timeout_sec=0.05)
-
     def close(self) -> None:
         self.node.shutdown()
-        self._running = False
-        self._thread.join(5.0)
-        self.executor.shutdown()
-        self.node.destroy_node()
-        self.feeder.destroy_node()
+        self._spun.__exit__(None, None, None)  # stops the thread, destroys the node and the feeder
 
     # --- inputs -------------------------------------------------------------------------------
     def publish_imu(self, stamp_ns: int, pitch: float) -> None:
