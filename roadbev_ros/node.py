@@ -100,6 +100,12 @@ class RoadBevNode(Node):
         super().__init__(node_name, parameter_overrides=overrides, **node_kwargs)
         declare_parameters(self)
         self.config: RoadbevConfig = config_of(self)
+        # The outputs are advertised before the backend loads (seconds) and the inputs are
+        # subscribed after it: a recorder started beside the node matches the outputs while the
+        # node loads, so a replay that waits for the node's subscriptions (roadbev replay) starts
+        # only once a recorder can get the first output too.
+        self._out = OutputPublishers(self, OUTPUT_QOS, self.config.topics, self.config.map)
+        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", OUTPUT_QOS)
         try:
             self.pipeline = Pipeline(self.config, backend_factory=backend_factory)
         except RoadbevError as exc:
@@ -132,8 +138,6 @@ class RoadBevNode(Node):
         self.create_service(Trigger, "~/save_map", self._on_save_map)
         self._camera_frame: str | None = None  # the left images' frame_id (the TF's parent)
         self._static: dict[str, Any] = {}  # child frame -> base_link transform from /tf_static
-        self._out = OutputPublishers(self, OUTPUT_QOS, topics, self.config.map)
-        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", OUTPUT_QOS)
         self._diag_timer = self._diagnostics_timer(self.config.diagnostics.period_s)
         self.add_pre_set_parameters_callback(self._report_bad_values)
         self.add_on_set_parameters_callback(self._on_set_parameters)

@@ -120,6 +120,11 @@ class Recorder:
                     cls, topic, lambda data, t=topic: self._write(t, data), qos, raw=True
                 )
             self._pending.remove(topic)
+            publishers = len(self.node.get_publishers_info_by_topic(topic))
+            self.node.get_logger().info(
+                f"subscribed to {topic} ({msgtype}, {publishers} publisher{'s' if publishers != 1 else ''}, "
+                f"{qos.reliability.name.lower()}{', latched' if latched else ''})"
+            )
         if not self._pending:
             self._timer.cancel()
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+import uuid
 from collections.abc import Iterator
 from typing import Any
 
@@ -450,3 +451,38 @@ def test_a_frame_without_coverage_warns_on_diagnostics_with_its_likely_cause(ros
         assert h.latest_diagnostics()["self_check"] == "coverage 100.0 %"
     finally:
         h.close()
+
+
+def test_the_outputs_are_advertised_before_the_backend_loads_and_the_inputs_after(ros: Any) -> None:
+    """A recorder beside the node matches its outputs while the backend loads; a replay waiting
+    for the node's subscriptions then cannot start before the recorder can get the first output."""
+    from roadbev_ros.node import RoadBevNode
+
+    from ._ros_harness import stub_factory
+
+    tag = uuid.uuid4().hex[:8]
+    name = f"roadbev_order_{tag}"
+    observer = ros.create_node(f"observer_{tag}")
+    seen: dict[str, set[str]] = {}
+
+    def topics_of(by_node: Any) -> set[str]:
+        try:
+            return {topic for topic, _ in by_node(name, "/")}
+        except Exception:  # the node is not in the graph yet
+            return set()
+
+    def factory(backend: str, grid: Any, **options: Any) -> Any:
+        wait_for(lambda: "/roadbev/elevation" in topics_of(observer.get_publisher_names_and_types_by_node))
+        seen["publishers"] = topics_of(observer.get_publisher_names_and_types_by_node)
+        seen["subscriptions"] = topics_of(observer.get_subscriber_names_and_types_by_node)
+        return stub_factory()(backend, grid, **options)
+
+    node = RoadBevNode(node_name=name, backend_factory=factory)
+    try:
+        assert {"/roadbev/elevation", "/roadbev/preview", "/diagnostics"} <= seen["publishers"], seen
+        assert not {"/stereo/left/image_rect", "/imu/data"} & seen["subscriptions"], seen
+        assert wait_for(lambda: "/stereo/left/image_rect" in topics_of(observer.get_subscriber_names_and_types_by_node))
+    finally:
+        node.shutdown()
+        node.destroy_node()
+        observer.destroy_node()
