@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
@@ -452,13 +453,12 @@ class FusedMap:
 
     def _forget_outside(self, base: PlanarPose) -> None:
         """Clear every cell outside the corridor at ``base`` (behind the car, beside it)."""
-        n_j = self._n.shape[1]
-        known = np.flatnonzero(self._n)  # [K] flat indices of the cells that hold something
+        n_i, n_j = self._n.shape
         r = self.settings.resolution
-        i, j = np.divmod(known, n_j)
-        x = (self._i0 + i + 0.5) * r
-        y = (self._j0 + j + 0.5) * r
-        outside = known[~self._inside_corridor(x, y, base)]
+        # the whole buffer's lattice, row and column coordinates broadcast (no [n_i * n_j] index arrays)
+        x = (self._i0 + np.arange(n_i) + 0.5) * r  # [n_i]
+        y = (self._j0 + np.arange(n_j) + 0.5) * r  # [n_j]
+        outside = np.flatnonzero((self._n > 0) & ~self._inside_corridor(x[:, None], y[None, :], base))  # [K]
         if outside.size:
             for row in self._sums.reshape(_WDATUM + 1, -1):
                 row[outside] = 0.0
@@ -475,9 +475,10 @@ class FusedMap:
         known = np.take(table.known, flat) > 0
         return np.where(known, np.take(table.values, flat), np.nan), np.where(known, np.take(table.sigma, flat), np.nan)
 
-    def _refresh(self, flat: np.ndarray) -> None:
-        """Recompute the mean and sigma of cells at flat buffer indices [K] that hold observations."""
-        w, s1, s2, wsig, w2var = (row[flat] for row in self._sums.reshape(_WDATUM + 1, -1)[:_WDATUM])  # [K] each
+    def _refresh(self, flat: np.ndarray, sums: Sequence[np.ndarray]) -> None:
+        """Recompute the mean and sigma of cells at flat buffer indices [K] that hold observations,
+        from their sums ``sums`` (w, w z, w z^2, w sigma, w^2 sigma^2 [K] each, as just written)."""
+        w, s1, s2, wsig, w2var = sums[:_WDATUM]
         rho = self.settings.error_correlation
         mean = s1 / w
         model = (1.0 - rho) * w2var / (w * w) + rho * (wsig / w) ** 2
@@ -605,14 +606,14 @@ class FusedMap:
         i_lo, i_hi, j_lo, j_hi = self._index_box(self._frame_corners(grid, placement), 0.0)
         i_lo, j_lo = max(i_lo, self._i0), max(j_lo, self._j0)
         i_hi, j_hi = min(i_hi, self._i0 + self._n.shape[0]), min(j_hi, self._j0 + self._n.shape[1])
-        gi, gj = np.meshgrid(np.arange(i_lo, i_hi), np.arange(j_lo, j_hi), indexing="ij")
-        x, y = (gi.ravel() + 0.5) * r, (gj.ravel() + 0.5) * r
+        gi, gj = np.arange(i_lo, i_hi)[:, None], np.arange(j_lo, j_hi)[None, :]  # [h, 1], [1, w]: the box
+        x, y = (gi + 0.5) * r, (gj + 0.5) * r
         c, s = math.cos(placement.heading), math.sin(placement.heading)
         dx, dy = x - placement.origin[0], y - placement.origin[1]
-        u, v = c * dx + s * dy, -s * dx + c * dy
+        u, v = c * dx + s * dy, -s * dx + c * dy  # [h, w]
         inside = (u >= grid.x_min) & (u <= grid.x_max) & (v >= grid.y_min) & (v <= grid.y_max)
         inside &= self._inside_corridor(x, y, placement.base)
-        flat = (gi.ravel() - self._i0) * self._n.shape[1] + (gj.ravel() - self._j0)
+        flat = (gi - self._i0) * self._n.shape[1] + (gj - self._j0)  # [h, w]
         return flat[inside], u[inside], v[inside]
 
     def _inside_corridor(self, x: np.ndarray, y: np.ndarray, base: PlanarPose) -> np.ndarray:
@@ -641,7 +642,9 @@ class FusedMap:
         prior[0, 0] = 0.0  # with an overlap the offset is the data's alone (its prior is for frames without)
         var = sz ** 2 + ms ** 2
         # fitted about the overlap's weighted centre, so the offset prior does not leak into the slopes
-        u0, v0 = float(np.average(u, weights=1.0 / var)), float(np.average(v, weights=1.0 / var))
+        inverse_var = 1.0 / var
+        total = inverse_var.sum()
+        u0, v0 = float((u * inverse_var).sum() / total), float((v * inverse_var).sum() / total)
         g = np.stack([np.ones_like(u), u - u0, v - v0], 1)  # [K, 3]
         residual = m - z
         keep = np.ones(z.size, bool)
@@ -650,7 +653,7 @@ class FusedMap:
         rho = s.align_correlation
         for _ in range(3):  # refit without the cells the fit cannot explain (a bump moved, a bad cell)
             n = max(int(keep.sum()), 1)
-            w = np.where(keep, 1.0 / var, 0.0) / (n * (rho + (1.0 - rho) / n))
+            w = np.where(keep, inverse_var, 0.0) / (n * (rho + (1.0 - rho) / n))
             gw = (g * w[:, None]).T  # [3, K]
             x = np.linalg.solve(gw @ g + prior, gw @ residual)
             fit = residual - g @ x
@@ -659,7 +662,7 @@ class FusedMap:
                 break
             keep = new_keep
         n = int(keep.sum())
-        w = np.where(keep, 1.0 / var, 0.0) / (max(n, 1) * (rho + (1.0 - rho) / max(n, 1)))
+        w = np.where(keep, inverse_var, 0.0) / (max(n, 1) * (rho + (1.0 - rho) / max(n, 1)))
         cov_c = np.linalg.inv((g * w[:, None]).T @ g + prior)
         fit = residual - g @ x
         rms = float(np.sqrt(np.sum(w * fit ** 2) / np.sum(w))) if n else math.nan  # weighted RMS (m)
@@ -689,12 +692,14 @@ class FusedMap:
         wz = w * tz
         restarted = restart[take]
         any_restart = bool(restarted.any())
+        updated = []  # [6][K] the cells' new sums, written and then read by _refresh
         for row, add in zip(sums, (w, wz, wz * tz, w * np.sqrt(tv), w * w * tv, w * datum_sigma), strict=True):
-            row[tf] = (np.where(restarted, 0.0, row[tf]) if any_restart else row[tf]) + add
+            updated.append((np.where(restarted, 0.0, row[tf]) if any_restart else row[tf]) + add)
+            row[tf] = updated[-1]
         if any_restart:
             n[flat[restart]] = 0
         n[tf] += 1
         self._t_last.ravel()[tf] = stamp_ns
         rejected_cells[flat] = np.where(take, 0, np.minimum(rejected, 1000)).astype(np.int16)
-        self._refresh(tf)
+        self._refresh(tf, updated)
         return int(take.sum()), int(far.sum() - restart.sum()), int(restart.sum())

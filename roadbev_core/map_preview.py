@@ -50,7 +50,7 @@ def footprint_heights(fused: FusedMap, x: np.ndarray, y: np.ndarray, heading: fl
     n_l = max(1, int(math.ceil(length / step)))
     across = (np.arange(n_w) + 0.5) / n_w * width - 0.5 * width  # [n_w]
     along = (np.arange(n_l) + 0.5) / n_l * length - 0.5 * length  # [n_l]
-    a, b = (g.ravel() for g in np.meshgrid(along, across, indexing="ij"))  # [S]
+    a, b = np.repeat(along, n_w), np.tile(across, n_l)  # [S] every (along, across) pair, along-major
     c, s = math.cos(heading), math.sin(heading)
     px = np.asarray(x)[:, None] + c * a - s * b  # [N, S]
     py = np.asarray(y)[:, None] + s * a + c * b
