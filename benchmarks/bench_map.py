@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.common import RESULTS, machine_info, write_json
+from benchmarks.common import RESULTS, ReplayBackend, machine_info, write_json
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -67,19 +67,12 @@ def main(argv: list[str] | None = None) -> int:
         estimates[int(stamp)] = Estimate(z.astype(np.float32), np.full(grid.shape, 0.005, np.float32))
         frames.append(Frame(blank, None, camera_rig, attitude_from_rotation(R_cam), int(stamp)))
 
-    class Replayed:
-        name = "replayed"
-        needs_stereo = False
-        grid = drive.config.grid
-
-        def estimate(self, frame: Frame) -> Estimate:
-            return estimates[frame.stamp_ns]
-
     config = RoadbevConfig.from_params({**grid.to_dict(), "require_imu": False})
 
     def one_pass() -> tuple[list[float], list[float]]:
         """The whole drive through a new pipeline: the map stage's and the fusion's ms per frame."""
-        pipeline = Pipeline(config, backend_factory=lambda *a, **k: Replayed(), configure_process=False)
+        replayed = ReplayBackend("replayed", grid, [estimates[f.stamp_ns] for f in frames], needs_stereo=False)
+        pipeline = Pipeline(config, backend_factory=lambda *a, **k: replayed, configure_process=False)
         pipeline.set_camera_mount(cam_pos, R_base_optical)
         odometry = iter(planar_odometry(drive.odometry()))
         pending = next(odometry, None)
@@ -113,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
         "first_pass": {"map_stage_ms": stats([passes[0][0]]), "fusion_ms": stats([passes[0][1]])},
         "target_fusion_ms": 5.0, "wall_s": round(wall, 2), "machine": machine_info(),
     }
-    record["fusion_target_met"] = record["fusion_ms"]["p50"] < 5.0
+    record["fusion_target_met"] = record["fusion_ms"]["p50"] < record["target_fusion_ms"]
     write_json(Path(args.out), record)
     print(f"map stage p50 {record['map_stage_ms']['p50']:.1f} ms (p95 {record['map_stage_ms']['p95']:.1f}), "
           f"fusion p50 {record['fusion_ms']['p50']:.1f} ms; wrote {args.out}", file=sys.stderr)

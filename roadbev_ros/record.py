@@ -84,10 +84,11 @@ class Recorder:
     def subscribed(self) -> list[str]:
         return sorted(self._subs)
 
-    def _qos_for(self, topic: str) -> tuple[Any, bool]:
+    def _qos_for(self, infos: Sequence[Any]) -> tuple[Any, bool]:
+        """The subscription QoS matching a topic's publishers (their ``TopicEndpointInfo``), and
+        whether they are all latched."""
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-        infos = self.node.get_publishers_info_by_topic(topic)
         reliable = bool(infos) and all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
         latched = bool(infos) and all(
             i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos
@@ -104,7 +105,10 @@ class Recorder:
         graph = dict(self.node.get_topic_names_and_types())
         for topic in list(self._pending):
             types = graph.get(topic)
-            if not types or not self.node.get_publishers_info_by_topic(topic):
+            if not types:
+                continue
+            infos = self.node.get_publishers_info_by_topic(topic)
+            if not infos:
                 continue
             msgtype = types[0]
             try:
@@ -113,14 +117,14 @@ class Recorder:
                 self.problems.append(f"{topic}: {exc}")
                 self._pending.remove(topic)
                 continue
-            qos, latched = self._qos_for(topic)
+            qos, latched = self._qos_for(infos)
             with self._lock:
                 self._writer.add_topic(topic, msgtype, latched=latched)
                 self._subs[topic] = self.node.create_subscription(
                     cls, topic, lambda data, t=topic: self._write(t, data), qos, raw=True
                 )
             self._pending.remove(topic)
-            publishers = len(self.node.get_publishers_info_by_topic(topic))
+            publishers = len(infos)
             self.node.get_logger().info(
                 f"subscribed to {topic} ({msgtype}, {publishers} publisher{'s' if publishers != 1 else ''}, "
                 f"{qos.reliability.name.lower()}{', latched' if latched else ''})"

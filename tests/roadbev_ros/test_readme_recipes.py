@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from msg_bridge import bag
+from msg_bridge import bag, stamp_from_header
 from roadbev_ros.dds import child_env
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -100,7 +100,6 @@ def test_replay_into_the_node_and_record(user_folder: Path, shell: list[subproce
     assert not any("old on arrival" in s.message or "ahead of" in s.message for s in stamp_checks), \
         [s.message for s in stamp_checks]
     # the recording holds every output the node published (on failure: which stamps it holds, and the log)
-    recorded_stamps = [m.msg.header.stamp.sec + m.msg.header.stamp.nanosec * 1e-9
-                       for m in bag.read_messages(recorded, ["/roadbev/elevation"])]
+    recorded_stamps = [stamp_from_header(m.msg) for m in bag.read_messages(recorded, ["/roadbev/elevation"])]
     assert topics["/roadbev/elevation"].count == outputs, (final, recorded_stamps, text)
     assert topics["/roadbev/preview"].count == outputs, (final, text)
