@@ -9,9 +9,13 @@ the four tyre contacts on the map at the stamp (heights measured vertically), so
 pitch and roll never appear as road. The plane itself travels with the profiles
 (:class:`roadbev_core.preview.ContactPlane`).
 
-Until the map holds three of the contacts, a prior decides what they leave open: the body's own
-plane at static ride height (its attitude from the IMU, its height from the map's datum; 3 cm
-and 1 degree) (the first metres of a drive: the rear contacts lie ~4 m behind the
+The plane is the plain least-squares plane through the four contacts (each counts the same, as
+the contract defines it); their sigmas set its covariance only. When the map lacks one contact
+(a kerb top above the grid's height range, a cell the backend declined), the fourth is stood in
+from the body's attitude (the IMU's) through the other three, with a sigma of the suspension's
+travel (3 cm). Until the map holds three of the contacts, a prior decides what they leave open:
+the body's own plane at static ride height (its attitude from the IMU, its height from the map's
+datum; 3 cm and 1 degree) (the first metres of a drive: the rear contacts lie ~4 m behind the
 grid's near edge; ``source`` = ``"body"`` then, and the pipeline publishes the per-frame preview
 instead of such a guess). A profile sample's sigma combines the map cells'
 (their mean over the footprint: neighbouring cells' errors are correlated) and the plane's.
@@ -66,16 +70,26 @@ def footprint_heights(fused: FusedMap, x: np.ndarray, y: np.ndarray, heading: fl
 
 def contact_plane_fit(points: np.ndarray, sigmas: np.ndarray, prior: tuple[np.ndarray, np.ndarray] | None = None
                       ) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted least-squares plane ``z = p0 + p1 x + p2 y`` through points [K, 3] (x, y relative
-    to a nearby origin) with 1-sigma heights [K]; a Gaussian prior (coefficients [3], covariance
-    [3, 3]) decides what fewer than three points leave open.
+    """The plane ``z = p0 + p1 x + p2 y`` through points [K, 3] (x, y relative to a nearby
+    origin) with 1-sigma heights [K].
+
+    Without a prior it is the contract's contact plane: the least-squares plane in which every
+    point counts the same, its covariance propagated from the sigmas. Weighting the points by
+    their sigmas would move the plane itself, not only its noise, whenever the contacts are not
+    coplanar (one wheel on a bump or a kerb), so that it no longer estimates the plane a
+    controller needs. With a Gaussian prior (coefficients [3], covariance [3, 3]), which decides
+    what fewer than three points leave open, it is the weighted (Bayesian) fit.
 
     Returns:
         coefficients [3] and their covariance [3, 3].
     """
     A = np.stack([np.ones(points.shape[0]), points[:, 0], points[:, 1]], 1)  # [K, 3]
+    if prior is None:
+        normal_inv = np.linalg.inv(A.T @ A)  # [3, 3]
+        gain = normal_inv @ A.T  # [3, K]: coefficients = gain @ z
+        return gain @ points[:, 2], (gain * np.square(sigmas)[None, :]) @ gain.T
     w = 1.0 / np.square(sigmas)
-    prior_mean, prior_info = (np.zeros(3), np.zeros((3, 3))) if prior is None else (prior[0], np.linalg.inv(prior[1]))
+    prior_mean, prior_info = prior[0], np.linalg.inv(prior[1])
     cov = np.linalg.inv((A * w[:, None]).T @ A + prior_info)
     coeffs = cov @ ((A * w[:, None]).T @ points[:, 2] + prior_info @ prior_mean)
     return coeffs, cov
@@ -121,7 +135,20 @@ def contact_plane_on_map(fused: FusedMap, placement: FramePlacement, vehicle: Ve
     wz, wsig = footprint_heights(fused, wx, wy, base.yaw, tyre_width_m, spacing_m)
     base_z = fused.base_z if fused.base_z is not None else 0.0
     known = np.isfinite(wz) & np.isfinite(wsig) & (wsig > 0)
-    rel = np.stack([wx - base.x, wy - base.y, wz], 1)[known]
+    dx, dy = wx - base.x, wy - base.y
+    if known.sum() == 3:
+        # The contract's plane runs through four contacts; the map lacks one (a kerb top the
+        # backend declined, a hole). Three points alone would give the plane through them, degrees
+        # off whenever the fourth stands on a step. Stand the fourth in from the body's attitude
+        # (the IMU's) through the three, with the suspension's travel as its sigma.
+        body = _plane_from_body(placement, base_z)[0]
+        offset = float(np.mean(wz[known] - body[1] * dx[known] - body[2] * dy[known]))
+        missing = ~known
+        wz, wsig = wz.copy(), wsig.copy()
+        wz[missing] = offset + body[1] * dx[missing] + body[2] * dy[missing]
+        wsig[missing] = BODY_PLANE_SIGMA[0]
+        known = np.ones(4, bool)
+    rel = np.stack([dx, dy, wz], 1)[known]
     source = "map" if known.sum() >= 3 else "body"
     coeffs, cov = contact_plane_fit(rel, wsig[known], None if source == "map" else _plane_from_body(placement, base_z))
     return coeffs, cov, _as_contact_plane(coeffs, cov, base.yaw, base_z, source)

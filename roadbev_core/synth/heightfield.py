@@ -488,6 +488,9 @@ class Kerb:
     """A kerb along the road at lateral position ``y``: the side beyond it is raised.
 
     ``side`` +1: the kerb bounds the road on the left (raised for y > self.y); -1: right.
+    ``length`` (m): the kerb runs over x in [x - length/2, x + length/2], its raised side
+    sloping down to the road over ``end_ramp`` beyond each end (a dropped kerb); ``inf`` (a
+    single scene's kerb) runs along the whole canvas.
     """
 
     x: float
@@ -495,17 +498,26 @@ class Kerb:
     height: float
     side: int
     bevel: float = 0.03
+    length: float = math.inf
+    end_ramp: float = 0.5
     name: str = "kerb"
 
     def apply(self, canvas: SurfaceCanvas, rng: np.random.Generator) -> None:
-        if self.side > 0:
-            win = canvas.window(canvas.x0, canvas.x_end, self.y - self.bevel, canvas.y_end)
+        if math.isfinite(self.length):
+            half = self.length / 2 + self.end_ramp
+            x_lo, x_hi = self.x - half, self.x + half
         else:
-            win = canvas.window(canvas.x0, canvas.x_end, canvas.y0, self.y + self.bevel)
+            x_lo, x_hi = canvas.x0, canvas.x_end
+        if self.side > 0:
+            win = canvas.window(x_lo, x_hi, self.y - self.bevel, canvas.y_end)
+        else:
+            win = canvas.window(x_lo, x_hi, canvas.y0, self.y + self.bevel)
         if win is None:
             return
         rows, cols, xs, ys = win
-        beyond = _smoothstep(0.0, self.bevel, self.side * (ys - self.y))
+        beyond = _smoothstep(0.0, self.bevel, self.side * (ys - self.y))  # [1, W]
+        if math.isfinite(self.length):  # [H, W]: the raised side tapers to the road at both ends
+            beyond = beyond * _smoothstep(0.0, max(self.end_ramp, 1e-3), half - np.abs(xs - self.x))
         shape = (xs.shape[0], ys.shape[1])
         canvas.heights[rows, cols] += np.broadcast_to(self.height * beyond, shape).astype(np.float32)
         stone = (ys - self.y) * self.side < 0.15  # the kerb stones: lighter concrete

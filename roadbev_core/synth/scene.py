@@ -9,7 +9,7 @@ read the surface from the scene, so they cannot disagree.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -305,6 +305,7 @@ def build_scene(
     if config.roughness_scale > 0:
         canvas.heights += roughness_field((n_x, n_y), res, config.road_class, rng_rough, scale=config.roughness_scale)
 
+    along_drive = feature_centres is None
     if feature_centres is None:
         feature_centres = []
         names = list(config.features)
@@ -319,6 +320,10 @@ def build_scene(
     features: list[Feature] = []
     for name, fx, fy in feature_centres:
         feat = sample_feature(name, rng_feat, fx, fy)
+        if along_drive and isinstance(feat, Kerb):
+            # A drive repeats its features every few metres: kerbs along the whole strip would
+            # stack into a clipped plateau that flattens every other feature (and the roughness).
+            feat = replace(feat, length=config.feature_spacing_m)
         feat.apply(canvas, rng_feat)
         features.append(feat)
     if config.surface == "concrete":
@@ -339,7 +344,7 @@ def build_scene(
         _add_shadows(canvas, rng_light, sun)
     markings, paved = _markings(rng_lane)
     for feat in features:  # no lane lines painted on the pavement beyond a kerb
-        if isinstance(feat, Kerb):
+        if isinstance(feat, Kerb) and math.isinf(feat.length):
             markings = [m for m in markings if feat.side * (m.y - feat.y) < 0]
     if not config.lane_markings:
         markings = []

@@ -129,6 +129,35 @@ def test_a_heave_and_pitch_only_drive_over_a_flat_road_previews_flat() -> None:
     assert abs(preview.contact_plane.pitch) < math.radians(0.05)
 
 
+def test_a_contact_the_map_never_saw_is_stood_in_from_the_body_and_widens_the_plane() -> None:
+    def flat(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return np.zeros(np.broadcast(x, y).shape)
+
+    step, frames = 0.6, 10
+    base = PlanarPose(frames, (frames - 1) * step, 0.0, 0.0, 10.0, 0.0)
+    front_left = VehicleConfig().wheel_positions()[0] + np.array([base.x, 0.0])  # [2] odom
+
+    def never_under_front_left(k: int, estimate: np.ndarray) -> np.ndarray:
+        x = GRID.x_centres()[:, None] + k * step + CAMERA[0]  # odom x of the rows
+        y = GRID.y_centres()[None, :]
+        return np.broadcast_to((np.abs(x - front_left[0]) < 0.3) & (np.abs(y - front_left[1]) < 0.3), estimate.shape)
+
+    planes = []
+    for hide in (None, never_under_front_left):
+        fused = FusedMap(_settings())
+        _drive(fused, flat, frames, step, heave=0.02, hide=hide)
+        placement = place_frame(base, Attitude(0.0, 0.0), CAMERA, LEVEL_MOUNT)
+        preview = map_preview(fused, placement, VehicleConfig(), tyre_width_m=0.2, spacing_m=0.03)
+        plane = preview.contact_plane
+        assert plane is not None and plane.source == "map"
+        assert abs(plane.pitch) < math.radians(0.05) and abs(plane.roll) < math.radians(0.05)
+        values = preview.tracks[1].elevation[np.isfinite(preview.tracks[1].elevation)]
+        assert values.size > 100 and float(np.max(np.abs(values))) < 1e-3
+        planes.append(plane)
+    seen, stood_in = planes
+    assert stood_in.pitch_sigma > 3 * seen.pitch_sigma and stood_in.roll_sigma > 3 * seen.roll_sigma
+
+
 def test_cells_behind_the_car_leave_the_map() -> None:
     settings = _settings(behind_m=1.0)
     fused = FusedMap(settings)

@@ -133,6 +133,12 @@ def test_ruts_crack_step_kerb_patch_signs() -> None:
     canvas = _canvas()
     Kerb(x=0.0, y=1.0, height=0.12, side=1).apply(canvas, rng)
     assert _at(canvas, 4.0, 1.5) == pytest.approx(0.12, abs=1e-4) and _at(canvas, 4.0, 0.5) == 0.0
+    canvas = _canvas()  # a kerb of finite length: raised over its length, the road again beyond its ramps
+    Kerb(x=4.0, y=1.0, height=0.12, side=1, length=2.0, end_ramp=0.5).apply(canvas, rng)
+    assert _at(canvas, 4.0, 1.5) == pytest.approx(0.12, abs=1e-4)
+    assert _at(canvas, 4.9, 1.5) == pytest.approx(0.12, abs=1e-4)
+    assert 0.0 < _at(canvas, 5.25, 1.5) < 0.12  # on the dropped end
+    assert _at(canvas, 2.4, 1.5) == 0.0 and _at(canvas, 5.6, 1.5) == 0.0 and _at(canvas, 4.0, 0.5) == 0.0
 
     canvas = _canvas()
     Patch(x=4.0, y=0.0, size_x=1.0, size_y=0.8, height=0.01, angle=0.1, tone=0.7).apply(canvas, rng)
