@@ -287,7 +287,8 @@ def build_scene(
         seed: random seed (the scene is a pure function of config, seed and ranges).
         x_range: (x_start, x_end) of the rasters (m); beyond them the road is the plain plane.
         feature_centres: (name, x, y) of features to place; None places ``config.features``
-            along the strip at ``config.feature_spacing_m`` spacing near the ego lane.
+            along the strip at ``config.feature_spacing_m`` spacing near the ego lane (a drive:
+            each kerb then runs over ``feature_spacing_m`` of it, not along the whole strip).
         half_width: lateral half-extent of the rasters around y = 0 (m).
     """
     x0, x1 = float(x_range[0]), float(x_range[1])
@@ -343,8 +344,8 @@ def build_scene(
     if config.shadows and not overcast:
         _add_shadows(canvas, rng_light, sun)
     markings, paved = _markings(rng_lane)
-    for feat in features:  # no lane lines painted on the pavement beyond a kerb
-        if isinstance(feat, Kerb) and math.isinf(feat.length):
+    for feat in features:  # no lane lines painted on the pavement beyond a (whole-strip) kerb
+        if isinstance(feat, Kerb) and math.isinf(feat.length):  # a drive's short kerb leaves them
             markings = [m for m in markings if feat.side * (m.y - feat.y) < 0]
     if not config.lane_markings:
         markings = []
