@@ -32,7 +32,7 @@ import numpy as np
 from roadbev_core.config import VehicleConfig
 from roadbev_core.fusion import FramePlacement, FusedMap
 from roadbev_core.preview import REFERENCE_CONTACT_PLANE, ContactPlane, PreviewProfiles, TrackProfile
-from roadbev_core.vehicle import WHEEL_NAMES
+from roadbev_core.vehicle import WHEEL_NAMES, contact_plane
 
 __all__ = ["BODY_PLANE_SIGMA", "contact_plane_fit", "contact_plane_on_map", "footprint_heights", "map_preview"]
 
@@ -85,9 +85,8 @@ def contact_plane_fit(points: np.ndarray, sigmas: np.ndarray, prior: tuple[np.nd
     """
     A = np.stack([np.ones(points.shape[0]), points[:, 0], points[:, 1]], 1)  # [K, 3]
     if prior is None:
-        normal_inv = np.linalg.inv(A.T @ A)  # [3, 3]
-        gain = normal_inv @ A.T  # [3, K]: coefficients = gain @ z
-        return gain @ points[:, 2], (gain * np.square(sigmas)[None, :]) @ gain.T
+        gain = np.linalg.inv(A.T @ A) @ A.T  # [3, K]: the plane's coefficients are linear in z
+        return contact_plane(points), (gain * np.square(sigmas)[None, :]) @ gain.T
     w = 1.0 / np.square(sigmas)
     prior_mean, prior_info = prior[0], np.linalg.inv(prior[1])
     cov = np.linalg.inv((A * w[:, None]).T @ A + prior_info)
