@@ -326,9 +326,10 @@ def wheel_paths(truth: Trajectory, road_map: RoadMap, settings: ArrivalSettings,
     return out
 
 
-def read_profile(profiles: PreviewProfiles, track: str, x: np.ndarray) -> np.ndarray:
-    """[N] the profile of ``track`` read at x [N] (see the module docstring; NaN = no value)."""
-    elev = np.asarray(profiles.track(track).elevation, np.float64)  # [S]
+def read_profile(profiles: PreviewProfiles, track: str, x: np.ndarray, field: str = "elevation") -> np.ndarray:
+    """[N] the profile of ``track`` read at x [N] (see the module docstring; NaN = no value);
+    ``field="uncertainty"`` reads its 1-sigma the same way."""
+    elev = np.asarray(getattr(profiles.track(track), field), np.float64)  # [S]
     n = elev.size
     f = (np.asarray(x, np.float64) - profiles.start_distance) / profiles.spacing  # [N] fractional index
     out = np.full(f.shape, np.nan)
@@ -377,6 +378,7 @@ class ArrivalPoints(NamedTuple):
             message's stamp.
         known: [P] bool the true height is known.
         covered: [P] bool known and a message covered the point.
+        preview_sigma: [P] the 1-sigma the same message gave there (m; NaN = missing).
     """
 
     path: WheelPath
@@ -386,6 +388,7 @@ class ArrivalPoints(NamedTuple):
     error_contact_plane: np.ndarray
     known: np.ndarray
     covered: np.ndarray
+    preview_sigma: np.ndarray
 
 
 def arrival_points(
@@ -449,6 +452,7 @@ def arrival_points(
         value = np.full(P, np.nan)
         err = np.full(P, np.nan)
         err_cp = np.full(P, np.nan)
+        sigma = np.full(P, np.nan)
         for m, msg in enumerate(order):
             track = _track_name(msg.profiles, path.name)
             if track is None:
@@ -476,10 +480,11 @@ def arrival_points(
             err[sel] = read[hit] - (path.height[sel] - ref[hit])
             cp = planes[m, 0] + planes[m, 1] * x[hit] + planes[m, 2] * y[hit]
             err_cp[sel] = read[hit] - (path.height[sel] - cp)
+            sigma[sel] = read_profile(msg.profiles, track, local_x[hit], "uncertainty")
         known = np.isfinite(path.height)
         covered = known & np.isfinite(err)
         along = np.arange(P) * settings.spacing_m
-        out.append(ArrivalPoints(path, along, value, err, err_cp, known, covered))
+        out.append(ArrivalPoints(path, along, value, err, err_cp, known, covered, sigma))
     return out
 
 
