@@ -16,6 +16,7 @@ from roadbev_core.arrival import (
     RoadMap,
     TimedPreview,
     Trajectory,
+    arrival_points,
     feature_mask,
     preview_at_arrival,
     read_profile,
@@ -51,7 +52,7 @@ def _straight(speed: float, seconds: float, heave: float = 0.0, pitch: float = 0
 
 
 def _true_previews(traj: Trajectory, road: RoadMap, stamps: list[int], reference: str, settings: ArrivalSettings,
-                   offset: float = 0.0) -> list[TimedPreview]:
+                   offset: float = 0.0, sigma: float = math.nan) -> list[TimedPreview]:
     """Previews of the true road along the tracks, each in its reference's frame at its stamp."""
     out = []
     pos, R = traj.interpolate(np.array(stamps))
@@ -73,7 +74,7 @@ def _true_previews(traj: Trajectory, road: RoadMap, stamps: list[int], reference
             px, py = origin[0] + c * xs - s * lateral, origin[1] + s * xs + c * lateral
             h = road.footprint(px, py, np.full(xs.size, yaw), 0.2, 0.03)
             h = h - (z0 if ref is None else ref[0] + ref[1] * px + ref[2] * py) + offset
-            tracks.append(TrackProfile(name, lateral, 0.2, h.astype(np.float32), np.full(xs.size, np.nan, np.float32)))
+            tracks.append(TrackProfile(name, lateral, 0.2, h.astype(np.float32), np.full(xs.size, sigma, np.float32)))
         out.append(TimedPreview(stamp, reference, PreviewProfiles(float(xs[0]), 0.03, tuple(tracks))))
     return out
 
@@ -108,6 +109,23 @@ def test_a_known_offset_scores_that_offset_and_the_features_are_the_bump() -> No
     x = paths[0].xy[:, 0]
     assert np.all(np.abs(x[paths[0].feature] - 10.0) < 0.5 + 0.3 + 0.03)
     assert np.any(paths[0].feature)
+
+
+def test_each_point_carries_the_sigma_of_the_message_that_scored_it() -> None:
+    traj = _straight(5.0, 4.0)
+    road, settings = _bump_map(), ArrivalSettings()
+    stamps = [int((0.4 + 0.2 * k) * S) for k in range(13)]
+    # message k is off by 1 cm * (k + 1) and says so in its sigma: a point's error tells which
+    # message it was read from (the true profiles read off by < 1 mm on the bump), and its sigma
+    # must be that message's
+    previews = [_true_previews(traj, road, [t], REFERENCE_ROAD, settings, offset=0.01 * (k + 1),
+                               sigma=0.01 * (k + 1))[0] for k, t in enumerate(stamps)]
+    for points in arrival_points(previews, traj, road, settings):
+        covered = points.covered
+        assert covered.sum() > 100
+        assert np.all(np.isnan(points.preview_sigma[~np.isfinite(points.error)]))
+        np.testing.assert_allclose(points.preview_sigma[covered], points.error[covered], atol=1e-3)
+        assert np.unique(np.round(points.preview_sigma[covered], 3)).size >= 8  # many messages were read
 
 
 def test_lead_time_beyond_the_preview_horizon_leaves_points_uncovered() -> None:
