@@ -28,7 +28,7 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -51,36 +51,67 @@ def make_drive(speed: float, rate: float, duration: float, seed: int) -> Any:
                                                       seed=seed, road=road)))
 
 
-def run_drive(speed: float, rate: float, duration: float, seed: int, backends: list[str], lead: float,
-              ) -> dict[str, Any]:
-    """Render one drive, run every backend on it, score the previews at arrival."""
-    from roadbev_core.arrival import ArrivalSettings, Trajectory, map_accuracy, per_frame_previews, preview_at_arrival
+class DriveTruth(NamedTuple):
+    """What scoring a rendered drive needs (the truth the drive bag would carry).
+
+    Attributes:
+        trajectory: the true ``base_link`` poses (``/ground_truth/odom``).
+        road_map: the true road (``/ground_truth/road_map``).
+        settings: the preview-at-arrival settings for the drive's rig and lead time.
+        odometry: the drive's own (noisy, drifting) planar odometry (``/odom``).
+    """
+
+    trajectory: Any
+    road_map: Any
+    settings: Any
+    odometry: list[Any]
+
+
+def drive_truth(drive: Any, lead: float) -> DriveTruth:
+    """The truth and odometry of a :class:`roadbev_core.synth.RidingDrive`."""
+    from roadbev_core.arrival import ArrivalSettings, Trajectory
+    from roadbev_core.synth.riding import planar_odometry
+
+    gt = drive.ground_truth_poses()
+    grid = drive.config.grid
+    settings = ArrivalSettings(lead_time_s=lead, base_height=grid.base_height, camera_in_base=drive.base_to_camera)
+    return DriveTruth(Trajectory(gt.stamp_ns, gt.position, gt.orientation_xyzw), drive.road_map(), settings,
+                      list(planar_odometry(drive.odometry())))
+
+
+def evaluate_on_drive(drive: Any, samples: list[Any], backend: str, fused: bool, odometry: list[Any]) -> Any:
+    """``backend`` through the pipeline over a drive's rendered samples, map on or off, as
+    ``roadbev eval --map`` / ``--no-map`` run it (an :class:`~roadbev_core.evaluation.EvalResult`
+    with the outputs kept)."""
     from roadbev_core.config import RoadbevConfig
     from roadbev_core.evaluation import evaluate
     from roadbev_core.pipeline import Pipeline
-    from roadbev_core.synth.riding import planar_odometry
+
+    grid = drive.config.grid
+    config = RoadbevConfig.from_params({**grid.to_dict(), "backend": backend, "map.enabled": fused})
+    pipeline = Pipeline(config, configure_process=False)
+    pipeline.set_camera_mount(*drive.base_to_camera)
+    return evaluate(pipeline, samples, keep_estimates=True, odometry=odometry)
+
+
+def run_drive(speed: float, rate: float, duration: float, seed: int, backends: list[str], lead: float,
+              ) -> dict[str, Any]:
+    """Render one drive, run every backend on it, score the previews at arrival."""
+    from roadbev_core.arrival import map_accuracy, per_frame_previews, preview_at_arrival
 
     drive = make_drive(speed, rate, duration, seed)
     road, frames = drive.config.road, drive.config.frames
     start = time.perf_counter()
     samples = list(drive)
     render_s = time.perf_counter() - start
-    gt = drive.ground_truth_poses()
-    truth = Trajectory(gt.stamp_ns, gt.position, gt.orientation_xyzw)
-    road_map = drive.road_map()
-    grid = drive.config.grid
-    settings = ArrivalSettings(lead_time_s=lead, base_height=grid.base_height, camera_in_base=drive.base_to_camera)
+    truth, road_map, settings, odometry = drive_truth(drive, lead)
     out: dict[str, Any] = {"speed_mps": speed, "rate_hz": rate, "frames": frames, "seed": seed,
                            "road": {"class": road.road_class, "features": list(road.features),
                                     "surface": road.surface}, "render_s": round(render_s, 1), "backends": {}}
-    odometry = planar_odometry(drive.odometry())
     for name in backends:
         rows: dict[str, Any] = {}
         for fused in (False, True):
-            config = RoadbevConfig.from_params({**grid.to_dict(), "backend": name, "map.enabled": fused})
-            pipeline = Pipeline(config, configure_process=False)
-            pipeline.set_camera_mount(*drive.base_to_camera)
-            result = evaluate(pipeline, samples, keep_estimates=True, odometry=odometry)
+            result = evaluate_on_drive(drive, samples, name, fused, odometry)
             stamps = [int(r["stamp_ns"]) for r in result.per_frame]
             outputs = result.outputs or []
             arrival = preview_at_arrival(per_frame_previews(outputs), truth, road_map, settings,

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.bench_arrival import drive_truth, evaluate_on_drive
 from benchmarks.common import RESULTS, available_backends, machine_info, write_json
 
 BEHIND_M = 2.0  # the strip behind a bump's centre that is scored as "behind the bump"
@@ -65,34 +66,22 @@ def score_points(error: np.ndarray, sigma: np.ndarray, where: np.ndarray) -> dic
 
 def run(backends: list[str], lead: float) -> dict[str, Any]:
     """Render the demo drive and score every backend with the map off and on."""
-    from roadbev_core.arrival import ArrivalSettings, Trajectory, arrival_points, per_frame_previews
-    from roadbev_core.config import RoadbevConfig
-    from roadbev_core.evaluation import evaluate
-    from roadbev_core.pipeline import Pipeline
+    from roadbev_core.arrival import arrival_points, per_frame_previews
     from roadbev_core.synth import RidingDrive
-    from roadbev_core.synth.riding import planar_odometry
     from roadbev_ros.demo_drive import DRIVE_SEED, drive_config
 
     drive = RidingDrive(drive_config())
     start = time.perf_counter()
     samples = list(drive)
     render_s = time.perf_counter() - start
-    gt = drive.ground_truth_poses()
-    truth = Trajectory(gt.stamp_ns, gt.position, gt.orientation_xyzw)
-    road_map = drive.road_map()
-    grid = drive.config.grid
-    settings = ArrivalSettings(lead_time_s=lead, base_height=grid.base_height, camera_in_base=drive.base_to_camera)
-    odometry = planar_odometry(drive.odometry())
+    truth, road_map, settings, odometry = drive_truth(drive, lead)
     bumps_x = np.array([x for name, x, _, _ in drive.features_in_odom() if name in BUMPS])
     out: dict[str, Any] = {"seed": DRIVE_SEED, "frames": len(samples), "render_s": round(render_s, 1),
                            "bumps": int(bumps_x.size), "backends": {}}
     for name in backends:
         rows: dict[str, Any] = {}
         for fused in (False, True):
-            config = RoadbevConfig.from_params({**grid.to_dict(), "backend": name, "map.enabled": fused})
-            pipeline = Pipeline(config, configure_process=False)
-            pipeline.set_camera_mount(*drive.base_to_camera)
-            result = evaluate(pipeline, samples, keep_estimates=True, odometry=odometry)
+            result = evaluate_on_drive(drive, samples, name, fused, odometry)
             stamps = [int(r["stamp_ns"]) for r in result.per_frame]
             points = arrival_points(per_frame_previews(result.outputs or []), truth, road_map, settings,
                                     frame_stamps_ns=stamps)
