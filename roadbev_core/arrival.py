@@ -69,6 +69,7 @@ __all__ = [
     "per_frame_previews",
     "preview_at_arrival",
     "read_profile",
+    "read_profile_with_sigma",
     "summarise_points",
     "wheel_paths",
 ]
@@ -326,27 +327,36 @@ def wheel_paths(truth: Trajectory, road_map: RoadMap, settings: ArrivalSettings,
     return out
 
 
-def read_profile(profiles: PreviewProfiles, track: str, x: np.ndarray, field: str = "elevation") -> np.ndarray:
-    """[N] the profile of ``track`` read at x [N] (see the module docstring; NaN = no value);
-    ``field="uncertainty"`` reads its 1-sigma the same way."""
-    elev = np.asarray(getattr(profiles.track(track), field), np.float64)  # [S]
+def read_profile(profiles: PreviewProfiles, track: str, x: np.ndarray) -> np.ndarray:
+    """[N] the profile of ``track`` read at x [N] (see the module docstring; NaN = no value)."""
+    return read_profile_with_sigma(profiles, track, x)[0]
+
+
+def read_profile_with_sigma(profiles: PreviewProfiles, track: str, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """[N] the profile of ``track`` read at x [N] and [N] its 1-sigma, read with the same weights
+    (the elevation's known samples decide them; NaN = no value)."""
+    profile = profiles.track(track)
+    elev = np.asarray(profile.elevation, np.float64)  # [S]
+    sig = np.asarray(profile.uncertainty, np.float64)  # [S]
     n = elev.size
     f = (np.asarray(x, np.float64) - profiles.start_distance) / profiles.spacing  # [N] fractional index
-    out = np.full(f.shape, np.nan)
+    out, out_sigma = np.full(f.shape, np.nan), np.full(f.shape, np.nan)
     if n == 0:
-        return out
+        return out, out_sigma
     i0 = np.floor(f).astype(np.int64)
     ok = (i0 >= 0) & (i0 < n - 1)
     a = np.where(ok, i0, 0)
     both = ok & np.isfinite(elev[a]) & np.isfinite(elev[np.minimum(a + 1, n - 1)])
     t = f - i0
     out[both] = elev[a[both]] * (1 - t[both]) + elev[a[both] + 1] * t[both]
+    out_sigma[both] = sig[a[both]] * (1 - t[both]) + sig[a[both] + 1] * t[both]
     near = np.rint(f).astype(np.int64)
     fill = ~both & (near >= 0) & (near < n) & (np.abs(f - near) <= 0.5)
     near_ok = np.where(fill, near, 0)
     fill &= np.isfinite(elev[near_ok])
     out[fill] = elev[near_ok[fill]]
-    return out
+    out_sigma[fill] = sig[near_ok[fill]]
+    return out, out_sigma
 
 
 def _track_name(profiles: PreviewProfiles, wheel: str) -> str | None:
@@ -471,7 +481,7 @@ def arrival_points(
                 rel = np.stack([x - pos[m, 0], y - pos[m, 1], z - pos[m, 2]], axis=1)
                 local_x = rel @ R[m][:, 0]  # x in base_link at the stamp
                 ref = planes[m, 0] + planes[m, 1] * x + planes[m, 2] * y
-            read = read_profile(msg.profiles, track, local_x)
+            read, read_sigma = read_profile_with_sigma(msg.profiles, track, local_x)
             hit = np.isfinite(read)
             if not hit.any():
                 continue
@@ -480,7 +490,7 @@ def arrival_points(
             err[sel] = read[hit] - (path.height[sel] - ref[hit])
             cp = planes[m, 0] + planes[m, 1] * x[hit] + planes[m, 2] * y[hit]
             err_cp[sel] = read[hit] - (path.height[sel] - cp)
-            sigma[sel] = read_profile(msg.profiles, track, local_x[hit], "uncertainty")
+            sigma[sel] = read_sigma[hit]
         known = np.isfinite(path.height)
         covered = known & np.isfinite(err)
         along = np.arange(P) * settings.spacing_m
