@@ -39,6 +39,7 @@ from benchmarks.common import (
 from roadbev_core.backends import create
 from roadbev_core.config import GridSpec
 from roadbev_core.evaluation import common_cell_errors, evaluate, format_table
+from roadbev_core.figures import FigureError, reliability_figure
 from roadbev_core.metrics import N_BANDS
 
 DEFAULT_FRAMES = 24
@@ -101,39 +102,6 @@ def uncertainty_targets(rows: list[dict[str, Any]]) -> dict[str, Any]:
             "abs_err_growth_cm": growth, "abs_err_growth_le_0p02": growth <= 0.02,
         })
     return out
-
-
-def plot_reliability(rows: list[dict[str, Any]], path: Path, title: str) -> None:
-    """Observed error quantiles (68.3 %, solid; 95.4 % / 2, dashed) against the mean predicted sigma
-    per sigma bin, one colour per backend; an honest sigma lies on the diagonal."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.0, 5.0), dpi=120)
-    top = 0.5
-    for m in rows:
-        curve = [b for b in m.get("reliability") or [] if b["cells"] >= 50]
-        if not curve:
-            continue
-        sigma = [b["mean_sigma_cm"] for b in curve]
-        (line,) = ax.plot(sigma, [b["q68_abs_err_cm"] for b in curve], marker="o", ms=3, lw=1.5,
-                          label=f"{m['backend']} (68 %)")
-        ax.plot(sigma, [b["q95_abs_err_cm"] / 2 for b in curve], ls="--", lw=1.0, color=line.get_color())
-        top = max(top, *sigma, *(b["q68_abs_err_cm"] for b in curve))
-    ax.plot([0, top], [0, top], color="grey", lw=0.8, label="honest sigma")
-    ax.set_xscale("symlog", linthresh=0.1)
-    ax.set_yscale("symlog", linthresh=0.1)
-    ax.set_xlabel("predicted 1-sigma, bin mean (cm)")
-    ax.set_ylabel("observed |error| quantile (cm): 68.3 % solid, 95.4 % / 2 dashed")
-    ax.set_title(title, fontsize=10)
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8, loc="upper left")
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    plt.close(fig)
 
 
 def check_targets(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -261,7 +229,11 @@ def run_table(
     (out_dir / "table1.md").write_text(markdown_table(rows) + "\n" + (f"\n{common}\n" if common else ""))
     title = f"Abs. error vs distance, {frames} synthetic frames"
     plot_bands(rows, (grid.x_min, grid.x_max), out_dir / "band_error.png", title)
-    plot_reliability(rows, out_dir / "reliability.png", f"Reliability of sigma, {frames} synthetic frames")
+    try:
+        reliability_figure([(m["backend"], m.get("reliability") or []) for m in rows], out_dir / "reliability.png",
+                           f"Reliability of sigma, {frames} synthetic frames")
+    except FigureError as exc:  # no backend reported a sigma on enough cells
+        print(f"reliability.png not drawn: {exc}")
     print(table)
     print("targets:", targets)
     return record

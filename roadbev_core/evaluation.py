@@ -37,10 +37,7 @@ from roadbev_core.frame import Estimate, Frame
 from roadbev_core.metrics import (
     MetricAccumulator,
     Metrics,
-    reliability_curve,
-    reliability_histogram,
-    sigma_counts,
-    sigma_metrics,
+    SigmaAccumulator,
 )
 from roadbev_core.pipeline import CameraInput, ImuFeed, OdometryFeed, Pipeline, PipelineOutput
 
@@ -264,8 +261,7 @@ def evaluate(
     per_frame: list[dict[str, float]] = []
     outputs: list[PipelineOutput] = []
     refused: dict[str, int] = {}
-    calibration = np.zeros(6, np.float64)  # metrics.sigma_counts, summed over frames
-    reliability: list[tuple[np.ndarray, np.ndarray]] = []  # metrics.reliability_histogram, summed
+    calibration = SigmaAccumulator()
     stage_timings: list[dict[str, float]] = []
     iterator = iter(samples)
     frames = 0
@@ -312,7 +308,7 @@ def evaluate(
                 record["abs_err_cm"] = float(np.abs(estimate.elevation[both] - truth[both]).mean() * 100.0)
             record["coverage_pct"] = 100.0 * float(both.sum()) / max(int(labelled.sum()), 1)
             accumulator.add(estimate.elevation, truth)
-            calibration += _sigma_counts(estimate, truth, reliability)
+            calibration.add(estimate.elevation, estimate.uncertainty, truth)
         per_frame.append(record)
         stage_timings.append(dict(estimate.timings_ms))
         if keep_estimates:
@@ -331,8 +327,7 @@ def evaluate(
     accuracy = accumulator.result()
     metrics = _metrics(pipeline.backend.name, accuracy, per_frame, per_frame[first_timed:], stage_sums)
     # Calibration of the reported 1-sigma uncertainty: a Gaussian would put 68.3 / 95.4 / 99.7 % inside.
-    metrics.update(sigma_metrics(calibration))
-    metrics["reliability"] = reliability_curve(*reliability[0]) if reliability else []
+    metrics.update(calibration.result())
     return EvalResult(
         metrics=metrics,
         accuracy=accuracy,
@@ -341,22 +336,6 @@ def evaluate(
         outputs=outputs if keep_estimates else None,
         refused=refused,
     )
-
-
-def _sigma_counts(
-    estimate: Estimate, truth: np.ndarray, reliability: list[tuple[np.ndarray, np.ndarray]]
-) -> np.ndarray:
-    """[6] :func:`roadbev_core.metrics.sigma_counts` of one frame; adds its reliability histogram
-    to ``reliability`` (one summed entry)."""
-    sigma = estimate.uncertainty
-    usable = np.isfinite(truth) & np.isfinite(estimate.elevation) & np.isfinite(sigma)  # [R, C]
-    error_cm = 100.0 * np.abs(estimate.elevation[usable].astype(np.float64) - truth[usable])
-    counts, sigma_sum = reliability_histogram(error_cm, 100.0 * sigma[usable].astype(np.float64))
-    if reliability:
-        reliability[0] = (reliability[0][0] + counts, reliability[0][1] + sigma_sum)
-    else:
-        reliability.append((counts, sigma_sum))
-    return sigma_counts(estimate.elevation, sigma, truth)
 
 
 def _metrics(

@@ -8,6 +8,7 @@ every function draws into a figure of its own and saves a PNG (safe in loops and
 from __future__ import annotations
 
 import textwrap
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +22,18 @@ from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Frame
 from roadbev_core.geometry import project_points, road_to_camera
 
-__all__ = ["FigureError", "elevation_figure", "new_figure", "voxel_column_segments", "voxel_columns_figure"]
+__all__ = [
+    "RELIABILITY_MIN_CELLS",
+    "FigureError",
+    "elevation_figure",
+    "new_figure",
+    "reliability_figure",
+    "voxel_column_segments",
+    "voxel_columns_figure",
+]
+
+# Sigma bins of a reliability curve with fewer cells are left out: their quantiles are noise.
+RELIABILITY_MIN_CELLS = 50
 
 
 class FigureError(RoadbevError, ValueError):
@@ -173,4 +185,50 @@ def elevation_figure(
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=dpi, bbox_inches="tight", pad_inches=0.1)
+    return out
+
+
+def reliability_figure(
+    curves: Sequence[tuple[str, Sequence[Mapping[str, Any]]]],
+    path: str | Path,
+    title: str,
+    *,
+    min_cells: int = RELIABILITY_MIN_CELLS,
+    dpi: int = 120,
+) -> Path:
+    """Observed error quantiles against predicted sigma, one colour per curve (a reliability plot).
+
+    Each curve is a label and the entries of :func:`roadbev_core.metrics.reliability_curve` (the
+    ``reliability`` key of ``roadbev eval``'s JSON). Per sigma bin with at least ``min_cells``
+    cells: the 68.3 % quantile of |error| (solid) and half the 95.4 % quantile (dashed) against the
+    bin's mean sigma. An honest Gaussian sigma puts both on the diagonal; a point above it is
+    over-confident. Log axes, linear below 0.1 cm.
+
+    Raises:
+        FigureError: no curve has a bin with ``min_cells`` cells (nothing to draw).
+    """
+    kept = [(label, [b for b in curve if b["cells"] >= min_cells]) for label, curve in curves]
+    kept = [(label, curve) for label, curve in kept if curve]
+    if not kept:
+        raise FigureError(f"no reliability curve has a sigma bin with {min_cells} cells or more")
+    fig, ax = new_figure(figsize=(6.0, 5.0), dpi=dpi)
+    top = 0.5
+    for label, curve in kept:
+        sigma = [float(b["mean_sigma_cm"]) for b in curve]
+        q68 = [float(b["q68_abs_err_cm"]) for b in curve]
+        (line,) = ax.plot(sigma, q68, marker="o", ms=3, lw=1.5, label=f"{label} (68 %)")
+        ax.plot(sigma, [float(b["q95_abs_err_cm"]) / 2 for b in curve], ls="--", lw=1.0, color=line.get_color())
+        top = max(top, *sigma, *q68)
+    ax.plot([0, top], [0, top], color="grey", lw=0.8, label="honest sigma")
+    ax.set_xscale("symlog", linthresh=0.1)
+    ax.set_yscale("symlog", linthresh=0.1)
+    ax.set_xlabel("predicted 1-sigma, bin mean (cm)")
+    ax.set_ylabel("observed |error| quantile (cm): 68.3 % solid, 95.4 % / 2 dashed")
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left")
+    fig.tight_layout()
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=dpi)
     return out

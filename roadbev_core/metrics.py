@@ -28,6 +28,7 @@ __all__ = [
     "RELIABILITY_EDGES_CM",
     "MetricAccumulator",
     "Metrics",
+    "SigmaAccumulator",
     "differences",
     "reliability_curve",
     "reliability_histogram",
@@ -211,6 +212,46 @@ def sigma_metrics(counts: np.ndarray) -> dict[str, float | int]:
         "confident_wrong_pct": pct(counts[4]),
         "mean_sigma_cm": float(counts[5]) / n if n else math.nan,
     }
+
+
+@dataclass
+class SigmaAccumulator:
+    """Sums the uncertainty scores over frames (streaming, like :class:`MetricAccumulator`):
+    :func:`sigma_counts` and :func:`reliability_histogram`, so that ``roadbev eval``, the online
+    evaluation over DDS and the demo's report score a sigma with one piece of code."""
+
+    edges: tuple[float, ...] = RELIABILITY_EDGES_CM
+    _counts: np.ndarray = field(init=False)  # [6] sigma_counts, summed
+    _histogram: np.ndarray = field(init=False)  # [B, _REL_BINS] reliability_histogram counts, summed
+    _sigma_sum: np.ndarray = field(init=False)  # [B] sigma (cm) per sigma bin, summed
+
+    def __post_init__(self) -> None:
+        self._counts = np.zeros(6, np.float64)
+        self._histogram = np.zeros((len(self.edges) - 1, _REL_BINS), np.int64)
+        self._sigma_sum = np.zeros(len(self.edges) - 1, np.float64)
+
+    def add(self, estimate: np.ndarray, sigma: np.ndarray, truth: np.ndarray) -> None:
+        """Add one frame.
+
+        Args:
+            estimate: [R, C] metres, NaN = no estimate.
+            sigma: [R, C] the estimate's 1-sigma (m), NaN = none.
+            truth: [R, C] metres, NaN = no label.
+        """
+        if not estimate.shape == sigma.shape == truth.shape:
+            raise ValueError(f"estimate {estimate.shape}, sigma {sigma.shape} and truth {truth.shape} must match")
+        usable = np.isfinite(truth) & np.isfinite(estimate) & np.isfinite(sigma)  # [R, C]
+        error_cm = 100.0 * np.abs(estimate[usable].astype(np.float64) - truth[usable])  # [N]
+        counts, sigma_sum = reliability_histogram(error_cm, 100.0 * sigma[usable].astype(np.float64), self.edges)
+        self._histogram += counts
+        self._sigma_sum += sigma_sum
+        self._counts += sigma_counts(estimate, sigma, truth)
+
+    def result(self) -> dict[str, object]:
+        """The contract's uncertainty keys (:func:`sigma_metrics`) and ``reliability``
+        (:func:`reliability_curve`, an empty list before any cell with a sigma)."""
+        return {**sigma_metrics(self._counts), "reliability": reliability_curve(self._histogram, self._sigma_sum,
+                                                                                 self.edges)}
 
 
 def reliability_histogram(

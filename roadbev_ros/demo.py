@@ -262,6 +262,7 @@ def _node_failure(metrics: dict[str, Any], log_tail: str) -> str | None:
 @dataclass
 class _Recorded:
     elevation: dict[int, np.ndarray]
+    sigma: dict[int, np.ndarray]  # the maps' uncertainty layer, where they have one
     receive_ns: dict[int, int]
     previews: dict[int, Any]  # stamp -> roadbev_core.preview.PreviewProfiles
 
@@ -271,11 +272,13 @@ def _read_recorded(path: Path, grid: Any) -> _Recorded:
     from msg_bridge.grid_map import grid_map_to_arrays
     from msg_bridge.preview import preview_from_message
 
-    out = _Recorded({}, {}, {})
+    out = _Recorded({}, {}, {}, {})
     for item in bag.read_messages(path, [ELEVATION_TOPIC, PREVIEW_TOPIC], on_damage="skip"):
         if item.topic == ELEVATION_TOPIC:
             decoded = grid_map_to_arrays(item.msg, base=grid)
             out.elevation[decoded.stamp_ns] = np.asarray(decoded.layers["elevation"], dtype=np.float32)
+            if "uncertainty" in decoded.layers:
+                out.sigma[decoded.stamp_ns] = np.asarray(decoded.layers["uncertainty"], dtype=np.float32)
             out.receive_ns.setdefault(decoded.stamp_ns, item.log_time_ns)
         else:
             preview = preview_from_message(item.msg)
@@ -434,6 +437,8 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
     from roadbev_core.config import RoadbevConfig
     from roadbev_core.evaluation import evaluate
     from roadbev_core.pipeline import Pipeline
+    from roadbev_core.uncertainty import camera_positions
+    from roadbev_core.visibility import hidden_cells
 
     t0 = time.monotonic()
     truths: list[np.ndarray | None] = []
@@ -475,8 +480,11 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
         truth_tracks: tuple[TrackProfile, ...] = ()
         if preview is not None and truth is not None:
             truth_tracks = _truth_profiles(truth, grid, preview)
+        # what the ground truth hides from the backend's cameras: no estimator sees these cells
+        hidden = None if truth is None else hidden_cells(
+            truth, grid, camera_positions(frame, pipeline.backend.needs_stereo), clearance=0.0)
         views.append(FrameView(i, frame.stamp_ns, frame.left, frame.camera, frame.attitude, truths[i],
-                               estimate, tracks, truth_tracks))
+                               estimate, tracks, truth_tracks, recorded.sigma.get(frame.stamp_ns), hidden))
     if not views:
         raise DemoError("no recorded elevation map matches a frame of the bag: nothing to show")
     stamps = sorted(s for s in sent_ns if s in recorded.receive_ns)

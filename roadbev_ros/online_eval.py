@@ -1,6 +1,7 @@
 """Online evaluation: replay -> node (its own process) -> record -> compare with the ground truth.
 
-The same metrics as ``roadbev eval`` (:class:`roadbev_core.metrics.MetricAccumulator`, contract
+The same metrics as ``roadbev eval`` (:class:`roadbev_core.metrics.MetricAccumulator` and
+:class:`~roadbev_core.metrics.SigmaAccumulator` over the recorded ``uncertainty`` layer, contract
 keys), but every estimate has travelled over DDS: the bag's input topics are replayed as raw
 bytes, the node runs as a separate process (``roadbev node``), its outputs are recorded to an
 MCAP bag, and the recorded elevation maps are matched to ``/ground_truth/elevation`` by stamp.
@@ -35,7 +36,7 @@ from msg_bridge import bag
 from msg_bridge.evalbag import read_eval_bag
 from msg_bridge.grid_map import grid_map_to_arrays
 from roadbev_core.errors import RoadbevError
-from roadbev_core.metrics import MetricAccumulator, Metrics
+from roadbev_core.metrics import MetricAccumulator, Metrics, SigmaAccumulator
 from roadbev_ros.dds import child_env, init_ros
 from roadbev_ros.replay import header_stamp_ns, replay_bag
 
@@ -157,13 +158,19 @@ def _whole_frames(path: Path, eval_bag: Any) -> set[int]:
     return stamps
 
 
-def _estimates(recorded: Path, grid: Any) -> dict[int, np.ndarray]:
-    out: dict[int, np.ndarray] = {}
+def _estimates(recorded: Path, grid: Any) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Stamp -> (elevation, 1-sigma) [R, C] of every recorded map; the sigma is NaN where the map
+    has no ``uncertainty`` layer."""
+    out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     if not recorded.exists():
         return out
     for item in bag.read_messages(recorded, [ELEVATION_TOPIC], on_damage="skip"):
         decoded = grid_map_to_arrays(item.msg, base=grid)
-        out[decoded.stamp_ns] = np.asarray(decoded.layers["elevation"], dtype=np.float32)
+        elevation = np.asarray(decoded.layers["elevation"], dtype=np.float32)
+        sigma = decoded.layers.get("uncertainty")
+        out[decoded.stamp_ns] = (
+            elevation, np.full_like(elevation, np.nan) if sigma is None else np.asarray(sigma, dtype=np.float32)
+        )
     return out
 
 
@@ -307,19 +314,22 @@ def evaluate_online(
         raise OnlineEvalError(f"the node failed (code {proc.returncode}): {_tail(log_path)}")
     estimates = _estimates(recorded, grid)
     acc = MetricAccumulator(grid)
+    calibration = SigmaAccumulator()
     missing = 0
     # The whole frames sent (a frame lost in a damaged bag never reached the node, or only half of
     # it did): with ground truth those that have one, without it all of them.
     frames = sorted(s for s in (truths or sent) if s in sent and s in usable)
     for stamp in frames:
-        estimate = estimates.get(stamp)
-        if estimate is None:
+        recorded_map = estimates.get(stamp)
+        if recorded_map is None:
             missing += 1
-            estimate = np.full(grid.shape, np.nan, np.float32)
+            recorded_map = (np.full(grid.shape, np.nan, np.float32), np.full(grid.shape, np.nan, np.float32))
         if truths:
-            acc.add(estimate, truths[stamp])
+            elevation, sigma = recorded_map
+            acc.add(elevation, truths[stamp])
+            calibration.add(elevation, sigma, truths[stamp])
     accuracy = acc.result()
-    metrics: dict[str, Any] = {"backend": backend, **accuracy.to_dict()}
+    metrics: dict[str, Any] = {"backend": backend, **accuracy.to_dict(), **calibration.result()}
     if not truths:
         metrics.update(frames=len(frames), coverage_pct=math.nan)
     answered = len(frames) - missing

@@ -5,10 +5,14 @@ a few frames with image, ground truth and estimate, wheel-track profiles, timing
 
 * ``frames.png``: the paper's Fig. 7 layout, one row per frame: left image with the ROI (the
   voxel grid's footprint projected into it), ground truth, estimate, residual (GT - estimate),
-  elevation in cm with one colour bar shared by GT and estimate and one for the residuals;
+  elevation in cm with one colour bar shared by GT and estimate and one for the residuals; with
+  a recorded sigma also the 1-sigma map, and the confidently wrong cells (|residual| > 3 sigma
+  and > 1 cm) dotted on the residual; cells the ground truth hides from the cameras hatched;
 * ``surface.png``: a 3D surface render of one estimate;
 * ``preview.png``: left and right wheel-track profiles (recorded) against ground-truth profiles;
 * ``band_error.png``: absolute error against distance (15 bands) per run;
+* ``reliability.png``: observed error quantiles against predicted sigma per run
+  (:func:`roadbev_core.figures.reliability_figure`), when a run carries a ``reliability`` curve;
 * ``timing.png``: latency and output rate over time;
 * ``index.html`` (images referenced relatively) and ``report.json`` (every number shown).
 
@@ -22,21 +26,24 @@ from __future__ import annotations
 import html
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, cast
 
 import matplotlib
 import numpy as np
 from matplotlib import colors as mcolors
+from matplotlib.collections import PatchCollection
 from matplotlib.figure import Figure
 from matplotlib.image import AxesImage
+from matplotlib.patches import Rectangle
 
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.errors import RoadbevError
 from roadbev_core.evaluation import to_json
-from roadbev_core.figures import new_figure
+from roadbev_core.figures import FigureError, new_figure, reliability_figure
 from roadbev_core.geometry import Attitude, project_points, road_to_camera
+from roadbev_core.metrics import CONFIDENT_WRONG_CM
 
 __all__ = [
     "FIGURE_NAMES",
@@ -47,6 +54,7 @@ __all__ = [
     "TimingTrace",
     "TrackProfile",
     "band_centres_m",
+    "mask_runs",
     "plot_band_error",
     "plot_frames",
     "plot_preview",
@@ -56,11 +64,15 @@ __all__ = [
     "write_report",
 ]
 
-FIGURE_NAMES: tuple[str, ...] = ("frames.png", "surface.png", "preview.png", "band_error.png", "timing.png")
+FIGURE_NAMES: tuple[str, ...] = (
+    "frames.png", "surface.png", "preview.png", "band_error.png", "reliability.png", "timing.png",
+)
 _DPI = 110
 _ELEVATION_CMAP = "turbo"
 _RESIDUAL_CMAP = "RdBu_r"
+_SIGMA_CMAP = "viridis"
 _NO_DATA_COLOUR = "#d9d9d9"
+_HIDDEN_HATCH = "////"
 
 
 class ReportError(RoadbevError, ValueError):
@@ -103,6 +115,9 @@ class FrameView:
         estimate: [n_rows, n_cols] estimated elevation (m, NaN = none).
         tracks: estimated wheel-track profiles (as recorded from the node).
         truth_tracks: the same profiles computed from the ground truth.
+        sigma: [n_rows, n_cols] the estimate's 1-sigma (m, NaN = none), or None.
+        hidden: [n_rows, n_cols] bool, cells the ground truth hides from the cameras (behind a
+            crest: no estimator can see them), or None when unknown.
     """
 
     index: int
@@ -114,6 +129,8 @@ class FrameView:
     estimate: np.ndarray
     tracks: tuple[TrackProfile, ...] = ()
     truth_tracks: tuple[TrackProfile, ...] = ()
+    sigma: np.ndarray | None = None
+    hidden: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -273,71 +290,131 @@ def _style_bev_axes(ax: Any, grid: GridSpec, *, first: bool, last_row: bool) -> 
         ax.set_yticklabels([])
 
 
+def mask_runs(mask: np.ndarray) -> list[tuple[int, int, int]]:
+    """The set cells of ``mask`` [R, C] as horizontal runs (row, first col, last col + 1)."""
+    runs = []
+    padded = np.pad(np.asarray(mask, bool), ((0, 0), (1, 1))).astype(np.int8)  # [R, C + 2]
+    for row in np.nonzero(padded.any(axis=1))[0]:
+        edges = np.diff(padded[row])  # +1 where a run starts, -1 one past its end
+        runs += [(int(row), int(a), int(b)) for a, b in zip(np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0],
+                                                             strict=True)]
+    return runs
+
+
+def _hatch_hidden(ax: Any, hidden: np.ndarray | None, grid: GridSpec) -> int:
+    """Hatch the cells of ``hidden`` on a BEV panel drawn with :func:`_bev_extent`; returns how many."""
+    if hidden is None or not hidden.any():
+        return 0
+    res = grid.resolution
+    boxes = [Rectangle((grid.y_max - c0 * res, grid.x_max - (r + 1) * res), -(c1 - c0) * res, res)
+             for r, c0, c1 in mask_runs(hidden)]
+    ax.add_collection(PatchCollection(boxes, facecolor="none", edgecolor="black", hatch=_HIDDEN_HATCH,
+                                      linewidth=0.0, gid="hidden"))
+    return int(hidden.sum())
+
+
+def _confidently_wrong(frame: FrameView) -> np.ndarray | None:
+    """[R, C] bool: cells whose residual exceeds both 3 sigma and the contract's 1 cm."""
+    if frame.truth is None or frame.sigma is None:
+        return None
+    with np.errstate(invalid="ignore"):
+        error = np.abs(frame.truth - frame.estimate)
+        return np.asarray((error > 3.0 * frame.sigma) & (error > CONFIDENT_WRONG_CM / 100.0), bool)
+
+
+def _sigma_limit_cm(sigmas: Sequence[np.ndarray]) -> float:
+    """Upper end of the sigma colour range (cm): 99th percentile of the sigmas, at least 0.5 cm."""
+    values = np.concatenate([s[np.isfinite(s)].ravel() for s in sigmas] or [np.zeros(1)])
+    if values.size == 0:
+        return 0.5
+    return float(max(np.percentile(values * 100.0, 99.0), 0.5))
+
+
 def plot_frames(frames: Sequence[FrameView], grid: GridSpec, path: str | Path) -> Path:
     """The paper's Fig. 7: image with ROI | GT | estimate | residual (GT - estimate), in cm.
 
-    GT and estimate share one colour bar; residuals share another; both span all rows. Axes are
+    GT and estimate share one colour bar; residuals share another; both span all rows. When any
+    frame has a sigma a fourth map shows it (its own colour bar) and the residual marks the
+    confidently wrong cells with black dots: what a controller trusting sigma would get wrong.
+    Cells the ground truth hides from the cameras (:attr:`FrameView.hidden`) are hatched on every
+    map, so that an error there reads as occlusion, not as the estimator's fault. Axes are
     placed in inches so that every panel keeps its true aspect without wasted space.
     """
     if not frames:
         raise ReportError("no frames to draw")
+    for frame in frames:
+        for name, arr in (("estimate", frame.estimate), ("sigma", frame.sigma), ("hidden", frame.hidden)):
+            if arr is not None and arr.shape != grid.shape:
+                raise ReportError(f"frame {frame.index}: {name} {arr.shape} is not the grid {grid.shape}")
     truths = [f.truth for f in frames if f.truth is not None]
     residuals = [f.truth - f.estimate for f in frames if f.truth is not None]
+    sigmas = [f.sigma for f in frames if f.sigma is not None]
     lo, hi = _elevation_limits_cm(truths or [f.estimate for f in frames])
     rlim = _residual_limit_cm(residuals)
+    slim = _sigma_limit_cm(sigmas)
+    n_maps = 4 if sigmas else 3
     cam = frames[0].camera
     h = 3.0  # height of every panel (in)
     w_img = h * cam.width / cam.height
     w_map = h * grid.length_y / grid.length_x
-    margin, gap_img, gap_map, title_h, ticks_h, bar_h, bar_label_h = 0.15, 0.75, 0.35, 0.35, 0.5, 0.14, 0.75
-    fig_w = margin + w_img + gap_img + 3 * w_map + 2 * gap_map + 0.45
+    margin, gap_img, gap_map, title_h, ticks_h, bar_h, bar_label_h = 0.15, 0.75, 0.35, 0.5, 0.5, 0.14, 0.75
+    fig_w = margin + w_img + gap_img + n_maps * w_map + (n_maps - 1) * gap_map + 0.45
     row_h = title_h + h + ticks_h
-    fig_h = 0.45 + row_h * len(frames) + bar_h + bar_label_h
+    fig_h = 0.6 + row_h * len(frames) + bar_h + bar_label_h
     fig = Figure(figsize=(fig_w, fig_h), dpi=_DPI)
 
     def axes_at(left_in: float, bottom_in: float, width_in: float, height_in: float) -> Any:
         return fig.add_axes((left_in / fig_w, bottom_in / fig_h, width_in / fig_w, height_in / fig_h))
 
     extent = _bev_extent(grid)
-    elev_cmap, res_cmap = _cmap(_ELEVATION_CMAP), _cmap(_RESIDUAL_CMAP)
-    map_left = [margin + w_img + gap_img + k * (w_map + gap_map) for k in range(3)]
-    im_e: AxesImage | None = None
-    im_r: AxesImage | None = None
+    elev_cmap, res_cmap, sigma_cmap = _cmap(_ELEVATION_CMAP), _cmap(_RESIDUAL_CMAP), _cmap(_SIGMA_CMAP)
+    map_left = [margin + w_img + gap_img + k * (w_map + gap_map) for k in range(n_maps)]
+    yy, xx = np.meshgrid(grid.y_centres(), grid.x_centres())  # [R, C] cell centres
+    images: dict[str, AxesImage] = {}
     for i, frame in enumerate(frames):
-        if frame.estimate.shape != grid.shape:
-            raise ReportError(f"frame {frame.index}: estimate {frame.estimate.shape} is not the grid {grid.shape}")
-        bottom = fig_h - 0.45 - (i + 1) * row_h + ticks_h
+        bottom = fig_h - 0.6 - (i + 1) * row_h + ticks_h
         _draw_roi(axes_at(margin, bottom, w_img, h), frame, grid)
-        panels = [
-            ("ground truth", frame.truth, elev_cmap, lo, hi),
-            ("estimate", frame.estimate, elev_cmap, lo, hi),
-            ("residual GT - est.", None if frame.truth is None else frame.truth - frame.estimate,
-             res_cmap, -rlim, rlim),
+        residual = None if frame.truth is None else frame.truth - frame.estimate
+        panels: list[tuple[str, str, np.ndarray | None, mcolors.Colormap, float, float]] = [
+            ("elevation", "ground truth", frame.truth, elev_cmap, lo, hi),
+            ("elevation", "estimate", frame.estimate, elev_cmap, lo, hi),
+            ("residual", "residual GT - est.", residual, res_cmap, -rlim, rlim),
         ]
-        for j, (title, arr, cmap, vmin, vmax) in enumerate(panels):
+        if n_maps == 4:
+            panels.append(("sigma", "1-sigma", frame.sigma, sigma_cmap, 0.0, slim))
+        wrong = _confidently_wrong(frame)
+        for j, (scale, title, arr, cmap, vmin, vmax) in enumerate(panels):
             ax = axes_at(map_left[j], bottom, w_map, h)
             shown = np.full(grid.shape, np.nan) if arr is None else arr * 100.0
-            im = ax.imshow(shown, cmap=cmap, vmin=vmin, vmax=vmax, extent=extent,
-                           interpolation="nearest", origin="upper", aspect="equal")
-            if j < 2:
-                im_e = im
-            else:
-                im_r = im
-            ax.set_title(title if arr is not None else f"{title}: none", fontsize=9)
+            images[scale] = ax.imshow(shown, cmap=cmap, vmin=vmin, vmax=vmax, extent=extent,
+                                      interpolation="nearest", origin="upper", aspect="equal")
+            hidden = _hatch_hidden(ax, frame.hidden, grid)
+            if arr is None:
+                title = f"{title}: none"
+            elif scale == "elevation" and j == 0 and frame.hidden is not None:
+                title = f"{title}\n{hidden} cells hidden"
+            elif scale == "residual" and wrong is not None:
+                ax.scatter(yy[wrong], xx[wrong], s=3, c="black", linewidths=0, gid="confidently_wrong")
+                title = f"{title}\n{int(wrong.sum())} confidently wrong"
+            ax.set_xlim(extent[0], extent[1])
+            ax.set_ylim(extent[2], extent[3])
+            ax.set_title(title, fontsize=9)
             _style_bev_axes(ax, grid, first=(j == 0), last_row=True)
-    assert im_e is not None and im_r is not None  # frames is not empty
-    cax_e = axes_at(map_left[0], bar_label_h, 2 * w_map + gap_map, bar_h)
-    cbar_e = fig.colorbar(im_e, cax=cax_e, orientation="horizontal")
-    cbar_e.set_label("elevation (cm), GT and estimate", fontsize=8)
-    cax_r = axes_at(map_left[2], bar_label_h, w_map, bar_h)
-    cbar_r = fig.colorbar(im_r, cax=cax_r, orientation="horizontal")
-    cbar_r.set_label("residual (cm)", fontsize=8)
-    for cbar in (cbar_e, cbar_r):
+    bars = [("elevation", "elevation (cm), GT and estimate", map_left[0], 2 * w_map + gap_map),
+            ("residual", "residual (cm)", map_left[2], w_map)]
+    if n_maps == 4:
+        bars.append(("sigma", "1-sigma (cm)", map_left[3], w_map))
+    for scale, label, left_in, width_in in bars:
+        cbar = fig.colorbar(images[scale], cax=axes_at(left_in, bar_label_h, width_in, bar_h), orientation="horizontal")
+        cbar.set_label(label, fontsize=8)
         cbar.ax.tick_params(labelsize=7)
-    fig.text(margin / fig_w, 1.0 - 0.12 / fig_h,
-             "Red: ROI at z = 0; orange: voxel range z_min (dotted) .. z_max (dashed); cyan: wheel tracks. "
-             "Grey cells: no label / no estimate.",
-             fontsize=8, va="top")
+    legend = ("Red: ROI at z = 0; orange: voxel range z_min (dotted) .. z_max (dashed); cyan: wheel tracks. "
+              "Grey cells: no label / no estimate.")
+    if any(f.hidden is not None for f in frames):
+        legend += " Hatched: hidden from the cameras by the road in front (ground truth's lines of sight)."
+    if any(_confidently_wrong(f) is not None for f in frames):
+        legend += "\nBlack dots on the residual: confidently wrong, |GT - est.| > 3 sigma and > 1 cm."
+    fig.text(margin / fig_w, 1.0 - 0.12 / fig_h, legend, fontsize=8, va="top")
     out = Path(path)
     fig.savefig(out)
     return out
@@ -496,6 +573,9 @@ _TABLE_KEYS: tuple[tuple[str, str, str], ...] = (
     ("rmse_cm", "RMSE (cm)", "{:.3f}"),
     ("gt_0p5cm_pct", "> 0.5 cm (%)", "{:.1f}"),
     ("coverage_pct", "coverage (%)", "{:.1f}"),
+    ("within_2sigma_pct", "within 2σ (%)", "{:.1f}"),
+    ("confident_wrong_pct", "confidently wrong (%)", "{:.2f}"),
+    ("mean_sigma_cm", "mean σ (cm)", "{:.3f}"),
     ("fps", "rate (Hz)", "{:.2f}"),
     ("latency_ms_median", "latency median (ms)", "{:.0f}"),
 )
@@ -525,12 +605,18 @@ def _metrics_table(runs: Sequence[RunSummary]) -> str:
 _CAPTIONS: dict[str, str] = {
     "frames.png": "Left image with the ROI (the grid's footprint on the z = 0 plane, red; the voxel "
     "range z_min..z_max, orange; the wheel tracks, cyan), ground truth, estimate and residual "
-    "(GT - estimate) in cm, as in the paper's Fig. 7. Maps are drawn with true aspect, near at the "
-    "bottom, left on the left.",
+    "(GT - estimate) in cm, as in the paper's Fig. 7, and the recorded 1-sigma. Black dots on the "
+    "residual: confidently wrong cells (error beyond 3 sigma and 1 cm). Hatched: cells the ground "
+    "truth hides from the cameras (behind a crest), which no estimator can see. Maps are drawn with "
+    "true aspect, near at the bottom, left on the left.",
     "surface.png": "3D surface of the estimate (horizontal axes to scale, elevation exaggerated).",
     "preview.png": "Wheel-track preview profiles as published on /roadbev/preview against the same "
     "profiles computed from the ground truth (roadbev_core.preview).",
     "band_error.png": "Mean absolute error in 15 distance bands along x, near to far (paper Fig. 9).",
+    "reliability.png": "Reliability of the reported sigma: per bin of predicted 1-sigma, the 68.3 % "
+    "quantile of the observed |error| (solid) and half its 95.4 % quantile (dashed), against the "
+    "bin's mean sigma. An honest sigma lies on the grey diagonal; points above it are over-confident. "
+    "Bins with fewer than 50 cells are left out.",
     "timing.png": "Latency (input image published by the replay until its elevation map was "
     "received by the recorder) and output rate over time.",
 }
@@ -619,6 +705,14 @@ def write_report(
     if any(scored(r) for r in data.runs):
         tell("band_error.png")
         written["band_error.png"] = plot_band_error(data.runs, data.grid, out / "band_error.png")
+    curves = [(r.label, r.metrics.get("reliability") or []) for r in data.runs]
+    if any(curve for _, curve in curves):
+        tell("reliability.png")
+        try:
+            written["reliability.png"] = reliability_figure(curves, out / "reliability.png",
+                                                            "Reliability of the reported sigma")
+        except FigureError as exc:  # every bin under the cell count: say so on the page
+            data = replace(data, notes=[*data.notes, f"No reliability plot: {exc}."])
     if data.timing is not None and data.timing.receive_s.size:
         tell("timing.png")
         written["timing.png"] = plot_timing(data.timing, out / "timing.png")

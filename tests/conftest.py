@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -38,3 +39,21 @@ def kitti_dir() -> Path:
     if not (KITTI / "stereo_rcnn_demo" / "demo" / "lidar.bin").is_file():
         pytest.skip(f"real KITTI frames not found at {KITTI}")
     return KITTI
+
+
+@pytest.fixture
+def saved_figures(monkeypatch: pytest.MonkeyPatch) -> list[Any]:
+    """Every matplotlib Figure saved during the test, drawn first (artists laid out), in order:
+    the figure functions return a path, and a test that looks at the artists reads them here."""
+    from matplotlib.figure import Figure
+
+    saved: list[Any] = []
+    original = Figure.savefig
+
+    def keep(fig: Figure, *args: Any, **kwargs: Any) -> None:
+        fig.canvas.draw()
+        saved.append(fig)
+        original(fig, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", keep)
+    return saved

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -73,3 +74,33 @@ def test_figures_command_writes_both_pngs(tmp_path: Path, capsys: pytest.Capture
     assert "voxel_columns.png" in capsys.readouterr().out
     assert main(["figures", "--out", str(out), "--road-class", "Q"]) == 2
     assert "road_class" in capsys.readouterr().err
+
+
+def _bins(scale: float, cells: int = 500) -> list[dict[str, float | int]]:
+    return [{"sigma_lo_cm": s, "sigma_hi_cm": 2 * s, "cells": cells, "mean_sigma_cm": 1.5 * s,
+             "q68_abs_err_cm": scale * 1.5 * s, "q95_abs_err_cm": scale * 3.0 * s} for s in (0.1, 0.3, 1.0)]
+
+
+def test_reliability_figure_draws_a_curve_per_label_and_the_diagonal(tmp_path: Path, saved_figures: list[Any]) -> None:
+    from matplotlib import image as mpimg
+
+    from roadbev_core.figures import reliability_figure
+
+    out = reliability_figure([("honest", _bins(1.0)), ("over-confident", _bins(3.0)),
+                              ("sparse", _bins(1.0, cells=49))], tmp_path / "r.png", "t")
+    assert mpimg.imread(out).shape[:2] == (600, 720)
+    (ax,) = saved_figures[0].axes
+    labels = [str(line.get_label()) for line in ax.get_lines()]
+    # two lines per kept curve (68 % solid, 95 % / 2 dashed) and the diagonal; "sparse" left out
+    assert labels.count("honest (68 %)") == 1 and labels.count("over-confident (68 %)") == 1
+    assert "honest sigma" in labels and not any("sparse" in label for label in labels)
+    over = next(line for line in ax.get_lines() if line.get_label() == "over-confident (68 %)")
+    np.testing.assert_allclose(np.asarray(over.get_ydata(), float), 3.0 * np.asarray(over.get_xdata(), float))
+
+
+def test_reliability_figure_refuses_curves_without_enough_cells(tmp_path: Path) -> None:
+    from roadbev_core.figures import reliability_figure
+
+    with pytest.raises(FigureError, match="50 cells"):
+        reliability_figure([("a", _bins(1.0, cells=10)), ("b", [])], tmp_path / "r.png", "t")
+    assert not (tmp_path / "r.png").exists()

@@ -92,3 +92,46 @@ def test_reliability_curve_of_an_honest_gaussian_sigma_lies_on_the_diagonal() ->
     # an overconfident sigma lies above it
     counts, sigma_sum = reliability_histogram(3 * error, sigma)
     assert all(b["q68_abs_err_cm"] > 2 * b["mean_sigma_cm"] for b in reliability_curve(counts, sigma_sum))
+
+
+def test_sigma_accumulator_sums_frames_as_one_and_scores_like_sigma_counts() -> None:
+    from roadbev_core.metrics import (
+        SigmaAccumulator,
+        reliability_curve,
+        reliability_histogram,
+        sigma_counts,
+        sigma_metrics,
+    )
+
+    rng = np.random.default_rng(3)
+    truth = rng.normal(0.0, 0.02, (2, *G.shape))
+    sigma = rng.choice([0.001, 0.004, 0.02], (2, *G.shape))
+    estimate = truth + rng.normal(0.0, 1.0, truth.shape) * sigma * rng.choice([1.0, 5.0], truth.shape, p=[0.9, 0.1])
+    estimate[0, :5] = np.nan  # no estimate
+    sigma[1, -3:] = np.nan  # no sigma
+    truth[1, 7] = np.nan  # no label
+    acc = SigmaAccumulator()
+    for k in range(2):
+        acc.add(estimate[k], sigma[k], truth[k])
+    result = acc.result()
+    counts = sigma_counts(estimate[0], sigma[0], truth[0]) + sigma_counts(estimate[1], sigma[1], truth[1])
+    assert {k: v for k, v in result.items() if k != "reliability"} == sigma_metrics(counts)
+    usable = np.isfinite(estimate) & np.isfinite(sigma) & np.isfinite(truth)
+    assert result["sigma_cells"] == int(usable.sum()) == (2 * G.n_rows - 5 - 3 - 1) * G.n_cols
+    error_cm = 100.0 * np.abs(estimate[usable] - truth[usable])
+    whole = reliability_curve(*reliability_histogram(error_cm, 100.0 * sigma[usable]))  # one frame of both
+    assert len(result["reliability"]) == len(whole) == 3  # type: ignore[arg-type]
+    for summed, one in zip(result["reliability"], whole, strict=True):  # type: ignore[call-overload]
+        assert summed == pytest.approx(one, rel=1e-12)
+    assert 0.0 < float(result["confident_wrong_pct"]) < 10.0  # type: ignore[arg-type]
+
+
+def test_sigma_accumulator_without_a_frame_has_no_score_and_refuses_mismatched_maps() -> None:
+    from roadbev_core.metrics import SigmaAccumulator
+
+    acc = SigmaAccumulator()
+    result = acc.result()
+    assert result["sigma_cells"] == 0 and math.isnan(float(result["within_2sigma_pct"]))  # type: ignore[arg-type]
+    assert result["reliability"] == []
+    with pytest.raises(ValueError, match="must match"):
+        acc.add(np.zeros(G.shape), np.zeros((2, 2)), np.zeros(G.shape))

@@ -33,7 +33,7 @@ from roadbev_ros.demo_drive import DRIVE_SEED, drive_config, features_path
 
 FRAMES = 4
 SCALE = 0.25  # 240 x 132 images: the whole demo in seconds
-FIGURES = ("frames.png", "surface.png", "preview.png", "band_error.png", "timing.png")
+FIGURES = ("frames.png", "surface.png", "preview.png", "band_error.png", "reliability.png", "timing.png")
 DRIVE_FRAMES = 12  # 1.1 s at 10 Hz: the ride scores 0.7 s after a 0.5 s warm-up
 DRIVE_FIGURES = ("drive_map.png", "drive_hazards.png", "drive_arrival.png", "drive_ride.png")
 
@@ -95,6 +95,11 @@ def test_report_numbers_equal_the_offline_evaluation_of_the_recorded_outputs(
         # every frame is processed in lockstep: ROS 2 and `roadbev eval` agree
         assert online[key] == pytest.approx(offline[key], abs=1e-6), key
     assert payload["agreement"]["abs_err_cm"] < 1e-6
+    # the sigma columns and the reliability plot: the recorded uncertainty layer scores as eval's sigma
+    assert online["sigma_cells"] == offline["sigma_cells"] > 0
+    for key in ("within_2sigma_pct", "confident_wrong_pct", "mean_sigma_cm"):
+        assert online[key] == pytest.approx(offline[key], abs=1e-6), key
+    assert online["reliability"] == offline["reliability"]
     # the 15 distance bands, as in the paper
     assert len(online["band_abs_err_cm"]) == 15
     assert 0.0 < online["abs_err_cm"] < 20.0  # real estimates, not a constant

@@ -23,7 +23,9 @@ from roadbev_ros.dds import child_env
 from roadbev_ros.online_eval import evaluate_online, format_online
 
 FRAMES = 6
-METRIC_KEYS = ("frames", "cells", "abs_err_cm", "rmse_cm", "gt_0p5cm_pct", "coverage_pct")
+METRIC_KEYS = ("frames", "cells", "abs_err_cm", "rmse_cm", "gt_0p5cm_pct", "coverage_pct",
+               # the sigma, scored from the recorded maps' uncertainty layer as eval scores Estimate.uncertainty
+               "sigma_cells", "within_2sigma_pct", "confident_wrong_pct", "mean_sigma_cm")
 
 
 @pytest.fixture(scope="session")
@@ -62,6 +64,8 @@ def test_online_metrics_match_offline(ros: object, drive_bag: Path, tmp_path: Pa
     for key in METRIC_KEYS:
         assert online[key] == pytest.approx(offline[key], rel=1e-6, abs=1e-9), key
     np.testing.assert_allclose(online["band_abs_err_cm"], offline["band_abs_err_cm"], rtol=1e-6)
+    assert online["sigma_cells"] > 0
+    assert online["reliability"] == offline["reliability"]
     # the recording holds every output: a map and a preview per frame, and diagnostics
     topics = bag.bag_topics(result.recorded)
     assert topics["/roadbev/elevation"].count == FRAMES

@@ -22,6 +22,7 @@ from roadbev_ros.report import (
     TimingTrace,
     TrackProfile,
     band_centres_m,
+    mask_runs,
     plot_frames,
     plot_preview,
     roi_outline_px,
@@ -86,22 +87,10 @@ def test_preview_figure_draws_a_frame_that_lacks_a_track_another_frame_has(tmp_p
     assert mpimg.imread(out).shape[0] > 200
 
 
-def test_frames_figure_keeps_the_bev_aspect(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_frames_figure_keeps_the_bev_aspect(tmp_path: Path, saved_figures: list[Any]) -> None:
     """Each BEV map is 4.92 m x 1.92 m: its axes are about 2.56 times taller than wide."""
-    from matplotlib.figure import Figure
-
-    data = _data(1)
-    captured: dict[str, Any] = {}
-    original = Figure.savefig
-
-    def grab(fig: Figure, *args: Any, **kwargs: Any) -> None:
-        fig.canvas.draw()
-        captured["boxes"] = [ax.get_window_extent() for ax in fig.axes if ax.images and ax.get_title() == "estimate"]
-        original(fig, *args, **kwargs)
-
-    monkeypatch.setattr(Figure, "savefig", grab)
-    plot_frames(data.frames, GRID, tmp_path / "f.png")
-    (box,) = captured["boxes"]
+    plot_frames(_data(1).frames, GRID, tmp_path / "f.png")
+    (box,) = [ax.get_window_extent() for ax in saved_figures[0].axes if ax.images and ax.get_title() == "estimate"]
     assert box.height / box.width == pytest.approx(GRID.length_x / GRID.length_y, rel=0.03)
 
 
@@ -128,3 +117,96 @@ def test_report_refuses_no_frames(tmp_path: Path) -> None:
     data.frames = []
     with pytest.raises(ReportError):
         write_report(data, tmp_path)
+
+
+def test_mask_runs_are_the_rows_runs_of_set_cells() -> None:
+    mask = np.zeros((3, 6), bool)
+    mask[0, 1:3] = True
+    mask[0, 4] = True
+    mask[2, :] = True
+    assert mask_runs(mask) == [(0, 1, 3), (0, 4, 5), (2, 0, 6)]
+    assert mask_runs(np.zeros((2, 2), bool)) == []
+
+
+def test_frames_figure_hatches_hidden_cells_shows_sigma_and_dots_confidently_wrong_cells(
+    tmp_path: Path, saved_figures: list[Any],
+) -> None:
+    frame = _data(1).frames[0]
+    assert frame.truth is not None
+    estimate = frame.truth.copy()
+    estimate[10, 5:9] += 0.05  # 5 cm off at sigma 3 mm: confidently wrong
+    estimate[20, 5] += 0.005  # 5 mm off: beyond 3 sigma but under 1 cm, not counted
+    sigma = np.full(GRID.shape, 0.003, np.float32)
+    hidden = np.zeros(GRID.shape, bool)
+    hidden[30:34, 10:20] = True  # 4 runs of 10 cells
+    hidden[40, 0] = True
+    plot_frames([replace(frame, estimate=estimate, sigma=sigma, hidden=hidden)], GRID, tmp_path / "f.png")
+    (fig,) = saved_figures
+    titles = [ax.get_title() for ax in fig.axes]
+    assert "ground truth\n41 cells hidden" in titles and "1-sigma" in titles
+    assert "residual GT - est.\n4 confidently wrong" in titles
+    hatched = [c for ax in fig.axes for c in ax.collections if c.get_gid() == "hidden"]
+    assert len(hatched) == 4  # GT, estimate, residual, sigma
+    for collection in hatched:
+        assert collection.get_hatch() == "////"
+        assert len(collection.get_paths()) == 5
+        # the boxes (data coordinates: y, x in metres) cover exactly the 41 hidden cells
+        area = sum(float(np.prod(np.ptp(p.vertices, axis=0))) for p in collection.get_paths())
+        assert area == pytest.approx(41 * GRID.resolution**2, rel=1e-6)
+        lowest = min(float(p.vertices[:, 1].min()) for p in collection.get_paths())
+        assert lowest == pytest.approx(GRID.x_max - 41 * GRID.resolution)  # row 40's near edge
+    (dots,) = [c for ax in fig.axes for c in ax.collections if c.get_gid() == "confidently_wrong"]
+    offsets = np.asarray(dots.get_offsets())
+    assert offsets.shape == (4, 2)
+    np.testing.assert_allclose(offsets[:, 1], GRID.x_centres()[10])  # row 10's distance
+    np.testing.assert_allclose(sorted(offsets[:, 0]), sorted(GRID.y_centres()[5:9]))
+
+
+def test_frames_figure_without_sigma_or_visibility_keeps_three_maps(tmp_path: Path, saved_figures: list[Any]) -> None:
+    plot_frames(_data(1).frames, GRID, tmp_path / "f.png")
+    (fig,) = saved_figures
+    assert [ax.get_title() for ax in fig.axes if ax.images][1:] == ["ground truth", "estimate", "residual GT - est."]
+    assert not [c for ax in fig.axes for c in ax.collections if c.get_gid() in ("hidden", "confidently_wrong")]
+
+
+def test_frames_figure_refuses_a_sigma_off_the_grid(tmp_path: Path) -> None:
+    frame = replace(_data(1).frames[0], sigma=np.zeros((3, 3), np.float32))
+    with pytest.raises(ReportError, match="sigma"):
+        plot_frames([frame], GRID, tmp_path / "f.png")
+
+
+def _curve(scale: float) -> list[dict[str, Any]]:
+    return [{"sigma_lo_cm": lo, "sigma_hi_cm": hi, "cells": cells, "mean_sigma_cm": 0.5 * (lo + hi),
+             "q68_abs_err_cm": scale * 0.5 * (lo + hi), "q95_abs_err_cm": scale * (lo + hi)}
+            for lo, hi, cells in ((0.1, 0.2, 400), (0.2, 0.3, 900), (0.5, 0.75, 60), (1.0, 1.5, 10))]
+
+
+def test_the_report_draws_the_reliability_plot_and_the_sigma_columns(tmp_path: Path) -> None:
+    data = _data(1)
+    sigma_keys = {"within_2sigma_pct": 95.25, "confident_wrong_pct": 0.125, "mean_sigma_cm": 0.4321}
+    data.runs = [replace(r, metrics={**r.metrics, **sigma_keys, "reliability": _curve(1.0 + k)})
+                 for k, r in enumerate(data.runs)]
+    files = write_report(data, tmp_path)
+    assert "reliability.png" in files
+    img = mpimg.imread(files["reliability.png"])
+    assert float(img[..., :3].std()) > 0.05
+    page = (tmp_path / "index.html").read_text()
+    assert 'src="reliability.png"' in page
+    assert "within 2σ (%)" in page and "confidently wrong (%)" in page and "mean σ (cm)" in page
+    assert "95.2" in page and "0.12" in page and "0.432" in page
+    assert "reliability.png" in json.loads((tmp_path / "report.json").read_text())["figures"]
+
+
+def test_the_report_leaves_the_reliability_plot_out_without_a_curve_and_says_why_when_too_few_cells(
+    tmp_path: Path,
+) -> None:
+    files = write_report(_data(1), tmp_path / "none")
+    assert "reliability.png" not in files  # the runs report no sigma
+    assert "within 2σ" in (tmp_path / "none" / "index.html").read_text()  # the column, empty ("–")
+    data = _data(1)
+    sparse = [dict(b, cells=10) for b in _curve(1.0)]
+    data.runs = [replace(r, metrics={**r.metrics, "reliability": sparse}) for r in data.runs]
+    files = write_report(data, tmp_path / "sparse")
+    assert "reliability.png" not in files
+    assert "No reliability plot: no reliability curve has a sigma bin with 50 cells or more." in (
+        tmp_path / "sparse" / "index.html").read_text()
