@@ -295,20 +295,30 @@ def _profiles_to_report(profiles: Any) -> tuple[TrackProfile, ...]:
     )
 
 
-def _truth_profiles(truth: np.ndarray, grid: Any, like: Any) -> tuple[TrackProfile, ...]:
-    """Ground-truth wheel-track profiles with the recorded preview's tracks, width and spacing."""
+def _truth_profiles(truth: np.ndarray, grid: Any, like: Any, hidden: np.ndarray | None = None
+                    ) -> tuple[TrackProfile, ...]:
+    """Ground-truth wheel-track profiles with the recorded preview's tracks, width and spacing;
+    with ``hidden`` [R, C] (cells the truth hides from the cameras) each sample also says whether
+    any cell of its tyre footprint is hidden."""
     from roadbev_core.preview import wheel_track_profiles
 
-    gt = wheel_track_profiles(
-        truth, None, grid,
-        track_offsets_m=[t.lateral_offset for t in like.tracks],
-        track_names=[t.name for t in like.tracks],
-        tyre_width_m=float(like.tracks[0].width),
-        spacing_m=float(like.spacing),
-        max_distance_m=float(like.distances()[-1]) if like.n_samples else None,
-    )
-    profiles = _profiles_to_report(gt)
-    return tuple(replace(p, sigma_m=None) for p in profiles)
+    def profiles(layer: np.ndarray) -> tuple[TrackProfile, ...]:
+        return _profiles_to_report(wheel_track_profiles(
+            layer, None, grid,
+            track_offsets_m=[t.lateral_offset for t in like.tracks],
+            track_names=[t.name for t in like.tracks],
+            tyre_width_m=float(like.tracks[0].width),
+            spacing_m=float(like.spacing),
+            max_distance_m=float(like.distances()[-1]) if like.n_samples else None,
+        ))
+
+    gt = profiles(truth)
+    if hidden is None:
+        return tuple(replace(p, sigma_m=None) for p in gt)
+    # the same footprints over the hidden mask: the share of each footprint that is hidden
+    shares = profiles(np.asarray(hidden, np.float64))
+    return tuple(replace(p, sigma_m=None, hidden=np.nan_to_num(h.elevation_m) > 0.0)
+                 for p, h in zip(gt, shares, strict=True))
 
 
 def pick_frames(truths: Sequence[np.ndarray | None], count: int) -> list[int]:
@@ -477,12 +487,12 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
         preview = recorded.previews.get(frame.stamp_ns)
         truth = truths[i]
         tracks: tuple[TrackProfile, ...] = _profiles_to_report(preview) if preview is not None else ()
-        truth_tracks: tuple[TrackProfile, ...] = ()
-        if preview is not None and truth is not None:
-            truth_tracks = _truth_profiles(truth, grid, preview)
         # what the ground truth hides from the backend's cameras: no estimator sees these cells
         hidden = None if truth is None else hidden_cells(
             truth, grid, camera_positions(frame, pipeline.backend.needs_stereo), clearance=0.0)
+        truth_tracks: tuple[TrackProfile, ...] = ()
+        if preview is not None and truth is not None:
+            truth_tracks = _truth_profiles(truth, grid, preview, hidden)
         views.append(FrameView(i, frame.stamp_ns, frame.left, frame.camera, frame.attitude, truths[i],
                                estimate, tracks, truth_tracks, recorded.sigma.get(frame.stamp_ns), hidden))
     if not views:

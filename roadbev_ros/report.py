@@ -36,7 +36,7 @@ from matplotlib import colors as mcolors
 from matplotlib.collections import PatchCollection
 from matplotlib.figure import Figure
 from matplotlib.image import AxesImage
-from matplotlib.patches import Rectangle
+from matplotlib.patches import Patch, Rectangle
 
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.errors import RoadbevError
@@ -73,6 +73,7 @@ _RESIDUAL_CMAP = "RdBu_r"
 _SIGMA_CMAP = "viridis"
 _NO_DATA_COLOUR = "#d9d9d9"
 _HIDDEN_HATCH = "////"
+_HIDDEN_LABEL = "hidden from the cameras (GT)"
 
 
 class ReportError(RoadbevError, ValueError):
@@ -92,6 +93,8 @@ class TrackProfile:
         distance_m: [n] x of each sample ahead of the camera.
         elevation_m: [n] road height (NaN = none).
         sigma_m: [n] 1-sigma uncertainty, or None.
+        hidden: [n] bool, samples whose tyre footprint the road in front hides from the cameras
+            (from the ground truth), or None when unknown.
     """
 
     name: str
@@ -99,6 +102,7 @@ class TrackProfile:
     distance_m: np.ndarray
     elevation_m: np.ndarray
     sigma_m: np.ndarray | None = None
+    hidden: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -459,8 +463,24 @@ def plot_surface(frame: FrameView, grid: GridSpec, path: str | Path) -> Path:
     return out
 
 
+def _shade_hidden(ax: Any, track: TrackProfile) -> int:
+    """Grey spans over the samples of ``track`` that the road in front hides from the cameras
+    (half a sample spacing either side); returns how many spans."""
+    if track.hidden is None or not track.hidden.any():
+        return 0
+    d = np.asarray(track.distance_m, np.float64)
+    half = 0.5 * float(np.median(np.abs(np.diff(d)))) if d.size > 1 else 0.0
+    runs = mask_runs(np.asarray(track.hidden, bool)[None])
+    for k, (_, first, stop) in enumerate(runs):
+        lo, hi = sorted((d[first], d[stop - 1]))
+        ax.axvspan(lo - half, hi + half, color="0.6", alpha=0.35, lw=0, gid="hidden",
+                   label=_HIDDEN_LABEL if k == 0 else None)
+    return len(runs)
+
+
 def plot_preview(frames: Sequence[FrameView], path: str | Path) -> Path:
-    """Left and right wheel-track profiles (estimate with 1-sigma band) against ground truth."""
+    """Left and right wheel-track profiles (estimate with 1-sigma band) against ground truth;
+    grey spans: where the road in front hides the track from the cameras (ground truth)."""
     rows = [f for f in frames if f.tracks or f.truth_tracks]
     if not rows:
         raise ReportError("no wheel-track profiles to draw")
@@ -471,6 +491,7 @@ def plot_preview(frames: Sequence[FrameView], path: str | Path) -> Path:
                 names.append(t.name)
     fig, axes = new_figure(len(rows), len(names), figsize=(5.0 * len(names), 2.6 * len(rows) + 0.6),
                              dpi=_DPI, squeeze=False, sharex=True, sharey=True)
+    shaded = 0
     for i, frame in enumerate(rows):
         est = {t.name: t for t in frame.tracks}
         gt = {t.name: t for t in frame.truth_tracks}
@@ -479,6 +500,7 @@ def plot_preview(frames: Sequence[FrameView], path: str | Path) -> Path:
             if name in gt:
                 t = gt[name]
                 ax.plot(t.distance_m, t.elevation_m * 100.0, color="black", lw=1.4, label="ground truth")
+                shaded += _shade_hidden(ax, t)
             if name in est:
                 t = est[name]
                 ax.plot(t.distance_m, t.elevation_m * 100.0, color="tab:red", lw=1.2,
@@ -495,8 +517,12 @@ def plot_preview(frames: Sequence[FrameView], path: str | Path) -> Path:
             ax.set_ylabel("elevation (cm)", fontsize=8)
             if i == len(rows) - 1:
                 ax.set_xlabel("distance ahead x (m)", fontsize=8)
-            if i == 0 and j == 0:
-                ax.legend(fontsize=7, loc="best")
+    # one legend, on the first panel; the hidden spans' entry even when that panel has none
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    if shaded and _HIDDEN_LABEL not in labels:
+        handles.append(Patch(color="0.6", alpha=0.35, lw=0))
+        labels.append(_HIDDEN_LABEL)
+    axes[0, 0].legend(handles, labels, fontsize=7, loc="best")
     fig.tight_layout()
     out = Path(path)
     fig.savefig(out)
@@ -610,8 +636,9 @@ _CAPTIONS: dict[str, str] = {
     "truth hides from the cameras (behind a crest), which no estimator can see. Maps are drawn with "
     "true aspect, near at the bottom, left on the left.",
     "surface.png": "3D surface of the estimate (horizontal axes to scale, elevation exaggerated).",
-    "preview.png": "Wheel-track preview profiles as published on /roadbev/preview against the same "
-    "profiles computed from the ground truth (roadbev_core.preview).",
+    "preview.png": "Wheel-track preview profiles as published on /roadbev/preview (with their 1-sigma "
+    "band) against the same profiles computed from the ground truth (roadbev_core.preview). Grey "
+    "spans: stretches of the track that the road in front (the ground truth) hides from the cameras.",
     "band_error.png": "Mean absolute error in 15 distance bands along x, near to far (paper Fig. 9).",
     "reliability.png": "Reliability of the reported sigma: per bin of predicted 1-sigma, the 68.3 % "
     "quantile of the observed |error| (solid) and half its 95.4 % quantile (dashed), against the "

@@ -23,6 +23,7 @@ from roadbev_ros.demo import (
     DemoOptions,
     DemoResult,
     _node_failure,
+    _truth_profiles,
     demo_drive_config,
     ensure_demo_bag,
     pick_frames,
@@ -297,3 +298,25 @@ def test_demo_on_a_truncated_bag_without_ground_truth_writes_the_report(demo, tm
     assert "nothing to score" in page
     # not a drive bag: no drive section, and the page says why
     assert partial.drive is None and "No drive section" in page and "drive_map.png" not in files
+
+
+def test_truth_profiles_mark_the_samples_whose_tyre_footprint_is_hidden() -> None:
+    from roadbev_core.preview import wheel_track_profiles
+
+    grid = GridSpec()
+    truth = np.zeros(grid.shape)
+    like = wheel_track_profiles(truth, None, grid, track_offsets_m=[0.8, -0.8], tyre_width_m=0.2, spacing_m=0.1)
+    hidden = np.zeros(grid.shape, bool)
+    x = grid.x_centres()
+    hidden[(x > 5.0) & (x < 5.5), :] = True  # a strip across both tracks
+    col = int(np.argmin(np.abs(grid.y_centres() - 0.8)))
+    hidden[(x > 3.0) & (x < 3.3), col] = True  # one column under the left tyre only
+    left, right = _truth_profiles(truth, grid, like, hidden)
+    assert left.hidden is not None and right.hidden is not None
+    d = left.distance_m
+    strip = (d > 5.0 + 0.05) & (d < 5.5 - 0.05)  # samples whose footprint lies inside the strip
+    assert left.hidden[strip].all() and right.hidden[strip].all()
+    assert left.hidden[(d > 3.05) & (d < 3.25)].all() and not right.hidden[(d > 2.9) & (d < 3.4)].any()
+    assert not left.hidden[(d < 2.9) | ((d > 3.4) & (d < 4.9)) | (d > 5.6)].any()
+    (no_mask, _) = _truth_profiles(truth, grid, like)
+    assert no_mask.hidden is None and no_mask.sigma_m is None

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 from matplotlib import image as mpimg
+from matplotlib.patches import Rectangle
 
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.geometry import Attitude
@@ -210,3 +211,30 @@ def test_the_report_leaves_the_reliability_plot_out_without_a_curve_and_says_why
     assert "reliability.png" not in files
     assert "No reliability plot: no reliability curve has a sigma bin with 50 cells or more." in (
         tmp_path / "sparse" / "index.html").read_text()
+
+
+def test_preview_figure_shades_the_hidden_stretches_of_a_track(tmp_path: Path, saved_figures: list[Any]) -> None:
+    frame = _data(1).frames[0]
+    (gt,) = frame.truth_tracks
+    hidden = np.zeros(gt.distance_m.size, bool)
+    hidden[10:20] = True
+    hidden[40:42] = True
+    plot_preview([replace(frame, truth_tracks=(replace(gt, hidden=hidden),))], tmp_path / "p.png")
+    (ax,) = saved_figures[0].axes
+    spans = [p for p in ax.patches if p.get_gid() == "hidden" and isinstance(p, Rectangle)]
+    assert len(spans) == 2
+    xs = sorted((s.get_x(), s.get_x() + s.get_width()) for s in spans)
+    step = float(abs(gt.distance_m[1] - gt.distance_m[0]))
+    d = np.sort(gt.distance_m[hidden])
+    assert xs[0] == pytest.approx((d[0] - step / 2, d[9] + step / 2))
+    assert xs[1] == pytest.approx((d[10] - step / 2, d[11] + step / 2))
+    legend = ax.get_legend()
+    assert legend is not None and "hidden from the cameras (GT)" in [t.get_text() for t in legend.get_texts()]
+
+
+def test_preview_figure_without_hidden_samples_has_no_span(tmp_path: Path, saved_figures: list[Any]) -> None:
+    plot_preview(_data(1).frames, tmp_path / "p.png")
+    (ax,) = saved_figures[0].axes
+    assert not [p for p in ax.patches if p.get_gid() == "hidden"]
+    legend = ax.get_legend()
+    assert legend is not None and "hidden from the cameras (GT)" not in [t.get_text() for t in legend.get_texts()]
