@@ -120,6 +120,8 @@ def test_every_backend_has_a_fitted_calibration_with_its_command() -> None:
     table = json.loads(CALIBRATION_FILE.read_text())
     assert table["command"].startswith("python -m benchmarks.calibrate_sigma")
     assert table["seeds"][0] >= 200_000  # tuning scenes, never the Table I test seeds 100,000+
+    # tuning drives (calibrate_datum's range), never the benchmark drives 310,000+ or the demo's
+    assert table["drives"] and all(300_001 <= int(spec.split(":")[2]) < 310_000 for spec in table["drives"])
     for name in available():
         assert calibration_for(name) is not None, name
         assert isinstance(create(name, GRID) if name in ("bm", "sgbm", "bev_sweep") else None,
