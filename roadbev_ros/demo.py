@@ -591,12 +591,14 @@ def summary_lines(result: DemoResult) -> list[str]:
     on, off = result.online, result.offline
     lat = on.get("online", {}).get("latency_after_first_ms", {})
     lines = [
-        f"{'':<22}{'frames':>7}{'abs.err cm':>12}{'RMSE cm':>9}{'>0.5cm %':>10}{'coverage %':>12}{'rate Hz':>9}",
+        f"{'':<22}{'frames':>7}{'abs.err cm':>12}{'RMSE cm':>9}{'>0.5cm %':>10}{'coverage %':>12}{'rate Hz':>9}"
+        f"{'in 2sigma %':>13}{'conf.wrong %':>14}",
     ]
     for label, m in (("ROS 2 node (recorded)", on), ("offline (roadbev eval)", off)):
         lines.append(
             f"{label:<22}{m['frames']:>7}{_num(m.get('abs_err_cm'), 3):>12}{_num(m.get('rmse_cm'), 3):>9}"
             f"{_num(m.get('gt_0p5cm_pct'), 1):>10}{_num(m.get('coverage_pct'), 1):>12}{_num(m.get('fps'), 1):>9}"
+            f"{_num(m.get('within_2sigma_pct'), 1):>13}{_num(m.get('confident_wrong_pct'), 2):>14}"
         )
     worst = max((v for k, v in result.agreement.items() if k.endswith("cm") and math.isfinite(v)), default=math.nan)
     lines.append(

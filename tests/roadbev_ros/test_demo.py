@@ -106,6 +106,8 @@ def test_report_numbers_equal_the_offline_evaluation_of_the_recorded_outputs(
     assert 0.0 < online["abs_err_cm"] < 20.0  # real estimates, not a constant
     lines = summary_lines(result)
     assert any(f"{online['abs_err_cm']:.3f}" in line for line in lines)
+    node_row = next(line for line in lines if line.startswith("ROS 2 node"))
+    assert node_row.split()[-2:] == [f"{online['within_2sigma_pct']:.1f}", f"{online['confident_wrong_pct']:.2f}"]
     assert str((options.out_dir / "index.html").resolve()) in lines[-1]
     timing = payload["timing"]
     assert len(timing["latency_ms"]) == FRAMES and all(v > 0 for v in timing["latency_ms"])
