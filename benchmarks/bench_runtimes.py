@@ -4,9 +4,11 @@ Run (from the repository root)::
 
     .venv/bin/python -m benchmarks.bench_runtimes                      # 24 frames, stereo + mono
     .venv/bin/python -m benchmarks.bench_runtimes --frames 6 --kinds stereo --threads 1
+    .venv/bin/python -m benchmarks.bench_runtimes --threads 1 --int8 stereo=/tmp/stereo_int8.onnx
 
 Every (model, runtime) pair is created once (``stereo`` / ``mono`` with ``runtime`` = ``torch``,
-``onnxruntime``, ``openvino``) and all of them run on frame i before any runs on frame i + 1, in
+``onnxruntime``, ``openvino``; with ``--int8 KIND=PATH`` also the int8 graph of ``roadbev export
+--int8`` in each ONNX engine, rows ``<engine> int8``) and all of them run on frame i before any runs on frame i + 1, in
 an order that rotates from frame to frame, so that a load change on a shared machine hits every
 runtime alike. Accuracy is scored by :func:`roadbev_core.evaluation.evaluate` (the Table I
 metrics of ``benchmarks.run_all``) on the estimates each runtime produced; FPS is the mean of
@@ -37,8 +39,10 @@ TARGET_SPEEDUP = 1.5  # the best CPU runtime against torch, stereo
 TARGET_ACCURACY_CM = 0.01  # |abs. err. - torch's abs. err.| on the Table I frames
 
 
-def run(frames: int, kinds: list[str], runtimes: list[str], threads: int | None) -> dict[str, Any]:
-    """Render the frames, run every (kind, runtime) on them interleaved, score and time them."""
+def run(frames: int, kinds: list[str], runtimes: list[str], threads: int | None,
+        int8: dict[str, Path] | None = None) -> dict[str, Any]:
+    """Render the frames, run every (kind, runtime) on them interleaved, score and time them;
+    ``int8`` maps a kind to its int8 graph, run in every ONNX engine of ``runtimes`` too."""
     import torch
 
     torch.set_flush_denormal(True)
@@ -50,15 +54,18 @@ def run(frames: int, kinds: list[str], runtimes: list[str], threads: int | None)
     render_s = time.perf_counter() - t0
     backends: dict[tuple[str, str], Backend] = {}
     skipped: dict[str, str] = {}
-    for kind in kinds:
-        for runtime in runtimes:
-            try:
-                t = time.perf_counter()
-                backends[kind, runtime] = create(kind, grid, runtime=runtime, threads=threads)
-                print(f"{kind}/{runtime}: ready in {time.perf_counter() - t:.1f} s", file=sys.stderr)
-            except BackendError as exc:
-                skipped[f"{kind}/{runtime}"] = str(exc)
-                print(f"skip {kind}/{runtime}: {exc}", file=sys.stderr)
+    pairs: list[tuple[str, str, str, dict[str, Any]]] = [(kind, runtime, runtime, {}) for kind in kinds
+                                                         for runtime in runtimes]
+    pairs += [(kind, f"{runtime} int8", runtime, {"checkpoint": str(path)})
+              for kind, path in (int8 or {}).items() for runtime in runtimes if runtime != "torch"]
+    for kind, label, runtime, options in pairs:
+        try:
+            t = time.perf_counter()
+            backends[kind, label] = create(kind, grid, runtime=runtime, threads=threads, **options)
+            print(f"{kind}/{label}: ready in {time.perf_counter() - t:.1f} s", file=sys.stderr)
+        except BackendError as exc:
+            skipped[f"{kind}/{label}"] = str(exc)
+            print(f"skip {kind}/{label}: {exc}", file=sys.stderr)
     keys = list(backends)
     estimates: dict[tuple[str, str], list[Estimate]] = {key: [] for key in keys}
     seconds: dict[tuple[str, str], list[float]] = {key: [] for key in keys}
@@ -167,13 +174,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--kinds", nargs="+", choices=("stereo", "mono"), default=["stereo", "mono"])
     parser.add_argument("--runtimes", nargs="+", choices=RUNTIMES, default=list(RUNTIMES))
     parser.add_argument("--threads", type=int, default=None, help="intra-op threads of every runtime (default torch's)")
+    parser.add_argument("--int8", nargs="+", default=[], metavar="KIND=PATH",
+                        help="int8 graphs of `roadbev export --int8` to run too, e.g. stereo=stereo_int8.onnx")
     parser.add_argument("--out", type=Path, default=RESULTS / "runtimes.json")
     args = parser.parse_args(argv)
     if args.frames < 2:
         parser.error("--frames must be >= 2 (the first frame is the warm-up)")
     if args.threads is not None and args.threads < 1:
         parser.error("--threads must be >= 1")
-    record = run(args.frames, args.kinds, args.runtimes, args.threads)
+    int8: dict[str, Path] = {}
+    for item in args.int8:
+        kind, _, path = item.partition("=")
+        if kind not in ("stereo", "mono") or not path:
+            parser.error(f"--int8 takes KIND=PATH with KIND stereo or mono, got {item!r}")
+        int8[kind] = Path(path)
+    record = run(args.frames, args.kinds, args.runtimes, args.threads, int8)
     write_json(args.out, record)
     table = markdown(record)
     args.out.with_suffix(".md").write_text(table + "\n")

@@ -75,11 +75,14 @@ __all__ = [
     "OnnxModel",
     "OnnxRunner",
     "export_onnx",
+    "frame_feeds",
     "geometry_feeds",
     "image_feeds",
     "input_names",
+    "quantize_int8",
     "read_onnx",
     "trtexec_shapes",
+    "write_graph",
 ]
 
 FORMAT = "roadbev-onnx/1"
@@ -238,12 +241,90 @@ def export_onnx(
     proto.producer_name = "roadbev"
     data = proto.SerializeToString()
     if out is not None:
-        path = Path(out)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        partial = path.with_name(path.name + ".tmp")
-        partial.write_bytes(data)
-        partial.replace(path)
+        write_graph(data, out)
     return data
+
+
+def write_graph(data: bytes, out: str | Path) -> Path:
+    """Write a serialised graph to ``out`` atomically (a partial file never has the final name)."""
+    path = Path(out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(path.name + ".tmp")
+    partial.write_bytes(data)
+    partial.replace(path)
+    return path
+
+
+def frame_feeds(config: ModelConfig, grid: GridSpec, frame: Any) -> dict[str, np.ndarray]:
+    """Every input of the graph for one :class:`~roadbev_core.frame.Frame` (batch 1)."""
+    feeds = image_feeds(config, frame.left, frame.right)
+    feeds.update(geometry_feeds(config, grid, [frame.camera], [frame.attitude]))
+    return feeds
+
+
+# What int8 quantisation touches: the convolutions (2-D backbone and 3-D head), nothing else. The
+# voxel sampling coordinates, GridSample, the classification's softmax and soft-argmin stay fp32:
+# quantising every op the quantiser can (NNCF's default scope, tried on the shipped stereo model)
+# put the Table I frames' error at 10.9 cm instead of 0.41.
+INT8_OP_TYPES = ("Conv",)
+
+
+def quantize_int8(data: bytes, calibration: Sequence[dict[str, np.ndarray]]) -> bytes:
+    """Post-training static int8 quantisation of a RoadBEV ONNX graph (ONNX Runtime's quantiser).
+
+    The convolutions get int8 weights per output channel and uint8 activations in and out,
+    whose ranges are the min / max seen over the ``calibration`` feeds (QuantizeLinear /
+    DequantizeLinear pairs, QDQ: ONNX Runtime, OpenVINO and TensorRT run them as int8 kernels);
+    every other op computes in fp32 (:data:`INT8_OP_TYPES`). The RoadBEV metadata is kept; its ``meta``
+    records the scheme and the number of calibration frames under ``quantization``.
+
+    Args:
+        data: a graph from :func:`export_onnx` (fp32).
+        calibration: feeds of representative frames (:func:`frame_feeds`): training frames,
+            never the test set.
+
+    Raises:
+        DeployError: not a RoadBEV fp32 graph, no calibration frames, or the quantiser failed.
+    """
+    import onnx
+    from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
+    from onnxruntime.quantization.calibrate import CalibrationMethod
+
+    if not calibration:
+        raise DeployError("int8 quantisation needs at least one calibration frame")
+    proto = onnx.load_from_string(data)
+    props = {p.key: p.value for p in proto.metadata_props}
+    if props.get("roadbev_format") != FORMAT:
+        raise DeployError(f"not a RoadBEV export (metadata roadbev_format {FORMAT!r})")
+    meta = json.loads(props.get("meta", "{}"))
+    if "quantization" in meta:
+        raise DeployError(f"the graph is quantised already ({meta['quantization']['scheme']})")
+
+    class _Frames(CalibrationDataReader):
+        def __init__(self) -> None:
+            self._feeds = iter(calibration)
+
+        def get_next(self) -> dict[str, np.ndarray] | None:
+            return next(self._feeds, None)
+
+    with tempfile.TemporaryDirectory(prefix="roadbev_int8_") as tmp:
+        source, target = Path(tmp) / "fp32.onnx", Path(tmp) / "int8.onnx"
+        source.write_bytes(data)
+        try:
+            quantize_static(str(source), str(target), _Frames(), quant_format=QuantFormat.QDQ,
+                            op_types_to_quantize=list(INT8_OP_TYPES), per_channel=True,
+                            activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
+                            calibrate_method=CalibrationMethod.MinMax)
+        except Exception as exc:  # the quantiser raises bare Exceptions and onnx/ORT errors
+            raise DeployError(f"int8 quantisation failed: {exc.__class__.__name__}: {exc}") from exc
+        quantized = onnx.load_from_string(target.read_bytes())
+    meta["quantization"] = {
+        "scheme": "int8 QDQ: " + "/".join(INT8_OP_TYPES) + " weights per channel (int8), activations uint8, min/max",
+        "calibration_frames": len(calibration),
+    }
+    onnx.helper.set_model_props(quantized, {**props, "meta": json.dumps(meta, default=str)})
+    quantized.producer_name = "roadbev"
+    return bytes(quantized.SerializeToString())
 
 
 def trtexec_shapes(config: ModelConfig, grid: GridSpec, width: int, height: int, batch: int = 1) -> str:

@@ -18,9 +18,11 @@ from roadbev_core.deploy import (
     DeployError,
     OnnxRunner,
     export_onnx,
+    frame_feeds,
     geometry_feeds,
     image_feeds,
     input_names,
+    quantize_int8,
     read_onnx,
 )
 from roadbev_core.frame import Frame
@@ -186,3 +188,76 @@ def test_bad_files_options_and_grids_are_clear_errors(tiny: tuple[str, Path, Pat
         read_onnx(tmp_path / "none.onnx")
     with pytest.raises(DeployError, match="GridSample"):
         export_onnx(RoadBEV(model_config("tiny", kind), GridSpec()), opset=13)
+
+
+def _consumers(proto: onnx.ModelProto) -> dict[str, set[str]]:
+    """Tensor name -> op types of the nodes that read it, through Identity nodes (the exporter
+    shares equal constants, a bias say, through them)."""
+    direct: dict[str, list[onnx.NodeProto]] = {}
+    for node in proto.graph.node:
+        for name in node.input:
+            direct.setdefault(name, []).append(node)
+
+    def readers(name: str) -> set[str]:
+        out: set[str] = set()
+        for node in direct.get(name, []):
+            out |= readers(node.output[0]) if node.op_type == "Identity" else {node.op_type}
+        return out
+
+    return {name: readers(name) for name in direct}
+
+
+def test_int8_quantisation_touches_the_convolutions_only_and_keeps_the_metadata(tiny: tuple[str, Path, Path],
+                                                                                tmp_path: Path) -> None:
+    kind, _, onnx_path = tiny
+    exported = read_onnx(onnx_path)
+    feeds = [frame_feeds(exported.config, exported.grid, f) for f in _frames(kind == "stereo")]
+    data = quantize_int8(exported.data, feeds)
+    proto = onnx.load_from_string(data)
+    readers = _consumers(proto)
+    producer = {out: node for node in proto.graph.node for out in node.output}
+    dequantized = [n for n in proto.graph.node if n.op_type == "DequantizeLinear"]
+
+    def beside_a_conv(dq: onnx.NodeProto) -> bool:
+        """A Conv's input (weight, bias, activation: a residual's Add may read it too) or a Conv's
+        output: no other op's tensors are quantised."""
+        if "Conv" in readers[dq.output[0]]:
+            return True
+        quantize = producer.get(dq.input[0])
+        source = None if quantize is None else producer.get(quantize.input[0])
+        return quantize is not None and quantize.op_type == "QuantizeLinear" and source is not None \
+            and source.op_type == "Conv"
+
+    assert dequantized and all(beside_a_conv(n) for n in dequantized)
+    convs = [n for n in proto.graph.node if n.op_type == "Conv"]
+    from_dq = {n.output[0] for n in dequantized}
+    assert convs and all(n.input[0] in from_dq and n.input[1] in from_dq for n in convs)  # every convolution is
+    assert not [n for n in proto.graph.node if n.op_type in ("QLinearConv", "ConvInteger")]  # QDQ, not fused ops
+    path = tmp_path / "int8.onnx"
+    path.write_bytes(data)
+    written = read_onnx(path)
+    assert written.config == exported.config and written.grid == exported.grid
+    assert written.meta["note"] == "test"
+    assert written.meta["quantization"]["calibration_frames"] == len(feeds)
+    assert "Conv" in written.meta["quantization"]["scheme"]
+    with pytest.raises(DeployError, match="quantised already"):
+        quantize_int8(data, feeds)
+    with pytest.raises(DeployError, match="calibration frame"):
+        quantize_int8(exported.data, [])
+
+
+@pytest.mark.parametrize("runtime", ["onnxruntime", "openvino"])
+def test_the_int8_graph_runs_as_a_checkpoint_close_to_the_fp32_graph(tiny: tuple[str, Path, Path], tmp_path: Path,
+                                                                     runtime: str) -> None:
+    kind, _, onnx_path = tiny
+    exported = read_onnx(onnx_path)
+    frames = _frames(kind == "stereo")
+    path = tmp_path / f"{kind}_int8.onnx"
+    path.write_bytes(quantize_int8(exported.data, [frame_feeds(exported.config, exported.grid, f) for f in frames]))
+    fp32 = create(kind, GridSpec(), checkpoint=str(onnx_path), runtime=runtime, raw=True)
+    int8 = create(kind, GridSpec(), checkpoint=str(path), runtime=runtime, raw=True)
+    for frame in frames:
+        a, b = fp32.estimate(frame), int8.estimate(frame)
+        assert np.array_equal(np.isfinite(a.elevation), np.isfinite(b.elevation))  # the same cells are seen
+        assert _mean_diff_cm(a.elevation, b.elevation) < 1.0  # calibrated on these frames: close, not equal
+        assert np.isfinite(b.uncertainty[np.isfinite(b.elevation)]).all()

@@ -66,3 +66,28 @@ def test_export_onnx_writes_a_graph_the_runtime_option_runs(tmp_path: Path, caps
     assert estimate.elevation.shape == GridSpec().shape and np.isfinite(estimate.elevation).mean() > 0.9
     assert main(["export", str(source), str(out), "--format", "onnx", "--half"]) == 2
     assert "--half is for --format pt" in capsys.readouterr().err
+
+
+def test_export_int8_writes_a_quantised_graph_and_refuses_bad_options(tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    """`roadbev export CKPT OUT --format onnx --int8`: int8 convolutions calibrated on training scenes."""
+    pytest.importorskip("onnxruntime")
+    import onnx
+
+    from roadbev_core.deploy import read_onnx
+
+    torch.manual_seed(0)
+    source = save_checkpoint(tmp_path / "mono.pt", RoadBEV(model_config("tiny", "mono"), GridSpec()))
+    out = tmp_path / "mono_int8.onnx"
+    assert main(["export", str(source), str(out), "--format", "onnx", "--int8", "--calibration-scenes", "1"]) == 0
+    assert "int8 convolutions calibrated on 1 training scenes" in capsys.readouterr().out
+    exported = read_onnx(out)
+    assert exported.meta["quantization"]["calibration_frames"] == 1 and exported.meta["exported_from"] == "mono.pt"
+    assert any(n.op_type == "QuantizeLinear" for n in onnx.load(str(out)).graph.node)
+    assert not out.with_name(out.name + ".tmp").exists()
+    assert main(["export", str(source), str(tmp_path / "x.pt"), "--int8"]) == 2
+    assert "--int8 is for --format onnx" in capsys.readouterr().err
+    assert main(["export", str(source), str(tmp_path / "y.onnx"), "--format", "onnx", "--int8",
+                 "--calibration-scenes", "0"]) == 2
+    assert "--calibration-scenes must be >= 1" in capsys.readouterr().err
+    assert not (tmp_path / "y.onnx").exists()
