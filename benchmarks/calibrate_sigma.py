@@ -1,4 +1,4 @@
-"""Fit every backend's sigma model on the tuning scenes: ``roadbev_core/data/sigma_calibration.json``.
+"""Fit every backend's sigma model on tuning scenes and drives: ``roadbev_core/data/sigma_calibration.json``.
 
 The tuning set is the tuning scenes, seeds 200,000+ (:data:`benchmarks.tune_bev_sweep.TUNING_SEED_BASE`),
 disjoint from the training seeds (0..9,999) and from the Table I test frames (100,000+), plus the
@@ -6,8 +6,8 @@ frames of tuning drives (:func:`benchmarks.bench_arrival.make_drive`, seeds 3000
 ``benchmarks.calibrate_datum``'s, disjoint from the benchmark drives 310000+ and the demo's
 330000): a car riding over speed bumps and potholes every 3 m, where the strip behind a crest is
 hidden and a sigma must say so. The scenes alone hold few such strips: fitted on them, the
-``shadow`` coefficient came out at 0.003 for every backend, and bev_sweep was confidently wrong on
-2.2 % of the sample drive's cells. This script renders none of the test frames or drives. Per
+``shadow`` coefficient came out at 0.001-0.005 for every backend but mono, and bev_sweep was
+confidently wrong on 2.2 % of the sample drive's cells. This script renders none of the test frames or drives. Per
 backend:
 
 1. its raw estimates (``create(name, raw=True)``) with the hidden cells removed and the sigma

@@ -15,7 +15,7 @@ what a controller may trust:
        sigma^2 = (raw * spread)^2 + floor^2 + (slope * |grad e| * 1 m)^2 + (relief * |e - mean|)^2
                  + (plane * |e - road|)^2 + (shadow * depth)^2
 
-The coefficients are fitted per backend on tuning scenes (:func:`fit_sigma_model`, Gaussian
+The coefficients are fitted per backend on tuning scenes and drives (:func:`fit_sigma_model`, Gaussian
 likelihood), never on the test frames, by ``python -m benchmarks.calibrate_sigma``, which writes
 ``roadbev_core/data/sigma_calibration.json`` (with the command and the seeds);
 :func:`calibration_for` reads it.
