@@ -101,15 +101,16 @@ class RoadBevNode(Node):
         declare_parameters(self)
         self.config: RoadbevConfig = config_of(self)
         # The outputs are advertised before the backend loads (seconds) and the inputs are
-        # subscribed after it: a recorder started beside the node matches the outputs while the
-        # node loads, so a replay that waits for the node's subscriptions (roadbev replay) starts
-        # only once a recorder can get the first output too.
+        # subscribed after it has loaded and warmed up: a recorder started beside the node matches
+        # the outputs while the node loads, and a replay that waits for the node's subscriptions
+        # (roadbev replay) starts only once the node can answer its first frame at full speed.
         self._out = OutputPublishers(self, OUTPUT_QOS, self.config.topics, self.config.map)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", OUTPUT_QOS)
         try:
             self.pipeline = Pipeline(self.config, backend_factory=backend_factory)
         except RoadbevError as exc:
             raise ParamError(str(exc)) from None
+        self.pipeline.warm_up()  # before the inputs are subscribed (above)
         self.health = Health(backend=self.pipeline.backend.name)
         self.health.configure(self.config.diagnostics)
         self._log_gate = ThrottledLog(self.config.diagnostics.log_throttle_s)
@@ -341,7 +342,6 @@ class RoadBevNode(Node):
 
     # --- worker thread ---------------------------------------------------------------------------
     def _work(self) -> None:
-        self.pipeline.warm_up()
         while True:
             taken = self._mailbox.take()
             if taken is None:
