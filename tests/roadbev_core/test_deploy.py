@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -261,3 +262,29 @@ def test_the_int8_graph_runs_as_a_checkpoint_close_to_the_fp32_graph(tiny: tuple
         assert np.array_equal(np.isfinite(a.elevation), np.isfinite(b.elevation))  # the same cells are seen
         assert _mean_diff_cm(a.elevation, b.elevation) < 1.0  # calibrated on these frames: close, not equal
         assert np.isfinite(b.uncertainty[np.isfinite(b.elevation)]).all()
+
+
+def test_openvino_serves_its_first_shape_from_the_fixed_graph_and_compiles_later_ones_aside(
+    tiny: tuple[str, Path, Path],
+) -> None:
+    """The first call (the node's warm-up, before it subscribes) waits for the fixed-shape graph;
+    a new rig's first frame does not (the any-shape graph answers it while that one compiles)."""
+    from roadbev_core.deploy import _OpenVinoEngine
+
+    kind, _, onnx_path = tiny
+    exported = read_onnx(onnx_path)
+    engine = _OpenVinoEngine(exported.data, threads=1)
+    first = frame_feeds(exported.config, exported.grid, _frames(kind == "stereo")[0])
+    engine(first)
+    key = tuple(sorted((name, tuple(value.shape)) for name, value in first.items()))
+    assert engine._fixed[key] is not None  # compiled before the call returned
+    other_rig = frame_feeds(exported.config, exported.grid,
+                            _frames(kind == "stereo", StereoCamera.rsrd_half().scaled(0.3))[0])
+    other = tuple(sorted((name, tuple(value.shape)) for name, value in other_rig.items()))
+    assert other != key or kind == "mono"  # the full-size grey frames change shape (stereo)
+    out = engine(other_rig)
+    assert [o.shape[1:] for o in out] == [exported.grid.shape] * 3
+    for thread in [t for t in threading.enumerate() if t.name == "openvino-compile"]:
+        thread.join(60)
+    if other != key:
+        assert engine._fixed[other] is not None  # the background compilation finished
