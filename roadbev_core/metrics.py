@@ -186,12 +186,22 @@ def sigma_counts(estimate: np.ndarray, sigma: np.ndarray, truth: np.ndarray) -> 
         within 1, 2 and 3 sigma; confidently wrong (error > 3 sigma and > 1 cm); the sum of their
         sigma (cm).
     """
+    return _counts(*_scored_cells(estimate, sigma, truth))
+
+
+def _scored_cells(estimate: np.ndarray, sigma: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """|estimate - truth| [N] and sigma [N] (m, float64) of the labelled cells with an estimate
+    and a finite sigma."""
     usable = np.isfinite(truth) & np.isfinite(estimate) & np.isfinite(sigma)  # [R, C]
     error = np.abs(estimate[usable].astype(np.float64) - truth[usable])  # [N] m
-    s = sigma[usable].astype(np.float64)  # [N] m
+    return error, sigma[usable].astype(np.float64)
+
+
+def _counts(error: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """[6] :func:`sigma_counts` of errors [N] and their sigma [N] (m)."""
     wrong = (error > 3.0 * s) & (error > CONFIDENT_WRONG_CM / 100.0)
     return np.array(
-        [usable.sum(), (error <= s).sum(), (error <= 2.0 * s).sum(), (error <= 3.0 * s).sum(), wrong.sum(),
+        [error.size, (error <= s).sum(), (error <= 2.0 * s).sum(), (error <= 3.0 * s).sum(), wrong.sum(),
          100.0 * s.sum()],
         np.float64,
     )
@@ -240,12 +250,11 @@ class SigmaAccumulator:
         """
         if not estimate.shape == sigma.shape == truth.shape:
             raise ValueError(f"estimate {estimate.shape}, sigma {sigma.shape} and truth {truth.shape} must match")
-        usable = np.isfinite(truth) & np.isfinite(estimate) & np.isfinite(sigma)  # [R, C]
-        error_cm = 100.0 * np.abs(estimate[usable].astype(np.float64) - truth[usable])  # [N]
-        counts, sigma_sum = reliability_histogram(error_cm, 100.0 * sigma[usable].astype(np.float64), self.edges)
+        error, s = _scored_cells(estimate, sigma, truth)  # [N] m each
+        counts, sigma_sum = reliability_histogram(100.0 * error, 100.0 * s, self.edges)
         self._histogram += counts
         self._sigma_sum += sigma_sum
-        self._counts += sigma_counts(estimate, sigma, truth)
+        self._counts += _counts(error, s)
 
     def result(self) -> dict[str, object]:
         """The contract's uncertainty keys (:func:`sigma_metrics`) and ``reliability``
