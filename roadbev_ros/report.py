@@ -41,7 +41,7 @@ from matplotlib.patches import Patch, Rectangle
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.errors import RoadbevError
 from roadbev_core.evaluation import to_json
-from roadbev_core.figures import FigureError, new_figure, reliability_figure
+from roadbev_core.figures import RELIABILITY_MIN_CELLS, FigureError, new_figure, reliability_figure
 from roadbev_core.geometry import Attitude, project_points, road_to_camera
 from roadbev_core.metrics import CONFIDENT_WRONG_CM
 
@@ -305,16 +305,21 @@ def mask_runs(mask: np.ndarray) -> list[tuple[int, int, int]]:
     return runs
 
 
-def _hatch_hidden(ax: Any, hidden: np.ndarray | None, grid: GridSpec) -> int:
-    """Hatch the cells of ``hidden`` on a BEV panel drawn with :func:`_bev_extent`; returns how many."""
-    if hidden is None or not hidden.any():
-        return 0
+def _hidden_boxes(hidden: np.ndarray | None, grid: GridSpec) -> list[Rectangle]:
+    """One rectangle per row run of the cells of ``hidden`` [R, C], in the data coordinates of a
+    BEV panel drawn with :func:`_bev_extent` (none when ``hidden`` is None)."""
+    if hidden is None:
+        return []
     res = grid.resolution
-    boxes = [Rectangle((grid.y_max - c0 * res, grid.x_max - (r + 1) * res), -(c1 - c0) * res, res)
-             for r, c0, c1 in mask_runs(hidden)]
-    ax.add_collection(PatchCollection(boxes, facecolor="none", edgecolor="black", hatch=_HIDDEN_HATCH,
-                                      linewidth=0.0, gid="hidden"))
-    return int(hidden.sum())
+    return [Rectangle((grid.y_max - c0 * res, grid.x_max - (r + 1) * res), -(c1 - c0) * res, res)
+            for r, c0, c1 in mask_runs(hidden)]
+
+
+def _hatch(ax: Any, boxes: list[Rectangle]) -> None:
+    """Hatch ``boxes`` (:func:`_hidden_boxes`) on a BEV panel."""
+    if boxes:
+        ax.add_collection(PatchCollection(boxes, facecolor="none", edgecolor="black", hatch=_HIDDEN_HATCH,
+                                          linewidth=0.0, gid="hidden"))
 
 
 def _confidently_wrong(frame: FrameView) -> np.ndarray | None:
@@ -374,6 +379,7 @@ def plot_frames(frames: Sequence[FrameView], grid: GridSpec, path: str | Path) -
     elev_cmap, res_cmap, sigma_cmap = _cmap(_ELEVATION_CMAP), _cmap(_RESIDUAL_CMAP), _cmap(_SIGMA_CMAP)
     map_left = [margin + w_img + gap_img + k * (w_map + gap_map) for k in range(n_maps)]
     yy, xx = np.meshgrid(grid.y_centres(), grid.x_centres())  # [R, C] cell centres
+    wrongs = [_confidently_wrong(f) for f in frames]  # [R, C] bool each, or None
     images: dict[str, AxesImage] = {}
     for i, frame in enumerate(frames):
         bottom = fig_h - 0.6 - (i + 1) * row_h + ticks_h
@@ -386,17 +392,18 @@ def plot_frames(frames: Sequence[FrameView], grid: GridSpec, path: str | Path) -
         ]
         if n_maps == 4:
             panels.append(("sigma", "1-sigma", frame.sigma, sigma_cmap, 0.0, slim))
-        wrong = _confidently_wrong(frame)
+        wrong = wrongs[i]
+        boxes = _hidden_boxes(frame.hidden, grid)  # the same boxes hatch every map of the row
         for j, (scale, title, arr, cmap, vmin, vmax) in enumerate(panels):
             ax = axes_at(map_left[j], bottom, w_map, h)
             shown = np.full(grid.shape, np.nan) if arr is None else arr * 100.0
             images[scale] = ax.imshow(shown, cmap=cmap, vmin=vmin, vmax=vmax, extent=extent,
                                       interpolation="nearest", origin="upper", aspect="equal")
-            hidden = _hatch_hidden(ax, frame.hidden, grid)
+            _hatch(ax, boxes)
             if arr is None:
                 title = f"{title}: none"
             elif scale == "elevation" and j == 0 and frame.hidden is not None:
-                title = f"{title}\n{hidden} cells hidden"
+                title = f"{title}\n{int(frame.hidden.sum())} cells hidden"
             elif scale == "residual" and wrong is not None:
                 ax.scatter(yy[wrong], xx[wrong], s=3, c="black", linewidths=0, gid="confidently_wrong")
                 title = f"{title}\n{int(wrong.sum())} confidently wrong"
@@ -416,7 +423,7 @@ def plot_frames(frames: Sequence[FrameView], grid: GridSpec, path: str | Path) -
               "Grey cells: no label / no estimate.")
     if any(f.hidden is not None for f in frames):
         legend += " Hatched: hidden from the cameras by the road in front (ground truth's lines of sight)."
-    if any(_confidently_wrong(f) is not None for f in frames):
+    if any(w is not None for w in wrongs):
         legend += "\nBlack dots on the residual: confidently wrong, |GT - est.| > 3 sigma and > 1 cm."
     fig.text(margin / fig_w, 1.0 - 0.12 / fig_h, legend, fontsize=8, va="top")
     out = Path(path)
@@ -643,7 +650,7 @@ _CAPTIONS: dict[str, str] = {
     "reliability.png": "Reliability of the reported sigma: per bin of predicted 1-sigma, the 68.3 % "
     "quantile of the observed |error| (solid) and half its 95.4 % quantile (dashed), against the "
     "bin's mean sigma. An honest sigma lies on the grey diagonal; points above it are over-confident. "
-    "Bins with fewer than 50 cells are left out.",
+    f"Bins with fewer than {RELIABILITY_MIN_CELLS} cells are left out.",
     "timing.png": "Latency (input image published by the replay until its elevation map was "
     "received by the recorder) and output rate over time.",
 }
