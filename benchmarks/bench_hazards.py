@@ -27,7 +27,7 @@ no feature, per km driven.
 
 Run: ``.venv/bin/python -m benchmarks.bench_hazards [--seeds 3]`` (true maps, writes
 ``benchmarks/results/hazards.json``) or ``.venv/bin/python -m benchmarks.bench_hazards --map
-[--speeds 5 10 20] [--rate 10] [--duration 12]`` (writes ``benchmarks/results/hazards_map.json``).
+[--speeds 5 10 20] [--rate 10] [--duration 12] [--smooth-duration S]`` (writes ``benchmarks/results/hazards_map.json``).
 """
 
 from __future__ import annotations
@@ -238,6 +238,12 @@ def summarise_map(drives: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+def smooth_duration(args: argparse.Namespace) -> float:
+    """Seconds of the smooth drives (``--smooth-duration``, default ``--duration``): false alarms
+    per km need a longer drive than the features do."""
+    return float(args.duration if args.smooth_duration is None else args.smooth_duration)
+
+
 def main_map(args: argparse.Namespace, argv: list[str] | None) -> int:
     """The fused-map benchmark (``--map``)."""
     info = machine_info()
@@ -246,9 +252,10 @@ def main_map(args: argparse.Namespace, argv: list[str] | None) -> int:
     for i, speed in enumerate(args.speeds):
         for features in (True, False) if speed in args.smooth_speeds else (True,):
             seed = MAP_SEED_BASE + 100 * i + (0 if features else 50)
+            duration = args.duration if features else smooth_duration(args)
             print(f"rendered drive {speed:g} m/s {'features' if features else 'smooth'} seed {seed}, "
-                  f"{args.duration:g} s at {args.rate:g} Hz", file=sys.stderr, flush=True)
-            d = run_map_drive(speed, args.rate, args.duration, seed, args.spacing, args.backend, features)
+                  f"{duration:g} s at {args.rate:g} Hz", file=sys.stderr, flush=True)
+            d = run_map_drive(speed, args.rate, duration, seed, args.spacing, args.backend, features)
             rep = [f for f in d["features"] if f["reported"]]
             print(f"  {len(rep)}/{len(d['features'])} features reported, leads "
                   f"{sorted(f['lead_s'] for f in rep)} s (window {d['window_lead_s']} s), "
@@ -275,10 +282,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--speeds", type=float, nargs="+", default=[5.0, 10.0, 20.0], help="--map: speeds")
     parser.add_argument("--smooth-speeds", type=float, nargs="*", default=[20.0],
                         help="--map: speeds that also get a smooth drive without features")
+    parser.add_argument("--smooth-duration", type=float, default=None,
+                        help="--map: seconds per smooth drive (default --duration)")
     parser.add_argument("--rate", type=float, default=10.0, help="--map: camera rate (Hz)")
     parser.add_argument("--spacing", type=float, default=6.0, help="--map: feature spacing (m)")
     parser.add_argument("--backend", default="bev_sweep", help="--map: the backend")
     args = parser.parse_args(argv)
+    if args.smooth_duration is not None and not args.smooth_duration > 0:
+        parser.error(f"--smooth-duration must be > 0 s, got {args.smooth_duration}")
     if args.map:
         args.duration = 12.0 if args.duration is None else args.duration
         return main_map(args, argv)

@@ -1,12 +1,13 @@
-"""bench_hazards' fused-map summary: shares, lead times and false alarms per speed."""
+"""bench_hazards' fused-map summary (shares, lead times and false alarms per speed) and its options."""
 
 from __future__ import annotations
 
+import argparse
 from typing import Any
 
 import pytest
 
-from benchmarks.bench_hazards import summarise_map
+from benchmarks.bench_hazards import main, smooth_duration, summarise_map
 
 
 def _feature(reported: bool, lead: float = 0.0, err: float = 0.0) -> dict[str, Any]:
@@ -31,3 +32,15 @@ def test_summary_per_speed() -> None:
     assert row["height_within_15pct"] == pytest.approx(0.5)
     assert row["false_alarms_per_km_feature_roads"] == pytest.approx(10.0)
     assert (row["false_alarms_smooth"], row["smooth_km"]) == (0, 0.5)
+
+
+def test_smooth_drives_take_their_own_duration_or_the_features_one() -> None:
+    assert smooth_duration(argparse.Namespace(duration=12.0, smooth_duration=None)) == 12.0
+    assert smooth_duration(argparse.Namespace(duration=12.0, smooth_duration=50.0)) == 50.0
+
+
+def test_a_smooth_duration_that_is_not_positive_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["--map", "--smooth-duration", "0"])
+    assert exc.value.code == 2
+    assert "--smooth-duration must be > 0 s" in capsys.readouterr().err
