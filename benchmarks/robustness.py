@@ -5,6 +5,9 @@ Perturbations, applied to clean rendered frames (seeds ``EVAL_SEED_BASE + 1000 +
 
 * ``noise_sigma``: extra Gaussian read noise on both images (8-bit digital numbers);
 * ``gain_mismatch``: the right image's gain is (1 + g) times the left's;
+* ``row_offset_px``: the right image moved down by this many pixels (bilinear, sub-pixel): a
+  rectification residual, which real stereo calibrations leave at a few tenths of a pixel and
+  the renderer never does;
 * ``jpeg_quality``: both images JPEG-compressed at this quality (0 = lossless);
 * ``pitch_bias_deg``: the attitude given to the backend is off in pitch (an IMU bias);
 * ``base_height_error_m``: the backend assumes a camera height off by this much.
@@ -38,6 +41,7 @@ from roadbev_core.geometry import Attitude
 LEVELS: dict[str, list[float]] = {
     "noise_sigma": [0.0, 2.0, 4.0, 8.0],
     "gain_mismatch": [0.0, 0.05, 0.1, 0.2],
+    "row_offset_px": [-0.5, -0.25, 0.0, 0.25, 0.5],
     "jpeg_quality": [0.0, 90.0, 70.0, 50.0],
     "pitch_bias_deg": [-0.5, -0.25, 0.0, 0.25, 0.5],
     "base_height_error_m": [-0.03, 0.0, 0.03],
@@ -45,6 +49,7 @@ LEVELS: dict[str, list[float]] = {
 UNITS = {
     "noise_sigma": "added noise sigma (DN)",
     "gain_mismatch": "right/left gain - 1",
+    "row_offset_px": "right image moved down (px)",
     "jpeg_quality": "JPEG quality (0 = lossless)",
     "pitch_bias_deg": "pitch bias (deg)",
     "base_height_error_m": "base-height error (m)",
@@ -68,6 +73,13 @@ def _jpeg(image: np.ndarray, quality: int) -> np.ndarray:
     return cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB)
 
 
+def _moved_down(image: np.ndarray, rows: float) -> np.ndarray:
+    """``image`` moved down by ``rows`` pixels (bilinear; the edge row repeated where it comes in)."""
+    h, w = image.shape[:2]
+    shift = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, rows]], np.float32)
+    return cv2.warpAffine(image, shift, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
 def perturb(frame: Frame, kind: str, level: float, seed: int) -> Frame:
     """``frame`` with one perturbation applied (image ones only; geometry ones act on the backend)."""
     rng = np.random.default_rng(seed)
@@ -79,6 +91,8 @@ def perturb(frame: Frame, kind: str, level: float, seed: int) -> Frame:
     if kind == "gain_mismatch" and level != 0:
         gained = np.clip(right.astype(np.float32) * (1.0 + level), 0, 255).astype(np.uint8)
         return replace(frame, right=gained)
+    if kind == "row_offset_px" and level != 0:
+        return replace(frame, right=_moved_down(right, level))
     if kind == "jpeg_quality" and level > 0:
         return replace(frame, left=_jpeg(frame.left, int(level)), right=_jpeg(right, int(level)))
     if kind == "pitch_bias_deg" and level != 0:
