@@ -30,6 +30,7 @@ import math
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -113,8 +114,14 @@ def _scores(estimate: np.ndarray, sigma: np.ndarray, truth: np.ndarray) -> dict[
     return out
 
 
-def run_backend(name: str, bag_path: Path) -> dict[str, Any]:
-    """One backend on one labelled bag: the eval metrics plus bias, prior and confident-wrong."""
+def run_backend(name: str, bag_path: Path, row_offset_px: float = 0.0) -> dict[str, Any]:
+    """One backend on one labelled bag: the eval metrics plus bias, prior and confident-wrong.
+
+    Args:
+        row_offset_px: the right image moved down by this many pixels first (a rectification
+            residual, as ``benchmarks.robustness`` applies it; 0 = the frame as recorded).
+    """
+    from benchmarks.robustness import moved_down
     from msg_bridge.evalbag import read_eval_bag
     from roadbev_core.backends import BackendError, create
     from roadbev_core.evaluation import evaluate
@@ -122,7 +129,8 @@ def run_backend(name: str, bag_path: Path) -> dict[str, Any]:
     bag = read_eval_bag(bag_path)
     try:
         backend = create(name, bag.grid)
-        samples = list(bag)
+        samples = [s._replace(inputs=replace(s.inputs, right=moved_down(s.inputs.right, row_offset_px)))
+                   if row_offset_px and s.inputs.right is not None else s for s in bag]
         result = evaluate(backend, samples, imu=bag.imu, keep_estimates=True)
     except (BackendError, ValueError, RuntimeError) as exc:
         return {"backend": name, "refused": f"{type(exc).__name__}: {exc}"}
@@ -144,10 +152,27 @@ def run_backend(name: str, bag_path: Path) -> dict[str, Any]:
     return {"backend": name, **{k: m.get(k) for k in keep}, **_scores(estimate.elevation, estimate.uncertainty, truth)}
 
 
+def row_offset_sensitivity(names: list[str], bag_path: Path, offsets: list[float]) -> dict[str, list[dict[str, Any]]]:
+    """Backend -> [{row_offset_px, coverage_pct, abs_err_cm, confident_wrong_pct}] over ``offsets``
+    (0 included), each a run on the bag's frame with the right image moved down by that much."""
+    rows: dict[str, list[dict[str, Any]]] = {}
+    for name in names:
+        rows[name] = []
+        for offset in sorted({0.0, *offsets}):
+            r = run_backend(name, bag_path, offset)
+            rows[name].append({"row_offset_px": offset, **{k: r.get(k) for k in
+                                                          ("coverage_pct", "abs_err_cm", "confident_wrong_pct")}})
+            print(f"  {name} row offset {offset:+g} px: coverage {r.get('coverage_pct')}", file=sys.stderr)
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--backends", nargs="*", default=list(BACKENDS))
     parser.add_argument("--out", type=Path, default=RESULTS / "kitti.json")
+    parser.add_argument("--row-offsets", type=float, nargs="*", default=[], metavar="PX",
+                        help="also run the backends that answer with the right image moved down by each of these "
+                             "pixels (a rectification residual): coverage and error per offset")
     args = parser.parse_args(argv)
     if not KITTI.is_dir():
         print(f"KITTI frames not found at {KITTI}", file=sys.stderr)
@@ -186,11 +211,14 @@ def main(argv: list[str] | None = None) -> int:
                 result["wall_s"] = time.perf_counter() - t1
                 record["backends"].append(result)
                 print(f"{frame.name} {name}: {result.get('abs_err_cm', result.get('refused'))}", file=sys.stderr)
+            if args.row_offsets:
+                record["row_offset_sensitivity"] = row_offset_sensitivity(
+                    [b["backend"] for b in record["backends"] if "refused" not in b], bag, args.row_offsets)
             record["wall_s"] = time.perf_counter() - t0
             frames_out.append(record)
     data = {
         "benchmark": "real KITTI frames (test set, nothing tuned on them)",
-        "command": "python -m benchmarks.bench_kitti",
+        "command": "python -m benchmarks.bench_kitti " + " ".join(argv if argv is not None else sys.argv[1:]),
         "window": WINDOW.to_dict(),
         "caveat": GT_NOISE_CAVEAT,
         "machine": machine_info(),

@@ -73,7 +73,7 @@ def _jpeg(image: np.ndarray, quality: int) -> np.ndarray:
     return cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB)
 
 
-def _moved_down(image: np.ndarray, rows: float) -> np.ndarray:
+def moved_down(image: np.ndarray, rows: float) -> np.ndarray:
     """``image`` moved down by ``rows`` pixels (bilinear; the edge row repeated where it comes in)."""
     h, w = image.shape[:2]
     shift = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, rows]], np.float32)
@@ -92,7 +92,7 @@ def perturb(frame: Frame, kind: str, level: float, seed: int) -> Frame:
         gained = np.clip(right.astype(np.float32) * (1.0 + level), 0, 255).astype(np.uint8)
         return replace(frame, right=gained)
     if kind == "row_offset_px" and level != 0:
-        return replace(frame, right=_moved_down(right, level))
+        return replace(frame, right=moved_down(right, level))
     if kind == "jpeg_quality" and level > 0:
         return replace(frame, left=_jpeg(frame.left, int(level)), right=_jpeg(right, int(level)))
     if kind == "pitch_bias_deg" and level != 0:
