@@ -119,17 +119,17 @@ def run_backend(name: str, bag_path: Path, row_offset_px: float = 0.0) -> dict[s
 
     Args:
         row_offset_px: the right image moved down by this many pixels first (a rectification
-            residual, as ``benchmarks.robustness`` applies it; 0 = the frame as recorded).
+            residual, :func:`roadbev_core.synth.render.shift_rows`; 0 = the frame as recorded).
     """
-    from benchmarks.robustness import moved_down
     from msg_bridge.evalbag import read_eval_bag
     from roadbev_core.backends import BackendError, create
     from roadbev_core.evaluation import evaluate
+    from roadbev_core.synth.render import shift_rows
 
     bag = read_eval_bag(bag_path)
     try:
         backend = create(name, bag.grid)
-        samples = [s._replace(inputs=replace(s.inputs, right=moved_down(s.inputs.right, row_offset_px)))
+        samples = [s._replace(inputs=replace(s.inputs, right=shift_rows(s.inputs.right, row_offset_px)))
                    if row_offset_px and s.inputs.right is not None else s for s in bag]
         result = evaluate(backend, samples, imu=bag.imu, keep_estimates=True)
     except (BackendError, ValueError, RuntimeError) as exc:

@@ -36,6 +36,7 @@ from roadbev_core.config import GridSpec
 from roadbev_core.evaluation import evaluate
 from roadbev_core.frame import Frame
 from roadbev_core.geometry import Attitude
+from roadbev_core.synth.render import shift_rows
 
 # perturbation -> levels (the unperturbed level included)
 LEVELS: dict[str, list[float]] = {
@@ -73,13 +74,6 @@ def _jpeg(image: np.ndarray, quality: int) -> np.ndarray:
     return cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB)
 
 
-def moved_down(image: np.ndarray, rows: float) -> np.ndarray:
-    """``image`` moved down by ``rows`` pixels (bilinear; the edge row repeated where it comes in)."""
-    h, w = image.shape[:2]
-    shift = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, rows]], np.float32)
-    return cv2.warpAffine(image, shift, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-
-
 def perturb(frame: Frame, kind: str, level: float, seed: int) -> Frame:
     """``frame`` with one perturbation applied (image ones only; geometry ones act on the backend)."""
     rng = np.random.default_rng(seed)
@@ -92,7 +86,7 @@ def perturb(frame: Frame, kind: str, level: float, seed: int) -> Frame:
         gained = np.clip(right.astype(np.float32) * (1.0 + level), 0, 255).astype(np.uint8)
         return replace(frame, right=gained)
     if kind == "row_offset_px" and level != 0:
-        return replace(frame, right=moved_down(right, level))
+        return replace(frame, right=shift_rows(right, level))
     if kind == "jpeg_quality" and level > 0:
         return replace(frame, left=_jpeg(frame.left, int(level)), right=_jpeg(right, int(level)))
     if kind == "pitch_bias_deg" and level != 0:

@@ -34,7 +34,7 @@ from roadbev_core.geometry import (
 )
 from roadbev_core.labels import ElevationLabel, elevation_map
 from roadbev_core.synth.heightfield import FEATURE_NAMES, SynthError
-from roadbev_core.synth.render import LOOK_AHEAD_M, CameraPose, render_stereo, sensor_image
+from roadbev_core.synth.render import LOOK_AHEAD_M, CameraPose, render_stereo, sensor_image, shift_rows
 from roadbev_core.synth.scene import RoadConfig, Scene, build_scene
 
 __all__ = [
@@ -351,7 +351,11 @@ def render_sample(
         vignetting=road.vignetting,
     )
     img_left = sense(left.radiance, exposure=exposure, gain=1.0, rng=rng)
-    img_right = sense(right.radiance, exposure=exposure, gain=tuple(gain_right), rng=rng) if right else None
+    img_right = None
+    if right is not None:
+        # a rectification residual moves the scene in the right image, not its sensor noise
+        radiance = shift_rows(right.radiance, road.row_offset_px) if road.row_offset_px else right.radiance
+        img_right = sense(radiance, exposure=exposure, gain=tuple(gain_right), rng=rng)
     points = sample_points(scene, pose, grid, lidar, rng)
     frame = Frame(
         left=img_left, right=img_right, camera=camera, attitude=attitude or pose.attitude, stamp_ns=int(stamp_ns)

@@ -36,6 +36,7 @@ __all__ = [
     "render_stereo",
     "render_view",
     "sensor_image",
+    "shift_rows",
     "view_crop",
 ]
 
@@ -527,6 +528,15 @@ def render_stereo(scene: Scene, camera: StereoCamera, pose: CameraPose) -> tuple
     left = render_view(scene, camera, pose, crop=crop)
     right = render_view(scene, camera, pose, right=True, crop=crop) if camera.baseline > 0 else None
     return left, right
+
+
+def shift_rows(image: np.ndarray, rows: float) -> np.ndarray:
+    """``image`` ([H, W] or [H, W, C]) moved down by ``rows`` pixels, sub-pixel (bilinear; the edge
+    row repeated where it comes in): a stereo pair's rectification residual, which real
+    calibrations leave at a few tenths of a pixel of vertical disparity."""
+    h, w = image.shape[:2]
+    shift = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, rows]], np.float32)
+    return cv2.warpAffine(image, shift, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
 def sensor_image(

@@ -49,6 +49,9 @@ class RoadConfig:
         lane_markings, stains, shadows: appearance elements on/off.
         noise_sigma: sensor read noise (8-bit digital numbers, 1-sigma); shot noise is added on top.
         gain_mismatch: the right camera's gain differs from the left by up to this fraction.
+        row_offset_px: the right image sits this many pixels lower than a perfect rectification
+            puts it (sub-pixel, bilinear; a real calibration leaves a few tenths of a pixel of
+            vertical disparity); 0, the default, renders a perfectly rectified pair.
         jpeg_quality: JPEG-compress both images at this quality (None = lossless).
         blur_sigma_px: optical blur (Gaussian sigma, pixels).
         vignetting: brightness lost in the image corners (both cameras).
@@ -67,6 +70,7 @@ class RoadConfig:
     shadows: bool = True
     noise_sigma: float = 1.5
     gain_mismatch: float = 0.04
+    row_offset_px: float = 0.0
     jpeg_quality: int | None = None
     blur_sigma_px: float = 0.5
     vignetting: float = 0.12
@@ -94,6 +98,8 @@ class RoadConfig:
             raise SynthError(f"vignetting must be in [0, 1), got {self.vignetting}")
         if not 0.0 <= self.gain_mismatch < 0.5:
             raise SynthError(f"gain_mismatch must be in [0, 0.5), got {self.gain_mismatch}")
+        if not (math.isfinite(self.row_offset_px) and abs(self.row_offset_px) <= 2.0):
+            raise SynthError(f"row_offset_px must be within +-2 px, got {self.row_offset_px}")
         if self.jpeg_quality is not None and not 1 <= int(self.jpeg_quality) <= 100:
             raise SynthError(f"jpeg_quality must be in 1..100 or None, got {self.jpeg_quality}")
         if not 0.002 <= self.resolution <= 0.05:

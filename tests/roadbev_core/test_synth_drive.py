@@ -199,6 +199,8 @@ def test_random_samples_differ_and_use_the_default_rig() -> None:
         ({"surface": "gravel"}, "surface"),
         ({"grade": 0.05}, "grade"),
         ({"jpeg_quality": 0}, "jpeg"),
+        ({"row_offset_px": 2.5}, "row_offset_px"),
+        ({"row_offset_px": float("nan")}, "row_offset_px"),
     ],
 )
 def test_road_config_rejects_bad_values(kwargs: dict, match: str) -> None:

@@ -186,6 +186,26 @@ def test_true_heights_win_even_with_sensor_noise_and_gain_mismatch(noisy_sample:
     assert int(np.argmin(errs)) == 2
 
 
+def test_a_rectification_residual_moves_the_right_image_down_and_nothing_else() -> None:
+    """With ``row_offset_px`` the right image matches the left through the true heights best
+    when it is read that many rows lower; the left image and the labels are the perfectly
+    rectified render's."""
+    cam = RIG.scaled(0.5)
+    clean = _stereo_sample(13, ("pothole",), cam, noise_sigma=0.0, gain_mismatch=0.0)
+    moved = _stereo_sample(13, ("pothole",), cam, noise_sigma=0.0, gain_mismatch=0.0, row_offset_px=0.5)
+    np.testing.assert_array_equal(moved.frame.left, clean.frame.left)
+    np.testing.assert_array_equal(moved.truth.elevation, clean.truth.elevation)
+    left = np.ascontiguousarray(moved.frame.left.astype(np.float32).mean(axis=2))
+    right = np.ascontiguousarray(right_of(moved.frame).astype(np.float32).mean(axis=2))
+    pts = moved.points_road.astype(np.float64)
+    cam_pts = road_to_camera(pts[pts[:, 0] < 4.5], moved.frame.attitude, GRID.base_height)
+    ul, vl, _ = project_points(cam_pts, cam)
+    ur, vr, _ = project_points(cam_pts, cam, right=True)
+    a = remap_points(left, ul, vl, cv2.BORDER_REPLICATE)
+    errs = [float(np.mean(np.abs(a - remap_points(right, ur, vr + dv, cv2.BORDER_REPLICATE)))) for dv in (0.0, 0.5)]
+    assert errs[1] < 0.8 * errs[0]
+
+
 def test_textures_carry_detail_a_stereo_matcher_locks_onto(noisy_sample: DriveSample) -> None:
     """OpenCV SGBM on a rendered (noisy, JPEG) pair recovers the true disparity of the road to a
     fraction of a pixel: the pavement has the fine texture real stereo relies on."""
