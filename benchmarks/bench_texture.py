@@ -21,9 +21,9 @@ quartiles, pooled over the frames. The matchers' cell coverage (``bm``, ``sgbm``
 
 Besides the generator as it is (``default``), weaker-texture *settings* are measured: the
 pavement texture contrast scaled by ``texture_scale`` (``Scene.texture_contrast``) and the optical
-blur set to ``blur_sigma_px`` (``RoadConfig.blur_sigma_px``) and the read noise to ``noise_sigma``
-(``RoadConfig.noise_sigma``). The generator's defaults are not
-changed here; the tolerances checked are each band's median gradient energy within +-25 % of the
+blur set to ``blur_sigma_px`` (``RoadConfig.blur_sigma_px``), the read noise to ``noise_sigma``
+(``RoadConfig.noise_sigma``) and a rectification residual of ``row_offset_px``
+(``RoadConfig.row_offset_px``). The generator's defaults are not changed here; the tolerances checked are each band's median gradient energy within +-25 % of the
 real one and StereoBM's coverage within a factor 1.5 of its real coverage.
 
 Run: ``python -m benchmarks.bench_texture [--scenes N]`` -> ``benchmarks/results/texture.json``
@@ -55,16 +55,20 @@ CAMERA_HEIGHT_M = 1.65
 BANDS_M = ((6.5, 9.5), (9.5, 12.5), (12.5, 15.5), (15.5, 18.5))
 MATCHERS = ("bm", "sgbm", "bev_sweep")
 SEED_BASE = 300_000
-# (name, texture_scale, blur_sigma_px, noise_sigma DN); None = the generator's own (drawn) value
-SETTINGS: tuple[tuple[str, float, float | None, float | None], ...] = (
-    ("default", 1.0, None, None),
-    ("texture x0.5", 0.5, None, None),
-    ("noise 2 DN", 1.0, None, 2.0),
-    ("texture x0.5, noise 2 DN", 0.5, None, 2.0),
-    ("texture x0.5, blur 1.0 px, noise 2 DN", 0.5, 1.0, 2.0),
-    ("noise 4.5 DN", 1.0, None, 4.5),
-    ("texture x0.5, noise 4.5 DN", 0.5, None, 4.5),
-    ("texture x0.3, noise 4.5 DN", 0.3, None, 4.5),
+# (name, texture_scale, blur_sigma_px, noise_sigma DN, row_offset_px); None = the generator's own
+# value (drawn, or 0 for the rectification residual)
+SETTINGS: tuple[tuple[str, float, float | None, float | None, float | None], ...] = (
+    ("default", 1.0, None, None, None),
+    ("texture x0.5", 0.5, None, None, None),
+    ("noise 2 DN", 1.0, None, 2.0, None),
+    ("texture x0.5, noise 2 DN", 0.5, None, 2.0, None),
+    ("texture x0.5, blur 1.0 px, noise 2 DN", 0.5, 1.0, 2.0, None),
+    ("noise 4.5 DN", 1.0, None, 4.5, None),
+    ("texture x0.5, noise 4.5 DN", 0.5, None, 4.5, None),
+    ("texture x0.3, noise 4.5 DN", 0.3, None, 4.5, None),
+    ("row offset 0.25 px", 1.0, None, None, 0.25),
+    ("noise 3 DN, row offset 0.25 px", 1.0, None, 3.0, 0.25),
+    ("texture x0.5, noise 2 DN, row offset 0.25 px", 0.5, None, 2.0, 0.25),
 )
 STATISTICS = ("gradient_energy", "smoothed_gradient_energy", "local_contrast", "noise_dn")
 ENERGY_TOLERANCE = 0.25
@@ -186,7 +190,8 @@ def synthetic_scenes(n: int) -> list[tuple[Any, Any]]:
 
 
 def synthetic_statistics(
-    scenes: list[tuple[Any, Any]], texture_scale: float, blur: float | None, noise: float | None
+    scenes: list[tuple[Any, Any]], texture_scale: float, blur: float | None, noise: float | None,
+    row_offset: float | None = None,
 ) -> dict[str, Any]:
     from roadbev_core.synth.drive import LidarConfig, render_sample
 
@@ -199,6 +204,8 @@ def synthetic_statistics(
             s = replace(s, config=replace(s.config, blur_sigma_px=blur))
         if noise is not None:
             s = replace(s, config=replace(s.config, noise_sigma=noise))
+        if row_offset is not None:
+            s = replace(s, config=replace(s.config, row_offset_px=row_offset))
         sample = render_sample(s, pose, KITTI_RIG, grid, LidarConfig(spacing_m=0.02), np.random.default_rng(i), 0)
         truth = sample.truth.elevation
         pool.add(road_samples(sample.frame.left, KITTI_RIG, sample.frame.attitude, grid, truth))
@@ -293,8 +300,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"real done ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
     scenes = synthetic_scenes(args.scenes)
     synthetic = []
-    for name, scale, blur, noise in SETTINGS:
-        stats = synthetic_statistics(scenes, scale, blur, noise)
+    for name, scale, blur, noise, row_offset in SETTINGS:
+        stats = synthetic_statistics(scenes, scale, blur, noise, row_offset)
         check = _check(real, stats)
         synthetic.append(
             {
@@ -302,6 +309,7 @@ def main(argv: list[str] | None = None) -> int:
                 "texture_scale": scale,
                 "blur_sigma_px": blur,
                 "noise_sigma": noise,
+                "row_offset_px": row_offset,
                 **stats,
                 "check": check,
             }
@@ -321,7 +329,7 @@ def main(argv: list[str] | None = None) -> int:
         "camera_height_m": CAMERA_HEIGHT_M,
         "tolerances": {"energy_median_ratio": f"1 +- {ENERGY_TOLERANCE}", "bm_coverage_factor": BM_COVERAGE_FACTOR},
         "note": "The generator's defaults are unchanged; the non-default settings scale Scene.texture_contrast "
-        "and set RoadConfig.blur_sigma_px / noise_sigma at render time only.",
+        "and set RoadConfig.blur_sigma_px / noise_sigma / row_offset_px at render time only.",
         "machine": machine_info(),
         "wall_s": time.perf_counter() - t0,
         "real": real,
