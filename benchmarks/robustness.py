@@ -141,7 +141,8 @@ def run_sweep(names: list[str], *, quick: bool, out_dir: Path = RESULTS, quiet: 
                 entry[name] = {"abs_err_cm": errs, "coverage_pct": covs}
             results[kind] = entry
     record = {
-        "command": " ".join(["python -m benchmarks.run_all", *sys.argv[1:]]),
+        # the module that was run (run_all or this one) with its arguments
+        "command": " ".join([f"python -m benchmarks.{Path(sys.argv[0]).stem}", *sys.argv[1:]]),
         "machine": machine_info(),
         "frames": frames,
         "seeds": [EVAL_SEED_BASE + 1000, EVAL_SEED_BASE + 1000 + frames - 1],
