@@ -23,8 +23,9 @@ Besides the generator as it is (``default``), weaker-texture *settings* are meas
 pavement texture contrast scaled by ``texture_scale`` (``Scene.texture_contrast``) and the optical
 blur set to ``blur_sigma_px`` (``RoadConfig.blur_sigma_px``), the read noise to ``noise_sigma``
 (``RoadConfig.noise_sigma``) and a rectification residual of ``row_offset_px``
-(``RoadConfig.row_offset_px``). The generator's defaults are not changed here; the tolerances checked are each band's median gradient energy within +-25 % of the
-real one and StereoBM's coverage within a factor 1.5 of its real coverage.
+(``RoadConfig.row_offset_px``). The generator's defaults are not changed here; the tolerances
+checked are each band's median gradient energy within +-25 % of the real one and StereoBM's
+coverage within a factor 1.5 of its real coverage.
 
 Run: ``python -m benchmarks.bench_texture [--scenes N]`` -> ``benchmarks/results/texture.json``
 and ``texture.png``.
