@@ -31,6 +31,7 @@ from roadbev_core.config import GridSpec
 from roadbev_core.datasets import TEST_SEED_START, SyntheticSet, as_samples
 from roadbev_core.evaluation import evaluate, to_json
 from roadbev_core.frame import Frame
+from roadbev_core.synth.appearance import APPEARANCE_RANGES
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -74,10 +75,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cache", type=Path, default=Path(".cache") / "roadbev")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--out", type=Path, default=RESULTS / "models.json")
+    parser.add_argument(
+        "--appearance", default="generator", choices=["generator", *APPEARANCE_RANGES],
+        help="draw the test scenes' pavement and camera appearance from this range (default: the generator's own)",
+    )
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     torch.set_flush_denormal(True)
-    data = SyntheticSet(args.cache, range(TEST_SEED_START, TEST_SEED_START + args.frames), progress=True)
+    data = SyntheticSet(args.cache, range(TEST_SEED_START, TEST_SEED_START + args.frames), progress=True,
+                        appearance=args.appearance)
     results = []
     for name in args.backends:
         options: dict[str, Any] = {}
@@ -98,7 +104,8 @@ def main(argv: list[str] | None = None) -> int:
               f"plane {metrics['plane_removed_abs_err_cm']:.3f} cm",
               flush=True)
     payload = {
-        "test_set": {"seeds": [TEST_SEED_START, TEST_SEED_START + args.frames - 1], "frames": args.frames},
+        "test_set": {"seeds": [TEST_SEED_START, TEST_SEED_START + args.frames - 1], "frames": args.frames,
+                     "appearance": args.appearance},
         "machine": {"processor": platform.processor() or platform.machine(), "threads": args.threads},
         "results": results,
     }

@@ -54,38 +54,48 @@ def eval_samples(
     camera: StereoCamera | None = None,
     grid: GridSpec | None = None,
     progress: Callable[[int], Any] | None = None,
+    appearance: str | None = None,
 ) -> list[Any]:
     """``n_frames`` rendered samples (``DriveSample``), seeds ``EVAL_SEED_BASE + i``.
 
     Each seed draws its own road (``roadbev_core.synth`` random roads: ISO 8608 class A-E, one to
     three features, asphalt or concrete, read noise 0.5-3 DN, gain mismatch up to 8 %, JPEG on
-    about 30 % of frames) and camera attitude from the RSRD distribution.
+    about 30 % of frames) and camera attitude from the RSRD distribution; with ``appearance`` (a
+    range of ``roadbev_core.synth.APPEARANCE_RANGES``) its pavement and camera appearance from
+    that range.
     """
-    from roadbev_core.synth import make_sample
+    from roadbev_core.synth import appearance_range, make_sample
 
+    drawn = appearance_range(appearance)
     out = []
     for i in range(n_frames):
-        out.append(make_sample(EVAL_SEED_BASE + i, camera=camera, grid=grid))
+        out.append(make_sample(EVAL_SEED_BASE + i, camera=camera, grid=grid, appearance=drawn))
         if progress is not None:
             progress(1)
     return out
 
 
-def scene_samples(seeds: Iterable[int], grid: GridSpec, cache: str | Path | None = None) -> list[tuple[Any, Any]]:
+def scene_samples(
+    seeds: Iterable[int], grid: GridSpec, cache: str | Path | None = None, appearance: str | None = None
+) -> list[tuple[Any, Any]]:
     """(frame, truth [n_rows, n_cols]) of the synthetic scenes ``seeds`` on the RSRD rig.
 
     With ``cache`` the scenes are rendered once into that folder
     (:class:`roadbev_core.datasets.SyntheticSet`) and read back afterwards: the same frames,
-    without minutes of rendering per benchmark run.
+    without minutes of rendering per benchmark run. ``appearance`` names a range of
+    ``roadbev_core.synth.APPEARANCE_RANGES`` to draw each scene's appearance from (None: the
+    generator's own).
     """
     seeds = list(seeds)
     if cache is None:
-        from roadbev_core.synth import make_sample
+        from roadbev_core.synth import appearance_range, make_sample
 
-        return [(s.frame, s.truth.elevation) for s in (make_sample(seed, grid=grid) for seed in seeds)]
+        drawn = appearance_range(appearance)
+        samples = (make_sample(seed, grid=grid, appearance=drawn) for seed in seeds)
+        return [(s.frame, s.truth.elevation) for s in samples]
     from roadbev_core.datasets import SyntheticSet
 
-    scenes = SyntheticSet(cache, seeds, grid=grid)
+    scenes = SyntheticSet(cache, seeds, grid=grid, appearance=appearance)
     return [scenes[i] for i in range(len(scenes))]
 
 

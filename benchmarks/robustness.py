@@ -36,6 +36,7 @@ from roadbev_core.config import GridSpec
 from roadbev_core.evaluation import evaluate
 from roadbev_core.frame import Frame
 from roadbev_core.geometry import Attitude
+from roadbev_core.synth.appearance import APPEARANCE_RANGES
 from roadbev_core.synth.render import shift_rows
 
 # perturbation -> levels (the unperturbed level included)
@@ -95,31 +96,43 @@ def perturb(frame: Frame, kind: str, level: float, seed: int) -> Frame:
     return frame
 
 
-def clean_samples(n_frames: int, progress: Callable[[int], Any] | None = None) -> list[tuple[Frame, np.ndarray]]:
-    """Clean rendered frames for the sweep (a mix of roads with features)."""
-    from roadbev_core.synth import RoadConfig, make_sample
+def clean_samples(
+    n_frames: int, progress: Callable[[int], Any] | None = None, appearance: str | None = None
+) -> list[tuple[Frame, np.ndarray]]:
+    """Clean rendered frames for the sweep (a mix of roads with features).
+
+    With ``appearance`` (a range of ``roadbev_core.synth.APPEARANCE_RANGES``) the frames span it
+    from its weak to its strong end (evenly, in frame order) instead of being clean.
+    """
+    from roadbev_core.synth import RoadConfig, appearance_range, make_sample
 
     roads = [
         RoadConfig(road_class=c, features=f, noise_sigma=0.5, gain_mismatch=0.0, jpeg_quality=None)
         for c, f in (("C", ("pothole",)), ("B", ("speed_bump",)), ("D", ("crack", "patch")))
     ]
+    span = appearance_range(appearance)
     out = []
     for i in range(n_frames):
-        s = make_sample(EVAL_SEED_BASE + 1000 + i, road=roads[i % len(roads)])
+        road = roads[i % len(roads)]
+        if span is not None:
+            road = span.at(i / max(n_frames - 1, 1)).apply(road)
+        s = make_sample(EVAL_SEED_BASE + 1000 + i, road=road)
         out.append((s.frame, s.truth.elevation))
         if progress is not None:
             progress(1)
     return out
 
 
-def run_sweep(names: list[str], *, quick: bool, out_dir: Path = RESULTS, quiet: bool = False) -> dict[str, Any]:
+def run_sweep(
+    names: list[str], *, quick: bool, out_dir: Path = RESULTS, quiet: bool = False, appearance: str | None = None
+) -> dict[str, Any]:
     """Run every backend over every perturbation level; write robustness.{json,png}."""
     from tqdm import tqdm
 
     frames = QUICK_FRAMES if quick else DEFAULT_FRAMES
     levels = {k: [v[0], v[-1]] if quick else v for k, v in LEVELS.items()}
     with tqdm(total=frames, desc="render robustness set", disable=quiet, file=sys.stderr) as bar:
-        samples = clean_samples(frames, bar.update)
+        samples = clean_samples(frames, bar.update, appearance)
     grid = GridSpec()
     results: dict[str, Any] = {}
     total = sum(len(v) for v in levels.values()) * len(names)
@@ -146,6 +159,7 @@ def run_sweep(names: list[str], *, quick: bool, out_dir: Path = RESULTS, quiet: 
         "machine": machine_info(),
         "frames": frames,
         "seeds": [EVAL_SEED_BASE + 1000, EVAL_SEED_BASE + 1000 + frames - 1],
+        "appearance": appearance or "generator",
         "sweep": results,
     }
     write_json(out_dir / "robustness.json", record)
@@ -192,8 +206,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="2 frames, two levels per perturbation")
     parser.add_argument("--backends", default="bev_sweep,sgbm,bm", help="comma-separated backends")
     parser.add_argument("--out", default=str(RESULTS), help="results folder")
+    parser.add_argument(
+        "--appearance", default="generator", choices=["generator", *APPEARANCE_RANGES],
+        help="frames spanning this appearance range instead of clean ones (default: the generator's own)",
+    )
     args = parser.parse_args(argv)
-    run_sweep(args.backends.split(","), quick=args.quick, out_dir=Path(args.out))
+    appearance = None if args.appearance == "generator" else args.appearance
+    run_sweep(args.backends.split(","), quick=args.quick, out_dir=Path(args.out), appearance=appearance)
     return 0
 
 

@@ -41,6 +41,7 @@ from roadbev_core.config import GridSpec
 from roadbev_core.evaluation import common_cell_errors, evaluate, format_table
 from roadbev_core.figures import FigureError, reliability_figure
 from roadbev_core.metrics import N_BANDS
+from roadbev_core.synth.appearance import APPEARANCE_RANGES
 
 DEFAULT_FRAMES = 24
 QUICK_FRAMES = 3
@@ -185,7 +186,8 @@ def plot_bands(rows: list[dict[str, Any]], grid_x: tuple[float, float], path: Pa
 
 
 def run_table(
-    frames: int, names: list[str], *, out_dir: Path, quiet: bool = False, scene_cache: str | None = None
+    frames: int, names: list[str], *, out_dir: Path, quiet: bool = False, scene_cache: str | None = None,
+    appearance: str | None = None,
 ) -> dict[str, Any]:
     """Render the evaluation set, run every backend on it, write table1.{json,md}, band_error.png and
     reliability.png."""
@@ -194,10 +196,10 @@ def run_table(
     grid = GridSpec()  # the contract's default grid and the RSRD half-resolution rig
     t0 = time.perf_counter()
     if scene_cache:
-        samples = scene_samples(range(EVAL_SEED_BASE, EVAL_SEED_BASE + frames), grid, scene_cache)
+        samples = scene_samples(range(EVAL_SEED_BASE, EVAL_SEED_BASE + frames), grid, scene_cache, appearance)
     else:
         with tqdm(total=frames, desc="render eval set", unit="frame", disable=quiet, file=sys.stderr) as bar:
-            samples = eval_samples(frames, grid=grid, progress=bar.update)
+            samples = eval_samples(frames, grid=grid, progress=bar.update, appearance=appearance)
     render_s = time.perf_counter() - t0
     rows = []
     elevations: dict[str, list[Any]] = {}
@@ -220,6 +222,7 @@ def run_table(
         "machine": machine_info(),
         "frames": frames,
         "seeds": [EVAL_SEED_BASE, EVAL_SEED_BASE + frames - 1],
+        "appearance": appearance or "generator",
         "render_s": render_s,
         "results": rows,
         "targets": targets,
@@ -253,7 +256,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--torch-threads", type=int, default=None, help="torch intra-op threads (default: torch's, = cores)"
     )
+    parser.add_argument(
+        "--appearance", default="generator", choices=["generator", *APPEARANCE_RANGES],
+        help="draw the frames' pavement and camera appearance from this range (default: the generator's own)",
+    )
     args = parser.parse_args(argv)
+    appearance = None if args.appearance == "generator" else args.appearance
     if args.torch_threads is not None:
         if args.torch_threads < 1:
             parser.error("--torch-threads must be >= 1")
@@ -271,13 +279,15 @@ def main(argv: list[str] | None = None) -> int:
         print("no backend available", file=sys.stderr)
         return 2
     out_dir = Path(args.out)
-    record = run_table(frames, names, out_dir=out_dir, quiet=args.quiet, scene_cache=args.scene_cache)
+    record = run_table(
+        frames, names, out_dir=out_dir, quiet=args.quiet, scene_cache=args.scene_cache, appearance=appearance
+    )
     record["skipped"] = {n: status[n] for n in wanted if status[n]}
     write_json(out_dir / "table1.json", record)
     if not args.no_robustness:
         from benchmarks.robustness import run_sweep
 
-        run_sweep(names, quick=args.quick, out_dir=out_dir, quiet=args.quiet)
+        run_sweep(names, quick=args.quick, out_dir=out_dir, quiet=args.quiet, appearance=appearance)
     return 0
 
 

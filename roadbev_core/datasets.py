@@ -69,12 +69,14 @@ class FrameSource(Protocol):
 SCENE_VERSION = 1
 
 
-def _cache_folder(root: Path, camera: StereoCamera, grid: GridSpec) -> Path:
-    """A sub-folder per (generator version, camera, grid): a cache never mixes scenes of
-    different generators, rigs or grids."""
+def _cache_folder(root: Path, camera: StereoCamera, grid: GridSpec, appearance: str | None = None) -> Path:
+    """A sub-folder per (generator version, camera, grid, appearance range): a cache never mixes
+    scenes of different generators, rigs, grids or appearances."""
     key = json.dumps({"camera": camera.to_dict(), "grid": grid.to_dict()}, sort_keys=True)
     if SCENE_VERSION != 1:  # version 1 keeps the folder names of the caches written before it
         key += f"/scenes-v{SCENE_VERSION}"
+    if appearance is not None:  # the generator's own appearance keeps the folder names it had
+        key += f"/appearance-{appearance}"
     return root / f"synth-{hashlib.sha1(key.encode()).hexdigest()[:10]}"
 
 
@@ -86,6 +88,11 @@ class SyntheticSet:
         seeds: scene seeds (training below :data:`TEST_SEED_START`, test at or above it).
         camera, grid: the rig and the label grid (defaults: ``StereoCamera.rsrd_half()``, ``GridSpec()``).
         progress: show a progress bar while rendering missing scenes.
+        appearance: draw each scene's appearance from this named range
+            (``roadbev_core.synth.APPEARANCE_RANGES``; None: the generator's own).
+
+    Raises:
+        DatasetError: no seeds, or an unknown appearance.
     """
 
     def __init__(
@@ -96,13 +103,21 @@ class SyntheticSet:
         camera: StereoCamera | None = None,
         grid: GridSpec | None = None,
         progress: bool = False,
+        appearance: str | None = None,
     ) -> None:
         self.seeds = [int(s) for s in seeds]
         if not self.seeds:
             raise DatasetError("a synthetic set needs at least one seed")
         self.camera = camera or StereoCamera.rsrd_half()
         self.grid = grid or GridSpec()
-        self.folder = _cache_folder(Path(cache_dir), self.camera, self.grid)
+        self.appearance = None if appearance == "generator" else appearance
+        if self.appearance is not None:
+            from roadbev_core.synth.appearance import APPEARANCE_RANGES
+
+            if self.appearance not in APPEARANCE_RANGES:
+                raise DatasetError(f"unknown appearance {appearance!r}; choose from generator, "
+                                   f"{', '.join(APPEARANCE_RANGES)}")
+        self.folder = _cache_folder(Path(cache_dir), self.camera, self.grid, self.appearance)
         self.render_missing(progress=progress)
 
     def path(self, seed: int) -> Path:
@@ -114,12 +129,13 @@ class SyntheticSet:
         if not missing:
             return 0
         # Imported lazily: reading a cache needs no renderer.
-        from roadbev_core.synth import make_sample
+        from roadbev_core.synth import appearance_range, make_sample
 
         self.folder.mkdir(parents=True, exist_ok=True)
         bar = _progress(missing, "rendering scenes", progress)
+        appearance = appearance_range(self.appearance)
         for seed in bar:
-            sample = make_sample(seed, camera=self.camera, grid=self.grid)
+            sample = make_sample(seed, camera=self.camera, grid=self.grid, appearance=appearance)
             frame = sample.frame
             tmp = self.path(seed).with_suffix(".tmp.npz")
             np.savez_compressed(

@@ -8,6 +8,7 @@ Public API (``shared`` agreement, see the project notes)::
 
 from __future__ import annotations
 
+from roadbev_core.synth.appearance import APPEARANCE_RANGES, REAL_ROAD, Appearance, AppearanceRange, appearance_range
 from roadbev_core.synth.drive import (
     RSRD_ATTITUDE,
     DriveConfig,
@@ -25,9 +26,13 @@ from roadbev_core.synth.riding import OdometryNoise, RidingConfig, RidingDrive, 
 from roadbev_core.synth.scene import RoadConfig, Scene, build_scene
 
 __all__ = [
+    "APPEARANCE_RANGES",
     "FEATURE_NAMES",
     "ISO8608_GD0",
+    "REAL_ROAD",
     "RSRD_ATTITUDE",
+    "Appearance",
+    "AppearanceRange",
     "CameraPose",
     "DriveConfig",
     "DriveSample",
@@ -41,6 +46,7 @@ __all__ = [
     "SuspensionSpec",
     "SynthError",
     "SyntheticDrive",
+    "appearance_range",
     "build_scene",
     "make_sample",
     "random_road",

@@ -33,6 +33,7 @@ from roadbev_core.geometry import (
     rotation_from_rpy,
 )
 from roadbev_core.labels import ElevationLabel, elevation_map
+from roadbev_core.synth.appearance import AppearanceRange
 from roadbev_core.synth.heightfield import FEATURE_NAMES, SynthError
 from roadbev_core.synth.render import LOOK_AHEAD_M, CameraPose, render_stereo, sensor_image, shift_rows
 from roadbev_core.synth.scene import RoadConfig, Scene, build_scene
@@ -588,12 +589,19 @@ class SyntheticDrive:
 
 
 # --- independent samples --------------------------------------------------------------------
-def random_road(rng: np.random.Generator) -> RoadConfig:
-    """A random road configuration for training/evaluation sets."""
+def random_road(rng: np.random.Generator, appearance: AppearanceRange | None = None) -> RoadConfig:
+    """A random road configuration for training/evaluation sets.
+
+    Args:
+        rng: the draws.
+        appearance: draw the pavement and camera appearance from this range too (after the
+            other draws, so the road's geometry is the same with and without it); None keeps
+            the generator's own noise and a Lambertian pavement.
+    """
     road_class = str(rng.choice(list("ABCDE"), p=[0.1, 0.3, 0.35, 0.2, 0.05]))
     n_feat = int(rng.integers(1, 4))
     features = tuple(str(f) for f in rng.choice(FEATURE_NAMES, n_feat, replace=False))
-    return RoadConfig(
+    road = RoadConfig(
         road_class=road_class,
         features=features,
         surface=str(rng.choice(["asphalt", "concrete"], p=[0.8, 0.2])),
@@ -603,6 +611,7 @@ def random_road(rng: np.random.Generator) -> RoadConfig:
         gain_mismatch=float(rng.uniform(0.0, 0.08)),
         jpeg_quality=None if rng.random() < 0.7 else int(rng.integers(70, 96)),
     )
+    return road if appearance is None else appearance.draw(rng).apply(road)
 
 
 def _place_in_grid(
@@ -632,18 +641,20 @@ def make_sample(
     grid: GridSpec | None = None,
     road: RoadConfig | None = None,
     lidar: LidarConfig | None = None,
+    appearance: AppearanceRange | None = None,
 ) -> DriveSample:
     """One independent random scene seen by a stationary-looking rig (deterministic per seed).
 
     The camera attitude is drawn from the whole RSRD attitude distribution, the features of
-    ``road`` (a random road when None) are placed inside the grid's window.
+    ``road`` (a random road when None, its appearance drawn from ``appearance`` when given) are
+    placed inside the grid's window.
     """
     camera = camera or StereoCamera.rsrd_half()
     grid = grid or GridSpec()
     lidar = lidar or LidarConfig()
     seq = np.random.SeedSequence([int(seed) & 0xFFFFFFFF, 0x5A3B1E])
     rng_cfg, rng_pose, rng_render = (np.random.default_rng(s) for s in seq.spawn(3))
-    road = road or random_road(rng_cfg)
+    road = road or random_road(rng_cfg, appearance)
     y_cam = float(rng_pose.uniform(-0.5, 0.5))
     centres = _place_in_grid(road.features, grid, y_cam, rng_pose)
     scene = build_scene(road, int(seed), (-4.0, LOOK_AHEAD_M + 2.0), centres)

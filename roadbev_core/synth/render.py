@@ -366,8 +366,10 @@ def _shade_ground(
     origin: np.ndarray,
     dirs: np.ndarray,
     depth: np.ndarray,
+    right: bool = False,
 ) -> np.ndarray:
-    """[N, 3] float32 radiance of ground hits (dirs [N, 3], depth [N] optical z)."""
+    """[N, 3] float32 radiance of ground hits (dirs [N, 3], depth [N] optical z) seen by the left
+    (or ``right``) camera."""
     cfg = scene.config
     d = dirs.astype(np.float32)
     s = depth.astype(np.float32)
@@ -438,6 +440,11 @@ def _shade_ground(
     if scene.texture_contrast != 1.0:
         mean = np.float32(tile.pyramid[-1].mean())
         albedo = np.maximum(mean + (albedo - mean) * np.float32(scene.texture_contrast), np.float32(0.01))
+    if scene.glints is not None:  # this camera's glints, filtered over the same footprint
+        glint = scene.glints[1 if right else 0]
+        if glint.rip is None or glint.size != tile.size or glint.texel != tile.texel:
+            raise SynthError("glint tiles must be rip-mapped and laid like the pavement tile")
+        albedo = albedo + sample_ripmap(glint.rip, ty, tx, np.log2(foot_row / texel), np.log2(foot_col / texel))
     base_tint = (1.0, 1.0, 1.03) if cfg.surface == "asphalt" else (1.0, 0.99, 0.95)
     tint = np.array(base_tint, np.float32) * np.array(scene.tint, np.float32)
     rgb = (albedo * paved)[:, None] * tint
@@ -512,7 +519,7 @@ def render_view(
     n = dirs.shape[0]
     radiance = np.empty((n, 3), np.float32)
     hit = np.flatnonzero(ground)
-    radiance[hit] = _shade_ground(scene, crop, camera, pose, origin, dirs[hit], depth[hit])
+    radiance[hit] = _shade_ground(scene, crop, camera, pose, origin, dirs[hit], depth[hit], right)
     sky = np.flatnonzero(~ground)
     if sky.size:
         radiance[sky] = _shade_sky(scene, dirs[sky])

@@ -24,7 +24,7 @@ from roadbev_core.synth.heightfield import (
     roughness_field,
     sample_feature,
 )
-from roadbev_core.synth.texture import SURFACES, AlbedoTile, make_tile
+from roadbev_core.synth.texture import SURFACES, AlbedoTile, make_glint_tile, make_tile
 
 __all__ = ["LaneMarking", "RoadConfig", "Scene", "build_scene"]
 
@@ -53,6 +53,13 @@ class RoadConfig:
             puts it (sub-pixel, bilinear; a real calibration leaves a few tenths of a pixel of
             vertical disparity); 0, the default, renders a perfectly rectified pair.
         jpeg_quality: JPEG-compress both images at this quality (None = lossless).
+        texture_scale: multiplies the pavement texture's contrast that each scene draws (1, the
+            default: the drawn contrast).
+        glint_density: specular glints of the pavement's aggregate per mm^2 (0, the default: a
+            Lambertian pavement); see :func:`roadbev_core.synth.texture.make_glint_tile`.
+        glint_brightness: a glint's added albedo (the asphalt binder's is about 0.16).
+        glint_view_correlation: share of the glints both cameras see; the others are in one
+            image only (texture the other camera cannot match).
         blur_sigma_px: optical blur (Gaussian sigma, pixels).
         vignetting: brightness lost in the image corners (both cameras).
         resolution: height-field cell size (m).
@@ -72,6 +79,10 @@ class RoadConfig:
     gain_mismatch: float = 0.04
     row_offset_px: float = 0.0
     jpeg_quality: int | None = None
+    texture_scale: float = 1.0
+    glint_density: float = 0.0
+    glint_brightness: float = 3.0
+    glint_view_correlation: float = 0.6
     blur_sigma_px: float = 0.5
     vignetting: float = 0.12
     resolution: float = 0.01
@@ -102,6 +113,14 @@ class RoadConfig:
             raise SynthError(f"row_offset_px must be within +-2 px, got {self.row_offset_px}")
         if self.jpeg_quality is not None and not 1 <= int(self.jpeg_quality) <= 100:
             raise SynthError(f"jpeg_quality must be in 1..100 or None, got {self.jpeg_quality}")
+        if not (math.isfinite(self.texture_scale) and 0.0 < self.texture_scale <= 10.0):
+            raise SynthError(f"texture_scale must be in (0, 10], got {self.texture_scale}")
+        if not (math.isfinite(self.glint_density) and 0.0 <= self.glint_density <= 0.1):
+            raise SynthError(f"glint_density must be in [0, 0.1] per mm^2, got {self.glint_density}")
+        if not (math.isfinite(self.glint_brightness) and 0.0 < self.glint_brightness <= 10.0):
+            raise SynthError(f"glint_brightness must be in (0, 10], got {self.glint_brightness}")
+        if not 0.0 <= self.glint_view_correlation <= 1.0:
+            raise SynthError(f"glint_view_correlation must be in [0, 1], got {self.glint_view_correlation}")
         if not 0.002 <= self.resolution <= 0.05:
             raise SynthError(f"height-field resolution must be in [0.002, 0.05] m, got {self.resolution}")
 
@@ -136,6 +155,8 @@ class Scene:
         displacement_range: (min, max) displacement over the rasters (m).
         texture_contrast: scales the pavement texture's contrast (aged, worn, fresh surfaces).
         tint: RGB tint of the pavement.
+        glints: the (left, right) cameras' glint tiles (None: no glints; ``config.glint_density``).
+        tile_variant: which random instance the pavement, verge and glint tiles are.
     """
 
     config: RoadConfig
@@ -156,6 +177,8 @@ class Scene:
     displacement_range: tuple[float, float] = field(default=(-0.16, 0.16))
     texture_contrast: float = 1.0
     tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    glints: tuple[AlbedoTile, AlbedoTile] | None = None
+    tile_variant: int = 0
 
     def plane(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Height of the tilted road plane (m)."""
@@ -366,7 +389,7 @@ def build_scene(
     heights = canvas.heights
     # Pavements differ: fresh dark asphalt with little contrast, aged grey asphalt with bright
     # chips, brownish or bluish binders.
-    contrast = float(rng_look.uniform(0.7, 1.35))
+    contrast = float(rng_look.uniform(0.7, 1.35)) * config.texture_scale
     warm = float(rng_look.normal(0.0, 0.025))
     tint = (1.0 + warm, 1.0, 1.0 - warm)
     return Scene(
@@ -390,4 +413,14 @@ def build_scene(
         displacement_range=(min(float(heights.min()), 0.0) - 1e-3, max(float(heights.max()), 0.0) + 1e-3),
         texture_contrast=contrast,
         tint=tint,
+        glints=glint_tiles(config, variant),
+        tile_variant=variant,
     )
+
+
+def glint_tiles(config: RoadConfig, variant: int) -> tuple[AlbedoTile, AlbedoTile] | None:
+    """The left and right cameras' glint tiles of a road (None without glints)."""
+    if config.glint_density <= 0:
+        return None
+    args = (variant, config.glint_density, config.glint_brightness, config.glint_view_correlation)
+    return make_glint_tile(args[0], 0, *args[1:]), make_glint_tile(args[0], 1, *args[1:])

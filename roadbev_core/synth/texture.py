@@ -22,7 +22,7 @@ import numpy as np
 
 from roadbev_core.synth.heightfield import SynthError
 
-__all__ = ["SURFACES", "AlbedoTile", "build_pyramid", "make_tile", "remap_points", "sample_mip"]
+__all__ = ["SURFACES", "AlbedoTile", "build_pyramid", "make_glint_tile", "make_tile", "remap_points", "sample_mip"]
 
 SURFACES = ("asphalt", "concrete")
 
@@ -311,3 +311,52 @@ def make_tile(surface: str, variant: int, size: int = 1024, texel: float = 0.003
     levels = int(math.log2(size)) - 1
     rip = build_ripmap(albedo, min(levels, 8)) if size & (size - 1) == 0 else None
     return AlbedoTile(pyramid=tuple(build_pyramid(albedo, levels)), texel=float(texel), rip=rip)
+
+
+@functools.lru_cache(maxsize=6)
+def make_glint_tile(
+    variant: int, view: int, density: float, brightness: float, correlation: float,
+    size: int = 1024, texel: float = 0.003,
+) -> AlbedoTile:
+    """Specular glints of the aggregate as one camera sees them: an additive [size, size] tile.
+
+    Sunlit chips with a facet turned between the sun and the camera flash far brighter than the
+    diffuse binder. Two cameras half a metre apart see a facet's narrow specular lobe from
+    different directions, so only some glints are in both images: the tile of ``view`` (0 left,
+    1 right) holds the glints both views share (``correlation`` of them, drawn from ``variant``
+    alone) and its own (drawn from ``variant`` and ``view``). To a stereo matcher the own glints
+    are texture that does not match: strong, surface-bound (averaged away with the footprint,
+    unlike sensor noise) and different in the other image. This is a texture-space stand-in for
+    a glinting BRDF, not one: glints do not move with the viewpoint within a view.
+
+    Args:
+        variant: which random instance (as :func:`make_tile`'s).
+        view: 0 (left camera) or 1 (right camera).
+        density: glints per square millimetre of pavement (> 0).
+        brightness: a glint's added albedo (the binder's is about 0.16).
+        correlation: share of the glints both views see, in [0, 1].
+        size, texel: as :func:`make_tile`'s.
+    """
+    if view not in (0, 1):
+        raise SynthError(f"glint view must be 0 (left) or 1 (right), got {view}")
+    if not (density > 0 and brightness > 0 and 0.0 <= correlation <= 1.0):
+        raise SynthError(
+            f"glints need density > 0, brightness > 0 and correlation in [0, 1]; got {density}, "
+            f"{brightness}, {correlation}"
+        )
+    mm = 0.001 / texel  # texels per millimetre
+    count = int(round(density / mm**2 * size * size))
+    shared = int(round(correlation * count))
+    glints = np.zeros((size, size), np.float64)
+    for rng, n in (
+        (np.random.default_rng([0x611A7, int(variant), int(size)]), shared),
+        (np.random.default_rng([0x611A7, int(variant), int(size), 1 + int(view)]), count - shared),
+    ):
+        if n > 0:
+            _, cover = _periodic_blobs(size, rng, n, 0.7 * mm, np.ones(n))  # facets of ~1.4 mm
+            cover = np.where(cover > 1e-6, cover, 0.0)  # the FFT's round-off is not a glint
+            glints = np.maximum(glints, np.clip(cover, 0.0, 1.0))
+    tile = (brightness * glints).astype(np.float32)
+    levels = int(math.log2(size)) - 1
+    rip = build_ripmap(tile, min(levels, 8)) if size & (size - 1) == 0 else None
+    return AlbedoTile(pyramid=tuple(build_pyramid(tile, levels)), texel=float(texel), rip=rip)

@@ -206,6 +206,34 @@ def test_a_rectification_residual_moves_the_right_image_down_and_nothing_else() 
     assert errs[1] < 0.8 * errs[0]
 
 
+def test_glints_one_camera_sees_alone_are_texture_the_other_cannot_match() -> None:
+    """Glints both cameras see keep the true heights the best match; glints each camera sees
+    alone raise the left-right difference there. The labels never change."""
+    cam = RIG.scaled(0.5)
+    lambertian = _stereo_sample(14, ("pothole",), cam, noise_sigma=0.0, gain_mismatch=0.0)
+    shared = _stereo_sample(14, ("pothole",), cam, noise_sigma=0.0, gain_mismatch=0.0, glint_density=0.004,
+                            glint_view_correlation=1.0)
+    own = _stereo_sample(14, ("pothole",), cam, noise_sigma=0.0, gain_mismatch=0.0, glint_density=0.004,
+                         glint_view_correlation=0.0)
+    for sample in (shared, own):
+        np.testing.assert_array_equal(sample.truth.elevation, lambertian.truth.elevation)
+        assert np.abs(sample.frame.left.astype(np.int16) - lambertian.frame.left).mean() > 0.5  # glints drawn
+    shifts = [-0.02, 0.0, 0.02]
+    errs_shared = _photometric_errors(shared, cam, shifts, near_x=4.5)
+    errs_own = _photometric_errors(own, cam, shifts, near_x=4.5)
+    assert int(np.argmin(errs_shared)) == 1
+    assert errs_own[1] > 1.2 * errs_shared[1]
+
+
+@pytest.mark.parametrize(
+    "bad", [{"glint_density": -0.001}, {"glint_density": 0.5}, {"glint_brightness": 0.0},
+            {"glint_view_correlation": 1.1}, {"glint_density": float("nan")}],
+)
+def test_bad_glint_settings_are_refused(bad: dict[str, float]) -> None:
+    with pytest.raises(SynthError):
+        RoadConfig(**bad)
+
+
 def test_textures_carry_detail_a_stereo_matcher_locks_onto(noisy_sample: DriveSample) -> None:
     """OpenCV SGBM on a rendered (noisy, JPEG) pair recovers the true disparity of the road to a
     fraction of a pixel: the pavement has the fine texture real stereo relies on."""

@@ -43,3 +43,12 @@ def test_a_single_scene_kerb_runs_along_the_whole_strip() -> None:
     side = kerb.y + 0.3 * kerb.side
     raised = scene.canvas.displacement(np.array([-3.0, 5.0, 19.0]), np.full(3, side))
     np.testing.assert_allclose(raised, kerb.height, atol=1e-4)
+
+
+def test_a_lambertian_road_has_no_glints_and_a_glinting_one_a_tile_per_camera() -> None:
+    assert build_scene(RoadConfig(), 3, (-4.0, 20.0)).glints is None
+    scene = build_scene(RoadConfig(glint_density=0.004), 3, (-4.0, 20.0))
+    assert scene.glints is not None
+    left, right = scene.glints
+    assert left.size == right.size == scene.tile.size and left.texel == scene.tile.texel
+    assert not np.array_equal(left.pyramid[0], right.pyramid[0])

@@ -1,0 +1,117 @@
+"""How hard the synthetic road is for a stereo matcher: named ranges of pavement and camera
+appearance, from weak to strong texture.
+
+The generator's own draws (``random_road``, ``build_scene``) give a Lambertian pavement of one
+middling texture strength, seen by a clean camera. Real road is a range: on the three KITTI
+frames (``benchmarks.bench_texture``) one dark asphalt has a tenth of the synthetic gradient
+energy, two grainy ones five to ten times it, and on all three the cameras share much less of
+the texture (the 9 x 9 ZNCC of the two images' fine band at the true disparity is 0.35-0.6 where
+the synthetic road gives 0.7-0.8): sensor noise, a rectification residual and glints one camera
+sees alone. An :class:`AppearanceRange` spans that: each scene draws a strength in [0, 1] and
+gets the :class:`Appearance` between the range's weak and strong ends.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from roadbev_core.synth.heightfield import SynthError
+from roadbev_core.synth.scene import RoadConfig
+
+__all__ = ["APPEARANCE_RANGES", "REAL_ROAD", "Appearance", "AppearanceRange", "appearance_range"]
+
+
+@dataclass(frozen=True)
+class Appearance:
+    """One setting of the pavement and camera (the :class:`RoadConfig` fields of the same names).
+
+    Attributes:
+        texture_scale: multiplies the pavement texture's drawn contrast.
+        noise_sigma: sensor read noise (DN).
+        row_offset_px: rectification residual (px, the right image lower).
+        glint_density, glint_brightness, glint_view_correlation: specular glints of the aggregate.
+    """
+
+    texture_scale: float
+    noise_sigma: float
+    row_offset_px: float
+    glint_density: float
+    glint_brightness: float
+    glint_view_correlation: float
+
+    def apply(self, road: RoadConfig) -> RoadConfig:
+        """``road`` with this appearance (validated by :class:`RoadConfig`)."""
+        return replace(
+            road,
+            texture_scale=self.texture_scale,
+            noise_sigma=self.noise_sigma,
+            row_offset_px=self.row_offset_px,
+            glint_density=self.glint_density,
+            glint_brightness=self.glint_brightness,
+            glint_view_correlation=self.glint_view_correlation,
+        )
+
+
+@dataclass(frozen=True)
+class AppearanceRange:
+    """Appearances from ``weak`` (strength 0) to ``strong`` (strength 1).
+
+    The texture scale is interpolated geometrically (it spans more than a decade), the others
+    linearly.
+    """
+
+    name: str
+    weak: Appearance
+    strong: Appearance
+
+    def at(self, strength: float) -> Appearance:
+        """The appearance at ``strength`` in [0, 1]."""
+        if not (math.isfinite(strength) and 0.0 <= strength <= 1.0):
+            raise SynthError(f"appearance strength must be in [0, 1], got {strength}")
+        w, s = self.weak, self.strong
+
+        def lerp(a: float, b: float) -> float:
+            return a + (b - a) * strength
+
+        return Appearance(
+            texture_scale=w.texture_scale * (s.texture_scale / w.texture_scale) ** strength,
+            noise_sigma=lerp(w.noise_sigma, s.noise_sigma),
+            row_offset_px=lerp(w.row_offset_px, s.row_offset_px),
+            glint_density=lerp(w.glint_density, s.glint_density),
+            glint_brightness=lerp(w.glint_brightness, s.glint_brightness),
+            glint_view_correlation=lerp(w.glint_view_correlation, s.glint_view_correlation),
+        )
+
+    def draw(self, rng: np.random.Generator) -> Appearance:
+        """A random appearance of the range (strength uniform in [0, 1])."""
+        return self.at(float(rng.uniform(0.0, 1.0)))
+
+
+# Ends measured against the KITTI frames with their rig and window (benchmarks.bench_texture,
+# README "Real against synthetic road texture"): the weak end against the dark asphalt of
+# KITTI 2012 000070, the strong end against the grainy asphalt of KITTI 2015 000046 and the
+# object frame; a generator statistic was matched, no backend was tuned.
+REAL_ROAD = AppearanceRange(
+    "real-road",
+    weak=Appearance(texture_scale=0.3, noise_sigma=2.0, row_offset_px=0.3, glint_density=0.0,
+                    glint_brightness=3.0, glint_view_correlation=0.5),
+    strong=Appearance(texture_scale=4.0, noise_sigma=5.0, row_offset_px=0.3, glint_density=0.01,
+                      glint_brightness=3.0, glint_view_correlation=0.5),
+)
+APPEARANCE_RANGES: dict[str, AppearanceRange] = {REAL_ROAD.name: REAL_ROAD}
+
+
+def appearance_range(name: str | None) -> AppearanceRange | None:
+    """The named range (None or ``"generator"``: the generator's own draws).
+
+    Raises:
+        SynthError: an unknown name.
+    """
+    if name is None or name == "generator":
+        return None
+    if name not in APPEARANCE_RANGES:
+        raise SynthError(f"unknown appearance {name!r}; choose from generator, {', '.join(APPEARANCE_RANGES)}")
+    return APPEARANCE_RANGES[name]
