@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import cv2
 import numpy as np
 import pytest
 
@@ -57,3 +58,20 @@ def test_a_synthetic_layout_with_the_real_coverage_per_band_matches_it_at_the_re
     check = bench_texture._check(real, synth)
     assert check["coverage_factor"] == {m: pytest.approx(1.0) for m in bench_texture.MATCHERS}
     assert check["tolerances_met"]
+
+
+def test_view_consistency_is_one_for_a_shared_texture_and_near_zero_for_independent_noise() -> None:
+    rng = np.random.default_rng(3)
+    texture = cv2.GaussianBlur(rng.normal(0.0, 20.0, (120, 200)).astype(np.float32), (0, 0), 1.2)
+    disparity = 7.3
+    # the right image sees the same surface 7.3 px to the left (sub-pixel shift by the Fourier theorem)
+    freq = np.fft.fftfreq(200)[None, :]
+    shifted = np.fft.ifft(np.fft.fft(texture, axis=1) * np.exp(2j * np.pi * freq * disparity), axis=1)
+    right = np.asarray(shifted.real, np.float32)
+    u = np.linspace(30.0, 170.0, 40)
+    v = np.full(40, 60.0)
+    shared = bench_texture.view_consistency(texture, right, u, v, u - disparity + 0.3)  # a 0.3 px label error
+    assert np.median(shared["view_zncc_mid"]) > 0.95 and np.median(shared["view_zncc_fine"]) > 0.85
+    noise = np.asarray(rng.normal(0.0, 20.0, (120, 200)), np.float32)
+    alone = bench_texture.view_consistency(texture, noise, u, v, u - disparity)
+    assert np.median(np.abs(alone["view_zncc_fine"])) < 0.3

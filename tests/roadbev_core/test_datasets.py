@@ -71,3 +71,16 @@ def test_scenes_of_another_generator_version_are_not_read(tmp_path: Path, monkey
     monkeypatch.setattr(datasets, "SCENE_VERSION", datasets.SCENE_VERSION + 1)
     with pytest.raises(AssertionError, match="rendered again"):
         SyntheticSet(tmp_path, [100_012], camera=CAMERA, grid=GRID)
+
+
+def test_scenes_of_an_appearance_range_have_their_own_cache_and_its_looks(tmp_path: Path) -> None:
+    plain = SyntheticSet(tmp_path, [100_013], camera=CAMERA, grid=GRID)
+    looked = SyntheticSet(tmp_path, [100_013], camera=CAMERA, grid=GRID, appearance="real-road")
+    assert looked.folder != plain.folder
+    reference = synth.make_sample(100_013, camera=CAMERA, grid=GRID, appearance=synth.REAL_ROAD)
+    np.testing.assert_array_equal(looked[0][0].left, reference.frame.left)
+    assert not np.array_equal(looked[0][0].left, plain[0][0].left)
+    np.testing.assert_array_equal(looked[0][1], plain[0][1])  # the same road under other looks
+    assert SyntheticSet(tmp_path, [100_013], camera=CAMERA, grid=GRID, appearance="generator").folder == plain.folder
+    with pytest.raises(DatasetError, match="unknown appearance"):
+        SyntheticSet(tmp_path, [100_013], camera=CAMERA, grid=GRID, appearance="sunny")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import cv2
@@ -226,12 +227,13 @@ def test_glints_one_camera_sees_alone_are_texture_the_other_cannot_match() -> No
 
 
 @pytest.mark.parametrize(
-    "bad", [{"glint_density": -0.001}, {"glint_density": 0.5}, {"glint_brightness": 0.0},
-            {"glint_view_correlation": 1.1}, {"glint_density": float("nan")}],
+    ("field", "value"), [("glint_density", -0.001), ("glint_density", 0.5), ("glint_brightness", 0.0),
+                         ("glint_view_correlation", 1.1), ("glint_density", float("nan")), ("texture_scale", 0.0)],
 )
-def test_bad_glint_settings_are_refused(bad: dict[str, float]) -> None:
+def test_bad_glint_and_texture_settings_are_refused(field: str, value: float) -> None:
     with pytest.raises(SynthError):
-        RoadConfig(**bad)
+        kwargs: dict[str, Any] = {field: value}
+        replace(RoadConfig(), **kwargs)
 
 
 def test_textures_carry_detail_a_stereo_matcher_locks_onto(noisy_sample: DriveSample) -> None:
