@@ -73,7 +73,7 @@ class Setting(NamedTuple):
     row_offset_px: float | None = None  # RoadConfig.row_offset_px
     glint_density: float = 0.0  # RoadConfig.glint_density (per mm^2)
     glint_brightness: float = 3.0  # RoadConfig.glint_brightness
-    glint_view_correlation: float = 0.6  # RoadConfig.glint_view_correlation
+    glint_lobe_deg: float = 3.4  # RoadConfig.glint_lobe_deg
 
 
 def range_setting(name: str, appearance: Appearance) -> Setting:
@@ -85,7 +85,7 @@ def range_setting(name: str, appearance: Appearance) -> Setting:
         row_offset_px=appearance.row_offset_px,
         glint_density=appearance.glint_density,
         glint_brightness=appearance.glint_brightness,
-        glint_view_correlation=appearance.glint_view_correlation,
+        glint_lobe_deg=appearance.glint_lobe_deg,
     )
 
 
@@ -104,7 +104,7 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("noise 3 DN", noise_sigma=3.0),
     Setting("texture x0.75, noise 3 DN", 0.75, noise_sigma=3.0),
     Setting("blur 0.3 px, noise 3 DN, row offset 0.25 px", 1.0, 0.3, 3.0, 0.25),
-    Setting("glints 0.01/mm2 (half seen by one camera only)", glint_density=0.01, glint_view_correlation=0.5),
+    Setting("glints 0.01/mm2", glint_density=0.01),
     *(
         range_setting(f"real-road range, {where}", REAL_ROAD.at(strength))
         for where, strength in (("weak end", 0.0), ("middle", 0.5), ("strong end", 1.0))
@@ -399,7 +399,7 @@ def synthetic_statistics(scenes: list[tuple[Any, Any]], setting: Setting) -> dic
             config,
             glint_density=setting.glint_density,
             glint_brightness=setting.glint_brightness,
-            glint_view_correlation=setting.glint_view_correlation,
+            glint_lobe_deg=setting.glint_lobe_deg,
         )
         s = replace(
             scene,

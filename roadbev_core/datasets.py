@@ -76,7 +76,10 @@ def _cache_folder(root: Path, camera: StereoCamera, grid: GridSpec, appearance: 
     if SCENE_VERSION != 1:  # version 1 keeps the folder names of the caches written before it
         key += f"/scenes-v{SCENE_VERSION}"
     if appearance is not None:  # the generator's own appearance keeps the folder names it had
-        key += f"/appearance-{appearance}"
+        from roadbev_core.synth.appearance import APPEARANCE_RANGES
+
+        # the range's values, not only its name: a range re-measured is another set of scenes
+        key += f"/appearance-{appearance}-{APPEARANCE_RANGES[appearance]!r}"
     return root / f"synth-{hashlib.sha1(key.encode()).hexdigest()[:10]}"
 
 

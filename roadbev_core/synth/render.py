@@ -358,6 +358,31 @@ def ego_shadow(scene: Scene, pose: CameraPose, x: np.ndarray, y: np.ndarray, z: 
     return through.astype(np.float32)
 
 
+def _glints(
+    scene: Scene, camera: StereoCamera, rng_m: np.ndarray, ty: np.ndarray, tx: np.ndarray,
+    lod_row: np.ndarray, lod_col: np.ndarray, right: bool,
+) -> np.ndarray:
+    """[N] glint albedo one camera sees at N ground points (tile coordinates and footprints as the
+    pavement's).
+
+    The shared layout and this camera's own are blended as sqrt(rho) * shared + sqrt(1 - rho) *
+    own, rho = exp(-(dtheta / lobe)^2) with dtheta = baseline / range the angle between the two
+    cameras' rays: the two images' glints then correlate by rho with the same variance in both,
+    and each point gets the same rho from either camera.
+    """
+    assert scene.glints is not None  # the caller checked
+    shared, left, right_own = scene.glints
+    own = right_own if right else left
+    if any(t.rip is None or t.size != scene.tile.size or t.texel != scene.tile.texel for t in scene.glints):
+        raise SynthError("glint tiles must be rip-mapped and laid like the pavement tile")
+    lobe = np.float32(math.radians(scene.config.glint_lobe_deg))
+    rho = np.exp(-np.square(np.float32(camera.baseline) / np.maximum(rng_m, np.float32(0.1)) / lobe))
+    assert shared.rip is not None and own.rip is not None  # checked above
+    return np.sqrt(rho) * sample_ripmap(shared.rip, ty, tx, lod_row, lod_col) + np.sqrt(1.0 - rho) * sample_ripmap(
+        own.rip, ty, tx, lod_row, lod_col
+    )
+
+
 def _shade_ground(
     scene: Scene,
     crop: ViewCrop,
@@ -440,11 +465,9 @@ def _shade_ground(
     if scene.texture_contrast != 1.0:
         mean = np.float32(tile.pyramid[-1].mean())
         albedo = np.maximum(mean + (albedo - mean) * np.float32(scene.texture_contrast), np.float32(0.01))
-    if scene.glints is not None:  # this camera's glints, filtered over the same footprint
-        glint = scene.glints[1 if right else 0]
-        if glint.rip is None or glint.size != tile.size or glint.texel != tile.texel:
-            raise SynthError("glint tiles must be rip-mapped and laid like the pavement tile")
-        albedo = albedo + sample_ripmap(glint.rip, ty, tx, np.log2(foot_row / texel), np.log2(foot_col / texel))
+    if scene.glints is not None:
+        lods = np.log2(foot_row / texel), np.log2(foot_col / texel)
+        albedo = albedo + _glints(scene, camera, rng_m, ty, tx, *lods, right)
     base_tint = (1.0, 1.0, 1.03) if cfg.surface == "asphalt" else (1.0, 0.99, 0.95)
     tint = np.array(base_tint, np.float32) * np.array(scene.tint, np.float32)
     rgb = (albedo * paved)[:, None] * tint

@@ -58,8 +58,10 @@ class RoadConfig:
         glint_density: specular glints of the pavement's aggregate per mm^2 (0, the default: a
             Lambertian pavement); see :func:`roadbev_core.synth.texture.make_glint_tile`.
         glint_brightness: a glint's added albedo (the asphalt binder's is about 0.16).
-        glint_view_correlation: share of the glints both cameras see; the others are in one
-            image only (texture the other camera cannot match).
+        glint_lobe_deg: angular width of a glint's specular lobe (degrees): at a point whose
+            rays from the two cameras are dtheta apart (baseline / range), a share
+            exp(-(dtheta / lobe)^2) of the glints is in both images, the rest in one image only
+            (texture the other camera cannot match).
         blur_sigma_px: optical blur (Gaussian sigma, pixels).
         vignetting: brightness lost in the image corners (both cameras).
         resolution: height-field cell size (m).
@@ -82,7 +84,7 @@ class RoadConfig:
     texture_scale: float = 1.0
     glint_density: float = 0.0
     glint_brightness: float = 3.0
-    glint_view_correlation: float = 0.6
+    glint_lobe_deg: float = 3.4
     blur_sigma_px: float = 0.5
     vignetting: float = 0.12
     resolution: float = 0.01
@@ -119,8 +121,8 @@ class RoadConfig:
             raise SynthError(f"glint_density must be in [0, 0.1] per mm^2, got {self.glint_density}")
         if not (math.isfinite(self.glint_brightness) and 0.0 < self.glint_brightness <= 10.0):
             raise SynthError(f"glint_brightness must be in (0, 10], got {self.glint_brightness}")
-        if not 0.0 <= self.glint_view_correlation <= 1.0:
-            raise SynthError(f"glint_view_correlation must be in [0, 1], got {self.glint_view_correlation}")
+        if not (math.isfinite(self.glint_lobe_deg) and 0.0 < self.glint_lobe_deg <= 90.0):
+            raise SynthError(f"glint_lobe_deg must be in (0, 90], got {self.glint_lobe_deg}")
         if not 0.002 <= self.resolution <= 0.05:
             raise SynthError(f"height-field resolution must be in [0.002, 0.05] m, got {self.resolution}")
 
@@ -155,7 +157,8 @@ class Scene:
         displacement_range: (min, max) displacement over the rasters (m).
         texture_contrast: scales the pavement texture's contrast (aged, worn, fresh surfaces).
         tint: RGB tint of the pavement.
-        glints: the (left, right) cameras' glint tiles (None: no glints; ``config.glint_density``).
+        glints: the glint tiles (None: no glints; ``config.glint_density``): the layout both
+            cameras see, the left camera's own, the right camera's own.
         tile_variant: which random instance the pavement, verge and glint tiles are.
     """
 
@@ -177,7 +180,7 @@ class Scene:
     displacement_range: tuple[float, float] = field(default=(-0.16, 0.16))
     texture_contrast: float = 1.0
     tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    glints: tuple[AlbedoTile, AlbedoTile] | None = None
+    glints: tuple[AlbedoTile, AlbedoTile, AlbedoTile] | None = None
     tile_variant: int = 0
 
     def plane(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -418,9 +421,11 @@ def build_scene(
     )
 
 
-def glint_tiles(config: RoadConfig, variant: int) -> tuple[AlbedoTile, AlbedoTile] | None:
-    """The left and right cameras' glint tiles of a road (None without glints)."""
+def glint_tiles(config: RoadConfig, variant: int) -> tuple[AlbedoTile, AlbedoTile, AlbedoTile] | None:
+    """The shared, left and right glint layouts of a road (None without glints)."""
     if config.glint_density <= 0:
         return None
-    args = (variant, config.glint_density, config.glint_brightness, config.glint_view_correlation)
-    return make_glint_tile(args[0], 0, *args[1:]), make_glint_tile(args[0], 1, *args[1:])
+    shared, left, right = (
+        make_glint_tile(variant, layout, config.glint_density, config.glint_brightness) for layout in (0, 1, 2)
+    )
+    return shared, left, right

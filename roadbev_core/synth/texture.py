@@ -315,48 +315,38 @@ def make_tile(surface: str, variant: int, size: int = 1024, texel: float = 0.003
 
 @functools.lru_cache(maxsize=6)
 def make_glint_tile(
-    variant: int, view: int, density: float, brightness: float, correlation: float,
-    size: int = 1024, texel: float = 0.003,
+    variant: int, layout: int, density: float, brightness: float, size: int = 1024, texel: float = 0.003
 ) -> AlbedoTile:
-    """Specular glints of the aggregate as one camera sees them: an additive [size, size] tile.
+    """One layout of specular glints of the aggregate: an additive [size, size] tile.
 
-    Sunlit chips with a facet turned between the sun and the camera flash far brighter than the
-    diffuse binder. Two cameras half a metre apart see a facet's narrow specular lobe from
-    different directions, so only some glints are in both images: the tile of ``view`` (0 left,
-    1 right) holds the glints both views share (``correlation`` of them, drawn from ``variant``
-    alone) and its own (drawn from ``variant`` and ``view``). To a stereo matcher the own glints
-    are texture that does not match: strong, surface-bound (averaged away with the footprint,
-    unlike sensor noise) and different in the other image. This is a texture-space stand-in for
-    a glinting BRDF, not one: glints do not move with the viewpoint within a view.
+    Sunlit chips with a facet turned between the sun and a camera flash far brighter than the
+    diffuse binder. Two cameras see a facet's narrow specular lobe from directions a few degrees
+    apart, so only some glints are in both images; the renderer blends a layout both cameras see
+    (``layout`` 0) with one per camera (1 left, 2 right) by how far apart the cameras' rays to a
+    point are (``RoadConfig.glint_lobe_deg``). Layouts are independent draws from ``variant``.
+    To a stereo matcher a camera's own glints are texture that does not match: strong,
+    surface-bound (averaged away with the footprint, unlike sensor noise) and different in the
+    other image. This is a texture-space stand-in for a glinting BRDF, not one.
 
     Args:
         variant: which random instance (as :func:`make_tile`'s).
-        view: 0 (left camera) or 1 (right camera).
+        layout: 0 (seen by both cameras), 1 (the left camera's own), 2 (the right camera's own).
         density: glints per square millimetre of pavement (> 0).
         brightness: a glint's added albedo (the binder's is about 0.16).
-        correlation: share of the glints both views see, in [0, 1].
-        size, texel: as :func:`make_tile`'s.
+        size, texel: as :func:`make_tile`'s (a power of two: the tile is rip-mapped).
     """
-    if view not in (0, 1):
-        raise SynthError(f"glint view must be 0 (left) or 1 (right), got {view}")
-    if not (density > 0 and brightness > 0 and 0.0 <= correlation <= 1.0):
-        raise SynthError(
-            f"glints need density > 0, brightness > 0 and correlation in [0, 1]; got {density}, "
-            f"{brightness}, {correlation}"
-        )
+    if layout not in (0, 1, 2):
+        raise SynthError(f"glint layout must be 0 (shared), 1 (left) or 2 (right), got {layout}")
+    if not (density > 0 and brightness > 0):
+        raise SynthError(f"glints need density > 0 and brightness > 0; got {density}, {brightness}")
+    if size < 64 or size & (size - 1):
+        raise SynthError(f"glint tiles need a power-of-two size >= 64, got {size}")
     mm = 0.001 / texel  # texels per millimetre
-    count = int(round(density / mm**2 * size * size))
-    shared = int(round(correlation * count))
-    glints = np.zeros((size, size), np.float64)
-    for rng, n in (
-        (np.random.default_rng([0x611A7, int(variant), int(size)]), shared),
-        (np.random.default_rng([0x611A7, int(variant), int(size), 1 + int(view)]), count - shared),
-    ):
-        if n > 0:
-            _, cover = _periodic_blobs(size, rng, n, 0.7 * mm, np.ones(n))  # facets of ~1.4 mm
-            cover = np.where(cover > 1e-6, cover, 0.0)  # the FFT's round-off is not a glint
-            glints = np.maximum(glints, np.clip(cover, 0.0, 1.0))
-    tile = (brightness * glints).astype(np.float32)
+    count = max(int(round(density / mm**2 * size * size)), 1)
+    rng = np.random.default_rng([0x611A7, int(variant), int(size), int(layout)])
+    _, cover = _periodic_blobs(size, rng, count, 0.7 * mm, np.ones(count))  # facets of ~1.4 mm
+    cover = np.where(cover > 1e-6, np.clip(cover, 0.0, 1.0), 0.0)  # the FFT's round-off is not a glint
+    tile = (brightness * cover).astype(np.float32)
     levels = int(math.log2(size)) - 1
-    rip = build_ripmap(tile, min(levels, 8)) if size & (size - 1) == 0 else None
+    rip = build_ripmap(tile, min(levels, 8))
     return AlbedoTile(pyramid=tuple(build_pyramid(tile, levels)), texel=float(texel), rip=rip)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -73,7 +74,8 @@ def test_scenes_of_another_generator_version_are_not_read(tmp_path: Path, monkey
         SyntheticSet(tmp_path, [100_012], camera=CAMERA, grid=GRID)
 
 
-def test_scenes_of_an_appearance_range_have_their_own_cache_and_its_looks(tmp_path: Path) -> None:
+def test_scenes_of_an_appearance_range_have_their_own_cache_and_its_looks(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     plain = SyntheticSet(tmp_path, [100_013], camera=CAMERA, grid=GRID)
     looked = SyntheticSet(tmp_path, [100_013], camera=CAMERA, grid=GRID, appearance="real-road")
     assert looked.folder != plain.folder
@@ -82,5 +84,8 @@ def test_scenes_of_an_appearance_range_have_their_own_cache_and_its_looks(tmp_pa
     assert not np.array_equal(looked[0][0].left, plain[0][0].left)
     np.testing.assert_array_equal(looked[0][1], plain[0][1])  # the same road under other looks
     assert SyntheticSet(tmp_path, [100_013], camera=CAMERA, grid=GRID, appearance="generator").folder == plain.folder
+    changed = dataclasses.replace(synth.REAL_ROAD, weak=dataclasses.replace(synth.REAL_ROAD.weak, noise_sigma=1.0))
+    monkeypatch.setitem(synth.APPEARANCE_RANGES, "real-road", changed)  # the range re-measured
+    assert SyntheticSet(tmp_path, [100_013], camera=CAMERA, grid=GRID, appearance="real-road").folder != looked.folder
     with pytest.raises(DatasetError, match="unknown appearance"):
         SyntheticSet(tmp_path, [100_013], camera=CAMERA, grid=GRID, appearance="sunny")

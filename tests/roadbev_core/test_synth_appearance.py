@@ -28,13 +28,13 @@ def test_a_range_runs_from_its_weak_to_its_strong_end() -> None:
 
 def test_an_appearance_sets_exactly_its_fields_of_a_road() -> None:
     road = RoadConfig(road_class="D", features=("crack",), noise_sigma=0.7, jpeg_quality=80)
-    looks = Appearance(2.0, 4.0, 0.2, 0.005, 3.0, 0.5)
+    looks = Appearance(2.0, 4.0, 0.2, 0.005, 3.0, 4.0)
     new = looks.apply(road)
     for field in dataclasses.fields(Appearance):
         assert getattr(new, field.name) == getattr(looks, field.name)
     assert (new.road_class, new.features, new.jpeg_quality) == ("D", ("crack",), 80)
     with pytest.raises(SynthError):  # RoadConfig still checks what it is given
-        dataclasses.replace(looks, glint_view_correlation=2.0).apply(road)
+        dataclasses.replace(looks, glint_lobe_deg=-1.0).apply(road)
 
 
 def test_a_random_road_drawn_with_a_range_keeps_its_geometry_and_takes_the_range_appearance() -> None:

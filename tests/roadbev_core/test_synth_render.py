@@ -208,14 +208,15 @@ def test_a_rectification_residual_moves_the_right_image_down_and_nothing_else() 
 
 
 def test_glints_one_camera_sees_alone_are_texture_the_other_cannot_match() -> None:
-    """Glints both cameras see keep the true heights the best match; glints each camera sees
-    alone raise the left-right difference there. The labels never change."""
+    """Glints with a wide specular lobe (both cameras see them) keep the true heights the best
+    match; with a narrow lobe each camera sees its own, which raises the left-right difference
+    there. The labels never change."""
     cam = RIG.scaled(0.5)
     lambertian = _stereo_sample(14, ("pothole",), cam, noise_sigma=0.0, gain_mismatch=0.0)
     shared = _stereo_sample(14, ("pothole",), cam, noise_sigma=0.0, gain_mismatch=0.0, glint_density=0.004,
-                            glint_view_correlation=1.0)
+                            glint_lobe_deg=90.0)
     own = _stereo_sample(14, ("pothole",), cam, noise_sigma=0.0, gain_mismatch=0.0, glint_density=0.004,
-                         glint_view_correlation=0.0)
+                         glint_lobe_deg=0.2)
     for sample in (shared, own):
         np.testing.assert_array_equal(sample.truth.elevation, lambertian.truth.elevation)
         assert np.abs(sample.frame.left.astype(np.int16) - lambertian.frame.left).mean() > 0.5  # glints drawn
@@ -228,7 +229,7 @@ def test_glints_one_camera_sees_alone_are_texture_the_other_cannot_match() -> No
 
 @pytest.mark.parametrize(
     ("field", "value"), [("glint_density", -0.001), ("glint_density", 0.5), ("glint_brightness", 0.0),
-                         ("glint_view_correlation", 1.1), ("glint_density", float("nan")), ("texture_scale", 0.0)],
+                         ("glint_lobe_deg", 0.0), ("glint_density", float("nan")), ("texture_scale", 0.0)],
 )
 def test_bad_glint_and_texture_settings_are_refused(field: str, value: float) -> None:
     with pytest.raises(SynthError):

@@ -49,6 +49,6 @@ def test_a_lambertian_road_has_no_glints_and_a_glinting_one_a_tile_per_camera() 
     assert build_scene(RoadConfig(), 3, (-4.0, 20.0)).glints is None
     scene = build_scene(RoadConfig(glint_density=0.004), 3, (-4.0, 20.0))
     assert scene.glints is not None
-    left, right = scene.glints
-    assert left.size == right.size == scene.tile.size and left.texel == scene.tile.texel
+    shared, left, right = scene.glints
+    assert shared.size == left.size == right.size == scene.tile.size and left.texel == scene.tile.texel
     assert not np.array_equal(left.pyramid[0], right.pyramid[0])
