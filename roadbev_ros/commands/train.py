@@ -32,6 +32,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     data = parser.add_argument_group("data (any combination)")
     data.add_argument("--synth", type=int, default=0, metavar="N", help="N synthetic training scenes")
     data.add_argument("--synth-seed", type=int, default=0, help="first synthetic scene seed (default 0)")
+    data.add_argument("--synth-appearance", default="generator", metavar="NAME",
+                      help="draw the synthetic scenes' pavement and camera appearance from this range "
+                           "(roadbev_core.synth.APPEARANCE_RANGES, e.g. real-road; default: the generator's own)")
     data.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help=f"scene cache (default {DEFAULT_CACHE})")
     data.add_argument("--bag", type=Path, action="append", default=[], help="an evaluation bag with ground truth")
     data.add_argument("--rsrd", type=Path, help="RSRD root (<split>/<sequence>/...)")
@@ -56,7 +59,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from msg_bridge.evalbag import bag_frames
     from roadbev_core.config import GridSpec, parse_assignments
-    from roadbev_core.datasets import TEST_SEED_START, ConcatSource, FrameSource, LabelledFrames, SyntheticSet
+    from roadbev_core.datasets import (
+        TEST_SEED_START,
+        ConcatSource,
+        DatasetError,
+        FrameSource,
+        LabelledFrames,
+        SyntheticSet,
+    )
     from roadbev_core.models.presets import model_config
     from roadbev_core.train import TrainConfig, train
 
@@ -66,7 +76,11 @@ def run(args: argparse.Namespace) -> int:
         last = args.synth_seed + args.synth
         if args.synth_seed < 0 or last > TEST_SEED_START:
             raise CommandError(f"training seeds must lie in [0, {TEST_SEED_START}) (test scenes use the rest)")
-        sources.append(SyntheticSet(args.cache, range(args.synth_seed, last), progress=not args.quiet))
+        try:
+            sources.append(SyntheticSet(args.cache, range(args.synth_seed, last), progress=not args.quiet,
+                                        appearance=args.synth_appearance))
+        except DatasetError as exc:
+            raise CommandError(str(exc)) from exc
     sources.extend(LabelledFrames(*bag_frames(bag), what=str(bag)) for bag in args.bag)
     if args.rsrd:
         from roadbev_core.rsrd import RsrdSet

@@ -22,6 +22,10 @@ def test_train_refuses_missing_data_and_test_seeds(tmp_path: Path, capsys: pytes
     assert "training seeds" in capsys.readouterr().err
     assert main(["train", "--kind", "mono", "--out", str(tmp_path / "m.pt"), "--rsrd", str(tmp_path)]) == 2
     assert "--rsrd-info" in capsys.readouterr().err
+    args = ["train", "--kind", "stereo", "--out", str(tmp_path / "s.pt"), "--synth", "1", "--synth-appearance", "sunny",
+            "--cache", str(tmp_path)]
+    assert main(args) == 2
+    assert "unknown appearance" in capsys.readouterr().err
 
 
 def test_export_drops_training_state_and_can_halve(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
