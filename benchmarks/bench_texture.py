@@ -41,7 +41,7 @@ import math
 import sys
 import tempfile
 import time
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -77,16 +77,9 @@ class Setting(NamedTuple):
 
 
 def range_setting(name: str, appearance: Appearance) -> Setting:
-    """The setting of one point of an appearance range (``roadbev_core.synth.appearance``)."""
-    return Setting(
-        name,
-        texture_scale=appearance.texture_scale,
-        noise_sigma=appearance.noise_sigma,
-        row_offset_px=appearance.row_offset_px,
-        glint_density=appearance.glint_density,
-        glint_brightness=appearance.glint_brightness,
-        glint_lobe_deg=appearance.glint_lobe_deg,
-    )
+    """The setting of one point of an appearance range (``roadbev_core.synth.appearance``: its
+    fields are :class:`Setting`'s of the same names)."""
+    return Setting(name, **asdict(appearance))
 
 
 SETTINGS: tuple[Setting, ...] = (
