@@ -477,7 +477,13 @@ def closest_settings(synthetic: list[dict[str, Any]]) -> dict[str, dict[str, Any
     return out
 
 
+PLOTTED_SETTINGS = ("default", "noise 3 DN", "glints 0.01/mm2", "real-road range, weak end",
+                    "real-road range, middle", "real-road range, strong end")
+
+
 def plot(data: dict[str, Any], path: Path) -> None:
+    """Gradient energy and fine-band inter-view ZNCC per band (each real frame, a few settings),
+    and every setting's coverage."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -485,28 +491,22 @@ def plot(data: dict[str, Any], path: Path) -> None:
 
     centres = [0.5 * (lo + hi) for lo, hi in BANDS_M]
     fig, (ax1, ax3, ax2) = plt.subplots(1, 3, figsize=(17, 4.8))
-    for ax, key, title in (
-        (ax1, "gradient_energy", "gradient energy"),
-        (ax3, "smoothed_gradient_energy", "gradient energy after a 1 px blur"),
+    shown = [s for s in data["synthetic"] if s["setting"] in PLOTTED_SETTINGS]
+    for ax, key, title, log in (
+        (ax1, "gradient_energy", "road gradient energy, 7x7 window (DN$^2$/px$^2$)", True),
+        (ax3, "view_zncc_fine", "what the cameras share: fine-band ZNCC at the true disparity", False),
     ):
-        real = data["real"][key]
-        ax.errorbar(
-            centres,
-            [b["median"] for b in real],
-            yerr=[[b["median"] - b["p25"] for b in real], [b["p75"] - b["median"] for b in real]],
-            fmt="o-k",
-            lw=2,
-            capsize=4,
-            label="real (KITTI, 3 frames; bars: quartiles)",
-        )
-        for setting in data["synthetic"]:
+        for frame, marker in zip(data["real"].get("per_frame", []), "o^v", strict=False):
+            ax.plot(centres, [b["median"] for b in frame[key]], f"{marker}-k", lw=2, label=f"real: {frame['frame']}")
+        for setting in shown:
             ax.plot(centres, [b["median"] for b in setting[key]], "s--", label=f"synthetic: {setting['setting']}")
-        ax.set_yscale("log")
+        if log:
+            ax.set_yscale("log")
         ax.set_xlabel("distance band centre (m)")
-        ax.set_ylabel("median over road cells (DN$^2$/px$^2$)")
-        ax.set_title(f"road {title}, 7x7 window", fontsize=10)
+        ax.set_ylabel("median over road cells")
+        ax.set_title(title, fontsize=10)
     ax1.legend(fontsize=6)
-    labels = ["real"] + [s["setting"] for s in data["synthetic"]]
+    labels = ["real (3 frames)"] + [s["setting"] for s in data["synthetic"]]
     width = 0.25
     for k, m in enumerate(MATCHERS):
         check = data["synthetic"][0]["check"]
@@ -515,7 +515,7 @@ def plot(data: dict[str, Any], path: Path) -> None:
         ]
         ax2.bar(np.arange(len(labels)) + (k - 1) * width, values, width, label=m)
     ax2.set_xticks(np.arange(len(labels)))
-    ax2.set_xticklabels(labels, rotation=20, ha="right", fontsize=7)
+    ax2.set_xticklabels(labels, rotation=35, ha="right", fontsize=6)
     ax2.set_ylabel("cell coverage (%)")
     ax2.set_title("matchers' cell coverage (synthetic: per band, at the real frames' label mix)", fontsize=9)
     ax2.legend(fontsize=8)
