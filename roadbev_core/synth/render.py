@@ -363,23 +363,25 @@ def _glints(
     lod_row: np.ndarray, lod_col: np.ndarray, right: bool,
 ) -> np.ndarray:
     """[N] glint albedo one camera sees at N ground points (tile coordinates and footprints as the
-    pavement's).
+    pavement's; ``scene.glints`` set).
 
     The shared layout and this camera's own are blended as sqrt(rho) * shared + sqrt(1 - rho) *
     own, rho = exp(-(dtheta / lobe)^2) with dtheta = baseline / range the angle between the two
     cameras' rays: the two images' glints then correlate by rho with the same variance in both,
     and each point gets the same rho from either camera.
     """
-    assert scene.glints is not None  # the caller checked
+    if scene.glints is None:
+        return np.zeros(rng_m.shape, np.float32)
     shared, left, right_own = scene.glints
-    own = right_own if right else left
-    if any(t.rip is None or t.size != scene.tile.size or t.texel != scene.tile.texel for t in scene.glints):
+    shared_rip, own_rip = shared.rip, (right_own if right else left).rip
+    if shared_rip is None or own_rip is None or any(
+        t.size != scene.tile.size or t.texel != scene.tile.texel for t in scene.glints
+    ):
         raise SynthError("glint tiles must be rip-mapped and laid like the pavement tile")
     lobe = np.float32(math.radians(scene.config.glint_lobe_deg))
     rho = np.exp(-np.square(np.float32(camera.baseline) / np.maximum(rng_m, np.float32(0.1)) / lobe))
-    assert shared.rip is not None and own.rip is not None  # checked above
-    return np.sqrt(rho) * sample_ripmap(shared.rip, ty, tx, lod_row, lod_col) + np.sqrt(1.0 - rho) * sample_ripmap(
-        own.rip, ty, tx, lod_row, lod_col
+    return np.sqrt(rho) * sample_ripmap(shared_rip, ty, tx, lod_row, lod_col) + np.sqrt(1.0 - rho) * sample_ripmap(
+        own_rip, ty, tx, lod_row, lod_col
     )
 
 
