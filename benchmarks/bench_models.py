@@ -25,13 +25,13 @@ from typing import Any
 import numpy as np
 import torch
 
+from benchmarks.common import add_appearance_argument
 from roadbev_core.backends import create
 from roadbev_core.backends.learned import LearnedBackend
 from roadbev_core.config import GridSpec
 from roadbev_core.datasets import TEST_SEED_START, SyntheticSet, as_samples
 from roadbev_core.evaluation import evaluate, to_json
 from roadbev_core.frame import Frame
-from roadbev_core.synth.appearance import APPEARANCE_RANGES
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -75,10 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cache", type=Path, default=Path(".cache") / "roadbev")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--out", type=Path, default=RESULTS / "models.json")
-    parser.add_argument(
-        "--appearance", default="generator", choices=["generator", *APPEARANCE_RANGES],
-        help="draw the test scenes' pavement and camera appearance from this range (default: the generator's own)",
-    )
+    add_appearance_argument(parser, "the test scenes' pavement and camera appearance")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     torch.set_flush_denormal(True)

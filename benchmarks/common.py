@@ -7,6 +7,7 @@ frames.
 
 from __future__ import annotations
 
+import argparse
 import math
 import os
 import platform
@@ -24,6 +25,7 @@ from roadbev_core.frame import Estimate, Frame
 __all__ = [
     "EVAL_SEED_BASE",
     "RESULTS",
+    "add_appearance_argument",
     "available_backends",
     "eval_samples",
     "machine_info",
@@ -46,6 +48,18 @@ class ReplayBackend:
 
     def estimate(self, frame: Frame) -> Estimate:
         return next(self._estimates)
+
+
+def add_appearance_argument(parser: argparse.ArgumentParser, frames: str) -> None:
+    """``--appearance NAME``: ``generator`` (the generator's own, the default) or a range of
+    ``roadbev_core.synth.APPEARANCE_RANGES`` that ``frames`` (the help's subject) are drawn from.
+    Every function here that takes an appearance reads ``generator`` as the generator's own."""
+    from roadbev_core.synth.appearance import APPEARANCE_RANGES
+
+    parser.add_argument(
+        "--appearance", default="generator", choices=["generator", *APPEARANCE_RANGES],
+        help=f"draw {frames} from this appearance range (default: the generator's own)",
+    )
 
 
 def eval_samples(

@@ -30,13 +30,12 @@ import cv2
 import numpy as np
 import torch
 
-from benchmarks.common import EVAL_SEED_BASE, RESULTS, machine_info, write_json
+from benchmarks.common import EVAL_SEED_BASE, RESULTS, add_appearance_argument, machine_info, write_json
 from roadbev_core.backends import create
 from roadbev_core.config import GridSpec
 from roadbev_core.evaluation import evaluate
 from roadbev_core.frame import Frame
 from roadbev_core.geometry import Attitude
-from roadbev_core.synth.appearance import APPEARANCE_RANGES
 from roadbev_core.synth.render import shift_rows
 
 # perturbation -> levels (the unperturbed level included)
@@ -206,13 +205,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="2 frames, two levels per perturbation")
     parser.add_argument("--backends", default="bev_sweep,sgbm,bm", help="comma-separated backends")
     parser.add_argument("--out", default=str(RESULTS), help="results folder")
-    parser.add_argument(
-        "--appearance", default="generator", choices=["generator", *APPEARANCE_RANGES],
-        help="frames spanning this appearance range instead of clean ones (default: the generator's own)",
-    )
+    add_appearance_argument(parser, "the frames (spanning the range, instead of clean ones)")
     args = parser.parse_args(argv)
-    appearance = None if args.appearance == "generator" else args.appearance
-    run_sweep(args.backends.split(","), quick=args.quick, out_dir=Path(args.out), appearance=appearance)
+    run_sweep(args.backends.split(","), quick=args.quick, out_dir=Path(args.out), appearance=args.appearance)
     return 0
 
 

@@ -30,6 +30,7 @@ import torch
 from benchmarks.common import (
     EVAL_SEED_BASE,
     RESULTS,
+    add_appearance_argument,
     available_backends,
     eval_samples,
     machine_info,
@@ -41,7 +42,6 @@ from roadbev_core.config import GridSpec
 from roadbev_core.evaluation import common_cell_errors, evaluate, format_table
 from roadbev_core.figures import FigureError, reliability_figure
 from roadbev_core.metrics import N_BANDS
-from roadbev_core.synth.appearance import APPEARANCE_RANGES
 
 DEFAULT_FRAMES = 24
 QUICK_FRAMES = 3
@@ -256,12 +256,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--torch-threads", type=int, default=None, help="torch intra-op threads (default: torch's, = cores)"
     )
-    parser.add_argument(
-        "--appearance", default="generator", choices=["generator", *APPEARANCE_RANGES],
-        help="draw the frames' pavement and camera appearance from this range (default: the generator's own)",
-    )
+    add_appearance_argument(parser, "the frames' pavement and camera appearance")
     args = parser.parse_args(argv)
-    appearance = None if args.appearance == "generator" else args.appearance
     if args.torch_threads is not None:
         if args.torch_threads < 1:
             parser.error("--torch-threads must be >= 1")
@@ -280,14 +276,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     out_dir = Path(args.out)
     record = run_table(
-        frames, names, out_dir=out_dir, quiet=args.quiet, scene_cache=args.scene_cache, appearance=appearance
+        frames, names, out_dir=out_dir, quiet=args.quiet, scene_cache=args.scene_cache, appearance=args.appearance
     )
     record["skipped"] = {n: status[n] for n in wanted if status[n]}
     write_json(out_dir / "table1.json", record)
     if not args.no_robustness:
         from benchmarks.robustness import run_sweep
 
-        run_sweep(names, quick=args.quick, out_dir=out_dir, quiet=args.quiet, appearance=appearance)
+        run_sweep(names, quick=args.quick, out_dir=out_dir, quiet=args.quiet, appearance=args.appearance)
     return 0
 
 

@@ -19,11 +19,14 @@ import hashlib
 import json
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import torch
 from torch.utils.data import Dataset
+
+if TYPE_CHECKING:
+    from roadbev_core.synth.appearance import AppearanceRange
 
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.errors import RoadbevError
@@ -69,17 +72,17 @@ class FrameSource(Protocol):
 SCENE_VERSION = 1
 
 
-def _cache_folder(root: Path, camera: StereoCamera, grid: GridSpec, appearance: str | None = None) -> Path:
+def _cache_folder(
+    root: Path, camera: StereoCamera, grid: GridSpec, appearance: AppearanceRange | None = None
+) -> Path:
     """A sub-folder per (generator version, camera, grid, appearance range): a cache never mixes
     scenes of different generators, rigs, grids or appearances."""
     key = json.dumps({"camera": camera.to_dict(), "grid": grid.to_dict()}, sort_keys=True)
     if SCENE_VERSION != 1:  # version 1 keeps the folder names of the caches written before it
         key += f"/scenes-v{SCENE_VERSION}"
     if appearance is not None:  # the generator's own appearance keeps the folder names it had
-        from roadbev_core.synth.appearance import APPEARANCE_RANGES
-
         # the range's values, not only its name: a range re-measured is another set of scenes
-        key += f"/appearance-{appearance}-{APPEARANCE_RANGES[appearance]!r}"
+        key += f"/appearance-{appearance.name}-{appearance!r}"
     return root / f"synth-{hashlib.sha1(key.encode()).hexdigest()[:10]}"
 
 
@@ -113,13 +116,14 @@ class SyntheticSet:
             raise DatasetError("a synthetic set needs at least one seed")
         self.camera = camera or StereoCamera.rsrd_half()
         self.grid = grid or GridSpec()
-        self.appearance = None if appearance == "generator" else appearance
-        if self.appearance is not None:
-            from roadbev_core.synth.appearance import APPEARANCE_RANGES
+        self.appearance: AppearanceRange | None = None
+        if appearance not in (None, "generator"):  # the generator's own needs no synth import
+            from roadbev_core.synth.appearance import appearance_range
 
-            if self.appearance not in APPEARANCE_RANGES:
-                raise DatasetError(f"unknown appearance {appearance!r}; choose from generator, "
-                                   f"{', '.join(APPEARANCE_RANGES)}")
+            try:
+                self.appearance = appearance_range(appearance)
+            except RoadbevError as exc:  # an unknown name
+                raise DatasetError(str(exc)) from exc
         self.folder = _cache_folder(Path(cache_dir), self.camera, self.grid, self.appearance)
         self.render_missing(progress=progress)
 
@@ -132,13 +136,12 @@ class SyntheticSet:
         if not missing:
             return 0
         # Imported lazily: reading a cache needs no renderer.
-        from roadbev_core.synth import appearance_range, make_sample
+        from roadbev_core.synth import make_sample
 
         self.folder.mkdir(parents=True, exist_ok=True)
         bar = _progress(missing, "rendering scenes", progress)
-        appearance = appearance_range(self.appearance)
         for seed in bar:
-            sample = make_sample(seed, camera=self.camera, grid=self.grid, appearance=appearance)
+            sample = make_sample(seed, camera=self.camera, grid=self.grid, appearance=self.appearance)
             frame = sample.frame
             tmp = self.path(seed).with_suffix(".tmp.npz")
             np.savez_compressed(

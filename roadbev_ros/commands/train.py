@@ -59,14 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from msg_bridge.evalbag import bag_frames
     from roadbev_core.config import GridSpec, parse_assignments
-    from roadbev_core.datasets import (
-        TEST_SEED_START,
-        ConcatSource,
-        DatasetError,
-        FrameSource,
-        LabelledFrames,
-        SyntheticSet,
-    )
+    from roadbev_core.datasets import TEST_SEED_START, ConcatSource, FrameSource, LabelledFrames, SyntheticSet
     from roadbev_core.models.presets import model_config
     from roadbev_core.train import TrainConfig, train
 
@@ -76,11 +69,8 @@ def run(args: argparse.Namespace) -> int:
         last = args.synth_seed + args.synth
         if args.synth_seed < 0 or last > TEST_SEED_START:
             raise CommandError(f"training seeds must lie in [0, {TEST_SEED_START}) (test scenes use the rest)")
-        try:
-            sources.append(SyntheticSet(args.cache, range(args.synth_seed, last), progress=not args.quiet,
-                                        appearance=args.synth_appearance))
-        except DatasetError as exc:
-            raise CommandError(str(exc)) from exc
+        sources.append(SyntheticSet(args.cache, range(args.synth_seed, last), progress=not args.quiet,
+                                    appearance=args.synth_appearance))
     sources.extend(LabelledFrames(*bag_frames(bag), what=str(bag)) for bag in args.bag)
     if args.rsrd:
         from roadbev_core.rsrd import RsrdSet
