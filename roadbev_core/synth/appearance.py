@@ -14,7 +14,7 @@ gets the :class:`Appearance` between the range's weak and strong ends.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -44,15 +44,7 @@ class Appearance:
 
     def apply(self, road: RoadConfig) -> RoadConfig:
         """``road`` with this appearance (validated by :class:`RoadConfig`)."""
-        return replace(
-            road,
-            texture_scale=self.texture_scale,
-            noise_sigma=self.noise_sigma,
-            row_offset_px=self.row_offset_px,
-            glint_density=self.glint_density,
-            glint_brightness=self.glint_brightness,
-            glint_lobe_deg=self.glint_lobe_deg,
-        )
+        return replace(road, **asdict(self))
 
 
 @dataclass(frozen=True)
