@@ -52,10 +52,10 @@ ROADS: dict[str, tuple[str, tuple[str, ...]]] = {
 def run_drive(kind: str, seed: int, duration: float, speed: float) -> dict[str, Any]:
     """One drive's detections against its features."""
     from roadbev_core.hazards import band, detect_hazards
-    from roadbev_core.synth import DriveConfig, RidingConfig, RidingDrive, RoadConfig
+    from roadbev_core.synth import REAL_ROAD_MIDDLE, DriveConfig, RidingConfig, RidingDrive, RoadConfig
 
     road_class, features = ROADS[kind]
-    road = RoadConfig(road_class=road_class, features=features, feature_spacing_m=8.0)
+    road = REAL_ROAD_MIDDLE.apply(RoadConfig(road_class=road_class, features=features, feature_spacing_m=8.0))
     frames = int(round(duration * 10))
     drive = RidingDrive(RidingConfig(drive=DriveConfig(frames=frames, speed_mps=speed, frame_rate_hz=10.0, seed=seed,
                                                        road=road)))
@@ -124,11 +124,11 @@ def run_map_drive(speed: float, rate: float, duration: float, seed: int, spacing
     from roadbev_core.geometry import quaternion_to_rotation
     from roadbev_core.hazard_tracking import HazardTracker, TrackerSettings
     from roadbev_core.pipeline import Pipeline
-    from roadbev_core.synth import DriveConfig, RidingConfig, RidingDrive, RoadConfig
+    from roadbev_core.synth import REAL_ROAD_MIDDLE, DriveConfig, RidingConfig, RidingDrive, RoadConfig
     from roadbev_core.synth.riding import planar_odometry
 
-    road = RoadConfig(road_class="B", features=("speed_bump", "hump", "pothole") if features else (),
-                      feature_spacing_m=spacing)
+    features_on = ("speed_bump", "hump", "pothole") if features else ()
+    road = REAL_ROAD_MIDDLE.apply(RoadConfig(road_class="B", features=features_on, feature_spacing_m=spacing))
     frames = max(2, int(round(duration * rate)))
     drive = RidingDrive(RidingConfig(drive=DriveConfig(frames=frames, speed_mps=speed, frame_rate_hz=rate, seed=seed,
                                                        road=road), tail_s=1.5))

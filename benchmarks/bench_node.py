@@ -56,7 +56,7 @@ def drive_bag(frames: int, scale: float, seed: int = 7, *, riding: bool = False,
     from msg_bridge.drivebag import write_drive_bag
     from msg_bridge.evalbag import write_eval_bag
     from roadbev_core.config import StereoCamera
-    from roadbev_core.synth import DriveConfig, RidingConfig, RidingDrive, RoadConfig, SyntheticDrive
+    from roadbev_core.synth import REAL_ROAD_MIDDLE, DriveConfig, RidingConfig, RidingDrive, RoadConfig, SyntheticDrive
 
     CACHE.mkdir(exist_ok=True)
     kind = f"_drive_{rate:g}hz_{speed:g}mps" if riding else ""
@@ -65,7 +65,7 @@ def drive_bag(frames: int, scale: float, seed: int = 7, *, riding: bool = False,
         camera = StereoCamera.rsrd_half()
         if scale != 1.0:
             camera = camera.scaled(scale)
-        road = RoadConfig(road_class="C", features=("pothole", "speed_bump"))
+        road = REAL_ROAD_MIDDLE.apply(RoadConfig(road_class="C", features=("pothole", "speed_bump")))
         tmp = path.with_suffix(".tmp.mcap")
         tmp.unlink(missing_ok=True)
         if riding:

@@ -57,7 +57,7 @@ def road_config(kind: str, rng: np.random.Generator) -> Any:
     class B road, or a rough class D road without features; surface, slopes and noise drawn."""
     from dataclasses import replace
 
-    from roadbev_core.synth import RoadConfig
+    from roadbev_core.synth import REAL_ROAD_MIDDLE, RoadConfig
 
     if kind == "bumps":
         road = RoadConfig(road_class="A", features=("speed_bump", "hump"), feature_spacing_m=12.0)
@@ -67,9 +67,10 @@ def road_config(kind: str, rng: np.random.Generator) -> Any:
         road = RoadConfig(road_class="D", features=())
     else:
         raise ValueError(f"unknown road kind {kind!r} (one of {ROAD_KINDS})")
-    return replace(road, surface=str(rng.choice(["asphalt", "concrete"], p=[0.8, 0.2])),
+    road = replace(road, surface=str(rng.choice(["asphalt", "concrete"], p=[0.8, 0.2])),
                    cross_slope=float(rng.uniform(-0.02, 0.02)), grade=float(rng.uniform(-0.005, 0.005)),
                    noise_sigma=float(rng.uniform(0.5, 2.0)))
+    return REAL_ROAD_MIDDLE.apply(road)  # the pavement and camera of a road built by hand
 
 
 class CachedBackend:

@@ -41,12 +41,13 @@ def main() -> None:
     args = parser.parse_args()
 
     from roadbev_core.config import StereoCamera
-    from roadbev_core.synth import DriveConfig, RoadConfig, SyntheticDrive, make_sample
+    from roadbev_core.synth import REAL_ROAD_MIDDLE, DriveConfig, RoadConfig, SyntheticDrive, make_sample
     from roadbev_core.synth.render import render_stereo
 
     info = machine_info()
     camera = StereoCamera.rsrd_half()
-    road = RoadConfig(road_class="C", features=("pothole", "speed_bump", "crack", "patch", "rut"))
+    features = ("pothole", "speed_bump", "crack", "patch", "rut")
+    road = REAL_ROAD_MIDDLE.apply(RoadConfig(road_class="C", features=features))
     drive, setup_wall, setup_cpu = _timed(
         lambda: SyntheticDrive(DriveConfig(frames=args.frames + 1, seed=1, camera=camera, road=road))
     )

@@ -83,7 +83,7 @@ def range_setting(name: str, appearance: Appearance) -> Setting:
 
 
 SETTINGS: tuple[Setting, ...] = (
-    Setting("default"),
+    Setting("clean"),  # the generator without an appearance range (scene version 1's default)
     Setting("texture x0.5", 0.5),
     Setting("noise 2 DN", noise_sigma=2.0),
     Setting("texture x0.5, noise 2 DN", 0.5, noise_sigma=2.0),
@@ -366,7 +366,7 @@ def synthetic_scenes(n: int) -> list[tuple[Any, Any]]:
     for i in range(n):
         seed = SEED_BASE + i
         rng = np.random.default_rng(seed)
-        road = random_road(rng)
+        road = random_road(rng, None)  # the clean appearance: the settings set it
         y_cam = float(rng.uniform(-0.5, 0.5))
         scene = build_scene(road, seed, (-4.0, LOOK_AHEAD_M + 2.0), _place_in_grid(road.features, grid, y_cam, rng))
         front, rear, _, _ = _wheel_heights(scene, np.zeros(1), np.full(1, y_cam), np.zeros(1))
@@ -477,7 +477,7 @@ def closest_settings(synthetic: list[dict[str, Any]]) -> dict[str, dict[str, Any
     return out
 
 
-PLOTTED_SETTINGS = ("default", "noise 3 DN", "glints 0.01/mm2", "real-road range, weak end",
+PLOTTED_SETTINGS = ("clean", "noise 3 DN", "glints 0.01/mm2", "real-road range, weak end",
                     "real-road range, middle", "real-road range, strong end")
 
 

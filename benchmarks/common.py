@@ -51,14 +51,16 @@ class ReplayBackend:
 
 
 def add_appearance_argument(parser: argparse.ArgumentParser, frames: str) -> None:
-    """``--appearance NAME``: ``generator`` (the generator's own, the default) or a range of
-    ``roadbev_core.synth.APPEARANCE_RANGES`` that ``frames`` (the help's subject) are drawn from.
-    Every function here that takes an appearance reads ``generator`` as the generator's own."""
-    from roadbev_core.synth.appearance import APPEARANCE_RANGES
+    """``--appearance NAME``: the range of ``roadbev_core.synth.APPEARANCE_NAMES`` that ``frames``
+    (the help's subject) draw their appearance from (``real-road``, the default) or ``clean``
+    (the generator's own, scene version 1's default). Every function here that takes an
+    appearance reads None as the default."""
+    from roadbev_core.synth.appearance import APPEARANCE_NAMES, DEFAULT_APPEARANCE
 
     parser.add_argument(
-        "--appearance", default="generator", choices=["generator", *APPEARANCE_RANGES],
-        help=f"draw {frames} from this appearance range (default: the generator's own)",
+        "--appearance", default=DEFAULT_APPEARANCE, choices=APPEARANCE_NAMES,
+        help=f"draw {frames} from this appearance range (default {DEFAULT_APPEARANCE}; clean: the "
+             "generator's own before scene version 2)",
     )
 
 
@@ -74,9 +76,9 @@ def eval_samples(
 
     Each seed draws its own road (``roadbev_core.synth`` random roads: ISO 8608 class A-E, one to
     three features, asphalt or concrete, read noise 0.5-3 DN, gain mismatch up to 8 %, JPEG on
-    about 30 % of frames) and camera attitude from the RSRD distribution; with ``appearance`` (a
-    range of ``roadbev_core.synth.APPEARANCE_RANGES``) its pavement and camera appearance from
-    that range.
+    about 30 % of frames) and camera attitude from the RSRD distribution, and its pavement and
+    camera appearance from ``appearance`` (a name of ``roadbev_core.synth.APPEARANCE_NAMES``;
+    None: the default range).
     """
     from roadbev_core.synth import appearance_range, make_sample
 
@@ -96,9 +98,9 @@ def scene_samples(
 
     With ``cache`` the scenes are rendered once into that folder
     (:class:`roadbev_core.datasets.SyntheticSet`) and read back afterwards: the same frames,
-    without minutes of rendering per benchmark run. ``appearance`` names a range of
-    ``roadbev_core.synth.APPEARANCE_RANGES`` to draw each scene's appearance from (None: the
-    generator's own).
+    without minutes of rendering per benchmark run. ``appearance`` names the range of
+    ``roadbev_core.synth.APPEARANCE_NAMES`` to draw each scene's appearance from (None: the
+    default range).
     """
     seeds = list(seeds)
     if cache is None:

@@ -36,6 +36,7 @@ from roadbev_core.config import GridSpec
 from roadbev_core.evaluation import evaluate
 from roadbev_core.frame import Frame
 from roadbev_core.geometry import Attitude
+from roadbev_core.synth.appearance import DEFAULT_APPEARANCE
 from roadbev_core.synth.render import shift_rows
 
 # perturbation -> levels (the unperturbed level included)
@@ -98,10 +99,11 @@ def perturb(frame: Frame, kind: str, level: float, seed: int) -> Frame:
 def clean_samples(
     n_frames: int, progress: Callable[[int], Any] | None = None, appearance: str | None = None
 ) -> list[tuple[Frame, np.ndarray]]:
-    """Clean rendered frames for the sweep (a mix of roads with features).
+    """Rendered frames for the sweep (a mix of roads with features, low noise, no JPEG).
 
-    With ``appearance`` (a range of ``roadbev_core.synth.APPEARANCE_RANGES``) the frames span it
-    from its weak to its strong end (evenly, in frame order) instead of being clean.
+    Their appearance spans the range ``appearance`` names (``roadbev_core.synth.APPEARANCE_NAMES``;
+    None: the default range) from its weak to its strong end, evenly in frame order; ``clean``
+    leaves them the generator's own Lambertian pavement and a clean camera.
     """
     from roadbev_core.synth import RoadConfig, appearance_range, make_sample
 
@@ -158,7 +160,7 @@ def run_sweep(
         "machine": machine_info(),
         "frames": frames,
         "seeds": [EVAL_SEED_BASE + 1000, EVAL_SEED_BASE + 1000 + frames - 1],
-        "appearance": appearance or "generator",
+        "appearance": appearance or DEFAULT_APPEARANCE,
         "sweep": results,
     }
     write_json(out_dir / "robustness.json", record)

@@ -42,6 +42,7 @@ from roadbev_core.config import GridSpec
 from roadbev_core.evaluation import common_cell_errors, evaluate, format_table
 from roadbev_core.figures import FigureError, reliability_figure
 from roadbev_core.metrics import N_BANDS
+from roadbev_core.synth.appearance import DEFAULT_APPEARANCE
 
 DEFAULT_FRAMES = 24
 QUICK_FRAMES = 3
@@ -222,7 +223,7 @@ def run_table(
         "machine": machine_info(),
         "frames": frames,
         "seeds": [EVAL_SEED_BASE, EVAL_SEED_BASE + frames - 1],
-        "appearance": appearance or "generator",
+        "appearance": appearance or DEFAULT_APPEARANCE,
         "render_s": render_s,
         "results": rows,
         "targets": targets,

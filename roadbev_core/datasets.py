@@ -69,7 +69,9 @@ class FrameSource(Protocol):
 # says so when it moves): caches of an older generator then sit in another folder instead of
 # being read as if they were current. (The demo's one cached bag hashes the generator's source
 # instead; a training cache holds thousands of scenes that an edited comment should not re-render.)
-SCENE_VERSION = 1
+# Version 2: the random scenes draw their pavement and camera appearance from the ``real-road``
+# range (``roadbev_core.synth.appearance``); version 1 was the ``clean`` appearance.
+SCENE_VERSION = 2
 
 
 def _cache_folder(
@@ -78,9 +80,12 @@ def _cache_folder(
     """A sub-folder per (generator version, camera, grid, appearance range): a cache never mixes
     scenes of different generators, rigs, grids or appearances."""
     key = json.dumps({"camera": camera.to_dict(), "grid": grid.to_dict()}, sort_keys=True)
-    if SCENE_VERSION != 1:  # version 1 keeps the folder names of the caches written before it
+    # Versions 1 and 2 render the same scene for the same appearance (2 moved the default from
+    # the clean appearance to the real-road range, and the appearance is in the key): their
+    # caches share folders, and a later version gets its own.
+    if SCENE_VERSION > 2:
         key += f"/scenes-v{SCENE_VERSION}"
-    if appearance is not None:  # the generator's own appearance keeps the folder names it had
+    if appearance is not None:
         # the range's values, not only its name: a range re-measured is another set of scenes
         key += f"/appearance-{appearance.name}-{appearance!r}"
     return root / f"synth-{hashlib.sha1(key.encode()).hexdigest()[:10]}"
@@ -95,7 +100,8 @@ class SyntheticSet:
         camera, grid: the rig and the label grid (defaults: ``StereoCamera.rsrd_half()``, ``GridSpec()``).
         progress: show a progress bar while rendering missing scenes.
         appearance: draw each scene's appearance from this named range
-            (``roadbev_core.synth.APPEARANCE_RANGES``; None: the generator's own).
+            (``roadbev_core.synth.APPEARANCE_NAMES``; None: the default, ``real-road``;
+            ``clean``: the generator's own, scene version 1's default).
 
     Raises:
         DatasetError: no seeds, or an unknown appearance.
@@ -116,14 +122,12 @@ class SyntheticSet:
             raise DatasetError("a synthetic set needs at least one seed")
         self.camera = camera or StereoCamera.rsrd_half()
         self.grid = grid or GridSpec()
-        self.appearance: AppearanceRange | None = None
-        if appearance not in (None, "generator"):  # the generator's own needs no synth import
-            from roadbev_core.synth.appearance import appearance_range
+        from roadbev_core.synth.appearance import appearance_range
 
-            try:
-                self.appearance = appearance_range(appearance)
-            except RoadbevError as exc:  # an unknown name
-                raise DatasetError(str(exc)) from exc
+        try:
+            self.appearance: AppearanceRange | None = appearance_range(appearance)
+        except RoadbevError as exc:  # an unknown name
+            raise DatasetError(str(exc)) from exc
         self.folder = _cache_folder(Path(cache_dir), self.camera, self.grid, self.appearance)
         self.render_missing(progress=progress)
 

@@ -132,9 +132,9 @@ class DemoResult:
 def demo_drive_config(frames: int, seed: int = 0, image_scale: float = 1.0) -> Any:
     """The demo's synthetic drive: ISO 8608 class C roughness plus a pothole, a speed bump and a
     rut repeated every 4 m, 5 m/s, 5 Hz stereo, 100 Hz IMU."""
-    from roadbev_core.synth import DriveConfig, RoadConfig
+    from roadbev_core.synth import REAL_ROAD_MIDDLE, DriveConfig, RoadConfig
 
-    road = RoadConfig(road_class="C", features=DEMO_ROAD_FEATURES, feature_spacing_m=4.0)
+    road = REAL_ROAD_MIDDLE.apply(RoadConfig(road_class="C", features=DEMO_ROAD_FEATURES, feature_spacing_m=4.0))
     config = DriveConfig(frames=frames, seed=seed, road=road)
     if image_scale != 1.0:
         config = replace(config, camera=config.camera.scaled(image_scale))

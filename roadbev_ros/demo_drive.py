@@ -73,9 +73,10 @@ def drive_config(frames: int = DEFAULT_DRIVE_FRAMES, seed: int = DRIVE_SEED, ima
     """The demo's drive (a :class:`roadbev_core.synth.RidingConfig`): ``frames`` camera frames at
     10 Hz and 10 m/s over an ISO 8608 class C road with a speed bump and a pothole every ~5 m,
     the motion continuing 1.5 s after the last frame (the ride's ceiling needs the road ahead)."""
-    from roadbev_core.synth import DriveConfig, RidingConfig, RoadConfig
+    from roadbev_core.synth import REAL_ROAD_MIDDLE, DriveConfig, RidingConfig, RoadConfig
 
-    road = RoadConfig(road_class="C", features=DRIVE_FEATURES, feature_spacing_m=DRIVE_FEATURE_SPACING_M)
+    road = REAL_ROAD_MIDDLE.apply(
+        RoadConfig(road_class="C", features=DRIVE_FEATURES, feature_spacing_m=DRIVE_FEATURE_SPACING_M))
     drive = DriveConfig(frames=frames, speed_mps=DRIVE_SPEED_MPS, frame_rate_hz=DRIVE_RATE_HZ, seed=seed, road=road)
     if image_scale != 1.0:
         drive = replace(drive, camera=drive.camera.scaled(image_scale))

@@ -8,7 +8,17 @@ Public API (``shared`` agreement, see the project notes)::
 
 from __future__ import annotations
 
-from roadbev_core.synth.appearance import APPEARANCE_RANGES, REAL_ROAD, Appearance, AppearanceRange, appearance_range
+from roadbev_core.synth.appearance import (
+    APPEARANCE_NAMES,
+    APPEARANCE_RANGES,
+    CLEAN,
+    DEFAULT_APPEARANCE,
+    REAL_ROAD,
+    REAL_ROAD_MIDDLE,
+    Appearance,
+    AppearanceRange,
+    appearance_range,
+)
 from roadbev_core.synth.drive import (
     RSRD_ATTITUDE,
     DriveConfig,
@@ -26,10 +36,14 @@ from roadbev_core.synth.riding import OdometryNoise, RidingConfig, RidingDrive, 
 from roadbev_core.synth.scene import RoadConfig, Scene, build_scene
 
 __all__ = [
+    "APPEARANCE_NAMES",
     "APPEARANCE_RANGES",
+    "CLEAN",
+    "DEFAULT_APPEARANCE",
     "FEATURE_NAMES",
     "ISO8608_GD0",
     "REAL_ROAD",
+    "REAL_ROAD_MIDDLE",
     "RSRD_ATTITUDE",
     "Appearance",
     "AppearanceRange",

@@ -1,14 +1,19 @@
 """How hard the synthetic road is for a stereo matcher: named ranges of pavement and camera
 appearance, from weak to strong texture.
 
-The generator's own draws (``random_road``, ``build_scene``) give a Lambertian pavement of one
-middling texture strength, seen by a clean camera. Real road is a range: on the three KITTI
+Without a range (the ``clean`` appearance, scene version 1's generator) ``random_road`` and
+``build_scene`` give a Lambertian pavement of one middling texture strength, seen by a clean
+camera. Real road is a range: on the three KITTI
 frames (``benchmarks.bench_texture``) one dark asphalt has a tenth of the synthetic gradient
 energy, two grainy ones five to ten times it, and on all three the cameras share much less of
 the texture (the 9 x 9 ZNCC of the two images' fine band at the true disparity is 0.35-0.6 where
 the synthetic road gives 0.7-0.8): sensor noise, a rectification residual and glints one camera
 sees alone. An :class:`AppearanceRange` spans that: each scene draws a strength in [0, 1] and
 gets the :class:`Appearance` between the range's weak and strong ends.
+
+Since scene version 2 the random scenes and drives draw their appearance from
+:data:`DEFAULT_APPEARANCE` (``real-road``), and the roads the demo and the benchmarks build by
+hand take the range's middle (:data:`REAL_ROAD_MIDDLE`).
 """
 
 from __future__ import annotations
@@ -21,7 +26,17 @@ import numpy as np
 from roadbev_core.synth.heightfield import SynthError
 from roadbev_core.synth.scene import RoadConfig
 
-__all__ = ["APPEARANCE_RANGES", "REAL_ROAD", "Appearance", "AppearanceRange", "appearance_range"]
+__all__ = [
+    "APPEARANCE_NAMES",
+    "APPEARANCE_RANGES",
+    "CLEAN",
+    "DEFAULT_APPEARANCE",
+    "REAL_ROAD",
+    "REAL_ROAD_MIDDLE",
+    "Appearance",
+    "AppearanceRange",
+    "appearance_range",
+]
 
 
 @dataclass(frozen=True)
@@ -100,16 +115,25 @@ REAL_ROAD = AppearanceRange(
                       glint_brightness=3.0, glint_lobe_deg=4.5),
 )
 APPEARANCE_RANGES: dict[str, AppearanceRange] = {REAL_ROAD.name: REAL_ROAD}
+DEFAULT_APPEARANCE = REAL_ROAD.name  # what random scenes and drives draw from (scene version 2)
+CLEAN = "clean"  # no range: the generator's own draws, Lambertian (scene version 1's default)
+APPEARANCE_NAMES: tuple[str, ...] = (*APPEARANCE_RANGES, CLEAN)
+# The appearance of roads built by hand (the demo's, the ride's, the hazards' drives): the
+# middle of the default range, a texture of about the generator's own strength that the two
+# cameras share less of.
+REAL_ROAD_MIDDLE = REAL_ROAD.at(0.5)
 
 
 def appearance_range(name: str | None) -> AppearanceRange | None:
-    """The named range (None or ``"generator"``: the generator's own draws).
+    """The named range: None is :data:`DEFAULT_APPEARANCE`; :data:`CLEAN` is no range (None).
 
     Raises:
         SynthError: an unknown name.
     """
-    if name is None or name == "generator":
+    if name is None:
+        name = DEFAULT_APPEARANCE
+    if name == CLEAN:
         return None
     if name not in APPEARANCE_RANGES:
-        raise SynthError(f"unknown appearance {name!r}; choose from generator, {', '.join(APPEARANCE_RANGES)}")
+        raise SynthError(f"unknown appearance {name!r}; choose from {', '.join(APPEARANCE_NAMES)}")
     return APPEARANCE_RANGES[name]

@@ -33,7 +33,7 @@ from roadbev_core.geometry import (
     rotation_from_rpy,
 )
 from roadbev_core.labels import ElevationLabel, elevation_map
-from roadbev_core.synth.appearance import AppearanceRange
+from roadbev_core.synth.appearance import REAL_ROAD, AppearanceRange
 from roadbev_core.synth.heightfield import FEATURE_NAMES, SynthError
 from roadbev_core.synth.render import LOOK_AHEAD_M, CameraPose, render_stereo, sensor_image, shift_rows
 from roadbev_core.synth.scene import RoadConfig, Scene, build_scene
@@ -589,14 +589,15 @@ class SyntheticDrive:
 
 
 # --- independent samples --------------------------------------------------------------------
-def random_road(rng: np.random.Generator, appearance: AppearanceRange | None = None) -> RoadConfig:
+def random_road(rng: np.random.Generator, appearance: AppearanceRange | None = REAL_ROAD) -> RoadConfig:
     """A random road configuration for training/evaluation sets.
 
     Args:
         rng: the draws.
         appearance: draw the pavement and camera appearance from this range too (after the
-            other draws, so the road's geometry is the same with and without it); None keeps
-            the generator's own noise and a Lambertian pavement.
+            other draws, so the road's geometry is the same with and without it; default the
+            ``real-road`` range); None keeps the generator's own noise and a Lambertian
+            pavement (the ``clean`` appearance of scene version 1).
     """
     road_class = str(rng.choice(list("ABCDE"), p=[0.1, 0.3, 0.35, 0.2, 0.05]))
     n_feat = int(rng.integers(1, 4))
@@ -641,12 +642,13 @@ def make_sample(
     grid: GridSpec | None = None,
     road: RoadConfig | None = None,
     lidar: LidarConfig | None = None,
-    appearance: AppearanceRange | None = None,
+    appearance: AppearanceRange | None = REAL_ROAD,
 ) -> DriveSample:
     """One independent random scene seen by a stationary-looking rig (deterministic per seed).
 
     The camera attitude is drawn from the whole RSRD attitude distribution, the features of
-    ``road`` (a random road when None, its appearance drawn from ``appearance`` when given) are
+    ``road`` (a random road when None, its appearance drawn from ``appearance``: by default the
+    ``real-road`` range, None for the ``clean`` one) are
     placed inside the grid's window.
     """
     camera = camera or StereoCamera.rsrd_half()

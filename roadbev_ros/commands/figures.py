@@ -36,10 +36,11 @@ def run(args: argparse.Namespace) -> int:
     # Imported here: `roadbev --help` stays fast.
     from roadbev_core.config import GridSpec, StereoCamera
     from roadbev_core.figures import elevation_figure, voxel_columns_figure
-    from roadbev_core.synth import RoadConfig, make_sample
+    from roadbev_core.synth import REAL_ROAD_MIDDLE, RoadConfig, make_sample
 
     features = tuple(args.features)
-    road = RoadConfig(road_class=str(args.road_class).upper(), features=features, surface=args.surface)
+    road = REAL_ROAD_MIDDLE.apply(RoadConfig(road_class=str(args.road_class).upper(), features=features,
+                                             surface=args.surface))
     grid = GridSpec()
     sample = make_sample(int(args.seed), camera=StereoCamera.rsrd_half(), grid=grid, road=road)
     out = Path(args.out)

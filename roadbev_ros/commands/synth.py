@@ -79,7 +79,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
 
     from msg_bridge.evalbag import write_eval_bag
-    from roadbev_core.synth import DriveConfig, OdometryNoise, RidingConfig, RidingDrive, RoadConfig, SyntheticDrive
+    from roadbev_core.synth import (
+        REAL_ROAD_MIDDLE,
+        DriveConfig,
+        OdometryNoise,
+        RidingConfig,
+        RidingDrive,
+        RoadConfig,
+        SyntheticDrive,
+    )
 
     if args.frames is not None and args.duration is not None:
         raise CommandError("give --frames or --duration, not both")
@@ -97,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError(f"--jpeg-quality must be in 1..100, got {args.jpeg_quality}")
     if args.out.exists():
         raise OSError(f"{args.out} exists already; remove it first")
-    road = RoadConfig(road_class=args.road_class, surface=args.surface)
+    road = REAL_ROAD_MIDDLE.apply(RoadConfig(road_class=args.road_class, surface=args.surface))
     if args.features is not None:
         road = replace(road, features=tuple(args.features))
     for option, name in (("grade", "grade"), ("cross_slope", "cross_slope"), ("roughness_scale", "roughness_scale"),

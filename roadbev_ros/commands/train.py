@@ -32,9 +32,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     data = parser.add_argument_group("data (any combination)")
     data.add_argument("--synth", type=int, default=0, metavar="N", help="N synthetic training scenes")
     data.add_argument("--synth-seed", type=int, default=0, help="first synthetic scene seed (default 0)")
-    data.add_argument("--synth-appearance", default="generator", metavar="NAME",
+    data.add_argument("--synth-appearance", default="real-road", metavar="NAME",
                       help="draw the synthetic scenes' pavement and camera appearance from this range "
-                           "(roadbev_core.synth.APPEARANCE_RANGES, e.g. real-road; default: the generator's own)")
+                           "(roadbev_core.synth.APPEARANCE_NAMES: real-road, the default, or clean, "
+                           "the generator's own before scene version 2)")
     data.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help=f"scene cache (default {DEFAULT_CACHE})")
     data.add_argument("--bag", type=Path, action="append", default=[], help="an evaluation bag with ground truth")
     data.add_argument("--rsrd", type=Path, help="RSRD root (<split>/<sequence>/...)")

@@ -76,14 +76,14 @@ def test_scenes_of_another_generator_version_are_not_read(tmp_path: Path, monkey
 
 def test_scenes_of_an_appearance_range_have_their_own_cache_and_its_looks(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    plain = SyntheticSet(tmp_path, [100_013], camera=CAMERA, grid=GRID)
+    plain = SyntheticSet(tmp_path, [100_013], camera=CAMERA, grid=GRID, appearance="clean")
     looked = SyntheticSet(tmp_path, [100_013], camera=CAMERA, grid=GRID, appearance="real-road")
     assert looked.folder != plain.folder
     reference = synth.make_sample(100_013, camera=CAMERA, grid=GRID, appearance=synth.REAL_ROAD)
     np.testing.assert_array_equal(looked[0][0].left, reference.frame.left)
     assert not np.array_equal(looked[0][0].left, plain[0][0].left)
     np.testing.assert_array_equal(looked[0][1], plain[0][1])  # the same road under other looks
-    assert SyntheticSet(tmp_path, [100_013], camera=CAMERA, grid=GRID, appearance="generator").folder == plain.folder
+    assert SyntheticSet(tmp_path, [100_013], camera=CAMERA, grid=GRID).folder == looked.folder  # the default
     changed = dataclasses.replace(synth.REAL_ROAD, weak=dataclasses.replace(synth.REAL_ROAD.weak, noise_sigma=1.0))
     monkeypatch.setitem(synth.APPEARANCE_RANGES, "real-road", changed)  # the range re-measured
     assert SyntheticSet(tmp_path, [100_013], camera=CAMERA, grid=GRID, appearance="real-road").folder != looked.folder
