@@ -7,6 +7,7 @@ import numpy as np
 
 from benchmarks.bev_sweep_limits import measure, zone_smoothed
 from roadbev_core.backends import RefinedBackend, create
+from roadbev_core.backends.bev_sweep import BevSweep
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.synth import make_sample
 
@@ -15,7 +16,7 @@ GRID = GridSpec()
 
 def test_a_tilted_plane_is_its_own_window_mean_away_from_the_border() -> None:
     sweep = create("bev_sweep", GRID)
-    assert isinstance(sweep, RefinedBackend)
+    assert isinstance(sweep, RefinedBackend) and isinstance(sweep.inner, BevSweep)
     rows, cols = np.mgrid[0 : GRID.shape[0], 0 : GRID.shape[1]].astype(np.float64)
     plane = 0.01 * rows / GRID.shape[0] + 0.02 * cols / GRID.shape[1]  # [R, C] m
     smoothed = zone_smoothed(plane, sweep.inner)
