@@ -9,7 +9,9 @@ The bag follows the contract's "Evaluation bags" section (see :mod:`msg_bridge.e
 stereo images (raw rgb8, or JPEG with ``--compressed``), both CameraInfos per frame, the IMU at
 ``--imu-rate`` Hz, ``/ground_truth/elevation`` per frame and ``/roadbev/grid_config``. ``OUT``
 ending in ``.mcap`` gives a single MCAP file, anything else a rosbag2 directory. The same
-arguments always give the same bytes (no wall-clock time is stored).
+arguments always give the same bytes (no wall-clock time is stored). The pavement and cameras
+are the middle of the ``real-road`` appearance range (``roadbev_core.synth.REAL_ROAD_MIDDLE``,
+scene version 2).
 """
 
 from __future__ import annotations

@@ -57,12 +57,13 @@ def test_missing_corrupt_or_mismatched_checkpoints_are_backend_errors(tmp_path: 
         create("stereo", checkpoint=str(stereo)).estimate(_frame(stereo=False))
 
 
-@pytest.mark.parametrize(("kind", "bound_cm"), [("stereo", 1.0), ("mono", 4.0)])
-def test_shipped_checkpoints_measure_the_road(kind: str, bound_cm: float) -> None:
+@pytest.mark.parametrize(("kind", "bound_cm", "share_of_flat"), [("stereo", 1.0, 0.2), ("mono", 5.0, 0.75)])
+def test_shipped_checkpoints_measure_the_road(kind: str, bound_cm: float, share_of_flat: float) -> None:
     """The shipped `lite` models on two test scenes: far better than predicting a flat road.
 
-    Predicting 0 everywhere scores ~4.3 cm on the test set; a broken input path (wrong images,
-    a photometric channel read at the wrong scale) loses the stereo model's centimetre accuracy.
+    Predicting 0 everywhere scores 6.1 cm on these two scenes (4.3 cm on the whole test set); a
+    broken input path (wrong images, a photometric channel read at the wrong scale) loses the
+    stereo model's centimetre accuracy and brings mono near the flat road's error.
     """
     from roadbev_core.datasets import TEST_SEED_START
     from roadbev_core.evaluation import evaluate
@@ -76,6 +77,9 @@ def test_shipped_checkpoints_measure_the_road(kind: str, bound_cm: float) -> Non
     raw = evaluate(create(kind, GridSpec(), raw=True), samples).metrics
     assert raw["coverage_pct"] > 99.0
     assert metrics["abs_err_cm"] < bound_cm, metrics["abs_err_cm"]
+    flat_cm = 100.0 * float(np.mean(np.concatenate([np.abs(s.truth.elevation[np.isfinite(s.truth.elevation)])
+                                                    for s in samples])))
+    assert metrics["abs_err_cm"] < share_of_flat * flat_cm, (metrics["abs_err_cm"], flat_cm)
 
 
 def test_a_grid_or_rig_beyond_the_training_is_refused_or_flagged(tmp_path: Path) -> None:
