@@ -21,6 +21,7 @@ and the running backend stays.
 from __future__ import annotations
 
 import functools
+import signal
 import sys
 import threading
 import time
@@ -411,6 +412,10 @@ class RoadBevNode(Node):
         self._worker.join(timeout=30.0)
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
 def main(args: Sequence[str] | None = None) -> int:
     """Run the node until Ctrl-C / SIGTERM (console script ``roadbev_node``); 2 on bad parameters.
 
@@ -423,7 +428,12 @@ def main(args: Sequence[str] | None = None) -> int:
     rclpy = None
     try:
         notes = check_params_files(argv, "roadbev")
-        rclpy = init_ros(argv)
+        # Our own SIGINT / SIGTERM (KeyboardInterrupt in the spin): rclpy's handlers shut the
+        # context down at once, while the inference thread may be inside a publish, which crashed
+        # the node (exit -11) now and then under load; this way the worker is joined first.
+        rclpy = init_ros(argv, handle_signals=False)
+        for sig in (signal.SIGINT, signal.SIGTERM):  # SIGINT too: a shell's background job ignores it
+            signal.signal(sig, _interrupt)
         node = RoadBevNode()
     except ParamError as exc:
         print(f"roadbev node: error: {exc}", file=sys.stderr)
