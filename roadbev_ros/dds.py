@@ -132,6 +132,12 @@ def init_ros(args: list[str] | None = None, *, handle_signals: bool = True) -> A
     return rclpy
 
 
+def raise_interrupt(signum: int, _frame: object) -> None:
+    """A signal handler for processes that run their own shutdown (``init_ros(handle_signals=False)``):
+    the signal becomes a KeyboardInterrupt in the main thread's spin or wait."""
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
 def spin_until_shutdown(rclpy: Any, node: Any, on_exit: Callable[[], None] | None = None) -> None:
     """Spin ``node`` on a single-threaded executor until Ctrl-C, SIGTERM or a shutdown; then run
     ``on_exit`` (e.g. stop a worker thread), destroy the node and shut rclpy down."""

@@ -227,16 +227,12 @@ def _interruptible_ros() -> Iterator[None]:
 
     import rclpy
 
-    from roadbev_ros.dds import init_ros
+    from roadbev_ros.dds import init_ros, raise_interrupt
 
     owned = not rclpy.ok()
     init_ros(handle_signals=False)
-
-    def terminate(signum: int, _frame: Any) -> None:
-        raise KeyboardInterrupt(f"signal {signum}")
-
     in_main = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, terminate) if in_main else None
+    previous = signal.signal(signal.SIGTERM, raise_interrupt) if in_main else None
     try:
         yield
     finally:

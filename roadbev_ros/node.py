@@ -412,17 +412,13 @@ class RoadBevNode(Node):
         self._worker.join(timeout=30.0)
 
 
-def _interrupt(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt(f"signal {signum}")
-
-
 def main(args: Sequence[str] | None = None) -> int:
     """Run the node until Ctrl-C / SIGTERM (console script ``roadbev_node``); 2 on bad parameters.
 
     Args:
         args: command line (``sys.argv`` when None), with ``--ros-args -p ... --params-file ...``.
     """
-    from roadbev_ros.dds import init_ros, spin_until_shutdown
+    from roadbev_ros.dds import init_ros, raise_interrupt, spin_until_shutdown
 
     argv = list(sys.argv if args is None else args)
     rclpy = None
@@ -433,7 +429,7 @@ def main(args: Sequence[str] | None = None) -> int:
         # the node (exit -11) now and then under load; this way the worker is joined first.
         rclpy = init_ros(argv, handle_signals=False)
         for sig in (signal.SIGINT, signal.SIGTERM):  # SIGINT too: a shell's background job ignores it
-            signal.signal(sig, _interrupt)
+            signal.signal(sig, raise_interrupt)
         node = RoadBevNode()
     except ParamError as exc:
         print(f"roadbev node: error: {exc}", file=sys.stderr)

@@ -32,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     data = parser.add_argument_group("data (any combination)")
     data.add_argument("--synth", type=int, default=0, metavar="N", help="N synthetic training scenes")
     data.add_argument("--synth-seed", type=int, default=0, help="first synthetic scene seed (default 0)")
-    data.add_argument("--synth-appearance", default="real-road", metavar="NAME",
+    data.add_argument("--synth-appearance", default=None, metavar="NAME",
                       help="draw the synthetic scenes' pavement and camera appearance from this range "
                            "(roadbev_core.synth.APPEARANCE_NAMES: real-road, the default, or clean, "
                            "the generator's own before scene version 2)")
