@@ -9,31 +9,35 @@ the true state and one preview source (rows):
 * ``passive`` (no actuator), ``no_preview`` (the same controller, feedback only);
 * ``true_road``: the true road under the wheel over the controller's whole 1 s horizon (the ceiling);
 * ``window``: a perfect per-frame camera (the true road cut to the grid's window at each frame's
-  stamp, held from stamp + latency): what the window alone allows;
+  stamp, held from stamp + ``--latency``): what the window alone allows;
 * ``map_plane``: a perfect fused map's previews (contact-plane reference, from the front tyre
   contact to the window's far edge, one per frame), read without the plane's attitude, and
   ``map_plane_attitude``: the same with the true plane's slopes undone (what the contract's
   contact-plane fields in ``RoadPreview`` are for);
-* ``<backend>`` (``--backends``, default ``bev_sweep``): the per-frame previews of the pipeline
-  on the rendered frames, and ``<backend>_map``: the previews of the same pipeline with the fused
-  map on (``roadbev eval --map``: the drive's own drifting, noisy odometry, the camera mount of its
-  ``/tf_static``), read with the contact plane each message carries (as the reference node
-  does); only on ``--render-seeds`` drives, ``--render-duration`` s long (rendering costs
-  ~1.5 s a frame on the full 960 x 528 rig here). Both rows share one estimate per frame.
+* per **candidate** (``--candidates NAME=BACKEND[:PARAM=VALUE,...]``, a configuration of the
+  node, :mod:`benchmarks.preview_budget`): its fused-map previews as the node makes them on the
+  rendered frames (the drive's own drifting odometry and ``/tf_static`` mount), on the frames its
+  measured time per frame lets it fuse, each used from when it is received (its measured
+  latency, ``--node-results``: a ``bench_node --drive`` JSON), read with the contact plane each
+  message carries (as the reference node does); with ``--budget`` also one row per stage of the
+  error budget (``NAME:true_answered``, ...). Rendered drives only: ``--render-seeds`` drives,
+  ``--render-duration`` s long, their frames kept in ``--frame-cache`` for the next run.
 
 Each preview row's ``share`` is the share of the ceiling's gain over the no-preview controller
 in Wk-weighted RMS body acceleration it delivers (:func:`roadbev_core.ride.gain_share`). Another
-preview source is one more entry in :data:`PREVIEW_MAKERS`: a function of (drive, the frames at
-the camera rate) returning a list of :class:`roadbev_core.arrival.TimedPreview`.
+preview source is one more entry in :data:`PREVIEW_MAKERS`: a function of (drive, the rendered
+frames, the frame step of the camera rate, the ride settings) returning a list of
+:class:`roadbev_core.arrival.TimedPreview`.
 
 Run: ``.venv/bin/python -m benchmarks.bench_ride [--duration 20] [--seeds 3] [--speeds 5 10 20]
-[--rates 5 10] [--render-seeds 1] [--render-duration 6] [--backends bev_sweep]``; writes
-``benchmarks/results/ride.json`` and ``ride.png``.
+[--rates 5 10] [--render-seeds 1] [--render-duration 6] [--candidates stereo_int8=stereo:...]
+[--budget]``; writes ``benchmarks/results/ride.json`` and ``ride.png``.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 import time
@@ -45,11 +49,21 @@ import numpy as np
 
 from benchmarks.common import RESULTS, machine_info, write_json
 
+CACHE = Path(__file__).resolve().parents[1] / ".cache"
+
 SEED_BASE = 310_000  # disjoint from training, test, tuning (200000+) and bench_arrival (300000+) seeds
 CAMERA_RATE_HZ = 10.0  # drives are rendered at 10 Hz; slower cameras take every k-th frame
 ROAD_KINDS = ("bumps", "potholes", "rough")
-PreviewMaker = Callable[[Any, Sequence[Any]], list[Any]]
-MAP_SUFFIX = "_map"  # the fused-map row of a backend: "bev_sweep_map"
+# (drive, rendered frames, frame step of the camera rate, ride settings) -> the row's messages
+PreviewMaker = Callable[[Any, Sequence[Any], int, Any], list[Any]]
+STAGE_SEPARATOR = ":"  # a budget row: "<candidate>:<stage>"
+# the preview-at-arrival keys kept per row (against the reference each message declares)
+ARRIVAL_SUMMARY = ("abs_err_cm", "features_abs_err_cm", "smooth_abs_err_cm", "coverage_pct",
+                   "contact_plane_abs_err_cm", "points", "features_points")
+DEFAULT_CANDIDATES = (
+    "stereo_int8=stereo:stereo.runtime=openvino,stereo.checkpoint=checkpoints/roadbev_stereo_lite_int8.onnx",
+    "bev_sweep=bev_sweep",
+)
 
 
 def road_config(kind: str, rng: np.random.Generator) -> Any:
@@ -73,70 +87,29 @@ def road_config(kind: str, rng: np.random.Generator) -> Any:
     return REAL_ROAD_MIDDLE.apply(road)  # the pavement and camera of a road built by hand
 
 
-class CachedBackend:
-    """A backend whose estimates are kept by frame stamp, so that the per-frame and the fused-map
-    rows, and a slower camera rate, reuse the estimates of the frames they share (one drive's
-    frames: a new drive needs a new cache)."""
+def candidate_makers(candidates: Sequence[Any], budget: bool) -> dict[str, PreviewMaker]:
+    """The rows of one rendered drive: per candidate its fused-map previews as the node fuses them
+    (``<name>``), and with ``budget`` one row per stage of the error budget (``<name>:<stage>``);
+    a candidate's rows share one estimate per frame. Plus :data:`PREVIEW_MAKERS`."""
+    from benchmarks.preview_budget import STAGES, candidate_previews, make_backend
 
-    def __init__(self, inner: Any) -> None:
-        self.inner = inner
-        self.name: str = inner.name
-        self.grid: Any = inner.grid
-        self.needs_stereo: bool = inner.needs_stereo
-        self.estimates: dict[int, Any] = {}
-
-    def estimate(self, frame: Any) -> Any:
-        stamp = int(frame.stamp_ns)
-        if stamp not in self.estimates:
-            self.estimates[stamp] = self.inner.estimate(frame)
-        return self.estimates[stamp]
-
-
-def _pipeline(backend: CachedBackend, drive: Any, fused: bool) -> Any:
-    """A pipeline around ``backend`` on the drive's grid and camera mount, map on or off, as
-    ``roadbev eval --map`` / ``--no-map`` runs a drive bag."""
-    from roadbev_core.config import RoadbevConfig
-    from roadbev_core.pipeline import Pipeline
-
-    config = RoadbevConfig.from_params({**drive.config.grid.to_dict(), "backend": backend.name, "map.enabled": fused})
-    pipeline = Pipeline(config, backend_factory=lambda *_a, **_k: backend, configure_process=False)
-    pipeline.set_camera_mount(*drive.base_to_camera)
-    return pipeline
-
-
-def backend_maker(name: str, caches: dict[str, CachedBackend] | None = None, fused: bool = False) -> PreviewMaker:
-    """The previews of backend ``name`` on the rendered frames: per frame (``roadbev_road``), or
-    with ``fused`` those of the fused map (``map.enabled``, fed with the drive's own drifting,
-    noisy odometry and its ``/tf_static`` camera mount: contact-plane previews once the map holds
-    three tyre contacts, the per-frame one before). Estimates are shared through ``caches``
-    (backend name -> :class:`CachedBackend`; makers of one drive share one dict)."""
-    caches = {} if caches is None else caches
-
-    def make(drive: Any, samples: Sequence[Any]) -> list[Any]:
-        from roadbev_core.arrival import per_frame_previews
-        from roadbev_core.backends import create
-        from roadbev_core.evaluation import evaluate
-        from roadbev_core.synth.riding import planar_odometry
-
-        if name not in caches:
-            caches[name] = CachedBackend(create(name, drive.config.grid))
-        pipeline = _pipeline(caches[name], drive, fused)
-        odometry = planar_odometry(drive.odometry()) if fused else None
-        outputs: list[Any] = []  # only the previews are kept (a map window per frame is ~1 MB)
-        evaluate(pipeline, samples, odometry=odometry, on_output=lambda o: outputs.extend(per_frame_previews([o])))
-        return outputs
-
-    return make
-
-
-def rendered_makers(backends: Sequence[str]) -> dict[str, PreviewMaker]:
-    """The rows of one rendered drive: ``<backend>`` (per frame) and ``<backend>_map`` (the fused
-    map's previews) for each backend, sharing the estimates, plus :data:`PREVIEW_MAKERS`."""
-    caches: dict[str, CachedBackend] = {}
     makers: dict[str, PreviewMaker] = {}
-    for b in backends:
-        makers[b] = backend_maker(b, caches)
-        makers[f"{b}{MAP_SUFFIX}"] = backend_maker(b, caches, fused=True)
+    for candidate in candidates:
+        caches: dict[int, Any] = {}  # one cached backend per drive
+
+        def maker(candidate: Any, stage: str, caches: dict[int, Any]) -> PreviewMaker:
+            def make(drive: Any, samples: Sequence[Any], step: int, settings: Any) -> list[Any]:
+                key = id(drive)
+                if key not in caches:
+                    caches.clear()
+                    caches[key] = make_backend(candidate, drive.config.grid)
+                return candidate_previews(drive, samples, candidate, caches[key], stage, step=step,
+                                          ride_settings=settings)
+            return make
+
+        for stage in STAGES if budget else ("shipped",):
+            name = candidate.name if stage == "shipped" else f"{candidate.name}{STAGE_SEPARATOR}{stage}"
+            makers[name] = maker(candidate, stage, caches)
     makers.update({name: factory(name) for name, factory in PREVIEW_MAKERS.items()})
     return makers
 
@@ -152,9 +125,10 @@ def scores(rows: dict[str, dict[str, Any]]) -> dict[str, float]:
 
 
 def run_cell(kind: str, speed: float, seed: int, duration: float, rates: Sequence[float], lead: float,
-             makers: dict[str, PreviewMaker]) -> dict[str, Any]:
-    """One drive: every source ridden at every camera rate (rendered only when ``makers``)."""
-    from roadbev_core.arrival import ArrivalSettings, Trajectory
+             makers: dict[str, PreviewMaker], frame_cache: Any = None) -> dict[str, Any]:
+    """One drive: every source ridden at every camera rate (rendered only when ``makers``; its
+    frames from ``frame_cache``, a :class:`benchmarks.preview_budget.DriveFrames`, when given)."""
+    from roadbev_core.arrival import ArrivalSettings, Trajectory, preview_at_arrival
     from roadbev_core.ride import (
         RideSettings,
         carried_plane_slopes,
@@ -179,12 +153,14 @@ def run_cell(kind: str, speed: float, seed: int, duration: float, rates: Sequenc
     start, end = stamps[0], int(truth.stamp_ns[-1])
     score_end = stamps[-1] + int(round(lead * 1e9))  # after the last message arrives the preview runs dry
     start_time = time.perf_counter()
-    samples = list(drive) if makers else []
+    samples: list[Any] = []
+    if makers:
+        samples = frame_cache.samples(drive) if frame_cache is not None else list(drive)
     render_s = time.perf_counter() - start_time
     window = perfect_previews(truth, road_map, stamps, grid, settings)
     fused = perfect_map_previews(truth, road_map, stamps, grid, settings)
     # contact-plane rows read with a plane: the true one for the perfect map, the one each
-    # message carries for the rendered rows (per-frame messages carry none)
+    # message carries for the rendered rows
     attitude = {"map_plane_attitude": true_plane_slopes(truth, road_map, settings, stamps),
                 **{name: carried_plane_slopes for name in makers}}
     out: dict[str, Any] = {"road": kind, "speed_mps": speed, "seed": seed, "duration_s": frames / CAMERA_RATE_HZ,
@@ -194,13 +170,20 @@ def run_cell(kind: str, speed: float, seed: int, duration: float, rates: Sequenc
         step = max(1, int(round(CAMERA_RATE_HZ / rate)))
         sources: dict[str, Any] = {"window": window[::step], "map_plane": fused[::step],
                                    "map_plane_attitude": fused[::step]}
+        fused_frames: dict[str, int] = {}
         for name, make in makers.items():
-            sources[name] = make(drive, samples[::step])
+            sources[name] = make(drive, samples, step, settings)
+            fused_frames[name] = len(sources[name])
         if base is None:  # passive, no-preview and the ceiling do not depend on the camera
             base = ride(truth, road_map, {"passive": "passive", "no_preview": "none", "true_road": "true"},
                         settings, start, end, score_end)
         rows = {**base, **ride(truth, road_map, sources, settings, start, end, score_end, attitude)}
-        out["rates"][f"{rate:g}"] = {"rows": rows, "share": scores(rows)}
+        arrival = {name: {k: v for k, v in preview_at_arrival(previews, truth, road_map, settings.arrival,
+                                                              frame_stamps_ns=stamps[::step]).items()
+                          if k in ARRIVAL_SUMMARY}
+                   for name, previews in sources.items()}
+        out["rates"][f"{rate:g}"] = {"rows": rows, "share": scores(rows), "arrival": arrival,
+                                     "fused_frames": fused_frames, "camera_frames": len(stamps[::step])}
         share = out["rates"][f"{rate:g}"]["share"]
         wk = {k: v["mean"]["wk_rms_mps2"] for k, v in rows.items()}
         print(f"  {kind:8s} {speed:4.0f} m/s seed {seed} {rate:4.0f} Hz: Wk passive {wk['passive']:.3f}, "
@@ -229,9 +212,31 @@ def summarise(cells: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
             if shares:
                 row.update(share_mean=float(np.mean(shares)), share_std=float(np.std(shares)),
                            share_min=float(np.min(shares)), share_max=float(np.max(shares)))
+            arrivals = [d["arrival"][r] for d in items if r in d.get("arrival", {})]
+            if arrivals:
+                row["arrival"] = _pooled_arrival(arrivals)
             entry["rows"][r] = row
         table.append(entry)
     return table
+
+
+def _pooled_arrival(items: Sequence[dict[str, Any]]) -> dict[str, float]:
+    """The preview at arrival over several drives: errors weighted by the points each drive scored
+    (feature errors by its feature points), coverage over all points."""
+    points = np.array([i["points"] for i in items], float)
+    covered = points * np.array([i["coverage_pct"] for i in items]) / 100.0
+    feature_points = np.array([i["features_points"] for i in items], float)
+
+    def weighted(key: str, weights: np.ndarray) -> float:
+        values = np.array([i[key] for i in items], float)
+        ok = np.isfinite(values) & (weights > 0)
+        return float(np.sum(values[ok] * weights[ok]) / np.sum(weights[ok])) if ok.any() else math.nan
+
+    return {"abs_err_cm": weighted("abs_err_cm", covered), "features_abs_err_cm": weighted("features_abs_err_cm",
+                                                                                            feature_points),
+            "smooth_abs_err_cm": weighted("smooth_abs_err_cm", covered),
+            "contact_plane_abs_err_cm": weighted("contact_plane_abs_err_cm", covered),
+            "coverage_pct": float(100.0 * covered.sum() / points.sum()) if points.sum() else math.nan}
 
 
 def _row_order(name: str) -> tuple[int, str]:
@@ -334,17 +339,37 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--render-seeds", type=int, default=1, help="rendered drives per road kind and speed")
     parser.add_argument("--render-duration", type=float, default=6.0,
                         help="seconds of camera frames per rendered drive")
-    parser.add_argument("--backends", nargs="*", default=["bev_sweep"])
-    parser.add_argument("--latency", type=float, default=0.1)
+    parser.add_argument("--candidates", nargs="*", default=list(DEFAULT_CANDIDATES), metavar="NAME=BACKEND[:P=V,...]",
+                        help="configurations of the node to ride with (node parameters after the colon; each "
+                             "needs a row in --node-results); none: truth rows only")
+    parser.add_argument("--node-results", default=str(RESULTS / "node_candidates.json"), metavar="JSON",
+                        help="bench_node --drive results: each candidate's latency and time per frame in the node")
+    parser.add_argument("--budget", action="store_true",
+                        help="add the error budget: one row per stage taken from the truth (preview_budget.STAGES)")
+    parser.add_argument("--frame-cache", default=str(CACHE / "ride_frames"), metavar="DIR",
+                        help="rendered drive frames are kept here and read back by later runs")
+    parser.add_argument("--seed-base", type=int, default=SEED_BASE,
+                        help="drive seeds start here (the benchmark's own by default; tuning runs take others)")
+    parser.add_argument("--latency", type=float, default=0.1, help="latency of the truth rows (s)")
     parser.add_argument("--out", default=str(RESULTS / "ride.json"))
     parser.add_argument("--truth-from", default=None, metavar="JSON",
                         help="take the truth-only drives from an earlier run's JSON (they depend on the "
                              "settings only, not on any backend: every one asked for must be there with the same "
                              "duration, rates and latency) instead of riding them again")
     args = parser.parse_args(argv)
+    from benchmarks.preview_budget import DriveFrames, candidates_from_node
+
+    candidates: list[Any] = []
+    if args.candidates:
+        try:
+            node = json.loads(Path(args.node_results).read_text())
+            candidates = candidates_from_node(args.candidates, node["rows"])
+        except (OSError, ValueError, KeyError) as exc:
+            parser.error(f"--node-results {args.node_results}: {exc}")
     info = machine_info()
     start = time.perf_counter()
-    wanted = [(kind, speed, SEED_BASE + 1000 * k + 100 * i + s) for k, kind in enumerate(args.roads)
+    base = args.seed_base
+    wanted = [(kind, speed, base + 1000 * k + 100 * i + s) for k, kind in enumerate(args.roads)
               for i, speed in enumerate(args.speeds) for s in range(args.seeds)]
     reused: dict[tuple[str, float, int], dict[str, Any]] = {}
     provenance: dict[str, Any] | None = None
@@ -354,30 +379,34 @@ def main(argv: list[str] | None = None) -> int:
                                                   args.latency)
         except BenchError as exc:
             parser.error(str(exc))
+    frame_cache = DriveFrames(args.frame_cache)
     cells = []
     for k, kind in enumerate(args.roads):
         for i, speed in enumerate(args.speeds):
             for s in range(args.seeds):
-                seed = SEED_BASE + 1000 * k + 100 * i + s
+                seed = base + 1000 * k + 100 * i + s
                 if (kind, speed, seed) in reused:
                     cells.append(reused[(kind, speed, seed)])
                     continue
                 print(f"truth-only drive {kind} {speed:g} m/s seed {seed}, {args.duration:g} s", file=sys.stderr,
                       flush=True)
                 cells.append(run_cell(kind, speed, seed, args.duration, args.rates, args.latency, {}))
-            if args.backends:
+            if candidates:
                 for s in range(args.render_seeds):
-                    seed = SEED_BASE + 1000 * k + 100 * i + 50 + s
-                    makers = rendered_makers(args.backends)
+                    seed = base + 1000 * k + 100 * i + 50 + s
                     print(f"rendered drive {kind} {speed:g} m/s seed {seed}, {args.render_duration:g} s",
                           file=sys.stderr, flush=True)
-                    cells.append(run_cell(kind, speed, seed, args.render_duration, args.rates, args.latency, makers))
+                    cells.append(run_cell(kind, speed, seed, args.render_duration, args.rates, args.latency,
+                                          candidate_makers(candidates, args.budget), frame_cache))
     table = summarise(cells)
     data = {
         "what": "preview LQR quarter car (roadbev_core.ride) over the true road of riding drives, per preview source; "
                 "share = share of the true road's Wk-RMS gain over the controller without preview",
         "command": "python -m benchmarks.bench_ride " + " ".join(argv if argv is not None else sys.argv[1:]),
         "latency_s": args.latency,
+        "candidates": [{"name": c.name, "backend": c.backend, "params": dict(c.params), "latency_s": c.latency_s,
+                        "period_s": c.period_s} for c in candidates],
+        "node_results": args.node_results if candidates else None,
         "machine": info,
         "wall_s": round(time.perf_counter() - start, 1),
         "truth_only_from": provenance,

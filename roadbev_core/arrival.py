@@ -196,15 +196,24 @@ class TimedPreview:
         reference: ``REFERENCE_ROAD`` or ``REFERENCE_CONTACT_PLANE``.
         profiles: the profiles (x of the samples in the reference's frame; tracks named
             ``left``/``right`` or ``front_left``/``front_right``).
+        received_ns: when a consumer has it (None: ``stamp_ns`` + the reader's lead time or
+            latency); a node that processes frames slower than the camera delivers some later.
     """
 
     stamp_ns: int
     reference: str
     profiles: PreviewProfiles
+    received_ns: int | None = None
 
     def __post_init__(self) -> None:
         if self.reference not in (REFERENCE_ROAD, REFERENCE_CONTACT_PLANE):
             raise ArrivalError(f"unknown preview reference {self.reference!r}")
+        if self.received_ns is not None and self.received_ns < self.stamp_ns:
+            raise ArrivalError("a preview cannot be received before its stamp")
+
+    def available_ns(self, delay_ns: int) -> int:
+        """When it can be used: ``received_ns``, else ``stamp_ns + delay_ns``."""
+        return self.stamp_ns + delay_ns if self.received_ns is None else self.received_ns
 
 
 @dataclass(frozen=True)
@@ -467,7 +476,7 @@ def arrival_points(
             track = _track_name(msg.profiles, path.name)
             if track is None:
                 continue
-            first = int(np.searchsorted(path.arrival_ns, msg.stamp_ns + lead_ns, side="left"))
+            first = int(np.searchsorted(path.arrival_ns, msg.available_ns(lead_ns), side="left"))
             if first >= P:
                 continue
             idx = np.arange(first, P)

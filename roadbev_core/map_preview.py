@@ -31,7 +31,7 @@ import numpy as np
 
 from roadbev_core.config import VehicleConfig
 from roadbev_core.fusion import FramePlacement, FusedMap
-from roadbev_core.preview import REFERENCE_CONTACT_PLANE, ContactPlane, PreviewProfiles, TrackProfile
+from roadbev_core.preview import REFERENCE_CONTACT_PLANE, ContactPlane, PreviewProfiles, TrackProfile, bridge_gaps
 from roadbev_core.vehicle import WHEEL_NAMES, contact_plane
 
 __all__ = ["BODY_PLANE_SIGMA", "contact_plane_fit", "contact_plane_on_map", "footprint_heights", "map_preview"]
@@ -162,8 +162,10 @@ def map_preview(
     spacing_m: float,
     rear_axle: bool = False,
     vehicle_speed: float | None = None,
+    max_gap_m: float = 0.0,
 ) -> PreviewProfiles:
-    """The contact-plane profiles of every wheel track at the pose of ``placement``.
+    """The contact-plane profiles of every wheel track at the pose of ``placement`` (inner gaps
+    up to ``max_gap_m`` bridged, :func:`roadbev_core.preview.bridge_gaps`).
 
     Returns:
         Profiles named ``front_left``, ``front_right`` (then ``rear_left``, ``rear_right``), all
@@ -196,7 +198,7 @@ def map_preview(
     elevation[behind] = np.nan
     sigma[behind | ~np.isfinite(elevation)] = np.nan
     tracks = [TrackProfile(WHEEL_NAMES[index], float(wheels[index, 1]), float(tyre_width_m),
-                           elevation[index].astype(np.float32), sigma[index].astype(np.float32))
+                           *bridge_gaps(elevation[index], sigma[index], spacing_m, max_gap_m))
               for index in range(n_tracks)]
     return PreviewProfiles(
         start_distance=float(start), spacing=float(spacing_m), tracks=tuple(tracks),

@@ -13,8 +13,9 @@ The node, ``roadbev eval``, the online evaluation, the demo and the benchmarks a
 
 The map stage (roadbev_core.fusion) runs when ``map.enabled`` and an ego-motion source exists:
 odometry samples (``add_odometry``) or, without them, a speed (dead reckoned with the IMU's
-yaw). A frame whose pose cannot be had (odometry too old) falls back to the per-frame preview,
-counted in ``map_skipped``.
+yaw). With the map on every preview is a contact-plane one in ``base_link``: a frame whose pose
+cannot be had (odometry too old) is not fused (counted in ``map_skipped``) and its preview comes
+from that frame alone, in the same reference.
 
 It owns the backend (built from the config through the registry), the attitude rules, the
 process-wide compute settings (threads; denormals flushed in the thread that runs the backend)
@@ -43,7 +44,7 @@ from roadbev_core.config import RoadbevConfig, StereoCamera, check_image_size
 from roadbev_core.ego_motion import EgoMotion, EgoMotionStale, PlanarPose
 from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Estimate, Frame
-from roadbev_core.fusion import FrameFusion, FusedMap, MapWindow, place_frame
+from roadbev_core.fusion import FrameFusion, FramePlacement, FusedMap, MapSettings, MapWindow, place_frame
 from roadbev_core.geometry import Attitude, quaternion_to_rotation
 from roadbev_core.map_preview import contact_plane_on_map, map_preview
 from roadbev_core.preview import PreviewError, PreviewProfiles, check_tracks, wheel_track_profiles
@@ -55,6 +56,7 @@ __all__ = [
     "BackendFactory",
     "CameraInput",
     "ImuFeed",
+    "MapFactory",
     "OdometryFeed",
     "Pipeline",
     "PipelineOutput",
@@ -64,6 +66,8 @@ __all__ = [
 
 # create(name, grid, **options) -> Backend; injectable so tests can run a stub backend.
 BackendFactory = Callable[..., Backend]
+# FusedMap(settings) -> the map; injectable so the lab can run a map that takes part of the truth.
+MapFactory = Callable[[MapSettings], FusedMap]
 # A speed older than this (in stamp time) is treated as unknown.
 SPEED_MAX_AGE_S = 1.0
 
@@ -140,6 +144,7 @@ class Pipeline:
     Args:
         config: a validated config (:meth:`RoadbevConfig.from_params`).
         backend_factory: ``factory(name, grid, **options) -> Backend`` (default: the registry).
+        map_factory: ``factory(settings) -> FusedMap`` (default: :class:`FusedMap`).
         configure_process: apply the config's thread count process-wide (the node and the
             command line do; a library user embedding the pipeline may keep its own settings).
 
@@ -152,9 +157,11 @@ class Pipeline:
         config: RoadbevConfig,
         *,
         backend_factory: BackendFactory | None = None,
+        map_factory: MapFactory = FusedMap,
         configure_process: bool = True,
     ) -> None:
         self._factory = backend_factory
+        self._map_factory = map_factory
         self._configure_process = configure_process
         self._lock = threading.Lock()
         self.config = config
@@ -396,7 +403,8 @@ class Pipeline:
         mapped = self._map_stage(frame, estimate, config)
         if mapped is not None:
             timings["map"] = 1e3 * (time.perf_counter() - t1)
-            return PipelineOutput(frame, estimate, mapped[0], timings, *mapped[1:])
+            preview, window, fusion, base = mapped
+            return PipelineOutput(frame, estimate, preview, timings, window, fusion, base)
         preview = self._frame_preview(estimate, frame, config)
         timings["preview"] = 1e3 * (time.perf_counter() - t1)
         return PipelineOutput(frame, estimate, preview, timings)
@@ -423,9 +431,15 @@ class Pipeline:
             return self.ego.dead_reckon(stamp_ns, speed, yaw)
 
     def _map_stage(self, frame: Frame, estimate: Estimate, config: RoadbevConfig
-                   ) -> tuple[PreviewProfiles | None, MapWindow, FrameFusion, PlanarPose] | None:
-        """Fuse the estimate and read the preview off the map (None: the map is off, or this
-        frame has no pose: counted in ``map_skipped``)."""
+                   ) -> tuple[PreviewProfiles | None, MapWindow | None, FrameFusion | None, PlanarPose | None] | None:
+        """Fuse the estimate and read the preview off the map (None: the map is off).
+
+        With the map on every preview is a contact-plane one in ``base_link`` (one stream, the
+        contract's "One preview stream"): before the map holds three tyre contacts its plane is
+        the body's (``source`` ``"body"``, with that plane's sigma); a frame without a pose (stale
+        odometry: counted in ``map_skipped``) is not fused and its preview comes from this frame
+        alone (:meth:`_frame_only_preview`).
+        """
         if not self.map_active:
             return None
         try:
@@ -433,10 +447,10 @@ class Pipeline:
         except EgoMotionStale as exc:
             reason = str(exc).split(" (")[0]
             self.map_skipped[reason] = self.map_skipped.get(reason, 0) + 1
-            return None
+            return self._frame_only_preview(frame, estimate, config), None, None, None
         position, R_mount = self.camera_mount
         if self.fused is None:
-            self.fused = FusedMap(config.map_settings(position))
+            self.fused = self._map_factory(config.map_settings(position))
         fused = self.fused
         placement = place_frame(base, frame.attitude, position, R_mount)
         p = config.preview
@@ -447,16 +461,34 @@ class Pipeline:
             plane_z = fused.base_z + plane.height_m  # the contact plane under base_link's origin
         fusion = fused.integrate(estimate.elevation, estimate.uncertainty, config.grid, placement, frame.stamp_ns,
                                  base_z_prediction=fused.predicted_base_z(plane_z))
-        preview: PreviewProfiles | None = map_preview(
-            fused, placement, config.vehicle, tyre_width_m=p.tyre_width_m, spacing_m=p.spacing_m,
-            rear_axle=p.rear_axle, vehicle_speed=base.speed if self._odometry_seen else self.speed_at(frame.stamp_ns))
-        if preview is not None and preview.contact_plane is not None and preview.contact_plane.source != "map":
-            # the map does not hold three tyre contacts yet (the first metres): the per-frame
-            # preview, which says so (reference roadbev_road), rather than a guessed plane
-            preview = self._frame_preview(estimate, frame, config)
+        preview = self._map_preview(fused, placement, config,
+                                    base.speed if self._odometry_seen else self.speed_at(frame.stamp_ns))
         window = fused.window(base, frame.stamp_ns)
         self.last_map = window
         return preview, window, fusion, base
+
+    def _map_preview(self, fused: FusedMap, placement: FramePlacement, config: RoadbevConfig,
+                     speed: float | None) -> PreviewProfiles | None:
+        if not self._with_preview:
+            return None
+        p = config.preview
+        return map_preview(fused, placement, config.vehicle, tyre_width_m=p.tyre_width_m, spacing_m=p.spacing_m,
+                           rear_axle=p.rear_axle, vehicle_speed=speed, max_gap_m=p.max_gap_m)
+
+    def _frame_only_preview(self, frame: Frame, estimate: Estimate, config: RoadbevConfig) -> PreviewProfiles | None:
+        """The contact-plane preview of one frame on its own (the map cannot place it): the frame
+        fused into an empty map at the origin, read against the body's plane, with the last known
+        speed."""
+        with self._lock:
+            newest = self.ego.newest if self._odometry_seen else None
+        speed = newest.speed if newest is not None else self.speed_at(frame.stamp_ns)
+        position, R_mount = self.camera_mount
+        alone = self._map_factory(config.map_settings(position))
+        placement = place_frame(PlanarPose(frame.stamp_ns, 0.0, 0.0, 0.0, speed or 0.0), frame.attitude, position,
+                                R_mount)
+        alone.integrate(estimate.elevation, estimate.uncertainty, config.grid, placement, frame.stamp_ns,
+                        base_z_prediction=0.0)
+        return self._map_preview(alone, placement, config, speed)
 
     def _frame_preview(self, estimate: Estimate, frame: Frame, config: RoadbevConfig) -> PreviewProfiles | None:
         """The per-frame wheel-track profiles of an estimate (``roadbev_road``)."""
@@ -467,6 +499,7 @@ class Pipeline:
             estimate.elevation, estimate.uncertainty, config.grid,
             track_offsets_m=p.track_offsets_m, tyre_width_m=p.tyre_width_m, spacing_m=p.spacing_m,
             vehicle_speed=self.speed_at(frame.stamp_ns), reference_distance=p.reference_distance_m,
+            max_gap_m=p.max_gap_m,
         )
 
     def warm_up(self) -> None:

@@ -12,6 +12,16 @@ guessing across holes). The uncertainty of a sample is the weighted mean of the 
 (errors of neighbouring cells of one estimate are strongly correlated, so averaging does not
 shrink them).
 
+**Gaps.** A camera never sees some of the road a wheel will ride: the far side of a speed bump,
+the near wall and part of the bottom of a pothole, cells a backend declined. A controller reads
+the road *velocity* (the slope of a profile), so a hole it must take as flat turns a bump into a
+step that never comes down. :func:`bridge_gaps` fills a gap of at most ``max_gap_m`` between
+two known samples with the conditional mean of the road given its ends: the straight line (the
+mean of a Brownian bridge, the ISO 8608 road's height being an integrated white noise), with a
+sigma that says how little is known inside: the bridge's own spread for a road of roughness
+:data:`BRIDGE_ROUGHNESS_M2_PER_M` plus a share of the step between the ends (a drop can lie
+anywhere in the gap). Gaps before the first and after the last known sample stay NaN.
+
 Pure numpy; shapes in the comments.
 """
 
@@ -27,6 +37,7 @@ from roadbev_core.config import GridSpec
 from roadbev_core.errors import RoadbevError
 
 __all__ = [
+    "BRIDGE_ROUGHNESS_M2_PER_M",
     "DEFAULT_TRACK_NAMES",
     "DEFAULT_TRACK_OFFSETS_M",
     "REFERENCE_CONTACT_PLANE",
@@ -35,6 +46,7 @@ __all__ = [
     "PreviewError",
     "PreviewProfiles",
     "TrackProfile",
+    "bridge_gaps",
     "check_tracks",
     "wheel_track_profiles",
 ]
@@ -45,6 +57,9 @@ DEFAULT_TRACK_NAMES: tuple[str, ...] = ("left", "right")
 # What a preview's elevations are relative to (RoadPreview.reference).
 REFERENCE_ROAD = "road"  # per frame: roadbev_road, the gravity-aligned plane base_height below the camera
 REFERENCE_CONTACT_PLANE = "contact_plane"  # fused map: base_link, the plane through the four tyre contacts
+# E[(h(x + d) - h(x))^2] = q d of an ISO 8608 class C road (Gd(n0) = 256e-6 m^3 at n0 = 0.1 cycles/m,
+# PSD Gd(n0) (n / n0)^-2, so q = 2 pi^2 Gd(n0) n0^2): the spread of the road inside a bridged gap.
+BRIDGE_ROUGHNESS_M2_PER_M = 2.0 * math.pi**2 * 256e-6 * 0.1**2
 
 
 class PreviewError(RoadbevError, ValueError):
@@ -171,6 +186,39 @@ class PreviewProfiles:
         raise KeyError(f"no track named {name!r} (have {[t.name for t in self.tracks]})")
 
 
+def bridge_gaps(elevation: np.ndarray, uncertainty: np.ndarray, spacing: float, max_gap_m: float,
+                roughness: float = BRIDGE_ROUGHNESS_M2_PER_M) -> tuple[np.ndarray, np.ndarray]:
+    """A profile with its inner gaps of at most ``max_gap_m`` bridged (see the module docstring).
+
+    Args:
+        elevation, uncertainty: [S] the profile and its 1-sigma (NaN = no value).
+        spacing: distance between samples (m).
+        max_gap_m: the longest stretch of missing samples bridged (m, from the last known sample
+            before it to the first after it); 0 = none.
+        roughness: q of the road's height increments, E[(h(x + d) - h(x))^2] = q d (m^2 / m).
+
+    Returns:
+        [S] elevation and [S] 1-sigma (float32): inside a bridged gap at fraction t between the
+        known ends a, b (distances d_a, d_b from them), the line between them, with
+        ``sigma^2 = ((1 - t) s_a + t s_b)^2 + q d_a d_b / (d_a + d_b) + t (1 - t) (h_b - h_a)^2``
+        (NaN when an end's sigma is unknown).
+    """
+    e = np.asarray(elevation, np.float64).copy()  # [S]
+    s = np.asarray(uncertainty, np.float64).copy()  # [S]
+    known = np.flatnonzero(np.isfinite(e))
+    if max_gap_m > 0 and known.size >= 2:
+        a, b = known[:-1], known[1:]  # [G] each known sample and the next one
+        inner = (b - a > 1) & ((b - a) * spacing <= max_gap_m + 1e-9)
+        for i, j in zip(a[inner].tolist(), b[inner].tolist(), strict=True):
+            idx = np.arange(i + 1, j)
+            t = (idx - i) / (j - i)
+            d_a, d_b = (idx - i) * spacing, (j - idx) * spacing
+            e[idx] = (1.0 - t) * e[i] + t * e[j]
+            s[idx] = np.sqrt(((1.0 - t) * s[i] + t * s[j]) ** 2 + roughness * d_a * d_b / (d_a + d_b)
+                             + t * (1.0 - t) * (e[j] - e[i]) ** 2)
+    return e.astype(np.float32), s.astype(np.float32)
+
+
 def _overlap(centres: np.ndarray, half_cell: float, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """[len(lo), len(centres)] length shared by cells [c - h, c + h] and windows [lo, hi]."""
     left = np.maximum(centres[None, :] - half_cell, lo[:, None])
@@ -205,6 +253,7 @@ def wheel_track_profiles(
     min_coverage: float = 0.5,
     vehicle_speed: float | None = None,
     reference_distance: float = 0.0,
+    max_gap_m: float = 0.0,
 ) -> PreviewProfiles:
     """Elevation profiles along wheel tracks, nearest first.
 
@@ -219,6 +268,7 @@ def wheel_track_profiles(
         max_distance_m: the farthest x sampled (default: the grid's far edge).
         min_coverage: share (0..1] of a sample's footprint that must have estimates.
         vehicle_speed, reference_distance: passed on to :class:`PreviewProfiles`.
+        max_gap_m: inner gaps up to this long are bridged (:func:`bridge_gaps`; 0 = none).
 
     Raises:
         PreviewError: maps not on ``grid``, a track whose tyre footprint leaves the grid, or
@@ -277,8 +327,8 @@ def wheel_track_profiles(
             sigma_mean = (w_rows @ (s0 @ w_cols)) / (w_rows @ (s_known @ w_cols))
         ok = covered >= min_coverage * area - 1e-12
         ok &= covered > 0
-        profile = np.where(ok, mean, np.nan).astype(np.float32)
-        profile_sigma = np.where(ok, sigma_mean, np.nan).astype(np.float32)
+        profile, profile_sigma = bridge_gaps(np.where(ok, mean, np.nan), np.where(ok, sigma_mean, np.nan), spacing,
+                                             max_gap_m)
         tracks.append(TrackProfile(name, float(offset), float(tyre_width_m), profile, profile_sigma))
     return PreviewProfiles(
         start_distance=float(start),

@@ -20,15 +20,17 @@ suspension controller"), in the manner of ros2/examples: a small node around the
   the step's time, ``wrench.force.z`` = the commanded actuator force (N, positive pushes the body
   up and the wheel down); ``diagnostic_msgs/DiagnosticArray`` on ``/diagnostics`` (status
   "roadbev: preview controller": messages held / refused, share of steps with a preview under
-  the wheel, how far ahead the preview reaches, RMS force).
+  the wheel, how far ahead the preview reaches, RMS force, the mean share of the preview's
+  feedforward applied: its gain measured on the road ridden, :mod:`roadbev_core.ride.preview_gain`).
 * **Clock**: the node's clock (``use_sim_time:=true`` with a replayed bag's ``/clock``); the model
   advances by the time elapsed since the last callback (several control steps when a sim-time
   timer fires late), and the forces are published once per callback. A clock that jumps back
   more than 1 s (a bag restarted) resets the controller.
 
 The model is the reference's stand-in for suspension sensors: each wheel's quarter car rides the
-previewed road itself. On a vehicle, set the controller's state from the measured one before
-each step (see :class:`roadbev_core.ride.OnlinePreviewController`).
+previewed road itself (so its preview gain measures how well successive messages agree). On a
+vehicle, set the controller's state from the measured one before each step and pass the road
+velocity measured under each wheel (see :class:`roadbev_core.ride.OnlinePreviewController`).
 
 Run: ``python -m roadbev_ros.preview_controller --ros-args -p control_rate_hz:=200.0``.
 """
@@ -109,7 +111,7 @@ class PreviewControllerNode(Node):
                                                hold=int(p["hold"]), max_age_s=float(p["max_age_s"]))
         self.counts = {"received": 0, "refused": 0, "steps": 0, "covered_steps": 0, "resets": 0}
         self.last_refusal = ""
-        self._period = {"steps": 0, "covered": 0, "force_sq": 0.0, "reach": 0.0}
+        self._period = {"steps": 0, "covered": 0, "force_sq": 0.0, "reach": 0.0, "gain": 0.0}
         self._last_now: int | None = None
         from roadbev_msgs.msg import RoadPreview
 
@@ -164,6 +166,7 @@ class PreviewControllerNode(Node):
             self._period["force_sq"] += cmd.force_n**2
             self._period["reach"] += cmd.preview_m
             self._period["covered"] += int(cmd.covered)
+            self._period["gain"] += cmd.preview_gain
             self._period["steps"] += 1
         self.counts["steps"] += n
         self.counts["covered_steps"] += int(all(c.covered for c in commands.values()))
@@ -179,13 +182,14 @@ class PreviewControllerNode(Node):
         status.message = "preview under the wheels" if covered > 0 else "no preview under the wheels"
         values = {**{k: str(v) for k, v in self.counts.items()},
                   "covered_pct": f"{covered:.1f}", "preview_ahead_m": f"{per['reach'] / n:.2f}",
-                  "force_rms_n": f"{math.sqrt(per['force_sq'] / n):.1f}", "last_refusal": self.last_refusal}
+                  "force_rms_n": f"{math.sqrt(per['force_sq'] / n):.1f}",
+                  "preview_gain": f"{per['gain'] / n:.2f}", "last_refusal": self.last_refusal}
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         array = DiagnosticArray()
         array.header.stamp = self.get_clock().now().to_msg()
         array.status = [status]
         self._diag_pub.publish(array)
-        self._period = {"steps": 0, "covered": 0, "force_sq": 0.0, "reach": 0.0}
+        self._period = {"steps": 0, "covered": 0, "force_sq": 0.0, "reach": 0.0, "gain": 0.0}
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -261,6 +261,9 @@ class PreviewConfig:
                                         -20.0, 50.0)
     rear_axle: bool = param("preview.rear_axle", False, "with the map on: also the rear wheels' tracks "
                             "(all tracks then start at the rear axle)")
+    max_gap_m: float = param("preview.max_gap_m", 1.0, "gaps in a profile up to this long (m) are bridged by a "
+                             "straight line with a sigma that grows inside the gap (the far side of a bump, a "
+                             "pothole's hidden wall); 0 = gaps stay NaN", 0.0, 10.0)
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,7 @@ from __future__ import annotations
 from roadbev_core.ride.iso2631 import WK_TABLE, WeightingError, WkFilter, weighted_rms, wk_response
 from roadbev_core.ride.lti import LtiError, discretise, expm_integral, solve_dare
 from roadbev_core.ride.online import HeldPreview, OnlinePreviewController, WheelCommand
+from roadbev_core.ride.preview_gain import PreviewGain, preview_gains
 from roadbev_core.ride.preview_lqr import LqrWeights, PreviewLqr
 from roadbev_core.ride.quarter_car import GRAVITY, QuarterCar, RideError
 from roadbev_core.ride.simulate import (
@@ -40,6 +41,7 @@ __all__ = [
     "LqrWeights",
     "LtiError",
     "OnlinePreviewController",
+    "PreviewGain",
     "PreviewLqr",
     "QuarterCar",
     "RideError",
@@ -56,6 +58,7 @@ __all__ = [
     "perfect_map_previews",
     "perfect_previews",
     "preview_feedforward",
+    "preview_gains",
     "ride",
     "ride_metrics",
     "simulate",

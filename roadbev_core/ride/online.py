@@ -8,17 +8,21 @@ stamp: ``vehicle.wheelbase_m`` for ``base_link`` messages, ``wheelbase_m - camer
 ``roadbev_road`` ones), reads the road over the horizon ahead from the newest message that has a
 value at each point (:func:`roadbev_core.arrival.read_profile`, as the preview-at-arrival metric),
 turns it into road velocity within that one message (so each message's own reference height
-drops out) and applies :class:`PreviewLqr`. A reference implementation has no suspension
-sensors: its quarter car is a model riding the previewed road itself (the road under the wheel
-= the newest held value there). On a vehicle, replace :attr:`OnlinePreviewController.state`
-with the measured state (suspension deflection, body and wheel velocities, tyre deflection
-estimate) before each step. Pure numpy.
+drops out) and applies :class:`PreviewLqr`, its feedforward scaled by the preview's gain measured
+on the road the wheel has ridden (:class:`roadbev_core.ride.preview_gain.PreviewGain`: a preview
+that turns out wrong is applied less, down to none). A reference implementation has no
+suspension sensors: its quarter car is a model riding the previewed road itself (the road under
+the wheel = the newest held value there). On a vehicle, replace
+:attr:`OnlinePreviewController.state` with the measured state (suspension deflection, body and
+wheel velocities, tyre deflection estimate) and pass the road velocity measured under each wheel
+to :meth:`OnlinePreviewController.step`. Pure numpy.
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -26,6 +30,7 @@ import numpy as np
 
 from roadbev_core.arrival import read_profile
 from roadbev_core.preview import PreviewProfiles
+from roadbev_core.ride.preview_gain import DEFAULT_TIME_CONSTANT_S, PreviewGain
 from roadbev_core.ride.preview_lqr import PreviewLqr
 from roadbev_core.ride.quarter_car import RideError
 from roadbev_core.ride.simulate import FRONT_WHEELS
@@ -57,7 +62,8 @@ class WheelCommand(NamedTuple):
 
     Attributes:
         force_n: actuator force (N, positive pushes the body up and the wheel down).
-        feedforward_n: its preview part (N).
+        feedforward_n: its preview part (N), after the preview's gain.
+        preview_gain: the share of the preview's feedforward applied (0..1).
         covered: a held message had a value at the wheel's own point.
         preview_m: how far ahead of the wheel the held messages reach without a gap (m).
         body_acceleration: the model body's vertical acceleration (m/s^2).
@@ -65,6 +71,7 @@ class WheelCommand(NamedTuple):
 
     force_n: float
     feedforward_n: float
+    preview_gain: float
     covered: bool
     preview_m: float
     body_acceleration: float
@@ -79,14 +86,18 @@ class OnlinePreviewController:
         hold: messages held (the newest first wins where it has a value).
         max_age_s: a message older than this is dropped.
         wheels: the wheels controlled.
+        gain_time_constant_s: forgetting of the preview's measured gain (0: always apply all of it).
     """
 
     controller: PreviewLqr = field(default_factory=PreviewLqr)
     hold: int = 4
     max_age_s: float = 2.0
     wheels: tuple[str, ...] = FRONT_WHEELS
+    gain_time_constant_s: float = DEFAULT_TIME_CONSTANT_S
     state: dict[str, np.ndarray] = field(init=False)
     held: deque[HeldPreview] = field(init=False)
+    gains: dict[str, PreviewGain] = field(init=False)
+    ridden: dict[str, deque[float]] = field(init=False)
 
     def __post_init__(self) -> None:
         if self.hold < 1 or not (math.isfinite(self.max_age_s) and self.max_age_s > 0):
@@ -94,8 +105,14 @@ class OnlinePreviewController:
         unknown = [w for w in self.wheels if w not in _TRACKS]
         if unknown:
             raise RideError(f"only front wheels can be previewed, got {unknown}")
+        if not (math.isfinite(self.gain_time_constant_s) and self.gain_time_constant_s >= 0):
+            raise RideError(f"gain_time_constant_s must be >= 0, got {self.gain_time_constant_s}")
         self.state = {w: np.zeros(4) for w in self.wheels}
         self.held = deque(maxlen=self.hold)
+        n = self.controller.steps
+        tau = self.gain_time_constant_s or 1.0
+        self.gains = {w: PreviewGain(n, self.controller.dt, tau) for w in self.wheels}
+        self.ridden = {w: deque(maxlen=n + 1) for w in self.wheels}  # road velocity under the wheel, oldest first
 
     def receive(self, stamp_ns: int, profiles: PreviewProfiles, wheel_x: float, slope_x: float = 0.0) -> None:
         """Hold a message (``slope_x``: see :class:`HeldPreview`; the profile is put back on gravity
@@ -123,6 +140,8 @@ class OnlinePreviewController:
         self.held.clear()
         for w in self.wheels:
             self.state[w] = np.zeros(4)
+            self.gains[w].reset()
+            self.ridden[w].clear()
 
     def road_velocity_ahead(self, wheel: str, now_ns: int) -> np.ndarray:
         """[n + 1] the road velocity w' at the wheel now and every step ahead (NaN = unknown)."""
@@ -142,8 +161,13 @@ class OnlinePreviewController:
             out[gap] = w[gap]
         return out
 
-    def step(self, now_ns: int) -> dict[str, WheelCommand]:
-        """One control step at ``now_ns``: the force per wheel, and the model advanced by ``dt``."""
+    def step(self, now_ns: int, measured_road_velocity: Mapping[str, float] | None = None) -> dict[str, WheelCommand]:
+        """One control step at ``now_ns``: the force per wheel, and the model advanced by ``dt``.
+
+        Args:
+            measured_road_velocity: the road velocity under each wheel now (m/s), as a vehicle's
+                suspension sensors give it; None: the model's own (the newest previewed value).
+        """
         ctl = self.controller
         Phi, Gu, Gw = ctl.matrices
         C, D = ctl.car.body_acceleration()
@@ -151,15 +175,31 @@ class OnlinePreviewController:
         for wheel in self.wheels:
             ahead = self.road_velocity_ahead(wheel, now_ns)
             known = np.isfinite(ahead)
-            ff = float(ctl.preview_gains @ np.where(known, ahead, 0.0))
+            ff_preview = float(ctl.preview_gains @ np.where(known, ahead, 0.0))
+            w_now = float(ahead[0]) if known[0] else 0.0
+            if measured_road_velocity is not None and wheel in measured_road_velocity:
+                w_now = float(measured_road_velocity[wheel])
+            gain = self._gain(wheel, ff_preview, w_now)
+            ff = gain * ff_preview
             x = self.state[wheel]
             u = -float(ctl.feedback @ x) - ff
             reach = int(np.argmin(known)) if not known.all() else known.size
-            w_now = float(ahead[0]) if known[0] else 0.0
-            out[wheel] = WheelCommand(u, ff, bool(known[0]), reach * ctl.dt * self._speed(),
+            out[wheel] = WheelCommand(u, ff, gain, bool(known[0]), reach * ctl.dt * self._speed(),
                                       float(C @ x + D[0] * u))
             self.state[wheel] = Phi @ x + Gu[:, 0] * u + Gw[:, 0] * w_now
         return out
+
+    def _gain(self, wheel: str, ff_preview: float, w_now: float) -> float:
+        """The preview's gain for this step, after recording this step's feedforward and the road
+        the wheel rides now (which completes the realised feedforward of the step a horizon ago)."""
+        if not self.gain_time_constant_s:
+            return 1.0
+        gain, ridden = self.gains[wheel], self.ridden[wheel]
+        value = gain.value
+        ridden.append(w_now)
+        realised = float(self.controller.preview_gains @ np.asarray(ridden)) if len(ridden) == ridden.maxlen else None
+        gain.update(ff_preview, realised)
+        return value
 
     def _speed(self) -> float:
         return float(self.held[-1].profiles.vehicle_speed or 0.0) if self.held else 0.0

@@ -9,7 +9,7 @@ the road velocity ahead, which comes from one of the sources:
 * ``"none"``: the same controller without preview (the feedback part only);
 * ``"true"``: the true road under the wheel over the whole horizon (the ceiling);
 * a sequence of :class:`roadbev_core.arrival.TimedPreview` messages: at each step the controller
-  holds every message received so far (stamp + ``latency_s``); for every point of the wheel's
+  holds every message received so far (``received_ns``, else stamp + ``latency_s``); for every point of the wheel's
   future path it uses the latest held message that has a value there, read exactly as the
   preview-at-arrival metric reads it (:func:`roadbev_core.arrival.read_profile`, the true
   ego-motion from the message's stamp, ``REFERENCE_ROAD`` x ahead of the camera with the
@@ -18,7 +18,9 @@ the road velocity ahead, which comes from one of the sources:
   reference offset drops out; where no held message has a value the road is taken flat
   (w' = 0). For contact-plane messages ``plane_slopes`` may give the plane's slopes (dz/dx,
   dz/dy in ``base_link``'s heading axes, heights vertical) so that the profile is put back on
-  gravity; without it the plane's attitude reads as road.
+  gravity; without it the plane's attitude reads as road. The controller applies its feedforward
+  times the preview's gain measured on the road ridden so far
+  (:mod:`roadbev_core.ride.preview_gain`, ``RideSettings.preview_gain``).
 
 :func:`perfect_previews` makes the messages a perfect per-frame camera would send (the true road
 cut to the grid's window at each frame's stamp): what the window alone allows;
@@ -54,6 +56,7 @@ from roadbev_core.config import GridSpec
 from roadbev_core.geometry import R_BODY_FROM_OPTICAL
 from roadbev_core.preview import PreviewProfiles, TrackProfile
 from roadbev_core.ride.iso2631 import weighted_rms
+from roadbev_core.ride.preview_gain import DEFAULT_TIME_CONSTANT_S, preview_gains
 from roadbev_core.ride.preview_lqr import PreviewLqr
 from roadbev_core.ride.quarter_car import RideError
 from roadbev_core.vehicle import contact_plane, planar_yaw
@@ -96,6 +99,9 @@ class RideSettings:
             own tyre patch is 12 cm long).
         warmup_s: skipped at the start of the scored span (the first messages arrive, the filter settles).
         arrival: vehicle geometry, camera mounting and ``base_height`` (as the arrival metric).
+        preview_gain: the controller scales its feedforward from messages by the preview's
+            measured gain (:mod:`roadbev_core.ride.preview_gain`), as the reference controller does.
+        gain_time_constant_s: the forgetting time constant of that gain.
     """
 
     controller: PreviewLqr = field(default_factory=PreviewLqr)
@@ -104,6 +110,8 @@ class RideSettings:
     patch_length_m: float = 0.12
     warmup_s: float = 1.0
     arrival: ArrivalSettings = field(default_factory=ArrivalSettings)
+    preview_gain: bool = True
+    gain_time_constant_s: float = DEFAULT_TIME_CONSTANT_S
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.latency_s) and 0.0 <= self.latency_s <= 2.0):
@@ -112,6 +120,8 @@ class RideSettings:
             raise RideError("tyre width must be in (0, 1] m and the patch length in (0, 0.5] m")
         if not (math.isfinite(self.warmup_s) and self.warmup_s >= 0.0):
             raise RideError(f"warm-up must be >= 0 s, got {self.warmup_s}")
+        if not (math.isfinite(self.gain_time_constant_s) and self.gain_time_constant_s > 0.0):
+            raise RideError(f"the preview gain's time constant must be > 0 s, got {self.gain_time_constant_s}")
 
 
 class WheelRoad(NamedTuple):
@@ -198,7 +208,8 @@ def preview_feedforward(previews: Sequence[TimedPreview], road: WheelRoad, truth
     if not order:
         return ff, covered
     stamps = np.array([p.stamp_ns for p in order], np.int64)
-    receive = np.searchsorted(road.stamp_ns, stamps + lat_ns, side="left")  # [M] first step holding it
+    available = np.array([p.available_ns(lat_ns) for p in order], np.int64)
+    receive = np.searchsorted(road.stamp_ns, available, side="left")  # [M] first step holding it
     cam_world, yaw_cam = _camera_poses(truth, settings.arrival, stamps)
     base_pos, base_R = truth.interpolate(stamps)
     x, y = road.xy[:, 0], road.xy[:, 1]
@@ -351,6 +362,8 @@ def ride(truth: Trajectory, road_map: RoadMap, sources: Mapping[str, Source], se
                 result = simulate(ctl, w, ff, passive=source == "passive")
             else:
                 ff, covered = preview_feedforward(source, road, truth, settings, (plane_slopes or {}).get(name))
+                if settings.preview_gain:  # the road ridden so far says how much of the preview to trust
+                    ff = ff * preview_gains(ff, ctl.feedforward(w), ctl.steps, ctl.dt, settings.gain_time_constant_s)
                 result = simulate(ctl, w, ff)
             cut = {k: v[:last] for k, v in result.items()}
             out[name][wheel] = ride_metrics(cut, ctl, first, None if covered is None else covered[:last]).to_dict()

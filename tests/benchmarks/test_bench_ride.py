@@ -74,23 +74,3 @@ def test_truth_only_drives_are_taken_from_an_earlier_run(tmp_path: Any) -> None:
     (tmp_path / "bad.json").write_text("{")
     with pytest.raises(BenchError, match="not a bench_ride result"):
         truth_cells_from(tmp_path / "bad.json", [], 20.0, [5.0], 0.1)
-
-
-def test_cached_backend_estimates_each_frame_once() -> None:
-    from types import SimpleNamespace
-
-    from benchmarks.bench_ride import CachedBackend
-
-    calls: list[int] = []
-
-    class Inner:
-        name, grid, needs_stereo = "stub", None, False
-
-        def estimate(self, frame: Any) -> Any:
-            calls.append(frame.stamp_ns)
-            return SimpleNamespace(stamp=frame.stamp_ns)
-
-    backend = CachedBackend(Inner())
-    for stamp in (1, 2, 1, 2, 3):
-        assert backend.estimate(SimpleNamespace(stamp_ns=stamp)).stamp == stamp
-    assert calls == [1, 2, 3]

@@ -64,7 +64,12 @@ def test_with_odometry_frames_are_fused_and_the_preview_comes_from_the_map() -> 
     outputs = _drive(pipeline, 8)
     assert all(o.map is not None and o.fusion is not None for o in outputs)
     first, last = outputs[0].preview, outputs[-1].preview
-    assert first is not None and first.reference == REFERENCE_ROAD  # no tyre contact on the map yet
+    # one stream: every preview in base_link against a contact plane, with the speed, from the first frame
+    assert all(o.preview is not None and o.preview.reference == REFERENCE_CONTACT_PLANE
+               and o.preview.vehicle_speed == pytest.approx(10.0) for o in outputs)
+    assert first is not None and first.contact_plane is not None
+    assert first.contact_plane.source == "body"  # no tyre contact on the map yet: the body's plane
+    assert first.contact_plane.height_sigma_m >= 0.03  # and it says how little is known
     assert last is not None and last.reference == REFERENCE_CONTACT_PLANE
     assert last.contact_plane is not None and last.contact_plane.source == "map"
     assert [t.name for t in last.tracks] == ["front_left", "front_right"]
@@ -82,14 +87,23 @@ def test_rear_axle_tracks_start_at_the_rear_axle() -> None:
     assert np.all(np.isnan(front[: int(2.7 / 0.03)]))  # behind the front contact
 
 
-def test_map_off_by_parameter_and_stale_odometry_fall_back_to_the_per_frame_preview() -> None:
+def test_map_off_by_parameter_is_per_frame_and_a_frame_without_a_pose_keeps_the_stream() -> None:
     off = _pipeline(**{"map.enabled": False})
-    assert all(o.map is None for o in _drive(off, 2))
+    assert all(o.map is None and o.preview is not None and o.preview.reference == REFERENCE_ROAD
+               for o in _drive(off, 2))
     pipeline = _pipeline()
+    pipeline.set_camera_mount([1.6, 0.0, 1.1], R_BODY_FROM_OPTICAL)
     pipeline.add_odometry(PlanarPose(S // 10, 0.0, 0.0, 0.0, 10.0, 0.0))
-    late = pipeline.process_frame(_frame(20))  # 2 s after the only odometry sample
-    assert late.map is None and late.preview is not None and late.preview.reference == REFERENCE_ROAD
-    assert sum(pipeline.map_skipped.values()) == 1
+    late = pipeline.process_frame(_frame(20))  # 2 s after the only odometry sample: not fused
+    assert late.map is None and late.fusion is None and sum(pipeline.map_skipped.values()) == 1
+    # its preview comes from that frame alone, in the stream's reference, with the last known speed
+    preview = late.preview
+    assert preview is not None and preview.reference == REFERENCE_CONTACT_PLANE
+    assert preview.contact_plane is not None and preview.contact_plane.source == "body"
+    assert preview.vehicle_speed == pytest.approx(10.0)
+    values = np.concatenate([t.elevation[np.isfinite(t.elevation)] for t in preview.tracks])
+    assert values.size > 100 and np.allclose(values, values[0], atol=1e-4)  # the frame's flat road, level
+    assert pipeline.fused is None or pipeline.fused.empty  # and the map was left alone
 
 
 def test_reset_forgets_the_map_and_the_odometry() -> None:

@@ -117,3 +117,39 @@ def test_profiles_validate_their_tracks() -> None:
         TrackProfile("c", 0.0, 0.2, np.zeros(3), np.zeros(2))
     with pytest.raises(KeyError):
         PreviewProfiles(2.0, 0.1, (a,)).track("b")
+
+
+def test_a_hidden_stretch_between_known_samples_is_bridged_with_a_sigma_that_says_so() -> None:
+    from roadbev_core.preview import BRIDGE_ROUGHNESS_M2_PER_M, bridge_gaps
+
+    # the far side of a 6 cm bump never seen: known up to its crest, then the road behind it
+    e = np.full(40, np.nan)
+    s = np.full(40, np.nan)
+    e[:10], s[:10] = 0.06, 0.002
+    e[20:35], s[20:35] = 0.0, 0.002
+    out, sigma = bridge_gaps(e, s, 0.03, max_gap_m=0.5)
+    np.testing.assert_allclose(out[9:21], np.linspace(0.06, 0.0, 12), atol=1e-6)  # the line between the ends
+    assert np.all(np.isnan(out[35:])) and np.all(np.isnan(sigma[35:]))  # nothing beyond the last known sample
+    mid = 15  # 6 samples (0.18 m) after the crest, 5 before the road: about half the drop unknown
+    t, d_a, d_b = 6 / 11, 0.18, 0.15
+    expected = np.sqrt(0.002**2 + BRIDGE_ROUGHNESS_M2_PER_M * d_a * d_b / 0.33 + t * (1 - t) * 0.06**2)
+    assert sigma[mid] == pytest.approx(expected, rel=1e-5) and sigma[mid] > 0.025
+    assert sigma[10] < sigma[mid] and sigma[19] < sigma[mid]  # larger inside than next to the ends
+    # a gap longer than max_gap_m stays a gap, and 0 bridges nothing
+    for out_e, _ in (bridge_gaps(e, s, 0.03, max_gap_m=0.2), bridge_gaps(e, s, 0.03, max_gap_m=0.0)):
+        assert np.all(np.isnan(out_e[10:20]))
+    # ends without a sigma give bridged samples without one
+    _, no_sigma = bridge_gaps(e, np.full(40, np.nan), 0.03, max_gap_m=0.5)
+    assert np.all(np.isnan(no_sigma))
+
+
+def test_profiles_bridge_declined_cells_when_asked() -> None:
+    elevation = np.zeros(GRID.shape, np.float32)
+    elevation[60:70, :] = np.nan  # 30 cm of declined rows across the road
+    sigma = np.full(GRID.shape, 0.003, np.float32)
+    plain = wheel_track_profiles(elevation, sigma, GRID)
+    bridged = wheel_track_profiles(elevation, sigma, GRID, max_gap_m=1.0)
+    assert np.isnan(plain.track("left").elevation).sum() >= 9
+    assert not np.isnan(bridged.track("left").elevation).any()
+    gap = np.isnan(plain.track("left").elevation)
+    assert np.all(bridged.track("left").uncertainty[gap] > 0.003)

@@ -133,3 +133,24 @@ def test_perfect_previews_hold_the_true_road() -> None:
     x_peak = p.distances()[np.argmax(left)] + 1.6
     assert x_peak == pytest.approx(6.0, abs=0.05)
     assert np.nanmin(left) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_a_wrong_preview_is_turned_down_by_its_measured_gain() -> None:
+    truth, road_map = straight(10.0, 6.5), bump_map(0.06, at=(12.0, 20.0, 28.0, 36.0, 44.0, 52.0, 60.0))
+    stamps = _stamps(10.0, 0.05, 5.5)
+    window = perfect_previews(truth, road_map, stamps, GridSpec(), SETTINGS)
+    inverted = [replace(m, profiles=replace(m.profiles, tracks=tuple(
+        replace(t, elevation=-t.elevation) for t in m.profiles.tracks))) for m in window]  # bumps read as holes
+    sources: dict[str, str | list[TimedPreview]] = {"none": "none", "true": "true", "window": window,
+                                                    "inverted": inverted}
+    end = T0 + int(6.5 * S)
+    applied = ride(truth, road_map, sources, SETTINGS, stamps[0], end, stamps[-1])
+    blind = ride(truth, road_map, sources, replace(SETTINGS, preview_gain=False), stamps[0], end, stamps[-1])
+    wk = {k: v["mean"]["wk_rms_mps2"] for k, v in applied.items()}
+    wk_blind = {k: v["mean"]["wk_rms_mps2"] for k, v in blind.items()}
+    assert gain_share(wk_blind["none"], wk_blind["true"], wk_blind["inverted"]) < -0.5  # worse than none
+    assert gain_share(wk["none"], wk["true"], wk["inverted"]) > -0.2  # the first bump teaches it
+    assert gain_share(wk["none"], wk["true"], wk["window"]) == pytest.approx(
+        gain_share(wk_blind["none"], wk_blind["true"], wk_blind["window"]), abs=0.02)  # a right one keeps its gain
+    with pytest.raises(RideError):
+        RideSettings(gain_time_constant_s=0.0)

@@ -1,0 +1,360 @@
+"""Where a preview's worth goes: candidate configurations and an error budget on rendered drives.
+
+A **candidate** is a configuration a user could run in the node (a backend with its options)
+together with what it costs there: the end-to-end latency of its previews and the time the node
+spends per frame, both measured in the node on this machine (``benchmarks.bench_node --drive``,
+map on). On a drive the node's mailbox policy is replayed (:func:`node_schedule`): a frame that
+arrives while the node is busy waits, a newer one replaces it, so a candidate slower than the
+camera fuses fewer frames and its previews arrive later.
+
+The **error budget** puts the truth into one stage at a time while everything else stays as
+shipped (:data:`STAGES`):
+
+* ``shipped``: the candidate as the node runs it (map on);
+* ``true_answered``: the true heights on the cells the backend answered (what estimation error costs);
+* ``true_all``: the true heights on every cell the camera sees (what declined cells cost as well);
+* ``true_odometry``: the true planar pose of ``base_link`` instead of the drive's drifting odometry;
+* ``true_datum``: each frame placed at the true height of ``base_link`` with no vertical alignment;
+* ``true_plane``: the previews read against the contact plane of the true road at the four tyre
+  contacts (on the map's own datum: the mean of the map's heights at them);
+* ``no_latency``: every frame fused and its preview used at its stamp.
+
+Every row is built from one set of estimates per frame (:class:`CachedEstimates`), so rows differ
+only in the stage they replace. Lab code: it drives :class:`roadbev_core.pipeline.Pipeline` as
+``roadbev eval --map`` does, with the truth of a :class:`roadbev_core.synth.RidingDrive`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from roadbev_core.arrival import REFERENCE_CONTACT_PLANE, RoadMap, TimedPreview, Trajectory, per_frame_previews
+from roadbev_core.backends import Backend, create
+from roadbev_core.config import GridSpec, RoadbevConfig
+from roadbev_core.datasets import SCENE_VERSION
+from roadbev_core.evaluation import evaluate
+from roadbev_core.frame import Estimate, Frame
+from roadbev_core.fusion import FrameFusion, FramePlacement, FusedMap, MapSettings
+from roadbev_core.labels import ElevationLabel
+from roadbev_core.pipeline import Pipeline
+from roadbev_core.preview import ContactPlane, TrackProfile
+from roadbev_core.ride import RideSettings, true_contact_planes
+from roadbev_core.synth import RidingDrive
+from roadbev_core.synth.drive import DriveSample
+from roadbev_core.synth.riding import DRIVE_VERSION, planar_odometry
+from roadbev_core.vehicle import planar_yaw
+
+__all__ = [
+    "STAGES",
+    "CachedEstimates",
+    "Candidate",
+    "DriveFrames",
+    "TrueDatumMap",
+    "candidate_previews",
+    "candidates_from_node",
+    "node_schedule",
+    "parse_candidate",
+]
+
+STAGES: tuple[str, ...] = ("shipped", "true_answered", "true_all", "true_odometry", "true_datum", "true_plane",
+                           "no_latency")
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A configuration of the node and what it costs there.
+
+    Attributes:
+        name: the row's name (``stereo_int8``).
+        backend: the backend.
+        params: further node parameters (backend options as ``<backend>.<option>``, ``checkpoint``).
+        latency_s: image stamp to preview received, when the node keeps up (p50, map on).
+        period_s: the node's time per frame (inference and the rest of its work): frames that arrive
+            faster wait in its one-set mailbox and the newest wins.
+    """
+
+    name: str
+    backend: str
+    params: Mapping[str, Any] = field(default_factory=dict)
+    latency_s: float = 0.1
+    period_s: float = 0.0
+
+    def config(self, grid: GridSpec, extra: Mapping[str, Any] | None = None) -> RoadbevConfig:
+        """The pipeline's config for this candidate on ``grid`` (map on)."""
+        return RoadbevConfig.from_params({**grid.to_dict(), "backend": self.backend, "map.enabled": True,
+                                          **self.params, **(extra or {})})
+
+    def backend_options(self) -> dict[str, Any]:
+        """The options the registry builds the backend with (as the node's config gives them)."""
+        return self.config(GridSpec()).backend.options_of()
+
+
+def parse_candidate(spec: str) -> tuple[str, str, dict[str, Any]]:
+    """``NAME=BACKEND[:PARAM=VALUE,...]`` -> (name, backend, node params); a bare ``BACKEND`` names itself.
+    Values are read as JSON where they parse (numbers, true/false), else kept as strings."""
+    name, eq, rest = spec.partition("=")
+    if not eq:
+        name, rest = spec.split(":", 1)[0], spec
+    backend, _, options = rest.partition(":")
+    params: dict[str, Any] = {}
+    for item in filter(None, options.split(",")):
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise ValueError(f"{spec!r}: option {item!r} is not PARAM=VALUE")
+        try:
+            params[key] = json.loads(value)
+        except ValueError:
+            params[key] = value
+    return name, backend, params
+
+
+def candidates_from_node(specs: Sequence[str], node_results: Sequence[Mapping[str, Any]]) -> list[Candidate]:
+    """Candidates (``NAME=BACKEND[:PARAM=VALUE,...]``) with the latency and period their node row measured.
+
+    A node row (``benchmarks.bench_node`` JSON, ``rows``) matches a candidate when its backend and
+    options are the candidate's; the latency is its end-to-end p50 in real time, the period its
+    inference p50 plus the node's own overhead (mean).
+
+    Raises:
+        ValueError: a candidate without a node row (measure it first).
+    """
+    out = []
+    for spec in specs:
+        name, backend, params = parse_candidate(spec)
+        row = _node_row(backend, params, node_results)
+        if row is None:
+            raise ValueError(f"candidate {spec!r}: no bench_node row with backend {backend} and these options")
+        period = (float(row["inference_p50_ms"]) + float(row["overhead_mean_ms"])) * 1e-3
+        out.append(Candidate(name, backend, params, float(row["latency_ms"]["p50"]) * 1e-3, period))
+    return out
+
+
+def _node_row(backend: str, params: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> Mapping[str, Any] | None:
+    """The ``5hz`` row (the bag's own timing, as a camera delivers it) of ``backend`` with exactly
+    the options ``params`` (``<backend>.<option>``)."""
+    want = {key: str(value) for key, value in params.items()}
+    for row in rows:
+        name, _, options = str(row["backend"]).partition(":")
+        have = {f"{name}.{item.partition('=')[0]}": item.partition("=")[2] for item in filter(None, options.split(","))}
+        if row.get("mode") == "5hz" and name == backend and have == want:
+            return row
+    return None
+
+
+def node_schedule(stamps_ns: Sequence[int], period_s: float, latency_s: float) -> list[tuple[int, int]]:
+    """The frames a node with a one-set mailbox processes, and when each preview is received.
+
+    A frame that arrives while the node is busy waits in the mailbox; a newer one replaces it. A
+    frame processed on arrival is received ``latency_s`` after its stamp; one that waited, that
+    much plus its wait.
+
+    Returns:
+        [(index into ``stamps_ns``, received ns)] in stamp order.
+    """
+    period = int(round(period_s * 1e9))
+    latency = int(round(latency_s * 1e9))
+    out: list[tuple[int, int]] = []
+    free_at = -(2**62)
+    i, n = 0, len(stamps_ns)
+    while i < n:
+        if stamps_ns[i] >= free_at:
+            start = int(stamps_ns[i])
+        else:  # busy: the newest frame that arrived before the node is free waits for it
+            j = i
+            while j + 1 < n and stamps_ns[j + 1] <= free_at:
+                j += 1
+            i, start = j, free_at
+        out.append((i, start + latency))
+        free_at = start + period
+        i += 1
+    return out
+
+
+class CachedEstimates:
+    """A backend whose estimates are kept by frame stamp, so that every row of a drive (budget
+    stages, camera rates, per frame and fused) uses the same estimate of a frame."""
+
+    def __init__(self, inner: Backend) -> None:
+        self.inner = inner
+        self.name = inner.name
+        self.grid = inner.grid
+        self.needs_stereo = inner.needs_stereo
+        self.estimates: dict[int, Estimate] = {}
+
+    def estimate(self, frame: Frame) -> Estimate:
+        stamp = int(frame.stamp_ns)
+        if stamp not in self.estimates:
+            self.estimates[stamp] = self.inner.estimate(frame)
+        return self.estimates[stamp]
+
+
+class _TruthBackend:
+    """The cached estimates with their heights replaced by the frame's labels: on the cells the
+    backend answered (``answered``) or on every labelled cell (sigma there: the frame's median)."""
+
+    def __init__(self, cached: CachedEstimates, labels: Mapping[int, np.ndarray], answered: bool) -> None:
+        self.cached, self.labels, self.answered = cached, labels, answered
+        self.name, self.grid, self.needs_stereo = cached.name, cached.grid, cached.needs_stereo
+
+    def estimate(self, frame: Frame) -> Estimate:
+        est = self.cached.estimate(frame)
+        truth = self.labels[int(frame.stamp_ns)]
+        if self.answered:
+            elevation = np.where(np.isfinite(est.elevation), truth, np.nan)
+            sigma = est.uncertainty
+        else:
+            elevation = truth
+            known = est.uncertainty[np.isfinite(est.uncertainty)]
+            fill = float(np.median(known)) if known.size else 0.005
+            sigma = np.where(np.isfinite(est.uncertainty), est.uncertainty, fill)
+        sigma = np.where(np.isfinite(elevation), sigma, np.nan)
+        return Estimate(elevation.astype(np.float32), sigma.astype(np.float32), dict(est.timings_ms))
+
+
+class TrueDatumMap(FusedMap):
+    """A fused map that places every frame at the true height of ``base_link`` (``odom`` z, which
+    planar odometry never gives); run it with ``map.align`` off so that no alignment moves it."""
+
+    def __init__(self, settings: MapSettings, truth: Trajectory) -> None:
+        super().__init__(settings)
+        self._truth = truth
+
+    def integrate(self, elevation: np.ndarray, sigma: np.ndarray, grid: GridSpec, placement: FramePlacement,
+                  stamp_ns: int, *, base_z_prediction: float) -> FrameFusion:
+        position, _ = self._truth.interpolate(np.array([stamp_ns], np.int64))
+        return super().integrate(elevation, sigma, grid, placement, stamp_ns,
+                                 base_z_prediction=float(position[0, 2]))
+
+
+def with_true_plane(previews: Sequence[TimedPreview], truth: Trajectory, road_map: RoadMap,
+                    settings: RideSettings) -> list[TimedPreview]:
+    """Contact-plane previews re-read against the true road's contact plane at their stamps, on the
+    map's own datum (the true plane moved to the mean height the message's plane has at the four
+    tyre contacts); other previews unchanged."""
+    planes = [p for p in previews if p.reference == REFERENCE_CONTACT_PLANE and p.profiles.contact_plane]
+    if not planes:
+        return list(previews)
+    stamps = np.array([p.stamp_ns for p in planes], np.int64)
+    pos, R = truth.interpolate(stamps)
+    yaw = planar_yaw(R)
+    true = true_contact_planes(truth, road_map, settings, stamps)  # [M, 3] z = a + b x + c y in odom
+    wheels = settings.arrival.vehicle.wheel_positions()  # [4, 2] base_link
+    replaced: dict[int, TimedPreview] = {}
+    for m, msg in enumerate(planes):
+        plane = msg.profiles.contact_plane
+        assert plane is not None
+        c, s = math.cos(yaw[m]), math.sin(yaw[m])
+        # the true plane in base_link's heading frame: height at the origin and slopes along / across
+        slope_x, slope_y = true[m, 1] * c + true[m, 2] * s, -true[m, 1] * s + true[m, 2] * c
+        height0 = true[m, 0] + true[m, 1] * pos[m, 0] + true[m, 2] * pos[m, 1] - pos[m, 2]
+        true_at = height0 + slope_x * wheels[:, 0] + slope_y * wheels[:, 1]  # [4]
+        est_at = plane.height_at(wheels[:, 0], wheels[:, 1])  # [4]
+        offset = float(np.mean(est_at - true_at))  # the map's datum against the truth's, at the contacts
+        x = msg.profiles.distances()  # [S]
+        tracks = []
+        for track in msg.profiles.tracks:
+            est_ref = plane.height_at(x, np.full(x.size, track.lateral_offset))
+            true_ref = height0 + offset + slope_x * x + slope_y * track.lateral_offset
+            tracks.append(TrackProfile(track.name, track.lateral_offset, track.width,
+                                       (track.elevation + est_ref - true_ref).astype(np.float32), track.uncertainty))
+        pitch = -math.atan(slope_x)
+        roll = math.atan(slope_y * math.cos(pitch))
+        new_plane = ContactPlane(height0 + offset, roll, pitch, 0.0, 0.0, 0.0, plane.source)
+        profiles = replace(msg.profiles, tracks=tuple(tracks), contact_plane=new_plane)
+        replaced[msg.stamp_ns] = replace(msg, profiles=profiles)
+    return [replaced.get(p.stamp_ns, p) if p.reference == REFERENCE_CONTACT_PLANE else p for p in previews]
+
+
+def candidate_previews(drive: RidingDrive, samples: Sequence[DriveSample], candidate: Candidate,
+                       cached: CachedEstimates, stage: str, *, step: int = 1,
+                       ride_settings: RideSettings) -> list[TimedPreview]:
+    """The previews of ``candidate`` with the map on, with ``stage`` of the error budget taken from
+    the truth, on every ``step``-th frame of a rendered drive as the node's schedule lets it fuse
+    them (each stamped with when it is received).
+
+    Raises:
+        ValueError: an unknown stage.
+    """
+    if stage not in STAGES:
+        raise ValueError(f"unknown budget stage {stage!r} (one of {', '.join(STAGES)})")
+    gt = drive.ground_truth_poses()
+    truth = Trajectory(gt.stamp_ns, gt.position, gt.orientation_xyzw)
+    frames = list(samples)[::step]
+    stamps = [int(s.frame.stamp_ns) for s in frames]
+    if stage == "no_latency":
+        schedule = [(i, stamp) for i, stamp in enumerate(stamps)]
+    else:
+        schedule = node_schedule(stamps, candidate.period_s, candidate.latency_s)
+    fused_frames = [frames[i] for i, _ in schedule]
+    received = {stamps[i]: at for i, at in schedule}
+    backend: Backend = cached
+    if stage in ("true_answered", "true_all"):
+        labels = {int(s.frame.stamp_ns): s.truth.elevation for s in samples}
+        backend = _TruthBackend(cached, labels, answered=stage == "true_answered")
+    extra: dict[str, Any] = {}
+    map_factory: Callable[[MapSettings], FusedMap] = FusedMap
+    if stage == "true_datum":
+        extra["map.align"] = False
+        map_factory = lambda settings: TrueDatumMap(settings, truth)  # noqa: E731
+    config = candidate.config(drive.config.grid, extra)
+    pipeline = Pipeline(config, backend_factory=lambda *_a, **_k: backend, map_factory=map_factory,
+                        configure_process=False)
+    pipeline.set_camera_mount(*drive.base_to_camera)
+    odometry = drive.ground_truth_poses() if stage == "true_odometry" else drive.odometry()
+    outputs: list[Any] = []
+    evaluate(pipeline, fused_frames, odometry=planar_odometry(odometry),
+             on_output=lambda o: outputs.extend(per_frame_previews([o])))
+    previews = [replace(p, received_ns=received[p.stamp_ns]) for p in outputs]
+    if stage == "true_plane":
+        previews = with_true_plane(previews, truth, drive.road_map(), ride_settings)
+    return previews
+
+
+def make_backend(candidate: Candidate, grid: GridSpec) -> CachedEstimates:
+    """The candidate's backend on ``grid``, its estimates cached by stamp."""
+    return CachedEstimates(create(candidate.backend, grid, **candidate.backend_options()))
+
+
+class DriveFrames:
+    """The rendered frames of riding drives kept on disk, so that a benchmark renders a drive once
+    and every later run (other candidates, other stages) reads it back (keyed by the drive's whole
+    configuration and the renderer's versions)."""
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+
+    def folder(self, drive: RidingDrive) -> Path:
+        key = f"{drive.riding!r}/scene-v{SCENE_VERSION}/drive-v{DRIVE_VERSION}"
+        return self.root / hashlib.sha1(key.encode()).hexdigest()[:16]
+
+    def samples(self, drive: RidingDrive) -> list[DriveSample]:
+        """Every frame of ``drive`` (rendered and stored when not on disk yet)."""
+        folder = self.folder(drive)
+        folder.mkdir(parents=True, exist_ok=True)
+        out = []
+        for index in range(len(drive)):
+            path = folder / f"{index:05d}.npz"
+            if path.exists():
+                with np.load(path) as data:
+                    left, right, labels = data["left"], data["right"], data["truth"]
+                _, attitude = drive.pose(index)
+                frame = Frame(left, right, drive.config.camera, attitude, drive.frame_stamps_ns[index])
+                truth = ElevationLabel(labels, np.isfinite(labels), np.isfinite(labels).astype(np.int32))
+                out.append(DriveSample(frame, truth, np.zeros((0, 3), np.float32)))
+                continue
+            sample = drive[index]
+            if sample.frame.right is None:
+                raise ValueError("a riding drive renders stereo frames")
+            tmp = path.with_suffix(".tmp.npz")
+            np.savez(tmp, left=sample.frame.left, right=sample.frame.right, truth=sample.truth.elevation)
+            tmp.replace(path)  # atomic: a killed run never leaves half a frame
+            out.append(DriveSample(sample.frame, sample.truth, np.zeros((0, 3), np.float32)))
+        return out

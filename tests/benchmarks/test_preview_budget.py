@@ -1,0 +1,166 @@
+"""The error budget's machinery: candidates from node results, the node's schedule, estimates
+shared by the rows, truth put into one stage, stored drive frames."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+
+from benchmarks.preview_budget import (
+    STAGES,
+    CachedEstimates,
+    Candidate,
+    DriveFrames,
+    candidate_previews,
+    candidates_from_node,
+    node_schedule,
+    parse_candidate,
+    with_true_plane,
+)
+from roadbev_core.arrival import REFERENCE_CONTACT_PLANE, ArrivalSettings, Trajectory
+from roadbev_core.config import GridSpec
+from roadbev_core.frame import Estimate
+from roadbev_core.ride import RideSettings, perfect_map_previews
+from roadbev_core.synth import DriveConfig, RidingConfig, RidingDrive, RoadConfig
+
+MS = 1_000_000
+
+
+def test_the_node_fuses_the_newest_waiting_frame_and_its_previews_come_later() -> None:
+    stamps = [k * 100 * MS for k in range(6)]  # a 10 Hz camera
+    assert node_schedule(stamps, 0.08, 0.1) == [(k, stamps[k] + 100 * MS) for k in range(6)]  # keeps up
+    # 250 ms a frame: frame 0; frame 1 waiting is replaced by frame 2, which starts when the node
+    # is free at 250 ms; then frames 3 and 4 are replaced by frame 5, arriving as the node is free
+    slow = node_schedule(stamps, 0.25, 0.1)
+    assert [i for i, _ in slow] == [0, 2, 5]
+    assert slow[1] == (2, 250 * MS + 100 * MS)  # waited 50 ms for the node, then the latency
+    assert slow[2] == (5, 500 * MS + 100 * MS)
+
+
+def test_candidates_take_their_latency_and_period_from_the_node_row() -> None:
+    assert parse_candidate("bev_sweep") == ("bev_sweep", "bev_sweep", {})
+    name, backend, params = parse_candidate("fast=stereo:stereo.runtime=openvino,stereo.threads=2")
+    assert (name, backend, params) == ("fast", "stereo", {"stereo.runtime": "openvino", "stereo.threads": 2})
+    with pytest.raises(ValueError):
+        parse_candidate("x=stereo:runtime")
+    rows = [{"backend": "stereo:runtime=openvino", "mode": "max", "latency_ms": {"p50": 80.0},
+             "inference_p50_ms": 60.0, "overhead_mean_ms": 5.0},
+            {"backend": "stereo:runtime=openvino", "mode": "5hz", "latency_ms": {"p50": 110.0},
+             "inference_p50_ms": 90.0, "overhead_mean_ms": 5.0},
+            {"backend": "stereo", "mode": "5hz", "latency_ms": {"p50": 300.0}, "inference_p50_ms": 280.0,
+             "overhead_mean_ms": 5.0}]
+    (c,) = candidates_from_node(["int8=stereo:stereo.runtime=openvino"], rows)
+    assert (c.name, c.backend) == ("int8", "stereo")
+    assert c.latency_s == pytest.approx(0.11) and c.period_s == pytest.approx(0.095)
+    assert candidates_from_node(["stereo"], rows)[0].latency_s == pytest.approx(0.3)
+    with pytest.raises(ValueError, match="no bench_node row"):
+        candidates_from_node(["bm"], rows)
+
+
+def test_cached_estimates_run_each_frame_once() -> None:
+    calls: list[int] = []
+
+    class Inner:
+        name, grid, needs_stereo = "stub", GridSpec(), False
+
+        def estimate(self, frame: Any) -> Any:
+            calls.append(frame.stamp_ns)
+            return SimpleNamespace(stamp=frame.stamp_ns)
+
+    cached = CachedEstimates(Inner())
+    for stamp in (1, 2, 1, 2, 3):
+        estimate: Any = cached.estimate(SimpleNamespace(stamp_ns=stamp))  # type: ignore[arg-type]
+        assert estimate.stamp == stamp
+    assert calls == [1, 2, 3]
+
+
+def _small_drive(frames: int = 6) -> RidingDrive:
+    from roadbev_core.config import StereoCamera
+
+    road = RoadConfig(road_class="B", features=("speed_bump",), feature_spacing_m=4.0)
+    camera = StereoCamera.rsrd_half().scaled(0.25)
+    return RidingDrive(RidingConfig(drive=DriveConfig(frames=frames, speed_mps=10.0, frame_rate_hz=10.0, seed=5,
+                                                      road=road, camera=camera), tail_s=1.5))
+
+
+class Noisy:
+    """A backend that answers the drive's own labels plus 1 cm, left half of the grid only."""
+
+    name, needs_stereo = "bm", True
+
+    def __init__(self, grid: GridSpec, labels: dict[int, np.ndarray]) -> None:
+        self.grid, self.labels = grid, labels
+
+    def estimate(self, frame: Any) -> Estimate:
+        e = self.labels[int(frame.stamp_ns)] + 0.01
+        e[:, e.shape[1] // 2:] = np.nan
+        return Estimate(e.astype(np.float32), np.where(np.isfinite(e), 0.004, np.nan).astype(np.float32))
+
+
+def test_stored_frames_read_back_and_truth_goes_into_one_stage(tmp_path: Any) -> None:
+    drive = _small_drive()
+    store = DriveFrames(tmp_path)
+    samples = store.samples(drive)
+    again = store.samples(drive)  # read back, not rendered
+    assert len(again) == len(drive) and len(list(store.folder(drive).glob("*.npz"))) == len(drive)
+    for a, b in zip(samples, again, strict=True):
+        np.testing.assert_array_equal(a.frame.left, b.frame.left)
+        np.testing.assert_array_equal(a.truth.elevation, b.truth.elevation)
+        assert a.frame.attitude == b.frame.attitude and a.frame.stamp_ns == b.frame.stamp_ns
+    labels = {int(s.frame.stamp_ns): s.truth.elevation.copy() for s in samples}
+    cached = CachedEstimates(Noisy(drive.config.grid, labels))
+    candidate = Candidate("noisy", "bm", latency_s=0.1, period_s=0.0)
+    grid = drive.config.grid
+    settings = RideSettings(arrival=ArrivalSettings(base_height=grid.base_height, camera_in_base=drive.base_to_camera))
+    out = {stage: candidate_previews(drive, samples, candidate, cached, stage, ride_settings=settings)
+           for stage in STAGES}
+    assert len(cached.estimates) == len(drive)  # every stage used the same estimate of a frame
+    for stage, previews in out.items():
+        assert len(previews) == len(drive), stage
+        assert all(p.reference == REFERENCE_CONTACT_PLANE for p in previews)
+        delay = 0 if stage == "no_latency" else 100 * MS
+        assert all(p.received_ns == p.stamp_ns + delay for p in previews)
+
+    def left(stage: str) -> float:
+        return float(np.nanmean(np.concatenate([p.profiles.track("front_left").elevation for p in out[stage]])))
+
+    def right_known(stage: str) -> int:
+        return int(sum(np.isfinite(p.profiles.track("front_right").elevation).sum() for p in out[stage]))
+
+    # the labels +1 cm on the left only: the truth on the answered cells is the labels there; on
+    # every cell, the right track appears as well
+    assert right_known("shipped") == right_known("true_answered") == 0 < right_known("true_all")
+    assert left("shipped") != pytest.approx(left("true_answered"), abs=1e-4)
+    with pytest.raises(ValueError, match="unknown budget stage"):
+        candidate_previews(drive, samples, candidate, cached, "true_everything", ride_settings=settings)
+
+
+def test_perfect_map_previews_are_unchanged_against_the_true_plane() -> None:
+    drive = _small_drive(3)
+    gt = drive.ground_truth_poses()
+    truth = Trajectory(gt.stamp_ns, gt.position, gt.orientation_xyzw)
+    grid = drive.config.grid
+    settings = RideSettings(arrival=ArrivalSettings(base_height=grid.base_height, camera_in_base=drive.base_to_camera))
+    road_map = drive.road_map()
+    perfect = perfect_map_previews(truth, road_map, drive.frame_stamps_ns, GridSpec(), settings)
+    # perfect previews carry no plane: give each its true one, as a message would
+    from dataclasses import replace
+
+    from benchmarks.preview_budget import ContactPlane
+
+    flat = [replace(p, profiles=replace(p.profiles, reference=REFERENCE_CONTACT_PLANE,
+                                        contact_plane=ContactPlane(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)))
+            for p in perfect]
+    again = with_true_plane(flat, truth, road_map, settings)
+    for a, b in zip(flat, again, strict=True):
+        plane = b.profiles.contact_plane
+        assert plane is not None
+        for ta, tb in zip(a.profiles.tracks, b.profiles.tracks, strict=True):
+            x = a.profiles.distances()
+            # re-read against the true plane: the profile moves by the plane's tilt, nothing else
+            diff = (tb.elevation - ta.elevation) + plane.height_at(x, np.full(x.size, ta.lateral_offset))
+            ok = np.isfinite(diff)
+            assert np.ptp(diff[ok]) < 1e-5
