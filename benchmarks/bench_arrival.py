@@ -128,7 +128,7 @@ def run_drive(speed: float, rate: float, duration: float, seed: int, backends: l
                     f"{pa['contact_plane_abs_err_cm']:.3f}")
             if fused:
                 fusions = [o.fusion for o in outputs if o.fusion is not None]
-                row["map"] = map_accuracy([o.map for o in outputs if o.map is not None], road_map)
+                row["map"] = map_accuracy([o.map for o in outputs if o.map is not None], road_map, truth)
                 row["map"]["fusion_ms_p50"] = float(np.median([f.cost_ms for f in fusions]))
                 row["map"]["map_stage_ms_p50"] = float(np.median([o.timings_ms["map"] for o in outputs]))
                 line += (f"; map {row['map']['abs_err_cm']:.3f} cm ({row['map']['coverage_pct']:.1f} %), "

@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.common import RESULTS, available_backends, machine_info, write_json
-from roadbev_core.config import parse_assignments
+from roadbev_core.config import DEFAULT_BACKEND, parse_assignments
 
 REPO = Path(__file__).resolve().parents[1]
 CACHE = REPO / ".cache"
@@ -191,7 +191,8 @@ def pipeline_overhead(scale: float, repeats: int = 30) -> dict[str, float]:
     return out
 
 
-def check_targets(rows: list[dict[str, Any]], overhead: dict[str, float], default: str = "bev_sweep") -> dict[str, Any]:
+def check_targets(rows: list[dict[str, Any]], overhead: dict[str, float], default: str = DEFAULT_BACKEND
+                  ) -> dict[str, Any]:
     """The issue's targets on the default backend (and the overhead on every backend)."""
     by = {(r["backend"], r["mode"]): r for r in rows}
     out: dict[str, Any] = {}

@@ -574,7 +574,8 @@ def _summary(err: np.ndarray, err_cp: np.ndarray, feature: np.ndarray, known: np
     }
 
 
-def map_accuracy(windows: Sequence[MapWindow], road_map: RoadMap) -> dict[str, Any]:
+def map_accuracy(windows: Sequence[MapWindow], road_map: RoadMap, truth: Trajectory | None = None,
+                 vehicle: VehicleConfig | None = None) -> dict[str, Any]:
     """The fused map against the true road (contract ``"map"`` keys), time-averaged over frames.
 
     Per published window: ``abs_err_cm`` over the cells it holds (where the truth is known),
@@ -582,26 +583,41 @@ def map_accuracy(windows: Sequence[MapWindow], road_map: RoadMap) -> dict[str, A
     honesty of those cells (``within_1/2/3sigma_pct``, ``confident_wrong_pct``: error > 3 sigma
     and > 1 cm, ``mean_sigma_cm``). Each key is the mean over the windows (NaN without any).
 
+    With ``truth`` (the true poses of ``base_link``) the map is scored as it is published, against
+    the road under the car: each window's heights are compared after removing the median error of
+    the cells under the car at its stamp (the rectangle between the four tyre contacts of
+    ``vehicle``), which ``odom`` z's drift makes unknowable; ``datum_offset_cm`` is the mean
+    absolute of those medians (how far the map's datum has drifted from the truth's). Without it
+    the heights are compared in ``odom`` z as they are.
+
     Raises:
         ArrivalError: no windows.
     """
     if not windows:
         raise ArrivalError("no map windows to score")
-    rows: dict[str, list[float]] = {k: [] for k in ("abs_err_cm", "coverage_pct", "within_1sigma_pct",
-                                                     "within_2sigma_pct", "within_3sigma_pct", "confident_wrong_pct",
-                                                     "mean_sigma_cm")}
+    keys = ("abs_err_cm", "coverage_pct", "within_1sigma_pct", "within_2sigma_pct", "within_3sigma_pct",
+            "confident_wrong_pct", "mean_sigma_cm", "datum_offset_cm")
+    rows: dict[str, list[float]] = {k: [] for k in keys}
+    vehicle = vehicle or VehicleConfig()
     for window in windows:
         x, y = window.cell_centres()
         gx, gy = np.meshgrid(x, y, indexing="ij")
-        truth = road_map.height(gx, gy)  # [n_rows, n_cols]
-        known = np.isfinite(truth)
+        true_z = road_map.height(gx, gy)  # [n_rows, n_cols]
+        known = np.isfinite(true_z)
         held = known & np.isfinite(window.elevation) & np.isfinite(window.uncertainty)
         if not known.any():
             continue
         rows["coverage_pct"].append(100.0 * held.sum() / known.sum())
         if not held.any():
             continue
-        err = np.abs(window.elevation[held] - truth[held])
+        error = window.elevation.astype(np.float64) - true_z
+        if truth is not None:
+            offset = _offset_under_the_car(error, held, gx, gy, truth, int(window.stamp_ns), vehicle)
+            if not math.isfinite(offset):
+                continue  # the map holds nothing under the car yet: no anchor to score against
+            rows["datum_offset_cm"].append(100.0 * abs(offset))
+            error = error - offset
+        err = np.abs(error[held])
         sigma = window.uncertainty[held].astype(np.float64)
         rows["abs_err_cm"].append(100.0 * float(err.mean()))
         for k in (1, 2, 3):
@@ -611,6 +627,20 @@ def map_accuracy(windows: Sequence[MapWindow], road_map: RoadMap) -> dict[str, A
     out: dict[str, Any] = {k: float(np.mean(v)) if v else math.nan for k, v in rows.items()}
     out["windows"] = len(windows)
     return out
+
+
+def _offset_under_the_car(error: np.ndarray, held: np.ndarray, gx: np.ndarray, gy: np.ndarray, truth: Trajectory,
+                          stamp_ns: int, vehicle: VehicleConfig) -> float:
+    """The median map error [n_rows, n_cols] over the held cells between the tyre contacts at
+    ``stamp_ns`` (NaN when the map holds none there)."""
+    pos, R = truth.interpolate(np.array([stamp_ns], np.int64))
+    yaw = float(planar_yaw(R)[0])
+    c, s = math.cos(yaw), math.sin(yaw)
+    dx, dy = gx - pos[0, 0], gy - pos[0, 1]
+    along, across = c * dx + s * dy, -s * dx + c * dy
+    half = 0.5 * vehicle.track_width_m
+    under = held & (along >= 0.0) & (along <= vehicle.wheelbase_m) & (np.abs(across) <= half)
+    return float(np.median(error[under])) if under.any() else math.nan
 
 
 def per_frame_previews(outputs: Sequence[PipelineOutput]) -> list[TimedPreview]:

@@ -36,10 +36,8 @@ checkpoint's), ``inputs`` (name -> shape), ``opset`` and the checkpoint's ``meta
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import json
-import os
 import tempfile
 import threading
 import warnings
@@ -453,12 +451,12 @@ class OnnxRunner:
 
 class _OpenVinoEngine:
     """OpenVINO on the CPU: the graph compiled for any shape, and for each input shape it meets
-    compiled again with those shapes fixed (measured 8-19 % faster here). The first shape is
-    compiled before the call returns: that call is the node's warm-up (``Pipeline.warm_up``, on
-    the common rig, before the node subscribes to its inputs), and a compilation running beside
-    the first frames cost the node frames at 5 Hz. Later shapes (a new rig) compile in a background
-    thread at the lowest priority, so that their first frames do not wait for it (seconds) and
-    are slowed by it as little as possible."""
+    compiled again with those shapes fixed (measured 8-19 % faster here), before that shape's
+    first frame runs. The two compilations do not give the same numbers to the last bit, so
+    every frame of a shape is computed by the same one whatever came before (the node and
+    ``roadbev eval`` agree): the first shape is compiled by the node's warm-up (``Pipeline.warm_up``,
+    on the common rig, before the node subscribes to its inputs); a new rig's first frame waits
+    for its compilation (seconds, once; the node drops the frames that arrive meanwhile)."""
 
     def __init__(self, data: bytes, threads: int | None) -> None:
         import openvino as ov
@@ -481,37 +479,20 @@ class _OpenVinoEngine:
         names = [out.get_any_name() for out in compiled.outputs]
         return compiled.create_infer_request(), names
 
-    def _compile_in_background(self, key: tuple[tuple[str, tuple[int, ...]], ...]) -> None:
-        # This thread only (Linux: a thread id is a process id to setpriority): the compilation
-        # takes the cores when inference leaves them, so a live stream is not slowed for seconds.
-        with contextlib.suppress(AttributeError, OSError):
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)
-        self._compile_fixed(key)
-
-    def _compile_fixed(self, key: tuple[tuple[str, tuple[int, ...]], ...]) -> None:
+    def _compile_fixed(self, key: tuple[tuple[str, tuple[int, ...]], ...]) -> Any:
         try:
             model = self._model.clone()
             model.reshape({name: list(shape) for name, shape in key})
-            compiled = self._compile(model)
-        except Exception:  # the any-shape model keeps serving (a shape OpenVINO cannot fix)
-            compiled = None
-        with self._lock:
-            self._fixed[key] = compiled
+            return self._compile(model)
+        except Exception:  # the any-shape model serves this shape (a shape OpenVINO cannot fix)
+            return None
 
     def __call__(self, feeds: dict[str, np.ndarray]) -> list[np.ndarray]:
         key = tuple(sorted((name, tuple(int(n) for n in value.shape)) for name, value in feeds.items()))
         with self._lock:
-            fixed = self._fixed.get(key, False)
-            first = not self._fixed
-            if fixed is False:
-                self._fixed[key] = None  # compiling (or not possible): the any-shape model serves
-                if not first:
-                    # not a daemon: an interpreter exiting mid-compilation waits for it (OpenVINO aborts otherwise)
-                    threading.Thread(target=self._compile_in_background, args=(key,), name="openvino-compile").start()
-        if fixed is False and first:
-            self._compile_fixed(key)
-            with self._lock:
-                fixed = self._fixed[key]
+            if key not in self._fixed:
+                self._fixed[key] = self._compile_fixed(key)
+            fixed = self._fixed[key]
         request, names = fixed or self._any_shape
         results = request.infer(feeds)
         by_name = {names[i]: np.asarray(value) for i, value in enumerate(results.values())}

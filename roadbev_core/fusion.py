@@ -24,14 +24,19 @@ across the camera's heading, with Gaussian priors ``offset_prior_m`` and ``slope
 around the prediction), and without overlap they keep the prediction (the map's contact plane
 under the car at static ride height, else the last frame's body height). The datum therefore
 drifts: a backend whose heights lean with distance (a pitch bias, a scale error) hands each frame
-a slightly different offset against the map, and these add up with the distance driven (bev_sweep
-mm, stereo centimetres, mono decimetres over a few tens of metres on the drives). The published
-``uncertainty`` is a sigma in ``odom`` z, so it carries the datum's 1-sigma too: the cells of a
-frame fused ``s`` metres after the datum was fixed add ``datum_sigma_m + datum_drift * s`` (in
-quadrature to their own sigma; fused per cell like the sigmas, as one correlated error), the two
-calibrated per backend on tuning drives (:func:`datum_calibration_for`). The gate, the alignment
-and the preview use the cells' own sigma: the datum is common to the cells they compare, and the
-contact plane the preview is relative to lies on the same datum.
+a slightly different offset against the map, and these add up with the distance driven. Nothing
+a consumer does with the map needs ``odom`` z itself: a controller, a planner, a person reads
+heights against the road the car stands on (the preview against the contact plane, a hazard
+against the road around it). So the published ``uncertainty`` is **anchored to the road under
+the car**: a cell's height against the map's road under the car now, whose datums differ by the
+drift over the distance driven between the two fusions. A cell fused (as the weighted mean of its
+observations) at odometer reading ``s_cell`` carries ``datum_sigma_m + datum_drift * |s_now -
+s_cell|`` in quadrature to its own sigma, the two calibrated per backend on tuning drives
+(:func:`datum_calibration_for`). Cells leave the corridor behind the rear axle, so this stays
+bounded however far the car drives. The gate, the alignment and the preview use the cells' own
+sigma: the datum is common to the cells they compare, and the contact plane the preview is
+relative to lies on the same datum. (:class:`FrameFusion` keeps the absolute datum's sigma, the
+part that does grow with the distance driven, for diagnostics.)
 
 **Fusion.** A cell keeps the weighted mean of the observations it accepted, with weights
 ``w = 1 / (s^2 (x / x_near)^k)``: ``s`` the observation's sigma, ``x`` its distance ahead of the
@@ -130,9 +135,9 @@ class MapSettings:
             ``(x_near / x)^range_exponent`` times what its sigma alone says (x_near: the grid's
             near edge).
         datum_sigma_m, datum_drift: 1-sigma of the map's vertical datum (``odom`` z, which
-            nothing observes) when the datum is fixed (the first frame), and its growth per metre
-            driven since (m/m): a frame's cells carry ``datum_sigma_m + datum_drift * s`` in
-            the published uncertainty (see the module docstring).
+            nothing observes) where it is fixed, and its growth per metre driven (m/m): a cell
+            fused ``d`` metres of driving away from where the car is now carries
+            ``datum_sigma_m + datum_drift * d`` in the published uncertainty (module docstring).
     """
 
     resolution: float
@@ -302,8 +307,9 @@ class FrameFusion:
         residual_rms_m: weighted RMS of the overlap residuals after alignment.
         accepted, rejected, restarted: cells updated, rejected by the gate, restarted.
         cost_ms: wall time.
-        datum_sigma_m: the 1-sigma of the map's datum this frame's cells carry.
-        driven_m: the distance driven since the datum was fixed.
+        datum_sigma_m: the 1-sigma of the map's datum in ``odom`` z at this frame (grows with the
+            distance driven; the published uncertainty carries the datum against the car instead).
+        driven_m: the distance driven since the datum was fixed (the map's odometer).
         base_z_m: ``base_link``'s origin z in odom after the frame (the datum it put the map on).
     """
 
@@ -327,15 +333,15 @@ class MapWindow(NamedTuple):
 
     Attributes:
         elevation: [n_rows, n_cols] float32 z in ``odom`` (m), NaN = never seen.
-        uncertainty: [n_rows, n_cols] float32 1-sigma of z in ``odom`` (m): the cell's own and
-            its datum's.
+        uncertainty: [n_rows, n_cols] float32 1-sigma (m) of the cell's height against the road under
+            the car: its own and its datum's against the car's (module docstring).
         observations: [n_rows, n_cols] float32 accepted observations.
         age: [n_rows, n_cols] float32 seconds since the cell's last update (NaN = never).
         resolution: cell size (m).
         centre: (x, y) of the window's centre in ``odom``.
         stamp_ns: the frame it was made after.
         datum_uncertainty: [n_rows, n_cols] float32, the part of ``uncertainty`` that nearby
-            cells share (the 1-sigma of the datum their frames were fused on, module docstring);
+            cells share (the 1-sigma of their datum against the car's, module docstring);
             None for a map without that layer. Compare cells with each other (a bump's height
             above the road around it, a slope) with :meth:`local_uncertainty`.
     """
@@ -375,8 +381,8 @@ class MapWindow(NamedTuple):
         return x, y
 
 
-# the sums per cell: w, w z, w z^2, w sigma, w^2 sigma^2, w datum_sigma
-_W, _S1, _S2, _WSIG, _W2VAR, _WDATUM = range(6)
+# the sums per cell: w, w z, w z^2, w sigma, w^2 sigma^2, w s (s: the map's odometer at the fusion)
+_W, _S1, _S2, _WSIG, _W2VAR, _WODO = range(6)
 
 
 class FusedMap:
@@ -396,7 +402,7 @@ class FusedMap:
         """Forget everything (a new drive, a clock that jumped back, ``~/clear_map``)."""
         self._i0 = 0  # lattice index of buffer row 0 (x)
         self._j0 = 0  # lattice index of buffer column 0 (y)
-        self._sums = np.zeros((_WDATUM + 1, 0, 0))  # [6, n_i, n_j] see _W ... _WDATUM
+        self._sums = np.zeros((_WODO + 1, 0, 0))  # [6, n_i, n_j] see _W ... _WODO
         self._n = np.zeros((0, 0), np.int32)
         self._rejected = np.zeros((0, 0), np.int16)
         self._t_last = np.zeros((0, 0), np.int64)
@@ -460,7 +466,7 @@ class FusedMap:
         y = (self._j0 + np.arange(n_j) + 0.5) * r  # [n_j]
         outside = np.flatnonzero((self._n > 0) & ~self._inside_corridor(x[:, None], y[None, :], base))  # [K]
         if outside.size:
-            for row in self._sums.reshape(_WDATUM + 1, -1):
+            for row in self._sums.reshape(_WODO + 1, -1):
                 row[outside] = 0.0
             self._n.ravel()[outside] = 0
             self._rejected.ravel()[outside] = 0
@@ -478,7 +484,7 @@ class FusedMap:
     def _refresh(self, flat: np.ndarray, sums: Sequence[np.ndarray]) -> None:
         """Recompute the mean and sigma of cells at flat buffer indices [K] that hold observations,
         from their sums ``sums`` (w, w z, w z^2, w sigma, w^2 sigma^2 [K] each, as just written)."""
-        w, s1, s2, wsig, w2var = sums[:_WDATUM]
+        w, s1, s2, wsig, w2var = sums[:_WODO]
         rho = self.settings.error_correlation
         mean = s1 / w
         model = (1.0 - rho) * w2var / (w * w) + rho * (wsig / w) ** 2
@@ -514,10 +520,13 @@ class FusedMap:
             known = self._n[src] > 0
             mean, sigma = (a.reshape(n_i, n_j)[src] for a in (self._table.values, self._table.sigma))
             layers["elevation"][dst] = np.where(known, mean, np.nan)
-            # the published sigma is in odom z: the cell's own and its datum's (module docstring)
-            w, w_datum = self._sums[_W][src], self._sums[_WDATUM][src]
+            # the published sigma is against the road under the car: the cell's own and its datum's
+            # against the car's, which drifted over the distance driven between them (module docstring)
+            w, w_odometer = self._sums[_W][src], self._sums[_WODO][src]
+            s = self.settings
             with np.errstate(invalid="ignore", divide="ignore"):
-                datum_sigma = np.where(known, w_datum / w, np.nan)
+                driven_apart = np.abs(self._driven - w_odometer / w)
+                datum_sigma = np.where(known, s.datum_sigma_m + s.datum_drift * driven_apart, np.nan)
             layers["uncertainty"][dst] = np.sqrt(sigma ** 2 + datum_sigma ** 2)
             layers["datum"][dst] = datum_sigma
             layers["age"][dst] = np.where(known, (stamp_ns - self._t_last[src]) * 1e-9, np.nan)
@@ -584,7 +593,7 @@ class FusedMap:
         # the alignment's variance at (u, v): g^T cov g with g = (1, u, v)
         var = sz ** 2 + (cov[0, 0] + 2.0 * cov[0, 1] * u + 2.0 * cov[0, 2] * v + cov[1, 1] * u * u
                          + 2.0 * cov[1, 2] * u * v + cov[2, 2] * v * v)
-        accepted, rejected, restarted = self._update(flat, m, ms, z, var, range_factor, datum_sigma, stamp_ns)
+        accepted, rejected, restarted = self._update(flat, m, ms, z, var, range_factor, stamp_ns)
         self._base_z = datum + a + s.base_height - placement.camera_height_over_base
         self.frames += 1
         return FrameFusion(float(a), float(b), float(c), aligned, int(both.sum()), rms, accepted, rejected, restarted,
@@ -672,16 +681,16 @@ class FusedMap:
         return float(a), float(b), float(c), T @ cov_c @ T.T, rms, True
 
     def _update(self, flat: np.ndarray, m: np.ndarray, ms: np.ndarray, z: np.ndarray, var: np.ndarray,
-                range_factor: np.ndarray, datum_sigma: float, stamp_ns: int) -> tuple[int, int, int]:
+                range_factor: np.ndarray, stamp_ns: int) -> tuple[int, int, int]:
         """Gate and fuse observations z [N] with variances var [N] and range factors [N] (the
-        weight is ``1 / (var * range_factor)``), all on the datum of 1-sigma ``datum_sigma``, into
-        the cells at flat buffer indices [N] (distinct), whose fused mean and sigma are m, ms [N]
+        weight is ``1 / (var * range_factor)``), all made at the map's current odometer, into the
+        cells at flat buffer indices [N] (distinct), whose fused mean and sigma are m, ms [N]
         (NaN: never seen)."""
         s = self.settings
         seen = np.isfinite(m)
         with np.errstate(invalid="ignore"):
             far = seen & (np.abs(z - m) > s.gate_sigma * np.sqrt(var + ms ** 2))
-        n, sums = self._n.ravel(), self._sums.reshape(_WDATUM + 1, -1)  # views
+        n, sums = self._n.ravel(), self._sums.reshape(_WODO + 1, -1)  # views
         rejected_cells = self._rejected.ravel()
         rejected = rejected_cells[flat].astype(np.int32) + far
         restart = far & (rejected >= s.reset_after)
@@ -693,7 +702,7 @@ class FusedMap:
         restarted = restart[take]
         any_restart = bool(restarted.any())
         updated = []  # [6][K] the cells' new sums, written and then read by _refresh
-        for row, add in zip(sums, (w, wz, wz * tz, w * np.sqrt(tv), w * w * tv, w * datum_sigma), strict=True):
+        for row, add in zip(sums, (w, wz, wz * tz, w * np.sqrt(tv), w * w * tv, w * self._driven), strict=True):
             updated.append((np.where(restarted, 0.0, row[tf]) if any_restart else row[tf]) + add)
             row[tf] = updated[-1]
         if any_restart:

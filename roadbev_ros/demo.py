@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from roadbev_core.config import DEFAULT_BACKEND
 from roadbev_core.errors import RoadbevError
 from roadbev_core.evaluation import to_json
 from roadbev_core.metrics import differences
@@ -89,7 +90,7 @@ class DemoOptions:
 
     frames: int = DEFAULT_FRAMES
     out_dir: Path = DEFAULT_OUT
-    backend: str = "bev_sweep"
+    backend: str = DEFAULT_BACKEND
     bag: Path | None = None
     cache_dir: Path | None = None
     seed: int = 0

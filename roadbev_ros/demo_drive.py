@@ -34,6 +34,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from roadbev_core.config import DEFAULT_BACKEND
 from roadbev_core.errors import RoadbevError
 
 __all__ = [
@@ -340,7 +341,7 @@ def _truth_hazards(truth: Any, m: MapMosaic) -> list[TrueFeature]:
 def run_drive_section(
     bag_path: Path,
     *,
-    backend: str = "bev_sweep",
+    backend: str = DEFAULT_BACKEND,
     reused: bool = False,
     seed: int | None = None,
     lead_time_s: float = 0.1,

@@ -86,7 +86,11 @@ def drive_keys(path: Path, config: Any, result: Any, lead_time_s: float) -> dict
         arrival = evaluate_drive_previews(path, previews, stamps, config.to_params(),
                                           base_height=config.grid.base_height, lead_time_s=lead_time_s)
         windows = [o.map for o in outputs if o.map is not None]
-        fused = map_accuracy(windows, read_drive_truth(path, config.to_params()).road_map) if windows else None
+        if windows:
+            drive_truth = read_drive_truth(path, config.to_params())
+            fused = map_accuracy(windows, drive_truth.road_map, drive_truth.trajectory, config.vehicle)
+        else:
+            fused = None
     except (ArrivalError, ValueError) as exc:
         raise OfflineEvalError(f"preview at arrival on {path}: {exc}") from exc
     keys: dict[str, Any] = {"preview_at_arrival": dict(json_safe(arrival))}

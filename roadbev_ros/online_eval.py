@@ -35,6 +35,7 @@ import numpy as np
 from msg_bridge import bag
 from msg_bridge.evalbag import read_eval_bag
 from msg_bridge.grid_map import grid_map_to_arrays
+from roadbev_core.config import DEFAULT_BACKEND, RoadbevConfig
 from roadbev_core.errors import RoadbevError
 from roadbev_core.metrics import MetricAccumulator, Metrics, SigmaAccumulator
 from roadbev_ros.dds import child_env, init_ros
@@ -44,6 +45,9 @@ __all__ = ["OnlineEvalError", "OnlineResult", "evaluate_online", "format_online"
 
 GT_TOPIC = "/ground_truth/elevation"
 ELEVATION_TOPIC = "/roadbev/elevation"
+# Lockstep: messages this far (bag time) past the pending frame wait for its answer (the IMU
+# samples right after a frame, which its attitude is interpolated from, still go out before it).
+LOCKSTEP_LEAD_NS = 200_000_000
 PREVIEW_TOPIC = "/roadbev/preview"
 MAP_TOPIC = "/roadbev/map"
 OUTPUT_TOPICS = (ELEVATION_TOPIC, PREVIEW_TOPIC, MAP_TOPIC, "/diagnostics")
@@ -188,7 +192,7 @@ def evaluate_online(
     bag_path: str | Path,
     out_dir: str | Path,
     *,
-    backend: str = "bev_sweep",
+    backend: str = DEFAULT_BACKEND,
     params: Mapping[str, Any] | None = None,
     params_file: str | Path | None = None,
     rate: float | None = None,
@@ -279,9 +283,15 @@ def evaluate_online(
         sent: dict[int, float] = {}  # stamp -> monotonic time the left image went out
         stop = threading.Event()
 
-        def gate(topic: str, _log_time: int, data: bytes) -> None:
+        def gate(topic: str, log_time: int, data: bytes) -> None:
             nonlocal images_sent, last_stamp
             if topic != left_topic:
+                # lockstep: the rest of the bag (the IMU at 100 Hz and more) waits for the pending
+                # frame's answer once it is more than LOCKSTEP_LEAD_S ahead of that frame, so the
+                # node never gets a burst that overflows its best-effort IMU queue around it
+                pending = rate is None and last_stamp is not None and last_stamp in usable
+                if pending and log_time > last_stamp + LOCKSTEP_LEAD_NS:
+                    watcher.wait(last_stamp, images_sent, frame_timeout_s)
                 return
             # A frame that cannot complete (its other image lost in a damaged or cut bag) gets no
             # answer: lockstep waits only for the frames the bag holds whole.
@@ -376,7 +386,9 @@ def drive_scores(bag_path: Path, recorded: Path, frame_stamps: Sequence[int], pa
                                           lead_time_s=lead_time_s)
         out["preview_at_arrival"] = dict(json_safe(arrival))
     if windows:
-        out["map"] = dict(json_safe(map_accuracy(windows, read_drive_truth(bag_path, params).road_map)))
+        drive_truth = read_drive_truth(bag_path, params)
+        vehicle = RoadbevConfig.from_params({k: v for k, v in params.items() if k.startswith("vehicle.")}).vehicle
+        out["map"] = dict(json_safe(map_accuracy(windows, drive_truth.road_map, drive_truth.trajectory, vehicle)))
     return out
 
 

@@ -6,9 +6,11 @@ Options:
         ``checkpoints/roadbev_{stereo,mono}_lite.pt`` of this repository.
     threads: intra-op threads of the runtime (default: torch's current setting, which the node's
         ``inference_threads`` sets).
-    runtime: ``torch`` (default), ``onnxruntime`` or ``openvino`` (:mod:`roadbev_core.deploy`): the
-        network as an ONNX graph in that engine; a ``.pt`` checkpoint is exported in memory at
-        start-up (a few seconds), an ``.onnx`` file is read as it is.
+    runtime: ``torch``, ``onnxruntime`` or ``openvino`` (:mod:`roadbev_core.deploy`): the network
+        as an ONNX graph in that engine; a ``.pt`` checkpoint is exported in memory at start-up (a
+        few seconds), an ``.onnx`` file is read as it is. Default (:data:`DEFAULT_RUNTIMES`):
+        ``openvino`` for stereo, which then runs the shipped int8 graph where it was exported for
+        the grid (else the ``.pt`` exported in memory), ``torch`` for mono.
     provider: ONNX Runtime's execution provider, ``cpu`` (default), ``cuda`` or ``tensorrt``
         (with ``onnxruntime-gpu`` on a GPU machine).
     out_of_distribution: ``refuse`` (default): a grid (at creation) or a rig (per frame) beyond
@@ -48,7 +50,14 @@ from roadbev_core.frame import Estimate, Frame, FrameError
 from roadbev_core.models.efficientnet import fold_batchnorm
 from roadbev_core.models.roadbev import needs_full_grey, prepare_grey, prepare_image
 
-__all__ = ["DEFAULT_CHECKPOINT_DIR", "OOD_MODES", "LearnedBackend", "OutOfDistributionError", "default_checkpoint"]
+__all__ = [
+    "DEFAULT_CHECKPOINT_DIR",
+    "DEFAULT_RUNTIMES",
+    "OOD_MODES",
+    "LearnedBackend",
+    "OutOfDistributionError",
+    "default_checkpoint",
+]
 
 OOD_MODES = ("refuse", "flag")
 
@@ -59,8 +68,25 @@ class OutOfDistributionError(FrameError):
 DEFAULT_CHECKPOINT_DIR = Path(__file__).resolve().parents[2] / "checkpoints"
 
 
-def default_checkpoint(kind: str) -> Path:
-    """The shipped checkpoint of ``kind`` (may not exist in a stripped install)."""
+# The engine each kind runs without a ``runtime`` option: stereo's int8 graph on OpenVINO is the
+# fastest CPU inference of it at the same accuracy (README, "Inference runtimes"), which is what
+# lets it fuse every frame of a 10 Hz camera; mono has no int8 graph.
+DEFAULT_RUNTIMES = {"stereo": "openvino", "mono": "torch"}
+
+
+def default_checkpoint(kind: str, runtime: str = "torch", grid: GridSpec | None = None) -> Path:
+    """The shipped checkpoint of ``kind`` for ``runtime`` (may not exist in a stripped install):
+    stereo on OpenVINO takes the int8 graph when it was exported for ``grid`` (any grid when None),
+    everything else the ``.pt``."""
+    if kind == "stereo" and runtime == "openvino":
+        int8 = DEFAULT_CHECKPOINT_DIR / "roadbev_stereo_lite_int8.onnx"
+        if int8.is_file():
+            try:
+                fits = grid is None or same_graph_grid(read_onnx(int8).grid, grid)
+            except DeployError:
+                fits = False  # a damaged graph: the .pt, exported in memory, still runs
+            if fits:
+                return int8
     return DEFAULT_CHECKPOINT_DIR / f"roadbev_{kind}_lite.pt"
 
 
@@ -68,13 +94,14 @@ class LearnedBackend:
     """A RoadBEV network behind the backend protocol."""
 
     def __init__(self, kind: str, grid: GridSpec, *, checkpoint: str | Path | None = None,
-                 threads: int | None = None, runtime: str = "torch", provider: str = "cpu",
+                 threads: int | None = None, runtime: str | None = None, provider: str = "cpu",
                  out_of_distribution: str = "refuse") -> None:
         if out_of_distribution not in OOD_MODES:
             raise BackendError(f"{kind} backend: out_of_distribution must be one of {', '.join(OOD_MODES)}, "
                                f"got {out_of_distribution!r}")
         self.flag_out_of_distribution = out_of_distribution == "flag"
-        path = Path(checkpoint) if checkpoint else default_checkpoint(kind)
+        runtime = runtime or DEFAULT_RUNTIMES[kind]
+        path = Path(checkpoint) if checkpoint else default_checkpoint(kind, runtime, grid)
         if not path.is_file():
             raise BackendError(
                 f"{kind} backend: checkpoint {path} not found (train one with `roadbev train --kind {kind}` "

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from roadbev_core.config import DEFAULT_BACKEND
 from roadbev_ros.cli import CommandError
 
 HELP = "the main job: synthetic drive -> node over ROS 2 -> recorded outputs -> report (+ a drive, map on/off)"
@@ -24,8 +25,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"frames of the synthetic drive (default {DEFAULT_FRAMES}; ignored with --bag)")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, metavar="DIR",
                         help=f"report folder (default ./{DEFAULT_OUT})")
-    parser.add_argument("--backend", default="bev_sweep", metavar="B",
-                        help="elevation backend of the node (default bev_sweep; stereo/mono need checkpoints)")
+    parser.add_argument("--backend", default=DEFAULT_BACKEND, metavar="B",
+                        help=f"elevation backend of the node (default {DEFAULT_BACKEND})")
     parser.add_argument("--bag", type=Path, default=None, metavar="BAG",
                         help="any contract evaluation bag (rosbag2 directory or .mcap) instead of the synthetic drive")
     parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic drive (default 0)")

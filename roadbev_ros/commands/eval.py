@@ -24,10 +24,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from roadbev_core.config import DEFAULT_BACKEND
 from roadbev_ros.cli import CommandError, progress_bar, warn
 
 HELP = "run a backend over every frame of a bag (no DDS) and report the metrics"
-DEFAULT_BACKEND = "bev_sweep"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -96,8 +96,8 @@ def test_every_parameter_has_a_description_a_valid_default_and_one_name() -> Non
 
 
 def test_round_trip_and_typed_sections() -> None:
-    config = RoadbevConfig.from_params({"base_height": 1.3, "sync_slop_s": 0, "bev_sweep.patch_cells": 5,
-                                        "imu_to_camera_rpy_deg": [0, 1, 2]})
+    config = RoadbevConfig.from_params({"base_height": 1.3, "sync_slop_s": 0, "backend": "bev_sweep",
+                                        "bev_sweep.patch_cells": 5, "imu_to_camera_rpy_deg": [0, 1, 2]})
     assert config.grid == GridSpec(base_height=1.3)
     assert config.sync.slop_s == 0.0 and isinstance(config.sync.slop_s, float)
     assert config.imu.imu_to_camera_rpy_deg == (0.0, 1.0, 2.0)

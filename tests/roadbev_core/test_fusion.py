@@ -228,7 +228,7 @@ def test_bilinear_samples_at_and_beyond_the_edges() -> None:
     np.testing.assert_allclose(s2, s3)
 
 
-def test_the_published_sigma_carries_the_datum_and_grows_with_the_distance_driven() -> None:
+def test_the_published_sigma_carries_the_datum_against_the_road_under_the_car() -> None:
     plain = FusedMap(_settings(datum_sigma_m=0.0, datum_drift=0.0))
     drifting = FusedMap(_settings(datum_sigma_m=0.01, datum_drift=0.004))
     for fused in (plain, drifting):
@@ -239,10 +239,13 @@ def test_the_published_sigma_carries_the_datum_and_grows_with_the_distance_drive
     held = np.isfinite(w0.elevation)
     datum = np.sqrt(w1.uncertainty[held].astype(np.float64) ** 2 - w0.uncertainty[held].astype(np.float64) ** 2)
     assert datum.min() >= 0.01 - 1e-5 and datum.max() <= 0.01 + 0.004 * 5.5 + 1e-5
-    # the far cells, first seen by the last frames (5 m and more driven), carry the most
+    # the far cells, seen only by the last frames (where the car is now), carry the least; the
+    # cells under the car, fused from frames metres of driving ago, the most
     x, _ = w1.cell_centres()
     far = np.broadcast_to((x > x.max() - 0.5)[:, None], held.shape)[held]
-    assert datum[far].mean() > 0.01 + 0.004 * 4.5
+    under = np.broadcast_to(((x > 5.5) & (x < 5.5 + 2.8))[:, None], held.shape)[held]
+    assert datum[far].mean() < 0.01 + 0.004 * 0.5
+    assert datum[under].mean() > datum[far].mean() + 0.004 * 1.5
     # the datum layer says how much of the sigma nearby cells share; without it, the cell's own
     assert w0.datum_uncertainty is not None and w1.datum_uncertainty is not None
     np.testing.assert_allclose(w1.datum_uncertainty[held], datum, atol=2e-4)
@@ -251,6 +254,26 @@ def test_the_published_sigma_carries_the_datum_and_grows_with_the_distance_drive
     # the gate, the alignment and the preview use the cells' own sigma: unchanged
     px, py = np.array([6.0, 8.0]), np.array([0.1, -0.2])
     np.testing.assert_array_equal(plain.heights(px, py)[1], drifting.heights(px, py)[1])
+
+
+def test_the_published_sigma_stays_bounded_over_a_long_drive() -> None:
+    # 60 s at 10 m/s with a 10 Hz camera: the absolute datum's sigma grows with the 600 m driven,
+    # the published sigma (against the road under the car) does not
+    fused = FusedMap(_settings(datum_sigma_m=0.002, datum_drift=0.0004))
+    rng = np.random.default_rng(0)
+    medians = []
+    for k in range(600):
+        base = PlanarPose(1 + k, float(k), 0.0, 0.0, 10.0, 0.0)
+        truth = _frame(_bumpy, base, 0.0)
+        estimate = truth + rng.normal(0.0, 0.003, truth.shape)
+        placement = place_frame(base, Attitude(0.0, 0.0), CAMERA, LEVEL_MOUNT)
+        last = fused.integrate(estimate, np.full(estimate.shape, 0.003), GRID, placement, 1 + k,
+                               base_z_prediction=fused.predicted_base_z(None))
+        if k % 100 == 99:
+            medians.append(float(np.nanmedian(fused.window(base, 1 + k).uncertainty)))
+    assert last.driven_m == pytest.approx(599.0) and last.datum_sigma_m > 0.2  # odom z: unknowable
+    assert max(medians) < 0.002 + 0.0004 * 10.0 + 0.003  # bounded by the corridor's length
+    assert medians[-1] < 1.2 * medians[0]
 
 
 def test_the_datum_is_fixed_again_when_the_map_starts_over() -> None:

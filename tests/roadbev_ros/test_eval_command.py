@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.config import DEFAULT_BACKEND, GridSpec, StereoCamera
 from roadbev_core.evaluation import CONTRACT_KEYS
 from roadbev_ros.cli import main
 
@@ -56,11 +56,16 @@ def test_eval_writes_metrics(bag: Path, tmp_path: Path, capsys: pytest.CaptureFi
     assert "preview_at_arrival" not in data  # not a drive bag
 
 
-def test_frames_limit_and_default_backend(bag: Path, tmp_path: Path) -> None:
+def test_frames_limit_and_default_backend(bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "m.json"
-    assert main(["eval", str(bag), "--frames", "1", "--json", str(out), "--no-progress"]) == 0
+    assert main(["eval", str(bag), "--frames", "1", "--backend", "bev_sweep", "--json", str(out),
+                 "--no-progress"]) == 0
     data = json.loads(out.read_text())
     assert data["frames"] == 1 and data["backend"] == "bev_sweep"
+    # the default backend is the learned stereo model, which refuses this bag's 6 cm grid by name
+    assert main(["eval", str(bag), "--frames", "1", "--no-progress"]) == 2
+    error = _one_line_error(capsys)
+    assert f"backend '{DEFAULT_BACKEND}' cannot run" in error and "trained 0.03 m" in error
 
 
 def test_missing_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -90,7 +95,7 @@ def test_bad_params(bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str
     params.write_text("roadbev: [not, a, section\n")
     assert main(["eval", str(bag), "--params", str(params)]) == 2
     _one_line_error(capsys)
-    params.write_text("roadbev:\n  ros__parameters:\n    bev_sweep.patch_cells: 4\n")
+    params.write_text("roadbev:\n  ros__parameters:\n    backend: bev_sweep\n    bev_sweep.patch_cells: 4\n")
     assert main(["eval", str(bag), "--params", str(params), "--no-progress"]) == 2
     assert "odd" in _one_line_error(capsys)
 

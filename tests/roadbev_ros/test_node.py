@@ -12,6 +12,7 @@ import pytest
 
 from msg_bridge import stamp_from_header
 from msg_bridge.preview import preview_from_message
+from roadbev_core.config import DEFAULT_BACKEND
 
 from ._ros_harness import MS, START_NS, Harness, wait_for
 
@@ -177,7 +178,7 @@ def test_bad_input_is_reported_and_the_node_recovers(harness: Harness) -> None:
     for key in ("problem.bad input", "problem.unpaired", "problem.bad imu", "problem.stamp order",
                 "problem.bad frame"):
         assert int(diag[key]) >= 1, diag
-    assert diag["backend"] == "stub-bev_sweep"
+    assert diag["backend"] == f"stub-{DEFAULT_BACKEND}"
     assert int(diag["outputs"]) >= 9
 
 
@@ -238,7 +239,7 @@ def test_costly_or_crashing_parameter_changes_are_rejected_and_the_node_keeps_ru
         ]:
             result = node.set_parameters_atomically(params)
             assert not result.successful and reason in result.reason, result.reason
-            assert node.pipeline.backend is backend and node.config.backend.name == "bev_sweep"
+            assert node.pipeline.backend is backend and node.config.backend.name == DEFAULT_BACKEND
         h.wait_output(feed(h, 0))  # still answering with the old backend
     finally:
         h.close()
@@ -275,7 +276,9 @@ def test_speed_topic_gives_times_of_arrival_and_a_viewer_gets_points(harness: Ha
     toa = profiles.time_of_arrival()
     assert toa is not None
     assert profiles.vehicle_speed == pytest.approx(5.0)
-    np.testing.assert_allclose(toa, profiles.distances() / 5.0, rtol=1e-5)
+    # a speed turns the map on (dead reckoned): the contact-plane stream, arrivals at the front axle
+    assert profiles.reference == "contact_plane" and profiles.reference_distance == pytest.approx(2.8)
+    np.testing.assert_allclose(toa, (profiles.distances() - 2.8) / 5.0, rtol=1e-5, atol=1e-6)
     # a viewer listens on the point cloud topic: one point per estimated cell
     assert wait_for(lambda: len(clouds) == 1)
     names, points = point_cloud_to_array(clouds[0])
@@ -300,7 +303,7 @@ def test_backend_options_come_from_parameters(ros: Any) -> None:
     h = Harness(ros, params={"bm.block_size": 7}, backend_factory=factory)
     try:
         node = h.node
-        assert seen[-1] == {"name": "bev_sweep"}  # options of other backends are not passed
+        assert seen[-1] == {"name": DEFAULT_BACKEND}  # options of other backends are not passed
         assert node.set_parameters([Parameter("backend", value="bm")])[0].successful
         assert seen[-1] == {"name": "bm", "block_size": 7}
         result = node.set_parameters([Parameter("backend", value="bev_sweep")])[0]

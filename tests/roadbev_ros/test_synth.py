@@ -115,8 +115,12 @@ def test_eval_map_on_a_drive_fuses_publishes_and_scores_the_map(tmp_path: Path,
     assert topics["/roadbev/map"] == topics["/tf"] == topics["/roadbev/preview"] == 10
     assert "/roadbev/map" not in {t for t in bag_topics(runs["--no-map"][1])}
     references = [preview_from_message(item.msg) for item in read_messages(runs["--map"][1], ["/roadbev/preview"])]
-    assert references[0].frame_id == "roadbev_road"  # no tyre contact on the map yet: the per-frame preview
-    assert references[-1].frame_id == "base_link" and references[-1].profiles.contact_plane is not None
+    # one stream: every preview in base_link against a contact plane, the body's until the map holds the contacts
+    assert {r.frame_id for r in references} == {"base_link"}
+    first, last = references[0].profiles.contact_plane, references[-1].profiles.contact_plane
+    assert first is not None and first.source == "body"
+    assert last is not None and last.source == "map"
+    assert all(r.time_of_arrival is not None for r in references)
     again = tmp_path / "again.json"
     assert main(["eval", str(bag), "--map", "--backend", "bm", "--json", str(again), "--no-progress"]) == 0
     second = json.loads(again.read_text())
