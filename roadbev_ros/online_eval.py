@@ -289,8 +289,8 @@ def evaluate_online(
                 # lockstep: the rest of the bag (the IMU at 100 Hz and more) waits for the pending
                 # frame's answer once it is more than LOCKSTEP_LEAD_S ahead of that frame, so the
                 # node never gets a burst that overflows its best-effort IMU queue around it
-                pending = rate is None and last_stamp is not None and last_stamp in usable
-                if pending and log_time > last_stamp + LOCKSTEP_LEAD_NS:
+                pending = last_stamp if rate is None and last_stamp in usable else None
+                if pending is not None and log_time > pending + LOCKSTEP_LEAD_NS:
                     watcher.wait(last_stamp, images_sent, frame_timeout_s)
                 return
             # A frame that cannot complete (its other image lost in a damaged or cut bag) gets no
