@@ -45,9 +45,6 @@ __all__ = ["OnlineEvalError", "OnlineResult", "evaluate_online", "format_online"
 
 GT_TOPIC = "/ground_truth/elevation"
 ELEVATION_TOPIC = "/roadbev/elevation"
-# Lockstep: messages this far (bag time) past the pending frame wait for its answer (the IMU
-# samples right after a frame, which its attitude is interpolated from, still go out before it).
-LOCKSTEP_LEAD_NS = 200_000_000
 PREVIEW_TOPIC = "/roadbev/preview"
 MAP_TOPIC = "/roadbev/map"
 OUTPUT_TOPICS = (ELEVATION_TOPIC, PREVIEW_TOPIC, MAP_TOPIC, "/diagnostics")
@@ -283,15 +280,9 @@ def evaluate_online(
         sent: dict[int, float] = {}  # stamp -> monotonic time the left image went out
         stop = threading.Event()
 
-        def gate(topic: str, log_time: int, data: bytes) -> None:
+        def gate(topic: str, _log_time: int, data: bytes) -> None:
             nonlocal images_sent, last_stamp
             if topic != left_topic:
-                # lockstep: the rest of the bag (the IMU at 100 Hz and more) waits for the pending
-                # frame's answer once it is more than LOCKSTEP_LEAD_S ahead of that frame, so the
-                # node never gets a burst that overflows its best-effort IMU queue around it
-                pending = last_stamp if rate is None and last_stamp in usable else None
-                if pending is not None and log_time > pending + LOCKSTEP_LEAD_NS:
-                    watcher.wait(last_stamp, images_sent, frame_timeout_s)
                 return
             # A frame that cannot complete (its other image lost in a damaged or cut bag) gets no
             # answer: lockstep waits only for the frames the bag holds whole.
