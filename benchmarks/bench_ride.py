@@ -39,15 +39,26 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import multiprocessing
 import sys
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from benchmarks.common import RESULTS, machine_info, write_json
+from benchmarks.preview_budget import (
+    STAGES,
+    Candidate,
+    DriveFrames,
+    candidate_previews,
+    candidates_from_node,
+    make_backend,
+)
 
 CACHE = Path(__file__).resolve().parents[1] / ".cache"
 
@@ -60,10 +71,9 @@ STAGE_SEPARATOR = ":"  # a budget row: "<candidate>:<stage>"
 # the preview-at-arrival keys kept per row (against the reference each message declares)
 ARRIVAL_SUMMARY = ("abs_err_cm", "features_abs_err_cm", "smooth_abs_err_cm", "coverage_pct",
                    "contact_plane_abs_err_cm", "points", "features_points")
-DEFAULT_CANDIDATES = (
-    "stereo_int8=stereo:stereo.runtime=openvino,stereo.checkpoint=checkpoints/roadbev_stereo_lite_int8.onnx",
-    "bev_sweep=bev_sweep",
-)
+# the configurations ridden by default: the default one and every other a user could pick, with
+# bev_sweep re-tuned for the ride on tuning drives (its defaults were tuned on single clean frames)
+DEFAULT_CANDIDATES = ("stereo", "bev_sweep", "bev_sweep_ride=bev_sweep:bev_sweep.min_score=0.7", "bm", "sgbm")
 
 
 def road_config(kind: str, rng: np.random.Generator) -> Any:
@@ -87,29 +97,36 @@ def road_config(kind: str, rng: np.random.Generator) -> Any:
     return REAL_ROAD_MIDDLE.apply(road)  # the pavement and camera of a road built by hand
 
 
-def candidate_makers(candidates: Sequence[Any], budget: bool) -> dict[str, PreviewMaker]:
-    """The rows of one rendered drive: per candidate its fused-map previews as the node fuses them
-    (``<name>``), and with ``budget`` one row per stage of the error budget (``<name>:<stage>``);
-    a candidate's rows share one estimate per frame. Plus :data:`PREVIEW_MAKERS`."""
-    from benchmarks.preview_budget import STAGES, candidate_previews, make_backend
+class CandidateRows:
+    """One candidate's rows on a drive: its estimates made once per drive and shared by its stages."""
 
+    def __init__(self, candidate: Candidate) -> None:
+        self.candidate = candidate
+        self._drive: Any = None
+        self._estimates: Any = None
+
+    def maker(self, stage: str) -> PreviewMaker:
+        """The row of ``stage`` (:data:`benchmarks.preview_budget.STAGES`)."""
+
+        def make(drive: Any, samples: Sequence[Any], step: int, settings: Any) -> list[Any]:
+            if self._drive is not drive:
+                self._drive, self._estimates = drive, make_backend(self.candidate, drive.config.grid)
+            return candidate_previews(drive, samples, self.candidate, self._estimates, stage, step=step,
+                                      ride_settings=settings)
+
+        return make
+
+
+def candidate_makers(candidates: Sequence[Candidate], budget: bool) -> dict[str, PreviewMaker]:
+    """The rows of one rendered drive: per candidate its fused-map previews as the node fuses them
+    (``<name>``), and with ``budget`` one row per stage of the error budget (``<name>:<stage>``),
+    plus :data:`PREVIEW_MAKERS`."""
     makers: dict[str, PreviewMaker] = {}
     for candidate in candidates:
-        caches: dict[int, Any] = {}  # one cached backend per drive
-
-        def maker(candidate: Any, stage: str, caches: dict[int, Any]) -> PreviewMaker:
-            def make(drive: Any, samples: Sequence[Any], step: int, settings: Any) -> list[Any]:
-                key = id(drive)
-                if key not in caches:
-                    caches.clear()
-                    caches[key] = make_backend(candidate, drive.config.grid)
-                return candidate_previews(drive, samples, candidate, caches[key], stage, step=step,
-                                          ride_settings=settings)
-            return make
-
+        rows = CandidateRows(candidate)
         for stage in STAGES if budget else ("shipped",):
             name = candidate.name if stage == "shipped" else f"{candidate.name}{STAGE_SEPARATOR}{stage}"
-            makers[name] = maker(candidate, stage, caches)
+            makers[name] = rows.maker(stage)
     makers.update({name: factory(name) for name, factory in PREVIEW_MAKERS.items()})
     return makers
 
@@ -287,6 +304,39 @@ def plot(table: Sequence[dict[str, Any]], path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
+class CellJob(NamedTuple):
+    """One drive to ride: its road, speed, seed, duration and whether it is rendered."""
+
+    kind: str
+    speed: float
+    seed: int
+    duration: float
+    rendered: bool
+
+
+def _run_job(job: CellJob, *, rates: Sequence[float], latency: float, candidates: Sequence[Candidate], budget: bool,
+             frame_cache: str) -> dict[str, Any]:
+    """:func:`run_cell` of one job (a process of the pool builds its own makers and caches)."""
+    what = "rendered" if job.rendered else "truth-only"
+    print(f"{what} drive {job.kind} {job.speed:g} m/s seed {job.seed}, {job.duration:g} s", file=sys.stderr,
+          flush=True)
+    makers = candidate_makers(candidates, budget) if job.rendered else {}
+    return run_cell(job.kind, job.speed, job.seed, job.duration, rates, latency, makers,
+                    DriveFrames(frame_cache) if job.rendered else None)
+
+
+def _cell_order(args: argparse.Namespace, base: int, rendered: bool,
+                reused: dict[tuple[str, float, int], dict[str, Any]]) -> list[tuple[str, float, int]]:
+    """The cells' keys in the benchmark's order (road, speed, truth-only seeds, rendered seeds)."""
+    keys = []
+    for k, kind in enumerate(args.roads):
+        for i, speed in enumerate(args.speeds):
+            keys += [(kind, speed, base + 1000 * k + 100 * i + s) for s in range(args.seeds)]
+            if rendered:
+                keys += [(kind, speed, base + 1000 * k + 100 * i + 50 + s) for s in range(args.render_seeds)]
+    return keys
+
+
 class BenchError(Exception):
     """An earlier run that cannot stand in for the drives asked for."""
 
@@ -351,15 +401,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed-base", type=int, default=SEED_BASE,
                         help="drive seeds start here (the benchmark's own by default; tuning runs take others)")
     parser.add_argument("--latency", type=float, default=0.1, help="latency of the truth rows (s)")
+    parser.add_argument("--jobs", type=int, default=1, help="drives ridden in parallel processes")
     parser.add_argument("--out", default=str(RESULTS / "ride.json"))
     parser.add_argument("--truth-from", default=None, metavar="JSON",
                         help="take the truth-only drives from an earlier run's JSON (they depend on the "
                              "settings only, not on any backend: every one asked for must be there with the same "
                              "duration, rates and latency) instead of riding them again")
     args = parser.parse_args(argv)
-    from benchmarks.preview_budget import DriveFrames, candidates_from_node
-
-    candidates: list[Any] = []
+    candidates: list[Candidate] = []
     if args.candidates:
         try:
             node = json.loads(Path(args.node_results).read_text())
@@ -379,25 +428,25 @@ def main(argv: list[str] | None = None) -> int:
                                                   args.latency)
         except BenchError as exc:
             parser.error(str(exc))
-    frame_cache = DriveFrames(args.frame_cache)
-    cells = []
+    jobs: list[CellJob] = []
     for k, kind in enumerate(args.roads):
         for i, speed in enumerate(args.speeds):
             for s in range(args.seeds):
                 seed = base + 1000 * k + 100 * i + s
-                if (kind, speed, seed) in reused:
-                    cells.append(reused[(kind, speed, seed)])
-                    continue
-                print(f"truth-only drive {kind} {speed:g} m/s seed {seed}, {args.duration:g} s", file=sys.stderr,
-                      flush=True)
-                cells.append(run_cell(kind, speed, seed, args.duration, args.rates, args.latency, {}))
+                if (kind, speed, seed) not in reused:
+                    jobs.append(CellJob(kind, speed, seed, args.duration, False))
             if candidates:
-                for s in range(args.render_seeds):
-                    seed = base + 1000 * k + 100 * i + 50 + s
-                    print(f"rendered drive {kind} {speed:g} m/s seed {seed}, {args.render_duration:g} s",
-                          file=sys.stderr, flush=True)
-                    cells.append(run_cell(kind, speed, seed, args.render_duration, args.rates, args.latency,
-                                          candidate_makers(candidates, args.budget), frame_cache))
+                jobs += [CellJob(kind, speed, base + 1000 * k + 100 * i + 50 + s, args.render_duration, True)
+                         for s in range(args.render_seeds)]
+    work = partial(_run_job, rates=tuple(args.rates), latency=args.latency, candidates=tuple(candidates),
+                   budget=args.budget, frame_cache=args.frame_cache)
+    if args.jobs > 1:  # drives are independent and deterministic: the same cells in any order
+        with ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+            done = list(pool.map(work, jobs))
+    else:
+        done = [work(job) for job in jobs]
+    computed = {(job.kind, job.speed, job.seed): cell for job, cell in zip(jobs, done, strict=True)}
+    cells = [computed.get(key) or reused[key] for key in _cell_order(args, base, bool(candidates), reused)]
     table = summarise(cells)
     data = {
         "what": "preview LQR quarter car (roadbev_core.ride) over the true road of riding drives, per preview source; "
