@@ -1,31 +1,37 @@
-"""Preview at arrival, per frame and from the fused map, on drives where the car rides on its road.
+"""Preview at arrival of node configurations on drives where the car rides on its road, with an error budget.
 
-For every speed and camera rate, one :class:`roadbev_core.synth.RidingDrive` (the full
+For every speed, camera rate and seed one :class:`roadbev_core.synth.RidingDrive` (the full
 960x528 rig, a random road of the test-scene distribution plus speed bumps and potholes, a
-feature every 3 m, the body on its suspension, S-curves) is rendered once; each backend estimates every frame
-through the pipeline twice, as ``roadbev eval --no-map`` and ``--map`` do on a drive bag:
+feature every 3 m, the body on its suspension, S-curves, the ``real-road`` look) is rendered once
+(its frames kept in ``--frame-cache``). Each **candidate** (``--candidates``, a configuration of
+the node with its latency and time per frame measured in the node, ``--node-results``; see
+:mod:`benchmarks.preview_budget`) runs over it as ``roadbev eval --map`` does (the drive's own
+drifting odometry and ``/tf_static`` mount), on the frames the node's schedule lets it fuse, each
+preview used from when it is received:
 
-* map off: the per-frame wheel-track previews (``roadbev_road``);
-* map on: the drive's own (drifting, noisy) odometry and the camera mount of its ``/tf_static``
-  feed the fused map; its contact-plane previews (the per-frame one for the first frames, until
-  the map holds three tyre contacts).
+* ``<name>``: its fused-map previews (contact-plane reference, the stream the node publishes);
+  its map is scored against the true road too (:func:`roadbev_core.arrival.map_accuracy`,
+  against the road under the car);
+* ``<name>:per_frame``: the same frames through the per-frame pipeline (``--no-map``);
+* with ``--budget`` one row per stage of the error budget (``<name>:true_answered``, ...).
 
-Both are scored at the front wheels' arrival (:func:`roadbev_core.arrival.preview_at_arrival`,
-lead 0.1 s); with the map on, the map itself is scored against the true road
-(:func:`roadbev_core.arrival.map_accuracy`). The per-frame grid metrics of the same frames are
-kept too: they say whether the shipped checkpoints hold on drive frames (compare
-``benchmarks/results/models.json``, the single-frame test scenes).
+Every row is scored at the front wheels' arrival (:func:`roadbev_core.arrival.preview_at_arrival`,
+against the true counterpart of the reference each message declares, and against the true contact
+plane). The per-frame grid metrics of each candidate's estimates on the drive frames are kept too.
 
-Run: ``.venv/bin/python -m benchmarks.bench_arrival [--duration 2] [--speeds 5 10 20 30]
-[--rates 5 10] [--backends bev_sweep stereo mono]``; writes ``benchmarks/results/arrival.json``
-and ``arrival.png``.
+Run: ``.venv/bin/python -m benchmarks.bench_arrival [--duration 10] [--seeds 1] [--speeds 5 10 20 30]
+[--rates 5 10] [--candidates stereo ...] [--budget]``; writes ``benchmarks/results/arrival.json`` and
+``arrival.png``.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -33,6 +39,22 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from benchmarks.common import RESULTS, machine_info, write_json
+from benchmarks.preview_budget import (
+    DEFAULT_CANDIDATES,
+    STAGE_SEPARATOR,
+    STAGES,
+    Candidate,
+    DriveFrames,
+    candidate_previews,
+    candidates_from_node,
+    make_backend,
+)
+from roadbev_core.arrival import TimedPreview, map_accuracy, preview_at_arrival
+from roadbev_core.fusion import MapWindow
+from roadbev_core.metrics import MetricAccumulator
+from roadbev_core.ride import RideSettings
+
+CACHE = Path(__file__).resolve().parents[1] / ".cache"
 
 SEED_BASE = 310_000  # disjoint from training (< 1e5), test (1e5+), tuning (2e5+) and the map's tuning drive (300001)
 FEATURES = ("speed_bump", "pothole")  # added to each drive's random features: the feature points a controller needs
@@ -94,114 +116,171 @@ def evaluate_on_drive(drive: Any, samples: list[Any], backend: str, fused: bool,
     return evaluate(pipeline, samples, keep_estimates=True, odometry=odometry)
 
 
-def run_drive(speed: float, rate: float, duration: float, seed: int, backends: list[str], lead: float,
-              ) -> dict[str, Any]:
-    """Render one drive, run every backend on it, score the previews at arrival."""
-    from roadbev_core.arrival import map_accuracy, per_frame_previews, preview_at_arrival
-
+def run_drive(speed: float, rate: float, duration: float, seed: int, candidates: Sequence[Candidate],
+              budget: Sequence[str] | None, lead: float, frame_cache: DriveFrames) -> dict[str, Any]:
+    """Render one drive (or read it back), run every candidate on it, score its rows at arrival."""
     drive = make_drive(speed, rate, duration, seed)
     road, frames = drive.config.road, drive.config.frames
     start = time.perf_counter()
-    samples = list(drive)
+    samples = frame_cache.samples(drive)
     render_s = time.perf_counter() - start
-    truth, road_map, settings, odometry = drive_truth(drive, lead)
+    truth, road_map, settings, _ = drive_truth(drive, lead)
+    ride_settings = RideSettings(latency_s=lead, arrival=settings)
+    stamps = drive.frame_stamps_ns
     out: dict[str, Any] = {"speed_mps": speed, "rate_hz": rate, "frames": frames, "seed": seed,
                            "road": {"class": road.road_class, "features": list(road.features),
-                                    "surface": road.surface}, "render_s": round(render_s, 1), "backends": {}}
-    for name in backends:
-        rows: dict[str, Any] = {}
-        for fused in (False, True):
-            result = evaluate_on_drive(drive, samples, name, fused, odometry)
-            stamps = [int(r["stamp_ns"]) for r in result.per_frame]
-            outputs = result.outputs or []
-            arrival = preview_at_arrival(per_frame_previews(outputs), truth, road_map, settings,
-                                         frame_stamps_ns=stamps)
-            metrics = result.to_dict()
-            row: dict[str, Any] = {
-                "preview_at_arrival": {k: v for k, v in arrival.items() if k != "per_wheel"},
-                "grid": {k: metrics[k] for k in ("abs_err_cm", "rmse_cm", "coverage_pct", "cells", "fps")},
-            }
-            pa = arrival
-            line = (f"  {name:9s} {speed:4.0f} m/s {rate:4.0f} Hz map {'on ' if fused else 'off'}: arrival "
-                    f"{pa['abs_err_cm']:.3f} cm ({pa['coverage_pct']:.1f} %), features "
-                    f"{pa['features_abs_err_cm']:.3f}, smooth {pa['smooth_abs_err_cm']:.3f}, contact plane "
-                    f"{pa['contact_plane_abs_err_cm']:.3f}")
-            if fused:
-                fusions = [o.fusion for o in outputs if o.fusion is not None]
-                row["map"] = map_accuracy([o.map for o in outputs if o.map is not None], road_map, truth)
-                row["map"]["fusion_ms_p50"] = float(np.median([f.cost_ms for f in fusions]))
-                row["map"]["map_stage_ms_p50"] = float(np.median([o.timings_ms["map"] for o in outputs]))
-                line += (f"; map {row['map']['abs_err_cm']:.3f} cm ({row['map']['coverage_pct']:.1f} %), "
-                         f"confidently wrong {row['map']['confident_wrong_pct']:.2f} %")
-            else:
-                line += f"; grid {metrics['abs_err_cm']:.3f} cm"
-            print(line, file=sys.stderr, flush=True)
-            rows["map" if fused else "per_frame"] = row
-        out["backends"][name] = {**rows["per_frame"], "map_on": rows["map"]}
+                                    "surface": road.surface}, "render_s": round(render_s, 1), "rows": {},
+                           "grid": {}, "map": {}, "fused_frames": {}}
+
+    def score(previews: Sequence[TimedPreview]) -> dict[str, Any]:
+        arrival = preview_at_arrival(previews, truth, road_map, settings, frame_stamps_ns=stamps)
+        return {k: v for k, v in arrival.items() if k != "per_wheel"}
+
+    for candidate in candidates:
+        cached = make_backend(candidate, drive.config.grid)
+        windows: list[MapWindow] = []
+        shipped = candidate_previews(drive, samples, candidate, cached, "shipped", ride_settings=ride_settings,
+                                     on_map=windows.append)
+        out["rows"][candidate.name] = score(shipped)
+        out["fused_frames"][candidate.name] = f"{len(shipped)}/{frames}"
+        out["map"][candidate.name] = map_accuracy(windows, road_map, truth) if windows else None
+        per_frame = candidate_previews(drive, samples, candidate, cached, "shipped", ride_settings=ride_settings,
+                                       map_on=False)
+        out["rows"][f"{candidate.name}{STAGE_SEPARATOR}per_frame"] = score(per_frame)
+        for stage in STAGES[1:] if budget is not None and (not budget or candidate.name in budget) else ():
+            previews = candidate_previews(drive, samples, candidate, cached, stage, ride_settings=ride_settings)
+            out["rows"][f"{candidate.name}{STAGE_SEPARATOR}{stage}"] = score(previews)
+        grid = MetricAccumulator(drive.config.grid)
+        for sample in samples:
+            grid.add(cached.estimate(sample.frame).elevation, sample.truth.elevation)
+        metrics = grid.result().to_dict()
+        out["grid"][candidate.name] = {k: metrics[k] for k in ("abs_err_cm", "rmse_cm", "coverage_pct", "cells")}
+        pa, fm = out["rows"][candidate.name], out["map"][candidate.name]
+        print(f"  {candidate.name:14s} {speed:4.0f} m/s {rate:4.0f} Hz seed {seed}: arrival {pa['abs_err_cm']:.3f} cm "
+              f"({pa['coverage_pct']:.1f} %), features {pa['features_abs_err_cm']:.3f}, contact plane "
+              f"{pa['contact_plane_abs_err_cm']:.3f}; map {fm['abs_err_cm'] if fm else math.nan:.3f} cm",
+              file=sys.stderr, flush=True)
     return out
 
 
-def plot(results: list[dict[str, Any]], path: Any) -> None:
-    """Error and coverage against speed, one line per backend and camera rate."""
+def summarise(results: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per (speed, rate, row): the preview at arrival pooled over the seeds (errors weighted by the
+    points each drive covered, feature errors by its feature points)."""
+    groups: dict[tuple[float, float], list[dict[str, Any]]] = {}
+    for r in results:
+        groups.setdefault((r["speed_mps"], r["rate_hz"]), []).append(r)
+    table = []
+    for (speed, rate), items in sorted(groups.items()):
+        names = list(dict.fromkeys(n for r in items for n in r["rows"]))
+        rows = {}
+        for name in names:
+            arrivals = [r["rows"][name] for r in items if name in r["rows"]]
+            points = np.array([a["points"] for a in arrivals], float)
+            covered = np.array([a["covered_points"] for a in arrivals], float)
+            feature_covered = np.array([a["features_points"] * (a["features_coverage_pct"] or 0) / 100.0
+                                        for a in arrivals], float)
+
+            def weighted(key: str, weights: np.ndarray, arrivals: list[dict[str, Any]] = arrivals) -> float:
+                values = np.array([a[key] for a in arrivals], float)
+                ok = np.isfinite(values) & (weights > 0)
+                return float(np.sum(values[ok] * weights[ok]) / np.sum(weights[ok])) if ok.any() else math.nan
+
+            rows[name] = {"abs_err_cm": weighted("abs_err_cm", covered),
+                          "features_abs_err_cm": weighted("features_abs_err_cm", feature_covered),
+                          "smooth_abs_err_cm": weighted("smooth_abs_err_cm", covered),
+                          "contact_plane_abs_err_cm": weighted("contact_plane_abs_err_cm", covered),
+                          "coverage_pct": float(100.0 * covered.sum() / points.sum()) if points.sum() else math.nan}
+        table.append({"speed_mps": speed, "rate_hz": rate, "drives": len(items), "rows": rows})
+    return table
+
+
+def plot(table: Sequence[dict[str, Any]], candidates: Sequence[str], path: Path) -> None:
+    """Error at arrival, against the true contact plane, and coverage against speed: one colour per
+    candidate (fused map solid, per frame dotted), circles 10 Hz / squares 5 Hz."""
     from roadbev_core.figures import new_figure
 
-    fig, axes = new_figure(1, 3, figsize=(14, 4), dpi=100)
-    backends = sorted({b for r in results for b in r["backends"]})
-    rates = sorted({r["rate_hz"] for r in results})
-    for name in backends:
+    fig, axes = new_figure(1, 3, figsize=(14, 4.2), dpi=100)
+    rates = sorted({t["rate_hz"] for t in table})
+    for c, name in enumerate(candidates):
         for rate in rates:
-            rows = sorted((r for r in results if r["rate_hz"] == rate and name in r["backends"]),
-                          key=lambda r: r["speed_mps"])
-            speeds = [r["speed_mps"] for r in rows]
-            for key, tag, marker in (("per_frame", "per frame", "o"), ("map_on", "map", "^")):
-                pa = [(r["backends"][name] if key == "per_frame" else r["backends"][name][key])["preview_at_arrival"]
-                      for r in rows]
-                style = ("-" if rate == rates[0] else "--") + marker
+            items = sorted((t for t in table if t["rate_hz"] == rate), key=lambda t: t["speed_mps"])
+            speeds = [t["speed_mps"] for t in items]
+            marker = "o" if rate == rates[-1] else "s"
+            for row, style, tag in ((name, "-", "map"), (f"{name}{STAGE_SEPARATOR}per_frame", ":", "per frame")):
+                values = [t["rows"].get(row) for t in items]
+                if any(v is None for v in values):
+                    continue
                 label = f"{name} {tag} {rate:g} Hz"
-                axes[0].plot(speeds, [p["abs_err_cm"] for p in pa], style, label=label)
-                axes[1].plot(speeds, [p["contact_plane_abs_err_cm"] for p in pa], style, label=label)
-                axes[2].plot(speeds, [p["coverage_pct"] for p in pa], style, label=label)
+                for ax, key in zip(axes, ("abs_err_cm", "contact_plane_abs_err_cm", "coverage_pct"), strict=True):
+                    ax.plot(speeds, [v[key] for v in values], style + marker, color=f"C{c}", label=label)
     for ax, title in zip(axes, ("abs. error at arrival (cm)", "vs the true contact plane (cm)", "coverage (%)"),
                          strict=True):
         ax.set_xlabel("speed (m/s)")
         ax.set_title(title)
         ax.grid(alpha=0.3)
-    axes[2].legend(fontsize=7)
-    fig.suptitle("previews at the front wheels' arrival (lead 0.1 s): per frame and from the fused map")
+    axes[2].legend(fontsize=6, ncol=2)
+    fig.suptitle("previews at the front wheels' arrival, each configuration at its own latency")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--duration", type=float, default=2.0, help="seconds of camera frames per drive (default 2)")
+    parser.add_argument("--duration", type=float, default=10.0, help="seconds of camera frames per drive")
+    parser.add_argument("--seeds", type=int, default=1, help="drives per speed and camera rate")
     parser.add_argument("--speeds", type=float, nargs="+", default=[5.0, 10.0, 20.0, 30.0])
     parser.add_argument("--rates", type=float, nargs="+", default=[5.0, 10.0])
-    parser.add_argument("--backends", nargs="+", default=["bev_sweep", "stereo", "mono"])
-    parser.add_argument("--lead-time", type=float, default=0.1)
+    parser.add_argument("--candidates", nargs="+", default=list(DEFAULT_CANDIDATES), metavar="NAME=BACKEND[:P=V,...]",
+                        help="configurations of the node (node parameters after the colon; each needs a row in "
+                             "--node-results)")
+    parser.add_argument("--node-results", default=str(RESULTS / "node_candidates.json"), metavar="JSON",
+                        help="bench_node --drive results: each candidate's latency and time per frame in the node")
+    parser.add_argument("--budget", nargs="*", default=None, metavar="NAME",
+                        help="add the error budget of these candidates (all when none is named): one row per "
+                             "stage taken from the truth (preview_budget.STAGES)")
+    parser.add_argument("--frame-cache", default=str(CACHE / "arrival_frames"), metavar="DIR",
+                        help="rendered drive frames are kept here and read back by later runs")
+    parser.add_argument("--lead-time", type=float, default=0.1, help="lead time of messages without a receipt time")
     parser.add_argument("--out", default=str(RESULTS / "arrival.json"))
     args = parser.parse_args(argv)
+    try:
+        node = json.loads(Path(args.node_results).read_text())
+        candidates = candidates_from_node(args.candidates, node["rows"])
+    except (OSError, ValueError, KeyError) as exc:
+        parser.error(f"--node-results {args.node_results}: {exc}")
     info = machine_info()
     start = time.perf_counter()
+    frame_cache = DriveFrames(args.frame_cache)
     results = []
     for i, speed in enumerate(args.speeds):
         for rate in args.rates:
-            print(f"drive {speed:g} m/s, {rate:g} Hz, {args.duration:g} s", file=sys.stderr, flush=True)
-            results.append(run_drive(speed, rate, args.duration, SEED_BASE + i, args.backends, args.lead_time))
+            for s in range(args.seeds):
+                seed = SEED_BASE + i + 100 * s
+                print(f"drive {speed:g} m/s, {rate:g} Hz, seed {seed}, {args.duration:g} s", file=sys.stderr,
+                      flush=True)
+                results.append(run_drive(speed, rate, args.duration, seed, candidates, args.budget, args.lead_time,
+                                         frame_cache))
+    table = summarise(results)
     data = {
-        "what": "preview at arrival of the per-frame pipeline and (map_on) of the fused map (contract: Drive "
-                "bags and the evaluation of previews); grid = the per-frame elevation metrics of the same drive "
-                "frames; map_on.map = the fused map against the true road, time-averaged",
+        "what": "preview at arrival of node configurations (fused map; per_frame: map off; the error budget's "
+                "stages), each at its latency measured in the node (contract: Drive bags and the evaluation of "
+                "previews); grid = the per-frame elevation metrics of the drive frames; map = the fused map against "
+                "the true road under the car, time-averaged",
         "command": "python -m benchmarks.bench_arrival " + " ".join(argv if argv is not None else sys.argv[1:]),
         "duration_s": args.duration,
         "lead_time_s": args.lead_time,
+        "candidates": [{"name": c.name, "backend": c.backend, "params": dict(c.params), "latency_s": c.latency_s,
+                        "period_s": c.period_s} for c in candidates],
+        "node_results": args.node_results,
+        "budget": args.budget,
         "machine": info,
         "wall_s": round(time.perf_counter() - start, 1),
+        "table": table,
         "results": results,
     }
     out = Path(args.out)
     write_json(out, data)
-    plot(results, out.with_suffix(".png"))
+    plot(table, [c.name for c in candidates], out.with_suffix(".png"))
     print(f"wrote {out} and {out.with_suffix('.png')} in {data['wall_s']} s", file=sys.stderr)
     return 0
 

@@ -52,6 +52,8 @@ import numpy as np
 
 from benchmarks.common import RESULTS, machine_info, write_json
 from benchmarks.preview_budget import (
+    DEFAULT_CANDIDATES,
+    STAGE_SEPARATOR,
     STAGES,
     Candidate,
     DriveFrames,
@@ -67,14 +69,9 @@ CAMERA_RATE_HZ = 10.0  # drives are rendered at 10 Hz; slower cameras take every
 ROAD_KINDS = ("bumps", "potholes", "rough")
 # (drive, rendered frames, frame step of the camera rate, ride settings) -> the row's messages
 PreviewMaker = Callable[[Any, Sequence[Any], int, Any], list[Any]]
-STAGE_SEPARATOR = ":"  # a budget row: "<candidate>:<stage>"
 # the preview-at-arrival keys kept per row (against the reference each message declares)
 ARRIVAL_SUMMARY = ("abs_err_cm", "features_abs_err_cm", "smooth_abs_err_cm", "coverage_pct",
                    "contact_plane_abs_err_cm", "points", "features_points")
-# the configurations ridden by default: the default one and every other a user could pick, with
-# bev_sweep re-tuned for the ride on tuning drives (its defaults were tuned on single clean frames)
-DEFAULT_CANDIDATES = ("stereo", "bev_sweep", "bev_sweep_ride=bev_sweep:bev_sweep.min_score=0.7", "bm", "sgbm")
-
 
 def road_config(kind: str, rng: np.random.Generator) -> Any:
     """The road of one kind: speed bumps and humps on a smooth road (ISO 8608 A), potholes on a
@@ -98,33 +95,39 @@ def road_config(kind: str, rng: np.random.Generator) -> Any:
 
 
 class CandidateRows:
-    """One candidate's rows on a drive: its estimates made once per drive and shared by its stages."""
+    """One candidate's rows on a drive: its estimates made once per drive and shared by its stages
+    (and by every candidate with the same backend and backend options, through ``shared``)."""
 
-    def __init__(self, candidate: Candidate) -> None:
+    def __init__(self, candidate: Candidate, shared: dict[tuple[int, str, str], Any]) -> None:
         self.candidate = candidate
-        self._drive: Any = None
-        self._estimates: Any = None
+        self._shared = shared
+        self._key = (candidate.backend, json.dumps(candidate.backend_options(), sort_keys=True, default=str))
 
     def maker(self, stage: str) -> PreviewMaker:
         """The row of ``stage`` (:data:`benchmarks.preview_budget.STAGES`)."""
 
         def make(drive: Any, samples: Sequence[Any], step: int, settings: Any) -> list[Any]:
-            if self._drive is not drive:
-                self._drive, self._estimates = drive, make_backend(self.candidate, drive.config.grid)
-            return candidate_previews(drive, samples, self.candidate, self._estimates, stage, step=step,
+            key = (id(drive), *self._key)
+            if key not in self._shared:
+                for old in [k for k in self._shared if k[0] != id(drive)]:  # one drive at a time
+                    del self._shared[old]
+                self._shared[key] = make_backend(self.candidate, drive.config.grid)
+            return candidate_previews(drive, samples, self.candidate, self._shared[key], stage, step=step,
                                       ride_settings=settings)
 
         return make
 
 
-def candidate_makers(candidates: Sequence[Candidate], budget: bool) -> dict[str, PreviewMaker]:
+def candidate_makers(candidates: Sequence[Candidate], budget: Sequence[str] | None) -> dict[str, PreviewMaker]:
     """The rows of one rendered drive: per candidate its fused-map previews as the node fuses them
-    (``<name>``), and with ``budget`` one row per stage of the error budget (``<name>:<stage>``),
-    plus :data:`PREVIEW_MAKERS`."""
+    (``<name>``), and for the candidates named in ``budget`` (all when it is empty, none when None)
+    one row per stage of the error budget (``<name>:<stage>``), plus :data:`PREVIEW_MAKERS`."""
     makers: dict[str, PreviewMaker] = {}
+    shared: dict[tuple[int, str, str], Any] = {}
     for candidate in candidates:
-        rows = CandidateRows(candidate)
-        for stage in STAGES if budget else ("shipped",):
+        rows = CandidateRows(candidate, shared)
+        budgeted = budget is not None and (not budget or candidate.name in budget)
+        for stage in STAGES if budgeted else ("shipped",):
             name = candidate.name if stage == "shipped" else f"{candidate.name}{STAGE_SEPARATOR}{stage}"
             makers[name] = rows.maker(stage)
     makers.update({name: factory(name) for name, factory in PREVIEW_MAKERS.items()})
@@ -142,7 +145,7 @@ def scores(rows: dict[str, dict[str, Any]]) -> dict[str, float]:
 
 
 def run_cell(kind: str, speed: float, seed: int, duration: float, rates: Sequence[float], lead: float,
-             makers: dict[str, PreviewMaker], frame_cache: Any = None) -> dict[str, Any]:
+             makers: dict[str, PreviewMaker], frame_cache: Any = None, preview_gain: bool = True) -> dict[str, Any]:
     """One drive: every source ridden at every camera rate (rendered only when ``makers``; its
     frames from ``frame_cache``, a :class:`benchmarks.preview_budget.DriveFrames`, when given)."""
     from roadbev_core.arrival import ArrivalSettings, Trajectory, preview_at_arrival
@@ -165,7 +168,8 @@ def run_cell(kind: str, speed: float, seed: int, duration: float, rates: Sequenc
     road_map = drive.road_map()
     grid = drive.config.grid
     settings = RideSettings(latency_s=lead, arrival=ArrivalSettings(lead_time_s=lead, base_height=grid.base_height,
-                                                                    camera_in_base=drive.base_to_camera))
+                                                                    camera_in_base=drive.base_to_camera),
+                            preview_gain=preview_gain)
     stamps = drive.frame_stamps_ns
     start, end = stamps[0], int(truth.stamp_ns[-1])
     score_end = stamps[-1] + int(round(lead * 1e9))  # after the last message arrives the preview runs dry
@@ -188,9 +192,11 @@ def run_cell(kind: str, speed: float, seed: int, duration: float, rates: Sequenc
         sources: dict[str, Any] = {"window": window[::step], "map_plane": fused[::step],
                                    "map_plane_attitude": fused[::step]}
         fused_frames: dict[str, int] = {}
+        stream: dict[str, dict[str, int]] = {}
         for name, make in makers.items():
             sources[name] = make(drive, samples, step, settings)
             fused_frames[name] = len(sources[name])
+            stream[name] = preview_stream(sources[name])
         if base is None:  # passive, no-preview and the ceiling do not depend on the camera
             base = ride(truth, road_map, {"passive": "passive", "no_preview": "none", "true_road": "true"},
                         settings, start, end, score_end)
@@ -200,13 +206,25 @@ def run_cell(kind: str, speed: float, seed: int, duration: float, rates: Sequenc
                           if k in ARRIVAL_SUMMARY}
                    for name, previews in sources.items()}
         out["rates"][f"{rate:g}"] = {"rows": rows, "share": scores(rows), "arrival": arrival,
-                                     "fused_frames": fused_frames, "camera_frames": len(stamps[::step])}
+                                     "fused_frames": fused_frames, "camera_frames": len(stamps[::step]),
+                                     "stream": stream}
         share = out["rates"][f"{rate:g}"]["share"]
         wk = {k: v["mean"]["wk_rms_mps2"] for k, v in rows.items()}
         print(f"  {kind:8s} {speed:4.0f} m/s seed {seed} {rate:4.0f} Hz: Wk passive {wk['passive']:.3f}, "
               f"no preview {wk['no_preview']:.3f}, true {wk['true_road']:.3f} m/s^2; share "
               + ", ".join(f"{k} {v:.2f}" for k, v in share.items() if k != "true_road"), file=sys.stderr, flush=True)
     return out
+
+
+def preview_stream(previews: Sequence[Any]) -> dict[str, int]:
+    """What a row's messages were: how many, how many against a contact plane (``base_link``),
+    with a finite vehicle speed, with times of arrival, and with all three (the one stream)."""
+    plane = [p.reference == "contact_plane" for p in previews]
+    speed = [p.profiles.vehicle_speed is not None and math.isfinite(p.profiles.vehicle_speed) for p in previews]
+    arrival = [p.profiles.time_of_arrival() is not None for p in previews]
+    return {"messages": len(previews), "contact_plane": sum(plane), "with_speed": sum(speed),
+            "with_arrival_times": sum(arrival),
+            "in_one_stream": sum(a and b and c for a, b, c in zip(plane, speed, arrival, strict=True))}
 
 
 def summarise(cells: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -314,15 +332,16 @@ class CellJob(NamedTuple):
     rendered: bool
 
 
-def _run_job(job: CellJob, *, rates: Sequence[float], latency: float, candidates: Sequence[Candidate], budget: bool,
-             frame_cache: str) -> dict[str, Any]:
+def _run_job(job: CellJob, *, rates: Sequence[float], latency: float, candidates: Sequence[Candidate],
+             budget: Sequence[str] | None,
+             frame_cache: str, preview_gain: bool) -> dict[str, Any]:
     """:func:`run_cell` of one job (a process of the pool builds its own makers and caches)."""
     what = "rendered" if job.rendered else "truth-only"
     print(f"{what} drive {job.kind} {job.speed:g} m/s seed {job.seed}, {job.duration:g} s", file=sys.stderr,
           flush=True)
     makers = candidate_makers(candidates, budget) if job.rendered else {}
     return run_cell(job.kind, job.speed, job.seed, job.duration, rates, latency, makers,
-                    DriveFrames(frame_cache) if job.rendered else None)
+                    DriveFrames(frame_cache) if job.rendered else None, preview_gain)
 
 
 def _cell_order(args: argparse.Namespace, base: int, rendered: bool,
@@ -394,14 +413,17 @@ def main(argv: list[str] | None = None) -> int:
                              "needs a row in --node-results); none: truth rows only")
     parser.add_argument("--node-results", default=str(RESULTS / "node_candidates.json"), metavar="JSON",
                         help="bench_node --drive results: each candidate's latency and time per frame in the node")
-    parser.add_argument("--budget", action="store_true",
-                        help="add the error budget: one row per stage taken from the truth (preview_budget.STAGES)")
+    parser.add_argument("--budget", nargs="*", default=None, metavar="NAME",
+                        help="add the error budget of these candidates (all when none is named): one row per "
+                             "stage taken from the truth (preview_budget.STAGES)")
     parser.add_argument("--frame-cache", default=str(CACHE / "ride_frames"), metavar="DIR",
                         help="rendered drive frames are kept here and read back by later runs")
     parser.add_argument("--seed-base", type=int, default=SEED_BASE,
                         help="drive seeds start here (the benchmark's own by default; tuning runs take others)")
     parser.add_argument("--latency", type=float, default=0.1, help="latency of the truth rows (s)")
     parser.add_argument("--jobs", type=int, default=1, help="drives ridden in parallel processes")
+    parser.add_argument("--no-preview-gain", action="store_true",
+                        help="the controller applies all of every preview (no gain measured on the road ridden)")
     parser.add_argument("--out", default=str(RESULTS / "ride.json"))
     parser.add_argument("--truth-from", default=None, metavar="JSON",
                         help="take the truth-only drives from an earlier run's JSON (they depend on the "
@@ -415,6 +437,9 @@ def main(argv: list[str] | None = None) -> int:
             candidates = candidates_from_node(args.candidates, node["rows"])
         except (OSError, ValueError, KeyError) as exc:
             parser.error(f"--node-results {args.node_results}: {exc}")
+    unknown = set(args.budget or ()) - {c.name for c in candidates}
+    if unknown:
+        parser.error(f"--budget: no candidate named {', '.join(sorted(unknown))}")
     info = machine_info()
     start = time.perf_counter()
     base = args.seed_base
@@ -439,7 +464,7 @@ def main(argv: list[str] | None = None) -> int:
                 jobs += [CellJob(kind, speed, base + 1000 * k + 100 * i + 50 + s, args.render_duration, True)
                          for s in range(args.render_seeds)]
     work = partial(_run_job, rates=tuple(args.rates), latency=args.latency, candidates=tuple(candidates),
-                   budget=args.budget, frame_cache=args.frame_cache)
+                   budget=args.budget, frame_cache=args.frame_cache, preview_gain=not args.no_preview_gain)
     if args.jobs > 1:  # drives are independent and deterministic: the same cells in any order
         with ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
             done = list(pool.map(work, jobs))
@@ -453,6 +478,8 @@ def main(argv: list[str] | None = None) -> int:
                 "share = share of the true road's Wk-RMS gain over the controller without preview",
         "command": "python -m benchmarks.bench_ride " + " ".join(argv if argv is not None else sys.argv[1:]),
         "latency_s": args.latency,
+        "preview_gain": not args.no_preview_gain,
+        "budget": args.budget,
         "candidates": [{"name": c.name, "backend": c.backend, "params": dict(c.params), "latency_s": c.latency_s,
                         "period_s": c.period_s} for c in candidates],
         "node_results": args.node_results if candidates else None,

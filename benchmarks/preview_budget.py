@@ -42,9 +42,9 @@ from roadbev_core.config import GridSpec, RoadbevConfig
 from roadbev_core.datasets import SCENE_VERSION
 from roadbev_core.evaluation import evaluate
 from roadbev_core.frame import Estimate, Frame
-from roadbev_core.fusion import FrameFusion, FramePlacement, FusedMap, MapSettings
+from roadbev_core.fusion import FrameFusion, FramePlacement, FusedMap, MapSettings, MapWindow
 from roadbev_core.labels import ElevationLabel
-from roadbev_core.pipeline import Pipeline
+from roadbev_core.pipeline import Pipeline, PipelineOutput
 from roadbev_core.preview import ContactPlane, TrackProfile
 from roadbev_core.ride import RideSettings, true_contact_planes
 from roadbev_core.synth import RidingDrive
@@ -53,7 +53,9 @@ from roadbev_core.synth.riding import DRIVE_VERSION, planar_odometry
 from roadbev_core.vehicle import planar_yaw
 
 __all__ = [
+    "DEFAULT_CANDIDATES",
     "STAGES",
+    "STAGE_SEPARATOR",
     "CachedEstimates",
     "Candidate",
     "DriveFrames",
@@ -66,6 +68,15 @@ __all__ = [
 
 STAGES: tuple[str, ...] = ("shipped", "true_answered", "true_all", "true_odometry", "true_datum", "true_plane",
                            "no_latency")
+STAGE_SEPARATOR = ":"  # a budget row's name: "<candidate>:<stage>"
+# The configurations the benchmarks compare by default: every backend a user could pick (bev_sweep
+# also re-tuned for the ride on tuning drives: its defaults were tuned on single frames of the clean
+# look) and ensembles of the learned model with an image-view matcher and of the two matchers.
+DEFAULT_CANDIDATES: tuple[str, ...] = (
+    "stereo", "bm", "sgbm", "ensemble",
+    "ensemble_stereo_bm=ensemble:ensemble.members=stereo+bm", "ensemble_bm_sgbm=ensemble:ensemble.members=bm+sgbm",
+    "bev_sweep", "bev_sweep_ride=bev_sweep:bev_sweep.min_score=0.7",
+)
 
 
 @dataclass(frozen=True)
@@ -139,8 +150,9 @@ def candidates_from_node(specs: Sequence[str], node_results: Sequence[Mapping[st
 
 def _node_row(backend: str, params: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> Mapping[str, Any] | None:
     """The ``5hz`` row (the bag's own timing, as a camera delivers it) of ``backend`` with exactly
-    the options ``params`` (``<backend>.<option>``)."""
-    want = {key: str(value) for key, value in params.items()}
+    the backend options (``<backend>.<option>``) of ``params`` (other parameters, such as the
+    preview's, do not change what the node spends on a frame)."""
+    want = {key: str(value) for key, value in params.items() if key.startswith(f"{backend}.")}
     for row in rows:
         name, _, options = str(row["backend"]).partition(":")
         have = {f"{name}.{item.partition('=')[0]}": item.partition("=")[2] for item in filter(None, options.split(","))}
@@ -274,11 +286,15 @@ def with_true_plane(previews: Sequence[TimedPreview], truth: Trajectory, road_ma
 
 
 def candidate_previews(drive: RidingDrive, samples: Sequence[DriveSample], candidate: Candidate,
-                       cached: CachedEstimates, stage: str, *, step: int = 1,
-                       ride_settings: RideSettings) -> list[TimedPreview]:
+                       cached: CachedEstimates, stage: str, *, step: int = 1, ride_settings: RideSettings,
+                       map_on: bool = True, on_map: Callable[[MapWindow], Any] | None = None) -> list[TimedPreview]:
     """The previews of ``candidate`` with the map on, with ``stage`` of the error budget taken from
     the truth, on every ``step``-th frame of a rendered drive as the node's schedule lets it fuse
     them (each stamped with when it is received).
+
+    Args:
+        map_on: False: the per-frame pipeline (``map.enabled`` false; its previews in ``roadbev_road``).
+        on_map: called with every published map window (map on).
 
     Raises:
         ValueError: an unknown stage.
@@ -299,7 +315,7 @@ def candidate_previews(drive: RidingDrive, samples: Sequence[DriveSample], candi
     if stage in ("true_answered", "true_all"):
         labels = {int(s.frame.stamp_ns): s.truth.elevation for s in samples}
         backend = _TruthBackend(cached, labels, answered=stage == "true_answered")
-    extra: dict[str, Any] = {}
+    extra: dict[str, Any] = {} if map_on else {"map.enabled": False}
     map_factory: Callable[[MapSettings], FusedMap] = FusedMap
     if stage == "true_datum":
         extra["map.align"] = False
@@ -310,8 +326,13 @@ def candidate_previews(drive: RidingDrive, samples: Sequence[DriveSample], candi
     pipeline.set_camera_mount(*drive.base_to_camera)
     odometry = drive.ground_truth_poses() if stage == "true_odometry" else drive.odometry()
     outputs: list[Any] = []
-    evaluate(pipeline, fused_frames, odometry=planar_odometry(odometry),
-             on_output=lambda o: outputs.extend(per_frame_previews([o])))
+
+    def keep(output: PipelineOutput) -> None:
+        outputs.extend(per_frame_previews([output]))
+        if on_map is not None and output.map is not None:
+            on_map(output.map)
+
+    evaluate(pipeline, fused_frames, odometry=planar_odometry(odometry) if map_on else None, on_output=keep)
     previews = [replace(p, received_ns=received[p.stamp_ns]) for p in outputs]
     if stage == "true_plane":
         previews = with_true_plane(previews, truth, drive.road_map(), ride_settings)

@@ -13,12 +13,13 @@ The plane is the plain least-squares plane through the four contacts (each count
 the contract defines it); their sigmas set its covariance only. When the map lacks one contact
 (a kerb top above the grid's height range, a cell the backend declined), the fourth is stood in
 from the body's attitude (the IMU's) through the other three, with a sigma of the suspension's
-travel (3 cm). Until the map holds three of the contacts, a prior decides what they leave open:
-the body's own plane at static ride height (its attitude from the IMU, its height from the map's
-datum; 3 cm and 1 degree) (the first metres of a drive: the rear contacts lie ~4 m behind the
-grid's near edge; ``source`` = ``"body"`` then, and the pipeline publishes the per-frame preview
-instead of such a guess). A profile sample's sigma combines the map cells'
-(their mean over the footprint: neighbouring cells' errors are correlated) and the plane's.
+travel (3 cm). Until the map holds three of the contacts (the first metres of a drive: the rear
+contacts lie ~4 m behind the grid's near edge) the plane is that of the road the map holds ahead
+of the front wheels, features trimmed, carried back under the car (``source`` = ``"road"``), with
+the body's own plane at static ride height as its prior (its attitude from the IMU, its height
+from the map's datum; 3 cm and 1 degree), which alone decides where the map holds too little
+(``source`` = ``"body"``). A profile sample's sigma combines the map cells' (their mean over the
+footprint: neighbouring cells' errors are correlated) and the plane's.
 
 Pure numpy; shapes in the comments.
 """
@@ -39,6 +40,12 @@ __all__ = ["BODY_PLANE_SIGMA", "contact_plane_fit", "contact_plane_on_map", "foo
 # 1-sigma of the body's plane at static ride height against the road's (suspension deflection
 # over bumps and under braking: a few cm and about a degree).
 BODY_PLANE_SIGMA = (0.03, math.radians(1.0))
+# The road ahead (before the map holds the contacts): samples along the front tracks this far
+# apart, at least this many, and those further than this from the plane are features, trimmed.
+_ROAD_SAMPLE_M = 0.15
+_ROAD_MIN_SAMPLES = 12
+_ROAD_TRIM_M = 0.015
+_ROAD_CORRELATION = 0.1  # as the map's alignment counts one frame's cells (map.align_correlation)
 
 
 def footprint_heights(fused: FusedMap, x: np.ndarray, y: np.ndarray, heading: float, width: float,
@@ -147,10 +154,56 @@ def contact_plane_on_map(fused: FusedMap, placement: FramePlacement, vehicle: Ve
         wz[missing] = offset + body[1] * dx[missing] + body[2] * dy[missing]
         wsig[missing] = BODY_PLANE_SIGMA[0]
         known = np.ones(4, bool)
+    if known.sum() >= 3:
+        coeffs, cov = contact_plane_fit(np.stack([dx, dy, wz], 1)[known], wsig[known])
+        return coeffs, cov, _as_contact_plane(coeffs, cov, base.yaw, base_z, "map")
+    body = _plane_from_body(placement, base_z)
+    road = _road_ahead(fused, placement, vehicle, tyre_width_m, body)
+    if road is not None:
+        return road[0], road[1], _as_contact_plane(road[0], road[1], base.yaw, base_z, "road")
     rel = np.stack([dx, dy, wz], 1)[known]
-    source = "map" if known.sum() >= 3 else "body"
-    coeffs, cov = contact_plane_fit(rel, wsig[known], None if source == "map" else _plane_from_body(placement, base_z))
-    return coeffs, cov, _as_contact_plane(coeffs, cov, base.yaw, base_z, source)
+    coeffs, cov = contact_plane_fit(rel, wsig[known], body)
+    return coeffs, cov, _as_contact_plane(coeffs, cov, base.yaw, base_z, "body")
+
+
+def _road_ahead(fused: FusedMap, placement: FramePlacement, vehicle: VehicleConfig, tyre_width_m: float,
+                prior: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray] | None:
+    """The plane of the road the map holds ahead of the front wheels, carried back under the car:
+    ``z = p0 + p1 dx + p2 dy`` (odom axes, relative to ``base_link``'s origin) [3] and its
+    covariance [3, 3], fitted to footprints along both front tracks with features trimmed (a bump
+    does not tilt it) and the body's plane as a prior; None when the map holds too little there.
+
+    Before the map holds the tyre contacts this is the best guess of the plane they will form: a
+    road's grade and cross slope change over tens of metres, while the body's own plane is off the
+    road's by the suspension's deflection (centimetres and a degree over bumps)."""
+    base = placement.base
+    c, s = math.cos(base.yaw), math.sin(base.yaw)
+    wheels = vehicle.wheel_positions()
+    x = np.arange(wheels[0, 0], fused.settings.ahead_m, _ROAD_SAMPLE_M)  # [S] base_link x ahead of the front axle
+    y = wheels[:2, 1]  # [2] the front tracks
+    bx, by = np.meshgrid(x, y, indexing="ij")  # [S, 2]
+    px, py = base.x + c * bx - s * by, base.y + s * bx + c * by
+    z, sz = footprint_heights(fused, px.ravel(), py.ravel(), base.yaw, tyre_width_m, _ROAD_SAMPLE_M)
+    known = np.isfinite(z) & np.isfinite(sz)
+    if known.sum() < _ROAD_MIN_SAMPLES or np.ptp(bx.ravel()[known]) < 1.0:
+        return None
+    points = np.stack([(px.ravel() - base.x)[known], (py.ravel() - base.y)[known], z[known]], 1)  # [K, 3]
+    keep = np.ones(points.shape[0], bool)
+    for _ in range(3):  # trim what stands off the plane (bumps, potholes, kerbs)
+        A = np.stack([np.ones(int(keep.sum())), points[keep, 0], points[keep, 1]], 1)
+        coeffs = np.linalg.lstsq(A, points[keep, 2], rcond=None)[0]
+        residual = points[:, 2] - (coeffs[0] + coeffs[1] * points[:, 0] + coeffs[2] * points[:, 1])
+        keep = np.abs(residual) <= _ROAD_TRIM_M
+        if keep.sum() < _ROAD_MIN_SAMPLES:
+            return None
+    n = int(keep.sum())
+    rms = float(np.sqrt(np.mean(residual[keep] ** 2)))
+    # the road between the samples and the tyres is unseen: its unevenness (the residual) adds to
+    # every sample's sigma, and the samples' errors are correlated (one estimate, neighbouring
+    # cells): n of them are worth n / (1 + (n - 1) rho) independent ones
+    worth = n / (1.0 + (n - 1) * _ROAD_CORRELATION)
+    sigmas = np.sqrt(sz[known][keep] ** 2 + rms**2) * math.sqrt(n / worth)
+    return contact_plane_fit(points[keep], sigmas, prior)
 
 
 def map_preview(

@@ -436,7 +436,8 @@ class Pipeline:
 
         With the map on every preview is a contact-plane one in ``base_link`` (one stream, the
         contract's "One preview stream"): before the map holds three tyre contacts its plane is
-        the body's (``source`` ``"body"``, with that plane's sigma); a frame without a pose (stale
+        the road's ahead (``source`` ``"road"``) or the body's (``"body"``), with that plane's
+        sigma; a frame without a pose (stale
         odometry: counted in ``map_skipped``) is not fused and its preview comes from this frame
         alone (:meth:`_frame_only_preview`).
         """

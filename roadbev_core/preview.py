@@ -107,8 +107,10 @@ class ContactPlane:
             static ride height on a flat road; > 0: the body sits lower than static).
         roll, pitch: the plane's attitude relative to gravity (rad).
         height_sigma_m, roll_sigma, pitch_sigma: their 1-sigma.
-        source: ``"map"`` (fitted to the fused map at the four contacts) or ``"body"`` (the map
-            does not hold three contacts yet: the body's own plane at static ride height).
+        source: ``"map"`` (fitted to the fused map at the four contacts), ``"road"`` (the map
+            does not hold three contacts yet: the plane of the road it holds ahead of the front
+            wheels, carried back under the car) or ``"body"`` (nor enough of the road ahead: the
+            body's own plane at static ride height).
     """
 
     height_m: float

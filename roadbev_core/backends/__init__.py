@@ -7,7 +7,8 @@ are imported lazily so that choosing ``bm`` never imports torch, for example.
 Every backend :func:`create` makes answers through :class:`RefinedBackend`: its estimates pass
 through :func:`roadbev_core.uncertainty.refine` (cells hidden behind a crest become NaN; sigma
 is the backend's calibrated model from ``roadbev_core/data/sigma_calibration.json``), one step for
-all backends. ``create(..., raw=True)`` gives the backend's own answer (used to calibrate).
+all backends (an ``ensemble``'s members each, not the ensemble again). ``create(..., raw=True)``
+gives the backend's own answer (used to calibrate).
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ _MODULES: dict[str, str] = {
     "bm": "roadbev_core.backends.image_view",
     "stereo": "roadbev_core.backends.learned",
     "mono": "roadbev_core.backends.learned",
+    "ensemble": "roadbev_core.backends.ensemble",
 }
 # Backends whose networks come from a checkpoint (the `checkpoint` parameter applies to them).
 _LEARNED = frozenset({"stereo", "mono"})
@@ -132,4 +134,5 @@ def create(name: str, grid: GridSpec | None = None, *, raw: bool = False, **opti
         backend = _FACTORIES[name](grid or GridSpec(), **options)
     except (TypeError, ValueError) as exc:
         raise BackendError(f"backend {name!r}: {exc}") from exc
-    return backend if raw else RefinedBackend(backend)
+    # an ensemble's members are refined themselves (their own calibrated sigma weighs them)
+    return backend if raw or getattr(backend, "refines_itself", False) else RefinedBackend(backend)

@@ -25,3 +25,20 @@ def test_the_kerb_roads_of_the_benchmark_put_features_under_the_wheels(speed: fl
     assert feature_points > 100
     for path in paths:  # and the road between the features is rough, not a plane
         assert float(np.std(np.diff(path.height, 2))) > 1e-5
+
+
+def test_the_summary_pools_drives_by_the_points_they_scored() -> None:
+    from benchmarks.bench_arrival import summarise
+
+    def drive(seed: int, err: float, points: int, covered: int, features: float) -> dict[str, object]:
+        row = {"abs_err_cm": err, "features_abs_err_cm": features, "smooth_abs_err_cm": err,
+               "contact_plane_abs_err_cm": err, "points": points, "covered_points": covered,
+               "features_points": 10, "features_coverage_pct": 100.0}
+        return {"speed_mps": 10.0, "rate_hz": 10.0, "seed": seed, "rows": {"stereo": row}}
+
+    (cell,) = summarise([drive(1, 0.2, 100, 100, 0.5), drive(2, 0.5, 300, 200, 1.0)])
+    row = cell["rows"]["stereo"]
+    assert cell["drives"] == 2
+    assert row["abs_err_cm"] == pytest.approx((0.2 * 100 + 0.5 * 200) / 300)
+    assert row["features_abs_err_cm"] == pytest.approx(0.75)
+    assert row["coverage_pct"] == pytest.approx(100.0 * 300 / 400)

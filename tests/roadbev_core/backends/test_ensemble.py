@@ -1,0 +1,79 @@
+"""The ensemble backend: cell-wise combination of its members, concurrency, refusals."""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import pytest
+
+from roadbev_core.backends import BackendError, RefinedBackend, create
+from roadbev_core.backends.ensemble import EnsembleBackend, combine
+from roadbev_core.config import GridSpec
+from roadbev_core.frame import Estimate
+
+GRID = GridSpec()
+
+
+def _estimate(value: float, sigma: float, nan_rows: slice | None = None) -> Estimate:
+    e = np.full(GRID.shape, value, np.float32)
+    s = np.full(GRID.shape, sigma, np.float32)
+    if nan_rows is not None:
+        e[nan_rows] = np.nan
+        s[nan_rows] = np.nan
+    return Estimate(e, s)
+
+
+def test_cells_are_weighted_by_their_sigmas_and_disagreement_widens_the_sigma() -> None:
+    a, b = _estimate(0.010, 0.002, slice(0, 10)), _estimate(0.020, 0.004, slice(5, 20))
+    elevation, sigma = combine([a, b])
+    both = elevation[30]  # both answered: the inverse-variance weighted mean
+    assert both == pytest.approx(np.full(GRID.n_cols, (0.010 / 0.002**2 + 0.020 / 0.004**2) /
+                                         (1 / 0.002**2 + 1 / 0.004**2)), abs=1e-6)
+    w_a, w_b = 1 / 0.002**2, 1 / 0.004**2
+    mean = (0.010 * w_a + 0.020 * w_b) / (w_a + w_b)
+    correlated = (w_a * 0.002 + w_b * 0.004) / (w_a + w_b)
+    spread = (w_a * (0.010 - mean) ** 2 + w_b * (0.020 - mean) ** 2) / (w_a + w_b)
+    assert sigma[30, 0] == pytest.approx(np.sqrt(correlated**2 + spread), rel=1e-5)
+    assert sigma[30, 0] > 0.002  # never below the better member's own when they disagree
+    assert elevation[2, 0] == pytest.approx(0.020) and sigma[2, 0] == pytest.approx(0.004)  # only b
+    assert elevation[12, 0] == pytest.approx(0.010) and sigma[12, 0] == pytest.approx(0.002)  # only a
+    assert np.all(np.isnan(elevation[5:10])) and np.all(np.isnan(sigma[5:10]))  # neither
+    same, same_sigma = combine([a, _estimate(0.010, 0.002, slice(0, 10))])
+    assert same[30, 0] == pytest.approx(0.010) and same_sigma[30, 0] == pytest.approx(0.002)
+
+
+class _Slow:
+    needs_stereo = True
+
+    def __init__(self, name: str, value: float, seconds: float) -> None:
+        self.name, self.grid, self.value, self.seconds = name, GRID, value, seconds
+        self.threads: list[str] = []
+
+    def estimate(self, frame: Any) -> Estimate:
+        self.threads.append(threading.current_thread().name)
+        time.sleep(self.seconds)
+        return _estimate(self.value, 0.003)
+
+
+def test_members_answer_concurrently() -> None:
+    slow_a, slow_b = _Slow("a", 0.0, 0.2), _Slow("b", 0.02, 0.2)
+    ensemble = EnsembleBackend(GRID, [slow_a, slow_b])  # type: ignore[list-item]
+    start = time.perf_counter()
+    out = ensemble.estimate(None)  # type: ignore[arg-type]
+    assert time.perf_counter() - start < 0.35  # about the slowest member, not their sum
+    assert slow_a.threads[0] != slow_b.threads[0]
+    assert float(out.elevation[0, 0]) == pytest.approx(0.01)
+    assert {"a_ms", "b_ms", "members", "post"} <= set(out.timings_ms)
+
+
+def test_the_registry_builds_refined_members_and_refuses_bad_ones() -> None:
+    ensemble = create("ensemble", GRID, members="bm,sgbm")
+    assert isinstance(ensemble, EnsembleBackend)  # not wrapped again: its members are
+    assert [m.name for m in ensemble.members] == ["bm", "sgbm"]
+    assert all(isinstance(m, RefinedBackend) for m in ensemble.members)
+    for members in ("bm", "bm,bm", "bm,ensemble", "bm,magic"):
+        with pytest.raises(BackendError):
+            create("ensemble", GRID, members=members)
