@@ -29,16 +29,19 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import multiprocessing
 import sys
 import time
 from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from benchmarks.common import RESULTS, machine_info, write_json
+from benchmarks.common import CACHE, RESULTS, machine_info, write_json
 from benchmarks.preview_budget import (
     DEFAULT_CANDIDATES,
     STAGE_SEPARATOR,
@@ -53,8 +56,6 @@ from roadbev_core.arrival import TimedPreview, map_accuracy, preview_at_arrival
 from roadbev_core.fusion import MapWindow
 from roadbev_core.metrics import MetricAccumulator
 from roadbev_core.ride import RideSettings
-
-CACHE = Path(__file__).resolve().parents[1] / ".cache"
 
 SEED_BASE = 310_000  # disjoint from training (< 1e5), test (1e5+), tuning (2e5+) and the map's tuning drive (300001)
 FEATURES = ("speed_bump", "pothole")  # added to each drive's random features: the feature points a controller needs
@@ -163,6 +164,13 @@ def run_drive(speed: float, rate: float, duration: float, seed: int, candidates:
     return out
 
 
+def _run_job(job: tuple[float, float, int], *, duration: float, candidates: Sequence[Candidate],
+             budget: Sequence[str] | None, lead: float, frame_cache: str) -> dict[str, Any]:
+    speed, rate, seed = job
+    print(f"drive {speed:g} m/s, {rate:g} Hz, seed {seed}, {duration:g} s", file=sys.stderr, flush=True)
+    return run_drive(speed, rate, duration, seed, candidates, budget, lead, DriveFrames(frame_cache))
+
+
 def summarise(results: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per (speed, rate, row): the preview at arrival pooled over the seeds (errors weighted by the
     points each drive covered, feature errors by its feature points)."""
@@ -241,6 +249,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frame-cache", default=str(CACHE / "arrival_frames"), metavar="DIR",
                         help="rendered drive frames are kept here and read back by later runs")
     parser.add_argument("--lead-time", type=float, default=0.1, help="lead time of messages without a receipt time")
+    parser.add_argument("--jobs", type=int, default=1, help="drives run in parallel processes")
     parser.add_argument("--out", default=str(RESULTS / "arrival.json"))
     args = parser.parse_args(argv)
     try:
@@ -248,18 +257,20 @@ def main(argv: list[str] | None = None) -> int:
         candidates = candidates_from_node(args.candidates, node["rows"])
     except (OSError, ValueError, KeyError) as exc:
         parser.error(f"--node-results {args.node_results}: {exc}")
+    unknown = set(args.budget or ()) - {c.name for c in candidates}
+    if unknown:
+        parser.error(f"--budget: no candidate named {', '.join(sorted(unknown))}")
     info = machine_info()
     start = time.perf_counter()
-    frame_cache = DriveFrames(args.frame_cache)
-    results = []
-    for i, speed in enumerate(args.speeds):
-        for rate in args.rates:
-            for s in range(args.seeds):
-                seed = SEED_BASE + i + 100 * s
-                print(f"drive {speed:g} m/s, {rate:g} Hz, seed {seed}, {args.duration:g} s", file=sys.stderr,
-                      flush=True)
-                results.append(run_drive(speed, rate, args.duration, seed, candidates, args.budget, args.lead_time,
-                                         frame_cache))
+    jobs = [(speed, rate, SEED_BASE + i + 100 * s) for i, speed in enumerate(args.speeds) for rate in args.rates
+            for s in range(args.seeds)]
+    work = partial(_run_job, duration=args.duration, candidates=tuple(candidates), budget=args.budget,
+                   lead=args.lead_time, frame_cache=args.frame_cache)
+    if args.jobs > 1:  # drives are independent and deterministic: the same results in any order
+        with ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+            results = list(pool.map(work, jobs))
+    else:
+        results = [work(job) for job in jobs]
     table = summarise(results)
     data = {
         "what": "preview at arrival of node configurations (fused map; per_frame: map off; the error budget's "

@@ -50,7 +50,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from benchmarks.common import RESULTS, machine_info, write_json
+from benchmarks.common import CACHE, RESULTS, machine_info, write_json
 from benchmarks.preview_budget import (
     DEFAULT_CANDIDATES,
     STAGE_SEPARATOR,
@@ -61,8 +61,6 @@ from benchmarks.preview_budget import (
     candidates_from_node,
     make_backend,
 )
-
-CACHE = Path(__file__).resolve().parents[1] / ".cache"
 
 SEED_BASE = 310_000  # disjoint from training, test, tuning (200000+) and bench_arrival (300000+) seeds
 CAMERA_RATE_HZ = 10.0  # drives are rendered at 10 Hz; slower cameras take every k-th frame

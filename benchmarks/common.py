@@ -23,6 +23,7 @@ from roadbev_core.evaluation import to_json
 from roadbev_core.frame import Estimate, Frame
 
 __all__ = [
+    "CACHE",
     "EVAL_SEED_BASE",
     "RESULTS",
     "add_appearance_argument",
@@ -34,6 +35,7 @@ __all__ = [
 ]
 
 RESULTS = Path(__file__).resolve().parent / "results"
+CACHE = Path(__file__).resolve().parents[1] / ".cache"  # rendered scenes and drives, kept between runs
 EVAL_SEED_BASE = 100_000
 
 class ReplayBackend:

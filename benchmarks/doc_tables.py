@@ -186,7 +186,24 @@ def arrival_budget(data: Mapping[str, Any]) -> str:
     return arrival_rows(data, [name if s == "shipped" else f"{name}{STAGE_SEPARATOR}{s}" for s in STAGES])
 
 
+def node_candidates(data: Mapping[str, Any]) -> str:
+    """bench_node --drive: each configuration in the node with the map on, fed a camera's timing:
+    frames fused, latency, inference and the node's own time per frame."""
+    lines = ["| configuration | frames fused | latency p50 / p95 (ms) | inference p50 (ms) | node overhead mean (ms) |",
+             "|---|---|---|---|---|"]
+    for r in data["rows"]:
+        lines.append(f"| `{r['backend']}` | {r['outputs']}/{r['frames']} | {_fmt(r['latency_ms']['p50'], 0)} / "
+                     f"{_fmt(r['latency_ms']['p95'], 0)} | {_fmt(r['inference_p50_ms'], 0)} | "
+                     f"{_fmt(r['overhead_mean_ms'], 1)} |")
+    bag = data["bag"]
+    lines.append("")
+    lines.append(f"A {bag['frames']}-frame drive at {bag['frame_rate_hz']:g} Hz, the map on; "
+                 f"`{data['machine'].get('cpu', 'this machine')}`, commit {data['machine'].get('git_commit', '?')}.")
+    return "\n".join(lines)
+
+
 TABLES: dict[str, tuple[str, Callable[[Mapping[str, Any]], str]]] = {
+    "node_candidates": ("node_candidates.json", node_candidates),
     "arrival": ("arrival.json", arrival_rows),
     "arrival_budget": ("arrival.json", arrival_budget),
     "ride_shares": ("ride.json", ride_shares),

@@ -73,8 +73,9 @@ STAGE_SEPARATOR = ":"  # a budget row's name: "<candidate>:<stage>"
 # also re-tuned for the ride on tuning drives: its defaults were tuned on single frames of the clean
 # look) and ensembles of the learned model with an image-view matcher and of the two matchers.
 DEFAULT_CANDIDATES: tuple[str, ...] = (
-    "stereo", "bm", "sgbm", "ensemble",
-    "ensemble_stereo_bm=ensemble:ensemble.members=stereo+bm", "ensemble_bm_sgbm=ensemble:ensemble.members=bm+sgbm",
+    "ensemble", "bm", "sgbm", "stereo",
+    "ensemble_stereo_sgbm=ensemble:ensemble.members=stereo+sgbm",
+    "ensemble_stereo_bm=ensemble:ensemble.members=stereo+bm",
     "bev_sweep", "bev_sweep_ride=bev_sweep:bev_sweep.min_score=0.7",
 )
 

@@ -437,9 +437,8 @@ class Pipeline:
         With the map on every preview is a contact-plane one in ``base_link`` (one stream, the
         contract's "One preview stream"): before the map holds three tyre contacts its plane is
         the road's ahead (``source`` ``"road"``) or the body's (``"body"``), with that plane's
-        sigma; a frame without a pose (stale
-        odometry: counted in ``map_skipped``) is not fused and its preview comes from this frame
-        alone (:meth:`_frame_only_preview`).
+        sigma; a frame without a pose (stale odometry: counted in ``map_skipped``) is not fused
+        and its preview comes from this frame alone (:meth:`_frame_only_preview`).
         """
         if not self.map_active:
             return None
@@ -470,6 +469,7 @@ class Pipeline:
 
     def _map_preview(self, fused: FusedMap, placement: FramePlacement, config: RoadbevConfig,
                      speed: float | None) -> PreviewProfiles | None:
+        """The contact-plane wheel-track profiles of ``fused`` at ``placement`` (``base_link``)."""
         if not self._with_preview:
             return None
         p = config.preview
@@ -478,8 +478,8 @@ class Pipeline:
 
     def _frame_only_preview(self, frame: Frame, estimate: Estimate, config: RoadbevConfig) -> PreviewProfiles | None:
         """The contact-plane preview of one frame on its own (the map cannot place it): the frame
-        fused into an empty map at the origin, read against the body's plane, with the last known
-        speed."""
+        fused into an empty map at the origin, so its plane is the road's it sees ahead (or the
+        body's), with the last known speed."""
         with self._lock:
             newest = self.ego.newest if self._odometry_seen else None
         speed = newest.speed if newest is not None else self.speed_at(frame.stamp_ns)

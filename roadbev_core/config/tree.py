@@ -65,7 +65,7 @@ MAX_CAMERA_HZ = 60.0
 MAX_SYNC_SETS = 1_000_000
 # The backend of the node, `roadbev eval` and the demo when none is named: the configuration whose
 # preview the ride benchmark found worth the most (README, "What the preview is worth").
-DEFAULT_BACKEND = "stereo"
+DEFAULT_BACKEND = "ensemble"
 
 
 @dataclass(frozen=True)

@@ -87,7 +87,8 @@ def _small_drive(frames: int = 6) -> RidingDrive:
 
 
 class Noisy:
-    """A backend that answers the drive's own labels plus 1 cm, left half of the grid only."""
+    """A backend that answers the drive's own labels with a 1 cm ripple along the road, left half
+    of the grid only."""
 
     name, needs_stereo = "bm", True
 
@@ -95,7 +96,8 @@ class Noisy:
         self.grid, self.labels = grid, labels
 
     def estimate(self, frame: Any) -> Estimate:
-        e = self.labels[int(frame.stamp_ns)] + 0.01
+        rows = np.arange(self.grid.n_rows)[:, None]
+        e = self.labels[int(frame.stamp_ns)] + 0.01 * np.sin(rows / 4.0)
         e[:, e.shape[1] // 2:] = np.nan
         return Estimate(e.astype(np.float32), np.where(np.isfinite(e), 0.004, np.nan).astype(np.float32))
 
@@ -124,16 +126,19 @@ def test_stored_frames_read_back_and_truth_goes_into_one_stage(tmp_path: Any) ->
         delay = 0 if stage == "no_latency" else 100 * MS
         assert all(p.received_ns == p.stamp_ns + delay for p in previews)
 
-    def left(stage: str) -> float:
-        return float(np.nanmean(np.concatenate([p.profiles.track("front_left").elevation for p in out[stage]])))
-
     def right_known(stage: str) -> int:
         return int(sum(np.isfinite(p.profiles.track("front_right").elevation).sum() for p in out[stage]))
 
-    # the labels +1 cm on the left only: the truth on the answered cells is the labels there; on
-    # every cell, the right track appears as well
+    def left_apart(a: str, b: str) -> float:  # mean |difference| of the left profiles, message by message
+        diffs = [p.profiles.track("front_left").elevation - q.profiles.track("front_left").elevation
+                 for p, q in zip(out[a], out[b], strict=True)]
+        return float(np.nanmean(np.abs(np.concatenate(diffs))))
+
+    # the labels with a ripple on the left only: the truth on the answered cells is the labels
+    # there (no ripple); on every cell, the right track appears as well
     assert right_known("shipped") == right_known("true_answered") == 0 < right_known("true_all")
-    assert left("shipped") != pytest.approx(left("true_answered"), abs=1e-4)
+    assert left_apart("shipped", "true_answered") > 0.003
+    assert left_apart("true_answered", "true_all") < 0.001
     with pytest.raises(ValueError, match="unknown budget stage"):
         candidate_previews(drive, samples, candidate, cached, "true_everything", ride_settings=settings)
 

@@ -16,7 +16,7 @@ import pytest
 from msg_bridge import bag
 from msg_bridge.evalbag import read_eval_bag, write_eval_bag
 from roadbev_core.backends import create
-from roadbev_core.config import StereoCamera
+from roadbev_core.config import DEFAULT_BACKEND, StereoCamera
 from roadbev_core.evaluation import evaluate
 from roadbev_core.synth import DriveConfig, SyntheticDrive
 from roadbev_ros.dds import child_env
@@ -54,7 +54,7 @@ def processes() -> Iterator[list[subprocess.Popen[bytes]]]:
         proc.wait(10)
 
 
-@pytest.mark.parametrize("backend", ["bev_sweep", "bm"])
+@pytest.mark.parametrize("backend", ["bev_sweep", "bm", DEFAULT_BACKEND])
 def test_online_metrics_match_offline(ros: object, drive_bag: Path, tmp_path: Path, backend: str) -> None:
     eval_bag = read_eval_bag(drive_bag)
     offline = evaluate(create(backend, eval_bag.grid), eval_bag, imu=eval_bag.imu).metrics
@@ -195,9 +195,11 @@ def test_a_drive_replayed_into_the_node_gives_the_fused_map_and_previews_of_eval
                  "--image-scale", "0.25", "--features", "speed_bump", "--road-map-resolution", "0.04",
                  "--quiet"]) == 0
     offline_json = tmp_path / "offline.json"
-    assert main(["eval", str(drive), "--map", "--backend", "bm", "--json", str(offline_json), "--no-progress"]) == 0
+    # the default configuration, as the node and `roadbev eval` run it without being told one
+    assert main(["eval", str(drive), "--map", "--json", str(offline_json), "--no-progress"]) == 0
     offline = json.loads(offline_json.read_text())
-    result = evaluate_online(drive, tmp_path / "online", backend="bm")
+    assert offline["backend"] == DEFAULT_BACKEND
+    result = evaluate_online(drive, tmp_path / "online")
     online = result.metrics
     assert online["online"]["frames_without_output"] == 0, result.node_log
     assert bag.bag_topics(result.recorded)["/roadbev/map"].count == 8

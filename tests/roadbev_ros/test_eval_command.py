@@ -62,10 +62,12 @@ def test_frames_limit_and_default_backend(bag: Path, tmp_path: Path, capsys: pyt
                  "--no-progress"]) == 0
     data = json.loads(out.read_text())
     assert data["frames"] == 1 and data["backend"] == "bev_sweep"
-    # the default backend is the learned stereo model, which refuses this bag's 6 cm grid by name
-    assert main(["eval", str(bag), "--frames", "1", "--no-progress"]) == 2
+    assert main(["eval", str(bag), "--frames", "1", "--json", str(out), "--no-progress"]) == 0
+    assert json.loads(out.read_text())["backend"] == DEFAULT_BACKEND  # no --backend, no params: the default
+    # the learned stereo model refuses this bag's 6 cm grid by name
+    assert main(["eval", str(bag), "--frames", "1", "--backend", "stereo", "--no-progress"]) == 2
     error = _one_line_error(capsys)
-    assert f"backend '{DEFAULT_BACKEND}' cannot run" in error and "trained 0.03 m" in error
+    assert "backend 'stereo' cannot run" in error and "trained 0.03 m" in error
 
 
 def test_missing_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
