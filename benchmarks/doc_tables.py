@@ -12,6 +12,7 @@ Run: ``.venv/bin/python -m benchmarks.doc_tables [--write README.md] [NAME ...]`
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import re
@@ -104,6 +105,10 @@ def _streams(data: Mapping[str, Any]) -> dict[str, tuple[int, int]]:
     return out
 
 
+def _share_cell(name: str, cell: Mapping[str, Any]) -> str:
+    return f"{_fmt(cell['rows'][name]['share_mean'])} ± {_fmt(cell['rows'][name]['share_std'])}"
+
+
 def ride_truth(data: Mapping[str, Any]) -> str:
     """The truth-only drives: the controller's Wk without and with the true road, and the share of
     its gain a perfect per-frame camera and a perfect fused map (without and with the contact
@@ -115,8 +120,8 @@ def ride_truth(data: Mapping[str, Any]) -> str:
         ("Wk passive / no preview / true road (m/s²)", lambda c: " / ".join(
             _fmt(c["rows"][r]["wk_rms_mps2"]) for r in ("passive", "no_preview", "true_road"))),
     ]
-    rows += [(f"share `{name}`", lambda c, name=name: f"{_fmt(c['rows'][name]['share_mean'])} ± "
-              f"{_fmt(c['rows'][name]['share_std'])}") for name in ("window", "map_plane", "map_plane_attitude")]
+    for name in ("window", "map_plane", "map_plane_attitude"):
+        rows.append((f"share `{name}`", functools.partial(_share_cell, name)))
     for title, value in rows:
         lines.append("| " + " | ".join([title] + [value(c) for c in cells]) + " |")
     return "\n".join(lines)

@@ -147,11 +147,11 @@ def contact_plane_on_map(fused: FusedMap, placement: FramePlacement, vehicle: Ve
         # backend declined, a hole). Three points alone would give the plane through them, degrees
         # off whenever the fourth stands on a step. Stand the fourth in from the body's attitude
         # (the IMU's) through the three, with the suspension's travel as its sigma.
-        body = _plane_from_body(placement, base_z)[0]
-        offset = float(np.mean(wz[known] - body[1] * dx[known] - body[2] * dy[known]))
+        attitude = _plane_from_body(placement, base_z)[0]
+        offset = float(np.mean(wz[known] - attitude[1] * dx[known] - attitude[2] * dy[known]))
         missing = ~known
         wz, wsig = wz.copy(), wsig.copy()
-        wz[missing] = offset + body[1] * dx[missing] + body[2] * dy[missing]
+        wz[missing] = offset + attitude[1] * dx[missing] + attitude[2] * dy[missing]
         wsig[missing] = BODY_PLANE_SIGMA[0]
         known = np.ones(4, bool)
     if known.sum() >= 3:

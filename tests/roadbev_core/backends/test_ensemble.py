@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import threading
-import time
 from typing import Any
 
 import numpy as np
@@ -45,25 +44,28 @@ def test_cells_are_weighted_by_their_sigmas_and_disagreement_widens_the_sigma() 
     assert same[30, 0] == pytest.approx(0.010) and same_sigma[30, 0] == pytest.approx(0.002)
 
 
-class _Slow:
+class _Meeting:
+    """A member that answers only once the other member is inside its own estimate: run one after
+    the other, the first would wait at the barrier until it breaks."""
+
     needs_stereo = True
 
-    def __init__(self, name: str, value: float, seconds: float) -> None:
-        self.name, self.grid, self.value, self.seconds = name, GRID, value, seconds
+    def __init__(self, name: str, value: float, barrier: threading.Barrier) -> None:
+        self.name, self.grid, self.value, self.barrier = name, GRID, value, barrier
         self.threads: list[str] = []
 
     def estimate(self, frame: Any) -> Estimate:
         self.threads.append(threading.current_thread().name)
-        time.sleep(self.seconds)
+        self.barrier.wait()
         return _estimate(self.value, 0.003)
 
 
 def test_members_answer_concurrently() -> None:
-    slow_a, slow_b = _Slow("a", 0.0, 0.2), _Slow("b", 0.02, 0.2)
-    ensemble = EnsembleBackend(GRID, [slow_a, slow_b])  # type: ignore[list-item]
-    start = time.perf_counter()
+    barrier = threading.Barrier(2, timeout=30.0)
+    slow_a, slow_b = _Meeting("a", 0.0, barrier), _Meeting("b", 0.02, barrier)
+    ensemble = EnsembleBackend(GRID, [slow_a, slow_b])
     out = ensemble.estimate(None)  # type: ignore[arg-type]
-    assert time.perf_counter() - start < 0.35  # about the slowest member, not their sum
+    assert not barrier.broken
     assert slow_a.threads[0] != slow_b.threads[0]
     assert float(out.elevation[0, 0]) == pytest.approx(0.01)
     assert {"a_ms", "b_ms", "members", "post"} <= set(out.timings_ms)
