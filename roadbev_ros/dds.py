@@ -13,7 +13,7 @@ from __future__ import annotations
 import importlib
 import os
 import sys
-from collections.abc import Callable, Mapping, MutableMapping
+from collections.abc import Callable, Mapping, MutableMapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -157,16 +157,39 @@ def spin_until_shutdown(rclpy: Any, node: Any, on_exit: Callable[[], None] | Non
         rclpy.try_shutdown()
 
 
+def asks_for_help(argv: Sequence[str]) -> bool:
+    """``-h`` / ``--help`` among a node executable's own arguments (``argv[0]`` is the program;
+    what follows ``--ros-args`` is rclpy's)."""
+    own = list(argv[1:])
+    if "--ros-args" in own:
+        own = own[:own.index("--ros-args")]
+    return any(arg in ("-h", "--help") for arg in own)
+
+
+def node_usage(program: str, summary: str, defaults: Mapping[str, Any]) -> str:
+    """The ``--help`` of a small node: how to pass parameters, and each with its default."""
+    width = max(len(name) for name in defaults)
+    lines = [f"usage: {program} [-h] [--ros-args -p NAME:=VALUE ... --params-file FILE -r FROM:=TO ...]", "",
+             summary, "", "parameters (defaults):"]
+    lines += [f"  {name:<{width}}  {value!r}" for name, value in defaults.items()]
+    return "\n".join(lines)
+
+
 def run_node(make_node: Callable[[], Any], program: str, refused: tuple[type[BaseException], ...],
-             args: list[str] | None = None) -> int:
+             args: list[str] | None = None, *, usage: str = "") -> int:
     """A small node's ``main``: init rclpy with ``args`` (default ``sys.argv``), build the node,
-    spin it until Ctrl-C / SIGTERM. Returns 0, or 2 when building it raised one of ``refused``
-    (bad parameters: the reason goes to stderr as ``<program>: <reason>``)."""
-    rclpy = init_ros(list(sys.argv if args is None else args))
+    spin it until Ctrl-C / SIGTERM. Returns 0 (also after printing ``usage`` for ``-h`` /
+    ``--help``, without starting anything), or 2 when building it raised one of ``refused`` (bad
+    parameters: the reason goes to stderr as ``<program>: error: <reason>``)."""
+    argv = list(sys.argv if args is None else args)
+    if asks_for_help(argv):
+        print(usage or f"usage: {program} [--ros-args ...]")
+        return 0
+    rclpy = init_ros(argv)
     try:
         node = make_node()
     except refused as exc:
-        print(f"{program}: {exc}", file=sys.stderr)
+        print(f"{program}: error: {exc}", file=sys.stderr)
         rclpy.try_shutdown()
         return 2
     spin_until_shutdown(rclpy, node)

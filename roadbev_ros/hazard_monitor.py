@@ -43,6 +43,7 @@ from roadbev_core.ego_motion import EgoMotion, EgoMotionError, EgoMotionStale
 from roadbev_core.errors import RoadbevError
 from roadbev_core.hazard_tracking import HazardTracker, TrackerError, TrackerSettings
 from roadbev_core.hazards import HazardSettings
+from roadbev_ros.node_params import declare_typed
 
 __all__ = ["DEFAULTS", "HazardMonitorNode", "main"]
 
@@ -80,7 +81,7 @@ class HazardMonitorNode(Node):
                  parameter_overrides: Mapping[str, Any] | None = None) -> None:
         overrides = [Parameter(k, value=v) for k, v in (parameter_overrides or {}).items()]
         super().__init__(node_name, parameter_overrides=overrides)
-        p = {name: self.declare_parameter(name, value).value for name, value in DEFAULTS.items()}
+        p = {name: declare_typed(self, name, value) for name, value in DEFAULTS.items()}
         vehicle = VehicleConfig(wheelbase_m=float(p["vehicle.wheelbase_m"]),
                                 track_width_m=float(p["vehicle.track_width_m"]))
         self.tracker = HazardTracker(TrackerSettings(
@@ -166,9 +167,11 @@ class HazardMonitorNode(Node):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the node until Ctrl-C / SIGTERM; 2 on bad parameters."""
-    from roadbev_ros.dds import run_node
+    from roadbev_ros.dds import node_usage, run_node
 
-    return run_node(HazardMonitorNode, "roadbev_hazard_monitor", (RoadbevError,), None if args is None else list(args))
+    usage = node_usage("roadbev_hazard_monitor", (__doc__ or "").splitlines()[0], DEFAULTS)
+    return run_node(HazardMonitorNode, "roadbev_hazard_monitor", (RoadbevError,), None if args is None else list(args),
+                    usage=usage)
 
 
 if __name__ == "__main__":

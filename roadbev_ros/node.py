@@ -53,7 +53,15 @@ from roadbev_core.config import ParamError, RoadbevConfig
 from roadbev_core.errors import RoadbevError
 from roadbev_core.pipeline import BackendFactory, Pipeline
 from roadbev_core.selfcheck import self_check
-from roadbev_ros.diagnostics import Health, ThrottledLog, problem_kind, to_diagnostic_array, transport_hint
+from roadbev_ros.commands import node as node_command
+from roadbev_ros.diagnostics import (
+    COMPRESSED_SUFFIX,
+    Health,
+    ThrottledLog,
+    problem_kind,
+    to_diagnostic_array,
+    transport_hint,
+)
 from roadbev_ros.mailbox import Mailbox
 from roadbev_ros.node_params import (
     ROS_PARAMETERS,
@@ -123,6 +131,10 @@ class RoadBevNode(Node):
         inputs = ((LEFT_IMAGE, self._image_topic(topics.left_image), image_type),
                   (RIGHT_IMAGE, self._image_topic(topics.right_image), image_type),
                   (LEFT_INFO, topics.left_info, CameraInfo), (RIGHT_INFO, topics.right_info, CameraInfo))
+        # what each synchronised input has received, by the name the graph gives its topic: an
+        # input that never arrived is named when its partners are dropped unpaired
+        self._inputs = {which: self.resolve_topic_name(topic) for which, topic, _ in inputs}
+        self._received: dict[str, int] = dict.fromkeys(self._inputs, 0)
         for which, topic, kind in inputs:
             self.create_subscription(kind, topic, functools.partial(self._on_input, which), SENSOR_QOS)
         self.create_subscription(ImuMsg, topics.imu, self._on_imu, IMU_QOS)
@@ -148,7 +160,8 @@ class RoadBevNode(Node):
         grid = self.config.grid
         self.get_logger().info(
             f"backend {self.pipeline.backend.name}, grid {grid.n_rows}x{grid.n_cols} @ {grid.resolution} m, "
-            f"inputs {self._image_topic(topics.left_image)} (+ right, camera infos, {topics.imu})"
+            f"inputs {self._resolved_image_topic(topics.left_image)} (+ right, camera infos, "
+            f"{self.resolve_topic_name(topics.imu)})"
         )
 
     def _make_sync(self) -> ApproximateTimeSync:
@@ -163,7 +176,16 @@ class RoadBevNode(Node):
         return self.create_timer(period_s, self._publish_diagnostics, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _image_topic(self, base: str) -> str:
-        return base + "/compressed" if self.config.topics.image_transport == "compressed" else base
+        """The topic to subscribe for the image stream ``base``: raw, ``base`` (rcl applies the
+        remaps); compressed, the remapped ``base`` + ``/compressed``, so that remapping the base
+        topic moves its transports with it, as image_transport does."""
+        if self.config.topics.image_transport == "compressed":
+            return self.resolve_topic_name(base) + COMPRESSED_SUFFIX
+        return base
+
+    def _resolved_image_topic(self, base: str) -> str:
+        """The image topic as the graph names it (remapped, fully qualified): for logs and diagnostics."""
+        return self.resolve_topic_name(self._image_topic(base))
 
     def _problem(self, kind: str, reason: str) -> None:
         self.health.problem(kind, reason)
@@ -174,6 +196,7 @@ class RoadBevNode(Node):
 
     # --- callbacks (executor thread) -------------------------------------------------------------
     def _on_input(self, which: str, msg: Any) -> None:
+        self._received[which] += 1
         index = {LEFT_IMAGE: 0, RIGHT_IMAGE: 1, LEFT_INFO: 2, RIGHT_INFO: 3}[which]
         if self.sync.n_topics == 2:
             if index in (1, 3):
@@ -220,8 +243,15 @@ class RoadBevNode(Node):
         elif reason in (DropReason.OUT_OF_ORDER, DropReason.DUPLICATE):
             self._problem("stamp order", f"{which} at {stamp * 1e-9:.6f} s: {reason}")
         elif which == LEFT_IMAGE:
-            self._problem("unpaired", f"left image at {stamp * 1e-9:.6f} s dropped: {reason} "
-                          "(no matching right image / camera infos within the slop)")
+            stereo = self.sync.n_topics == 4
+            needed = (LEFT_IMAGE, RIGHT_IMAGE, LEFT_INFO, RIGHT_INFO) if stereo else (LEFT_IMAGE, LEFT_INFO)
+            silent = [f"{self._inputs[name]} ({name})" for name in needed if self._received[name] == 0]
+            if silent:
+                self._problem("unpaired", f"left image at {stamp * 1e-9:.6f} s dropped: nothing received on "
+                              f"{', '.join(silent)}; is it published, and remapped to?")
+            else:
+                self._problem("unpaired", f"left image at {stamp * 1e-9:.6f} s dropped: {reason} "
+                              "(no matching right image / camera infos within the slop)")
         elif reason == DropReason.OVERFLOW_BYTES:
             self._problem("unpaired", f"{which} at {stamp * 1e-9:.6f} s dropped: {reason} (sync_queue_mb)")
         if which == LEFT_IMAGE:
@@ -393,7 +423,8 @@ class RoadBevNode(Node):
     # --- diagnostics -----------------------------------------------------------------------------
     def _publish_diagnostics(self) -> None:
         quiet = self.health.input_rate.in_window() == 0
-        self.health.input_hint = transport_hint(self, self._image_topic(self.config.topics.left_image)) if quiet else ""
+        left = self._resolved_image_topic(self.config.topics.left_image)
+        self.health.input_hint = transport_hint(self, left) if quiet else ""
         snapshot = self.health.snapshot()
         snapshot.values["queued_sets"] = "1" if self._mailbox.waiting else "0"
         snapshot.values["queued_left_images"] = str(self.sync.queued()[0])
@@ -418,9 +449,12 @@ def main(args: Sequence[str] | None = None) -> int:
     Args:
         args: command line (``sys.argv`` when None), with ``--ros-args -p ... --params-file ...``.
     """
-    from roadbev_ros.dds import init_ros, raise_interrupt, spin_until_shutdown
+    from roadbev_ros.dds import asks_for_help, init_ros, raise_interrupt, spin_until_shutdown
 
     argv = list(sys.argv if args is None else args)
+    if asks_for_help(argv):
+        node_command.parser("roadbev_node").print_help()
+        return 0
     rclpy = None
     try:
         notes = check_params_files(argv, "roadbev")

@@ -13,7 +13,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.exceptions import InvalidParameterValueException
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -24,8 +24,47 @@ from roadbev_core.config.tree import check_name, is_backend_option
 ROS_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service"})
 
 __all__ = [
-    "check_overrides", "check_params_files", "config_of", "declare_parameters", "descriptor", "plain", "value_error",
+    "check_overrides", "check_params_files", "config_of", "declare_parameters", "declare_typed", "descriptor", "plain",
+    "type_mismatch", "value_error",
 ]
+
+
+def _kind(value: Any) -> str:
+    if isinstance(value, bool):
+        return "a bool (true or false)"
+    if isinstance(value, int):
+        return "an integer"
+    if isinstance(value, float):
+        return "a double"
+    if isinstance(value, str):
+        return "a string"
+    if isinstance(value, (list, tuple)):
+        return "a list" + (f" of {_kind(value[0]).split(' (')[0].split(' ', 1)[1]}s" if value else "")
+    return type(value).__name__
+
+
+def type_mismatch(name: str, given: Any, default: Any) -> str:
+    """One line saying that ``name`` was given ``given`` where a value of ``default``'s type belongs."""
+    hint = ""
+    if isinstance(default, float) and isinstance(given, int) and not isinstance(given, bool):
+        hint = f" (write {given}.0)"
+    elif isinstance(default, list) and default and isinstance(default[0], float):
+        hint = " (write every number with a decimal point, e.g. [1.6, 0.0, 1.1])"
+    return f"parameter {name}: {given!r} is {_kind(given)}, expected {_kind(default)}{hint}"
+
+
+def declare_typed(node: Node, name: str, default: Any, descriptor: ParameterDescriptor | None = None) -> Any:
+    """Declare ``name`` with ``default`` and return its value.
+
+    Raises:
+        ParamError: the start-up value (``-p``, a params file) is of another type than ``default``
+            (rclpy's InvalidParameterTypeException, told in one line).
+    """
+    try:
+        return node.declare_parameter(name, default, descriptor or ParameterDescriptor()).value
+    except InvalidParameterTypeException:
+        given = node._parameter_overrides[name].value  # what -p / --params-file gave
+        raise ParamError(type_mismatch(name, given, default)) from None
 
 
 def descriptor(spec: ParamSpec) -> ParameterDescriptor:
@@ -100,7 +139,7 @@ def declare_parameters(node: Node) -> None:
     """
     for spec in parameter_specs():
         try:
-            node.declare_parameter(spec.name, spec.default, descriptor(spec))
+            declare_typed(node, spec.name, spec.default, descriptor(spec))
         except InvalidParameterValueException as exc:
             raise ParamError(f"parameter {spec.name}: {exc}") from None
     overrides: Mapping[str, Parameter] = node._parameter_overrides  # what -p / --params-file gave

@@ -51,7 +51,9 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from msg_bridge import MessageError
 from msg_bridge.grid_map import ROAD_FRAME
 from msg_bridge.preview import preview_from_message
+from roadbev_core.config import ParamError
 from roadbev_core.ride import OnlinePreviewController, PreviewLqr, RideError
+from roadbev_ros.node_params import declare_typed
 
 __all__ = ["PreviewControllerNode", "main", "plane_slope_x"]
 
@@ -98,7 +100,7 @@ class PreviewControllerNode(Node):
                  parameter_overrides: Mapping[str, Any] | None = None) -> None:
         overrides = [Parameter(k, value=v) for k, v in (parameter_overrides or {}).items()]
         super().__init__(node_name, parameter_overrides=overrides)
-        p = {name: self.declare_parameter(name, value).value for name, value in DEFAULTS.items()}
+        p = {name: declare_typed(self, name, value) for name, value in DEFAULTS.items()}
         rate = float(p["control_rate_hz"])
         if not 50.0 <= rate <= 1000.0:
             raise RideError(f"control_rate_hz must be in [50, 1000], got {rate}")
@@ -194,10 +196,11 @@ class PreviewControllerNode(Node):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the node until Ctrl-C / SIGTERM; 2 on bad parameters."""
-    from roadbev_ros.dds import run_node
+    from roadbev_ros.dds import node_usage, run_node
 
-    return run_node(PreviewControllerNode, "roadbev_preview_controller", (RideError,),
-                    None if args is None else list(args))
+    usage = node_usage("roadbev_preview_controller", (__doc__ or "").splitlines()[0], DEFAULTS)
+    return run_node(PreviewControllerNode, "roadbev_preview_controller", (RideError, ParamError),
+                    None if args is None else list(args), usage=usage)
 
 
 if __name__ == "__main__":

@@ -9,14 +9,28 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from roadbev_core.backends import available
+from roadbev_core.config import DEFAULT_BACKEND
+
 HELP = "run the RoadBEV node"
+EPILOG = ("Every parameter, with its default and description: config/roadbev.params.yaml, or `ros2 param "
+          "describe` on the running node.")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--backend", help="backend (bev_sweep, stereo, mono, sgbm, bm); a parameter")
+    parser.epilog = EPILOG
+    parser.add_argument("--backend", help=f"backend ({', '.join(available())}; default {DEFAULT_BACKEND}); "
+                                          "the parameter 'backend'")
     parser.add_argument("--params", type=Path, metavar="YAML", help="a ROS 2 params file (--params-file)")
     parser.add_argument("--ros-args", dest="ros_args", nargs=argparse.REMAINDER, default=[],
                         metavar="...", help="ROS arguments (-p name:=value, --params-file F, -r a:=b)")
+
+
+def parser(prog: str) -> argparse.ArgumentParser:
+    """The command line of ``prog`` (``roadbev node`` or the ``roadbev_node`` console script)."""
+    out = argparse.ArgumentParser(prog=prog, description=HELP)
+    add_arguments(out)
+    return out
 
 
 def ros_arguments(args: argparse.Namespace) -> list[str]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import time
 import uuid
 from collections.abc import Iterator
@@ -489,3 +490,42 @@ def test_the_outputs_are_advertised_before_the_backend_loads_and_the_inputs_afte
         node.shutdown()
         node.destroy_node()
         observer.destroy_node()
+
+
+def test_an_input_that_never_arrived_is_named_when_the_images_are_dropped(harness: Harness) -> None:
+    h = harness
+    for k in range(14):  # past the synchroniser's queue of 10 per topic: the oldest left images drop
+        feed(h, k, skip=("left_info", "right_info"))
+        arrived = functools.partial(lambda n: h.node.counts()["frames_in"] == n, k + 1)
+        assert wait_for(arrived, 5.0)  # one at a time: the sensor QoS keeps 5
+    assert wait_for(lambda: h.node.health.problems["unpaired"] > 0, 5.0)
+    reason = h.node.health.last_error
+    assert "nothing received on /stereo/left/camera_info (left info), /stereo/right/camera_info (right info)" in reason
+    assert "/stereo/left/image_rect (" not in reason  # the images did arrive
+    assert "queue overflow" not in reason
+
+
+@pytest.mark.parametrize("transport", ["raw", "compressed"])
+def test_logs_and_diagnostics_name_the_remapped_topics(ros: Any, transport: str) -> None:
+    from roadbev_ros.node import LEFT_IMAGE, LEFT_INFO, RoadBevNode
+
+    from ._ros_harness import SMALL_GRID, stub_factory
+
+    node = RoadBevNode(node_name=f"roadbev_{uuid.uuid4().hex[:8]}", backend_factory=stub_factory(),
+                       parameter_overrides={**SMALL_GRID, "image_transport": transport},
+                       cli_args=["--ros-args", "-r", "/stereo/left/image_rect:=/cam_front/left/image_rect",
+                                 "-r", "/stereo/left/camera_info:=/cam_front/left/camera_info"])
+    try:
+        suffix = "/compressed" if transport == "compressed" else ""
+        # a remapped base topic moves its compressed transport with it, as image_transport does
+        assert node._resolved_image_topic("/stereo/left/image_rect") == "/cam_front/left/image_rect" + suffix
+        assert node._inputs[LEFT_IMAGE] == "/cam_front/left/image_rect" + suffix
+        assert node._inputs[LEFT_INFO] == "/cam_front/left/camera_info"
+        subscribed = {name for name, _ in node.get_subscriber_names_and_types_by_node(node.get_name(), "/")}
+        assert "/cam_front/left/image_rect" + suffix in subscribed
+        assert "/stereo/left/image_rect" + suffix not in subscribed
+        node._publish_diagnostics()  # nothing publishes the remapped topic: the hint names it
+        assert node.health.input_hint.startswith("nothing publishes /cam_front/left/image_rect" + suffix)
+    finally:
+        node.shutdown()
+        node.destroy_node()
