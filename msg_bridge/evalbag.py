@@ -50,8 +50,8 @@ from msg_bridge.camera_info import camera_info_from_stereo, stereo_camera_from_c
 from msg_bridge.grid_map import ROAD_FRAME, grid_map_message, grid_map_to_arrays
 from msg_bridge.image import array_to_compressed, array_to_image, compressed_to_rgb, image_to_rgb
 from msg_bridge.imu import imu_message, imu_orientation
-from msg_bridge.pipeline_io import odometry_sample
-from msg_bridge.tf import StaticTransform, transforms_from_tf
+from msg_bridge.pipeline_io import BASE_FRAME, odometry_sample
+from msg_bridge.tf import StaticTransform, camera_mount, transforms_from_tf
 from roadbev_core.attitude import ImuBuffer, ImuSample, ImuStale
 from roadbev_core.config import ConfigError, GridSpec, StereoCamera
 from roadbev_core.ego_motion import PlanarPose
@@ -568,8 +568,7 @@ def read_eval_bag(path: str | os.PathLike[str], params: Mapping[str, Any] | None
     bag.odometry = collected.odometry
     camera_frame = collected.left_frame or LEFT_FRAME
     bag.camera_frame = camera_frame
-    mounts = [t for t in collected.static if t.parent == "base_link" and t.child == camera_frame]
-    bag.camera_mount = (mounts[-1].translation, mounts[-1].rotation) if mounts else None
+    bag.camera_mount = camera_mount(collected.static, BASE_FRAME, camera_frame)
     return bag
 
 

@@ -23,6 +23,7 @@ __all__ = [
     "StaticTransform",
     "TransformError",
     "TransformTree",
+    "camera_mount",
     "odometry_message",
     "odometry_pose",
     "tf_message",
@@ -135,6 +136,20 @@ class TransformTree:
         # Both to the common root, then back from the root to the target.
         R = R_t.T @ R_s
         return R, R_t.T @ (t_s - t_t)
+
+
+def camera_mount(transforms: Iterable[StaticTransform], base_frame: str,
+                 camera_frame: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """The camera's pose in the body from static transforms, through any chain of frames as tf2
+    joins them (``base_link`` -> ``camera_link`` -> the optical frame): ``(translation [3],
+    rotation [3, 3])`` with ``p_base = rotation @ p_camera + translation``; None when the
+    transforms do not join the two frames (or loop). A later transform to a child replaces an
+    earlier one, as on ``/tf_static``."""
+    try:
+        rotation, translation = TransformTree(transforms).lookup(base_frame, camera_frame)
+    except TransformError:
+        return None
+    return translation, rotation
 
 
 class OdometryPose(NamedTuple):

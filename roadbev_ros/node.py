@@ -48,7 +48,7 @@ from msg_bridge.pipeline_io import (
     speed_from_message,
     speed_message_type,
 )
-from msg_bridge.tf import transforms_from_tf
+from msg_bridge.tf import StaticTransform, camera_mount, transforms_from_tf
 from roadbev_core.config import ParamError, RoadbevConfig
 from roadbev_core.errors import RoadbevError
 from roadbev_core.pipeline import BackendFactory, Pipeline
@@ -151,7 +151,10 @@ class RoadBevNode(Node):
         self.create_service(Trigger, "~/clear_map", self._on_clear_map)
         self.create_service(Trigger, "~/save_map", self._on_save_map)
         self._camera_frame: str | None = None  # the left images' frame_id (the TF's parent)
-        self._static: dict[str, Any] = {}  # child frame -> base_link transform from /tf_static
+        self._motion_in = 0  # odometry and speed samples taken: what the map needs besides frames
+        self._cleared_at: float | None = None  # node-clock seconds of the last ~/clear_map
+        self._static: dict[str, StaticTransform] = {}  # child frame -> its /tf_static transform, as tf2 keeps them
+        self._mount: tuple[bytes, bytes] | None = None  # the camera mount applied last
         self._diag_timer = self._diagnostics_timer(self.config.diagnostics.period_s)
         self.add_pre_set_parameters_callback(self._report_bad_values)
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -271,36 +274,44 @@ class RoadBevNode(Node):
     def _on_odometry(self, msg: Any) -> None:
         try:
             self.pipeline.add_odometry(odometry_sample(msg))
+            self._motion_in += 1
         except RoadbevError as exc:
             self._problem("bad odometry", str(exc))
 
     def _on_tf_static(self, msg: Any) -> None:
-        """``base_link`` -> the left camera from ``/tf_static`` wins over vehicle.camera_position_m."""
+        """``base_link`` -> the left camera from ``/tf_static`` (through any chain of frames, every
+        static broadcaster's message kept, a later transform to a child replacing an earlier one,
+        as tf2's buffer does) wins over vehicle.camera_position_m."""
         try:
-            for tf in transforms_from_tf(msg):
-                if tf.parent == BASE_FRAME:
-                    self._static[tf.child] = tf
+            self._static.update((tf.child, tf) for tf in transforms_from_tf(msg))
         except RoadbevError as exc:
             self._problem("bad tf", str(exc))
             return
         self._apply_camera_mount()
 
     def _apply_camera_mount(self) -> None:
-        tf = self._static.get(self._camera_frame or "")
-        if tf is None:
+        if self._camera_frame is None:
+            return
+        mount = camera_mount(list(self._static.values()), BASE_FRAME, self._camera_frame)
+        if mount is None:
+            return  # not joined (yet): vehicle.camera_position_m stands
+        translation, rotation = mount
+        key = (translation.tobytes(), rotation.tobytes())
+        if key == self._mount:
             return
         try:
-            self.pipeline.set_camera_mount(tf.translation, tf.rotation)
+            self.pipeline.set_camera_mount(translation, rotation)
         except RoadbevError as exc:
-            self._problem("bad tf", f"{BASE_FRAME} -> {tf.child}: {exc}")
+            self._problem("bad tf", f"{BASE_FRAME} -> {self._camera_frame}: {exc}")
             return
-        self._static.pop(tf.child, None)  # applied once; a new /tf_static message brings it again
-        self.get_logger().info(f"camera mount from /tf_static: {BASE_FRAME} -> {tf.child} at "
-                               f"{[round(float(v), 3) for v in tf.translation]} m")
+        self._mount = key
+        self.get_logger().info(f"camera mount from /tf_static: {BASE_FRAME} -> {self._camera_frame} at "
+                               f"{[round(float(v), 3) for v in translation]} m")
 
     def _on_clear_map(self, request: Any, response: Any) -> Any:
         """``~/clear_map`` (std_srvs/Trigger), as elevation_mapping's: the fused map starts afresh."""
         self.pipeline.clear_map()
+        self._cleared_at = self.get_clock().now().nanoseconds * 1e-9
         response.success = True
         response.message = "fused map cleared"
         self.get_logger().info("fused map cleared (~/clear_map)")
@@ -315,9 +326,11 @@ class RoadBevNode(Node):
 
         window = self.pipeline.last_map
         if window is None:
-            response.success, response.message = False, "no fused map yet (no odometry, or map.enabled false)"
+            response.success, response.message = False, f"no fused map to save: {self._why_no_map()}"
             return response
-        path = Path(self.config.map.save_dir) / f"roadbev_map_{window.stamp_ns}.mcap"
+        # absolute: a relative map.save_dir is taken from the node's working directory, which a
+        # launch file or a service call does not show
+        path = Path(self.config.map.save_dir).expanduser().resolve() / f"roadbev_map_{window.stamp_ns}.mcap"
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             save_map_bag(path, window, self.config)
@@ -329,9 +342,25 @@ class RoadBevNode(Node):
         self.get_logger().info(f"fused map saved to {path}")
         return response
 
+    def _why_no_map(self) -> str:
+        """Why the node holds no fused map now, the first cause that applies."""
+        topics = self.config.topics
+        if not self.config.map.enabled:
+            return "map.enabled is false"
+        if self._cleared_at is not None:
+            return (f"the map was cleared by ~/clear_map at {self._cleared_at:.3f} s and no frame has been fused "
+                    "since")
+        if self._motion_in == 0:
+            sources = [f"odometry on {self.resolve_topic_name(topics.odom)}" if topics.odom else "",
+                       f"speed on {self.resolve_topic_name(topics.speed)}" if topics.speed else ""]
+            named = " or ".join(s for s in sources if s)
+            return f"no {named} received yet" if named else "neither odom_topic nor speed_topic is set"
+        return "no frame has been fused yet (frames need odometry around their stamps, map.odom_max_age_s)"
+
     def _on_speed(self, msg: Any) -> None:
         try:
             self.pipeline.add_speed(*speed_from_message(msg))
+            self._motion_in += 1
         except RoadbevError as exc:
             self._problem("bad speed", str(exc))
 

@@ -304,8 +304,9 @@ class MapConfig:
                                  "(roadbev_core/data/datum_calibration.json, 0 without one)", -1.0, 10.0)
     datum_drift: float = param("map.datum_drift", -1.0, "growth of that 1-sigma per metre driven (m/m); -1 = the "
                                "backend's calibrated value (0 without one)", -1.0, 1.0)
-    save_dir: str = param("map.save_dir", ".", "folder where ~/save_map writes the current map "
-                          "(roadbev_map_<stamp>.mcap)")
+    save_dir: str = param("map.save_dir", "~/.ros/roadbev", "folder where ~/save_map writes the current map "
+                          "(roadbev_map_<stamp>.mcap; ~ expanded, a relative folder taken from the node's "
+                          "working directory; the reply gives the absolute path)")
     odom_max_age_s: float = param("map.odom_max_age_s", 0.2, "largest distance from a frame's stamp to the "
                                   "odometry around it (s); beyond it the frame is not fused", 0.001, 10.0)
 

@@ -14,6 +14,7 @@ from msg_bridge.tf import (
     StaticTransform,
     TransformError,
     TransformTree,
+    camera_mount,
     odometry_message,
     odometry_pose,
     tf_message,
@@ -63,3 +64,25 @@ def test_point_cloud_xyz_reads_clouds_with_other_fields() -> None:
     no_z = array_point_cloud(pts[:, :2], ("x", "y"), factory, stamp_ns=0, frame_id="l")
     with pytest.raises(ValueError, match="no z field"):
         point_cloud_xyz(no_z)
+
+
+def test_the_camera_mount_is_joined_through_a_chain_of_frames() -> None:
+    optical = rotation_from_rpy(-math.pi / 2, 0.0, -math.pi / 2)  # optical axes in camera_link's
+    tilt = rotation_from_rpy(0.0, 0.08, 0.0)  # camera_link pitched down on its bracket
+    chain = [StaticTransform("base_link", "camera_link", tilt, np.array([1.6, 0.0, 1.1])),
+             StaticTransform("camera_link", "stereo_left_optical_frame", optical, np.array([0.0, 0.06, 0.0]))]
+    mount = camera_mount(chain, "base_link", "stereo_left_optical_frame")
+    assert mount is not None
+    translation, rotation = mount
+    assert translation == pytest.approx(np.array([1.6, 0.0, 1.1]) + tilt @ np.array([0.0, 0.06, 0.0]))
+    assert rotation == pytest.approx(tilt @ optical)
+    direct = camera_mount([StaticTransform("base_link", "stereo_left_optical_frame", tilt @ optical,
+                                           translation)], "base_link", "stereo_left_optical_frame")
+    assert direct is not None and direct[0] == pytest.approx(translation) and direct[1] == pytest.approx(rotation)
+    # a later transform to the same child replaces the earlier one, as on /tf_static
+    moved = [*chain, StaticTransform("base_link", "camera_link", tilt, np.array([1.7, 0.0, 1.1]))]
+    later = camera_mount(moved, "base_link", "stereo_left_optical_frame")
+    assert later is not None and later[0][0] == pytest.approx(translation[0] + 0.1)
+    assert camera_mount(chain[1:], "base_link", "stereo_left_optical_frame") is None  # not joined
+    loop = [StaticTransform("a", "b", np.eye(3), np.zeros(3)), StaticTransform("b", "a", np.eye(3), np.zeros(3))]
+    assert camera_mount(loop, "base_link", "a") is None

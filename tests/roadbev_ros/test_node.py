@@ -6,6 +6,7 @@ import functools
 import time
 import uuid
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -417,6 +418,10 @@ def test_with_odometry_the_node_publishes_the_fused_map_its_tf_and_clears_it_on_
     future = client.call_async(Trigger.Request())
     assert wait_for(future.done) and future.result().success
     assert harness.node.pipeline.fused is not None and harness.node.pipeline.fused.empty
+    assert Path(saved.result().message).is_absolute()
+    again = saver.call_async(Trigger.Request())  # the reply says why there is nothing to save now
+    assert wait_for(again.done) and not again.result().success
+    assert "cleared by ~/clear_map" in again.result().message, again.result().message
 
 
 def test_a_frame_without_coverage_warns_on_diagnostics_with_its_likely_cause(ros: Any) -> None:
@@ -529,3 +534,39 @@ def test_logs_and_diagnostics_name_the_remapped_topics(ros: Any, transport: str)
     finally:
         node.shutdown()
         node.destroy_node()
+
+
+def test_the_camera_mount_comes_through_a_chain_of_static_transforms(harness: Harness) -> None:
+    """base_link -> camera_link -> the images' frame, from two static broadcasters, over DDS."""
+    from tf2_msgs.msg import TFMessage
+
+    from msg_bridge import RclpyFactory
+    from msg_bridge.tf import StaticTransform, tf_message
+    from roadbev_core.geometry import rotation_from_rpy
+    from roadbev_ros.node import TF_STATIC_QOS
+
+    tilt = rotation_from_rpy(0.0, 0.05, 0.0)
+    optical = rotation_from_rpy(-np.pi / 2, 0.0, -np.pi / 2)
+    body = harness.feeder.create_publisher(TFMessage, "/tf_static", TF_STATIC_QOS)
+    driver = harness.feeder.create_publisher(TFMessage, "/tf_static", TF_STATIC_QOS)
+    factory = RclpyFactory()
+    body.publish(tf_message([StaticTransform("base_link", "camera_link", tilt, np.array([1.7, 0.0, 1.2]))], factory))
+    driver.publish(tf_message([StaticTransform("camera_link", "left", optical, np.array([0.0, 0.05, 0.0]))], factory))
+    harness.wait_output(feed(harness, 0))  # the images' frame_id ("left") joins the chain
+    expected = np.array([1.7, 0.0, 1.2]) + tilt @ np.array([0.0, 0.05, 0.0])
+    assert wait_for(lambda: harness.node.pipeline.camera_mount[1] is not None, 5.0)
+    position, rotation = harness.node.pipeline.camera_mount
+    assert rotation is not None
+    np.testing.assert_allclose(position, expected, atol=1e-9)
+    np.testing.assert_allclose(rotation, tilt @ optical, atol=1e-9)
+
+
+def test_save_map_without_motion_names_the_missing_input(harness: Harness) -> None:
+    from std_srvs.srv import Trigger
+
+    saver = harness.feeder.create_client(Trigger, f"/{harness.node.get_name()}/save_map")
+    assert saver.wait_for_service(timeout_sec=10.0)
+    harness.wait_output(feed(harness, 0))  # a frame, but no odometry: no map
+    reply = saver.call_async(Trigger.Request())
+    assert wait_for(reply.done) and not reply.result().success
+    assert reply.result().message == "no fused map to save: no odometry on /odom received yet"
