@@ -26,6 +26,7 @@ __all__ = [
     "camera_mount",
     "odometry_message",
     "odometry_pose",
+    "odometry_tf",
     "tf_message",
     "transforms_from_tf",
 ]
@@ -182,6 +183,31 @@ def odometry_pose(msg: Any) -> OdometryPose:
     frame = as_str(field(field(msg, "header"), "frame_id"), "Odometry header.frame_id")
     child = as_str(field(msg, "child_frame_id"), "Odometry child_frame_id")
     return OdometryPose(stamp, x, y, math.atan2(R[1, 0], R[0, 0]), frame, child)
+
+
+def odometry_tf(msg: Any, factory: MessageFactory) -> Any:
+    """The pose of a ``nav_msgs/Odometry`` as a ``tf2_msgs/TFMessage``: ``header.frame_id`` ->
+    ``child_frame_id`` (``odom`` -> ``base_link``) at its stamp, in 3-D, as an odometry source that
+    publishes its TF (robot_localization's ``publish_tf``) broadcasts it.
+
+    Raises:
+        MessageError: no frame names, a non-finite position or a non-unit orientation.
+    """
+    stamp = stamp_from_header(msg)
+    parent = as_str(field(field(msg, "header"), "frame_id"), "Odometry header.frame_id").lstrip("/")
+    child = as_str(field(msg, "child_frame_id"), "Odometry child_frame_id").lstrip("/")
+    if not parent or not child:
+        raise MessageError(f"Odometry at {stamp} ns lacks header.frame_id or child_frame_id")
+    pose = field(field(msg, "pose"), "pose")
+    pos, q = field(pose, "position"), field(pose, "orientation")
+    translation = np.array([as_float(field(pos, k), f"Odometry position.{k}") for k in "xyz"])
+    if not np.all(np.isfinite(translation)):
+        raise MessageError(f"Odometry at {stamp} ns has a non-finite position")
+    try:
+        rotation = quaternion_to_rotation(*(as_float(field(q, k), f"Odometry orientation.{k}") for k in "xyzw"))
+    except GeometryError as exc:
+        raise MessageError(f"Odometry at {stamp} ns: {exc}") from None
+    return tf_message([StaticTransform(parent, child, rotation, translation)], factory, stamp_ns=stamp)
 
 
 def odometry_message(

@@ -48,7 +48,7 @@ from msg_bridge.pipeline_io import (
     speed_from_message,
     speed_message_type,
 )
-from msg_bridge.tf import StaticTransform, camera_mount, transforms_from_tf
+from msg_bridge.tf import StaticTransform, camera_mount, odometry_tf, transforms_from_tf
 from roadbev_core.config import ParamError, RoadbevConfig
 from roadbev_core.errors import RoadbevError
 from roadbev_core.pipeline import BackendFactory, Pipeline
@@ -275,6 +275,8 @@ class RoadBevNode(Node):
         try:
             self.pipeline.add_odometry(odometry_sample(msg))
             self._motion_in += 1
+            if self.config.topics.publish_odom_tf:
+                self._out.publish_tf(odometry_tf(msg, _FACTORY))
         except RoadbevError as exc:
             self._problem("bad odometry", str(exc))
 

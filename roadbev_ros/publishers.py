@@ -25,6 +25,10 @@ class OutputPublishers:
         self._map = node.create_publisher(GridMap, road_map.topic, qos)
         self._tf = node.create_publisher(TFMessage, "/tf", qos)
 
+    def publish_tf(self, msg: Any) -> None:
+        """A ``tf2_msgs/TFMessage`` on ``/tf`` (e.g. ``odom`` -> ``base_link`` from the odometry)."""
+        self._tf.publish(msg)
+
     def points_wanted(self) -> bool:
         """The point cloud is only built for a viewer that listens (it is the largest message)."""
         return self._points is not None and self._points.get_subscription_count() > 0

@@ -198,8 +198,13 @@ class TopicsConfig:
     imu: str = param("imu_topic", "/imu/data", "IMU (orientation relative to ENU)", read_only=True)
     speed: str = param("speed_topic", "", "vehicle speed (nav_msgs/Odometry or geometry_msgs/TwistStamped); "
                        "empty = no time of arrival in the preview", read_only=True)
-    odom: str = param("odom_topic", "/odom", "vehicle odometry (nav_msgs/Odometry, odom -> base_link): ego-motion "
-                      "for the labeller's scan accumulation", read_only=True)
+    odom: str = param("odom_topic", "/odom", "vehicle odometry (nav_msgs/Odometry, odom -> base_link): the "
+                      "ego-motion the fused map and its previews are built on ('' = no map unless speed_topic is "
+                      "set); roadbev label also accumulates scans with it", read_only=True)
+    publish_odom_tf: bool = param("publish_odom_tf", False, "re-broadcast each odom_topic message as the TF "
+                                  "header.frame_id -> child_frame_id (odom -> base_link) on /tf, for bags and "
+                                  "vehicles that carry odometry without TF; leave false where the vehicle's "
+                                  "localisation publishes that TF", read_only=True)
     speed_type: str = param("speed_topic_type", "odometry", "message type of speed_topic",
                             choices=("odometry", "twist_stamped"), read_only=True)
     elevation: str = param("elevation_topic", "/roadbev/elevation", "GridMap output", read_only=True)

@@ -9,6 +9,7 @@ import pytest
 
 from msg_bridge import bag_factory
 from msg_bridge.bag import deserialize, serialize
+from msg_bridge._common import MessageError
 from msg_bridge.point_cloud import array_point_cloud, point_cloud_xyz
 from msg_bridge.tf import (
     StaticTransform,
@@ -17,9 +18,11 @@ from msg_bridge.tf import (
     camera_mount,
     odometry_message,
     odometry_pose,
+    odometry_tf,
     tf_message,
     transforms_from_tf,
 )
+from roadbev_core.attitude import quaternion_from_rotation
 from roadbev_core.geometry import rotation_from_rpy
 
 
@@ -86,3 +89,19 @@ def test_the_camera_mount_is_joined_through_a_chain_of_frames() -> None:
     assert camera_mount(chain[1:], "base_link", "stereo_left_optical_frame") is None  # not joined
     loop = [StaticTransform("a", "b", np.eye(3), np.zeros(3)), StaticTransform("b", "a", np.eye(3), np.zeros(3))]
     assert camera_mount(loop, "base_link", "a") is None
+
+
+def test_odometry_becomes_its_tf_in_three_dimensions() -> None:
+    factory = bag_factory()
+    attitude = rotation_from_rpy(0.02, -0.03, 1.1)
+    odom = odometry_message(factory, stamp_ns=9, position=(3.0, -1.0, 0.2),
+                            orientation_xyzw=quaternion_from_rotation(attitude))
+    msg = deserialize(serialize(odometry_tf(odom, factory)), "tf2_msgs/msg/TFMessage")
+    (tf,) = transforms_from_tf(msg)
+    assert (tf.parent, tf.child) == ("odom", "base_link")
+    assert msg.transforms[0].header.stamp.nanosec == 9
+    np.testing.assert_allclose(tf.translation, [3.0, -1.0, 0.2])
+    np.testing.assert_allclose(tf.rotation, attitude, atol=1e-9)
+    odom.child_frame_id = ""
+    with pytest.raises(MessageError, match="child_frame_id"):
+        odometry_tf(odom, factory)

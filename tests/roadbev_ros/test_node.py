@@ -570,3 +570,25 @@ def test_save_map_without_motion_names_the_missing_input(harness: Harness) -> No
     reply = saver.call_async(Trigger.Request())
     assert wait_for(reply.done) and not reply.result().success
     assert reply.result().message == "no fused map to save: no odometry on /odom received yet"
+
+
+@pytest.mark.parametrize("harness", [{"params": {"publish_odom_tf": True}}], indirect=True)
+def test_publish_odom_tf_rebroadcasts_the_odometry_as_tf(harness: Harness) -> None:
+    from nav_msgs.msg import Odometry
+    from tf2_msgs.msg import TFMessage
+
+    from msg_bridge.tf import transforms_from_tf
+
+    tfs: list[Any] = []
+    harness.feeder.create_subscription(TFMessage, "/tf", tfs.append, 10)
+    odom = harness.feeder.create_publisher(Odometry, "/odom", 50)
+    assert wait_for(lambda: odom.get_subscription_count() > 0)
+    msg = Odometry()
+    msg.header.stamp.sec, msg.header.frame_id, msg.child_frame_id = 5, "odom", "base_link"
+    msg.pose.pose.position.x, msg.pose.pose.position.z = 12.5, 0.3
+    msg.pose.pose.orientation.w = 1.0
+    odom.publish(msg)
+    assert wait_for(lambda: any(t.parent == "odom" for m in tfs for t in transforms_from_tf(m)), 5.0)
+    (tf,) = [t for m in tfs for t in transforms_from_tf(m) if t.parent == "odom"]
+    assert tf.child == "base_link"
+    np.testing.assert_allclose(tf.translation, [12.5, 0.0, 0.3])
