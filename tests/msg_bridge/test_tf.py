@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from msg_bridge import bag_factory
-from msg_bridge.bag import deserialize, serialize
 from msg_bridge._common import MessageError
+from msg_bridge.bag import deserialize, serialize
 from msg_bridge.point_cloud import array_point_cloud, point_cloud_xyz
 from msg_bridge.tf import (
     StaticTransform,
