@@ -29,7 +29,7 @@ def _data_files() -> list[tuple[str, Sequence[str]]]:
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
     ]
-    for folder in ("launch", "config"):
+    for folder in ("launch", "config", "checkpoints"):  # checkpoints: the learned backends' defaults
         paths = sorted(str(p.relative_to(ROOT)) for p in (ROOT / folder).glob("*") if p.is_file())
         if paths:
             files.append((f"share/{PACKAGE}/{folder}", paths))

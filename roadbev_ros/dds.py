@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from roadbev_core.errors import RoadbevError
+from roadbev_core.share import shared_candidates
 
 __all__ = [
     "PROFILE_ENV_VARS",
@@ -39,13 +40,7 @@ class DdsError(RoadbevError, RuntimeError):
 
 
 def _candidates() -> list[Path]:
-    here = Path(__file__).resolve().parent
-    paths = [here.parent / "config" / PROFILE_NAME]  # source tree / editable install
-    paths.append(Path(sys.prefix) / "share" / "roadbev_ros" / "config" / PROFILE_NAME)
-    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
-        if prefix:
-            paths.append(Path(prefix) / "share" / "roadbev_ros" / "config" / PROFILE_NAME)
-    return paths
+    return shared_candidates(f"config/{PROFILE_NAME}")
 
 
 def profile_path() -> Path:

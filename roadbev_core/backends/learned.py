@@ -49,13 +49,14 @@ from roadbev_core.deploy import (
 from roadbev_core.frame import Estimate, Frame, FrameError
 from roadbev_core.models.efficientnet import fold_batchnorm
 from roadbev_core.models.roadbev import needs_full_grey, prepare_grey, prepare_image
+from roadbev_core.share import find_shared, shared_candidates
 
 __all__ = [
-    "DEFAULT_CHECKPOINT_DIR",
     "DEFAULT_RUNTIMES",
     "OOD_MODES",
     "LearnedBackend",
     "OutOfDistributionError",
+    "checkpoint_dir",
     "default_checkpoint",
 ]
 
@@ -65,7 +66,11 @@ OOD_MODES = ("refuse", "flag")
 class OutOfDistributionError(FrameError):
     """A frame whose rig lies beyond what the checkpoint was trained for (refused)."""
 
-DEFAULT_CHECKPOINT_DIR = Path(__file__).resolve().parents[2] / "checkpoints"
+def checkpoint_dir() -> Path:
+    """The shipped checkpoints: the source tree's ``checkpoints/``, else an install's share
+    (``share/roadbev_ros/checkpoints``, :mod:`roadbev_core.share`); the source tree's path when
+    neither exists (the error then names it)."""
+    return find_shared("checkpoints") or shared_candidates("checkpoints")[0]
 
 
 # The engine each kind runs without a ``runtime`` option: stereo's int8 graph on OpenVINO is the
@@ -79,7 +84,7 @@ def default_checkpoint(kind: str, runtime: str = "torch", grid: GridSpec | None 
     stereo on OpenVINO takes the int8 graph when it was exported for ``grid`` (any grid when None),
     everything else the ``.pt``."""
     if kind == "stereo" and runtime == "openvino":
-        int8 = DEFAULT_CHECKPOINT_DIR / "roadbev_stereo_lite_int8.onnx"
+        int8 = checkpoint_dir() / "roadbev_stereo_lite_int8.onnx"
         if int8.is_file():
             try:
                 fits = grid is None or same_graph_grid(read_onnx(int8).grid, grid)
@@ -87,7 +92,7 @@ def default_checkpoint(kind: str, runtime: str = "torch", grid: GridSpec | None 
                 fits = False  # a damaged graph: the .pt, exported in memory, still runs
             if fits:
                 return int8
-    return DEFAULT_CHECKPOINT_DIR / f"roadbev_{kind}_lite.pt"
+    return checkpoint_dir() / f"roadbev_{kind}_lite.pt"
 
 
 class LearnedBackend:

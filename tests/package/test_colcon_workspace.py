@@ -102,13 +102,15 @@ def test_a_colcon_workspace_builds_and_the_node_starts_from_its_install_space(tm
     assert "3 packages finished" in build.stdout, build.stdout[-2000:]
     install = ws / "install"
     share = install / "roadbev_ros" / "share" / "roadbev_ros"
-    for path in ("package.xml", "config/fastdds.xml", "config/roadbev.params.yaml", "launch/roadbev.launch.py"):
+    for path in ("package.xml", "config/fastdds.xml", "config/roadbev.params.yaml", "launch/roadbev.launch.py",
+                 "checkpoints/roadbev_stereo_lite.pt", "checkpoints/roadbev_mono_lite.pt"):
         assert (share / path).is_file(), path
     bin_dir = install / "roadbev_ros" / "lib" / "roadbev_ros"  # where `ros2 run roadbev_ros ...` looks
     # what a user does: source the workspace, then run the package's programs
     check = (f"source {install / 'setup.bash'} && "
              "python -c 'import roadbev_ros, msg_bridge, grid_map_msgs.msg, roadbev_msgs.msg; "
-             "from roadbev_ros.dds import profile_path; print(roadbev_ros.__file__); print(profile_path())' && "
+             "from roadbev_ros.dds import profile_path; print(roadbev_ros.__file__); print(profile_path()); "
+             "from roadbev_core.backends.learned import default_checkpoint; print(default_checkpoint(\"stereo\"))' && "
              f"{bin_dir / 'roadbev'} --version && {bin_dir / 'roadbev'} node --help")
     # (from another folder: python -c puts the current one first on sys.path)
     run = subprocess.run(["bash", "-c", check], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
@@ -116,7 +118,8 @@ def test_a_colcon_workspace_builds_and_the_node_starts_from_its_install_space(tm
     lines = run.stdout.splitlines()
     assert lines[0].startswith(str(install)), lines  # the install space's copy, not this checkout
     assert lines[1] == str(share / "config" / "fastdds.xml"), lines
-    assert lines[2].startswith("roadbev ") and "usage: roadbev node" in run.stdout
+    assert lines[2] == str(share / "checkpoints" / "roadbev_stereo_lite.pt"), lines  # -p backend:=stereo works
+    assert lines[3].startswith("roadbev ") and "usage: roadbev node" in run.stdout
     # the node itself, from the install space, until it is up; then Ctrl-C
     log = tmp_path / "node.log"
     with log.open("wb") as out:
