@@ -152,6 +152,10 @@ class RoadBevNode(Node):
         self.create_service(Trigger, "~/save_map", self._on_save_map)
         self._camera_frame: str | None = None  # the left images' frame_id (the TF's parent)
         self._motion_in = 0  # odometry and speed samples taken: what the map needs besides frames
+        self._motion_at: float | None = None  # monotonic time of the newest of them
+        self._fused = 0  # frames fused into the map
+        self._preview_kind = ""  # reference (and contact-plane source) of the newest preview
+        self._clock_seen: tuple[int, float] | None = None  # node clock (ns), monotonic s when it last changed
         self._cleared_at: float | None = None  # node-clock seconds of the last ~/clear_map
         self._static: dict[str, StaticTransform] = {}  # child frame -> its /tf_static transform, as tf2 keeps them
         self._mount: tuple[bytes, bytes] | None = None  # the camera mount applied last
@@ -275,6 +279,7 @@ class RoadBevNode(Node):
         try:
             self.pipeline.add_odometry(odometry_sample(msg))
             self._motion_in += 1
+            self._motion_at = time.monotonic()
             if self.config.topics.publish_odom_tf:
                 self._out.publish_tf(odometry_tf(msg, _FACTORY))
         except RoadbevError as exc:
@@ -363,6 +368,7 @@ class RoadBevNode(Node):
         try:
             self.pipeline.add_speed(*speed_from_message(msg))
             self._motion_in += 1
+            self._motion_at = time.monotonic()
         except RoadbevError as exc:
             self._problem("bad speed", str(exc))
 
@@ -441,6 +447,7 @@ class RoadBevNode(Node):
         if not self.context.ok():
             return  # shutting down (SIGINT): publishing on a shut-down context can crash the process
         self._out.publish(messages)
+        self._note_outputs(output)
         t3 = time.perf_counter()
         latency_ms = (time.monotonic() - arrival) * 1e3
         stamp_age_ms = (self.get_clock().now().nanoseconds - inputs.stamp_ns) * 1e-6
@@ -452,6 +459,31 @@ class RoadBevNode(Node):
         self.health.coverage(check.coverage_pct, check.ok, check.message)
 
     # --- diagnostics -----------------------------------------------------------------------------
+    def _note_outputs(self, output: Any) -> None:
+        """What the diagnostics report of the map and the preview."""
+        if output.fusion is not None:
+            self._fused += 1
+        if output.preview is not None:
+            plane = output.preview.contact_plane
+            self._preview_kind = output.preview.reference + (f" ({plane.source})" if plane is not None else "")
+
+    def _map_state(self) -> str:
+        """The fused map in a few words: fusing, or why not."""
+        if not self.config.map.enabled:
+            return "off (map.enabled false)"
+        if self.pipeline.map_active:
+            return "fusing"
+        return f"waiting: {self._why_no_map()}"
+
+    def _clock_state(self, now_ns: int) -> str:
+        """Whether the node's clock moves (a replay's /clock stops when the bag ends: the
+        diagnostics after it carry the same stamp, and say so)."""
+        steady = time.monotonic()
+        if self._clock_seen is None or now_ns != self._clock_seen[0]:
+            self._clock_seen = (now_ns, steady)  # the clock's value and when it last changed
+            return "running"
+        return f"stopped for {steady - self._clock_seen[1]:.0f} s (use_sim_time and no /clock)"
+
     def _publish_diagnostics(self) -> None:
         quiet = self.health.input_rate.in_window() == 0
         left = self._resolved_image_topic(self.config.topics.left_image)
@@ -459,7 +491,14 @@ class RoadBevNode(Node):
         snapshot = self.health.snapshot()
         snapshot.values["queued_sets"] = "1" if self._mailbox.waiting else "0"
         snapshot.values["queued_left_images"] = str(self.sync.queued()[0])
-        self._diag_pub.publish(to_diagnostic_array(snapshot, self.get_clock().now().to_msg()))
+        snapshot.values["map"] = self._map_state()
+        snapshot.values["map_frames_fused"] = str(self._fused)
+        snapshot.values["motion_age_s"] = ("never" if self._motion_at is None
+                                           else f"{time.monotonic() - self._motion_at:.2f}")
+        snapshot.values["preview_reference"] = self._preview_kind or "none yet"
+        now = self.get_clock().now()
+        snapshot.values["clock"] = self._clock_state(now.nanoseconds)
+        self._diag_pub.publish(to_diagnostic_array(snapshot, now.to_msg()))
 
     def counts(self) -> dict[str, int]:
         """Frame accounting: every left image is an output, a drop, queued or in flight."""

@@ -106,7 +106,37 @@ def test_stamp_ages_use_the_node_clock_and_use_sim_time_is_settable_at_run_time(
     assert level_becomes(harness, OK), latest_status(harness)
     values = harness.latest_diagnostics()
     assert 0.0 <= float(values["stamp_age_p50_ms"]) < 1000.0, values  # not 9.6e10
+    # the bag ends: /clock stops, the diagnostics go on with the last stamp and say so
+    assert wait_for(lambda: harness.latest_diagnostics()["clock"].startswith("stopped for"), 5.0)
     harness.feeder.destroy_publisher(clock_pub)
+
+
+def test_the_map_and_the_preview_reference_are_reported(harness: Harness) -> None:
+    from nav_msgs.msg import Odometry
+
+    harness.wait_output(feed(harness, 0))
+    assert wait_for(lambda: harness.latest_diagnostics().get("preview_reference") == "road", 5.0)
+    values = harness.latest_diagnostics()
+    assert values["map"] == "waiting: no odometry on /odom received yet", values
+    assert values["map_frames_fused"] == "0" and values["motion_age_s"] == "never"
+    odom = harness.feeder.create_publisher(Odometry, "/odom", 50)
+    assert wait_for(lambda: odom.get_subscription_count() > 0)
+    for k in range(1, 5):
+        msg = Odometry()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(START_NS + (k + 1) * FRAME_NS, 1_000_000_000)
+        msg.header.frame_id, msg.child_frame_id = "odom", "base_link"
+        msg.pose.pose.position.x, msg.pose.pose.orientation.w, msg.twist.twist.linear.x = float(k), 1.0, 10.0
+        odom.publish(msg)
+        harness.wait_output(feed(harness, k))
+
+    def fusing() -> bool:
+        v = harness.latest_diagnostics()
+        return v.get("map") == "fusing" and int(v.get("map_frames_fused", "0")) >= 1
+
+    assert wait_for(fusing, 5.0), harness.latest_diagnostics()
+    values = harness.latest_diagnostics()
+    assert values["preview_reference"].startswith("contact_plane ("), values
+    assert float(values["motion_age_s"]) < 5.0
 
 
 def test_the_other_transport_is_named_when_nothing_arrives(ros: Any) -> None:
