@@ -23,7 +23,10 @@ from typing import Any
 
 from roadbev_core.errors import RoadbevError
 
-__all__ = ["COMMANDS", "CommandError", "error_line", "list_item", "main", "progress_bar", "version", "warn"]
+__all__ = [
+    "COMMANDS", "CommandError", "add_output_flags", "error_line", "list_item", "main", "progress_bar", "shows_progress",
+    "version", "warn",
+]
 
 # name -> one-line help (the module docstring says more)
 COMMANDS: dict[str, str] = {
@@ -63,6 +66,22 @@ def progress_bar(*, unit: str, desc: str, total: int | None = None, disable: boo
 
     return tqdm(total=total, unit=unit, desc=desc, file=sys.stderr, leave=leave,
                 disable=disable or not sys.stderr.isatty())
+
+
+def add_output_flags(parser: argparse.ArgumentParser, *, progress: bool = True, summary: bool = True) -> None:
+    """The output flags every command spells the same way: ``--no-progress`` (no progress bar)
+    where it draws one, ``--quiet`` (no progress bar and no summary: errors and warnings only)
+    where it prints a summary."""
+    if progress:
+        parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    if summary:
+        parser.add_argument("--quiet", action="store_true",
+                            help="no progress bar and no summary (errors and warnings only)")
+
+
+def shows_progress(args: argparse.Namespace) -> bool:
+    """Whether a command draws its progress bar (:func:`add_output_flags`)."""
+    return not (getattr(args, "no_progress", False) or getattr(args, "quiet", False))
 
 
 def list_item(text: str) -> str:

@@ -19,7 +19,7 @@ import argparse
 import json
 from pathlib import Path
 
-from roadbev_ros.cli import progress_bar
+from roadbev_ros.cli import add_output_flags, progress_bar, shows_progress
 
 HELP = "what a bag holds (and whether it was closed cleanly); recover what is readable"
 
@@ -38,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     recover.add_argument("out", type=Path, metavar="OUT", help="the copy: .mcap or rosbag2 directory (must not exist)")
     recover.add_argument("--compression", choices=("zstd", "none"), default="zstd",
                          help="MCAP chunk compression of the copy (default zstd)")
-    recover.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_output_flags(recover, summary=False)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.out.exists():
         raise OSError(f"{args.out} exists already; not overwriting it")
-    bar = progress_bar(unit="msg", desc="recover", disable=args.no_progress, leave=False)
+    bar = progress_bar(unit="msg", desc="recover", disable=not shows_progress(args), leave=False)
     try:
         stats = recover_bag(args.bag, args.out, compression=args.compression, progress=bar.update)
     finally:

@@ -8,10 +8,12 @@ evaluation (``roadbev eval``) and writes ``DIR/index.html`` with the figures.
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import shutil
 from pathlib import Path
 
 from roadbev_core.config import DEFAULT_BACKEND
-from roadbev_ros.cli import CommandError
+from roadbev_ros.cli import CommandError, add_output_flags, shows_progress
 
 HELP = "the main job: synthetic drive -> node over ROS 2 -> recorded outputs -> report (+ a drive, map on/off)"
 
@@ -39,22 +41,48 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         f"(default {DEFAULT_DRIVE_FRAMES}; with --bag the section runs on BAG when it is a drive bag)")
     parser.add_argument("--drive-seed", type=int, default=DRIVE_SEED,
                         help=f"seed of the drive section's synthetic drive (default {DRIVE_SEED})")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_output_flags(parser, summary=False)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the demo; a failed stage ends with a one-line reason (non-zero exit)."""
+    """Run the demo; a failed stage ends with a one-line reason (non-zero exit).
+
+    The run writes into ``DIR.partial`` and replaces ``DIR`` only when it succeeds, so a failed
+    run leaves the last good report as it was; what the failed one wrote (the node's log among
+    it) is kept in ``DIR.failed`` and the error line names it.
+    """
     from roadbev_core.backends import available
+    from roadbev_core.errors import RoadbevError
     from roadbev_ros.demo import DemoOptions, run_demo, summary_lines
 
     # DemoError and CommandError are RoadbevErrors: the CLI prints either as one line (it catches
     # the root class, so running as `python -m roadbev_ros.cli`, as `make demo` does, is no different)
     if args.backend not in available():
         raise CommandError(f"unknown backend {args.backend!r}; choose from {', '.join(available())}")
-    options = DemoOptions(frames=args.frames, out_dir=args.out, backend=args.backend, bag=args.bag,
-                          cache_dir=args.cache, seed=args.seed, progress=not args.no_progress,
+    out = Path(args.out)
+    work, failed = out.with_name(out.name + ".partial"), out.with_name(out.name + ".failed")
+    shutil.rmtree(work, ignore_errors=True)
+    options = DemoOptions(frames=args.frames, out_dir=work, backend=args.backend, bag=args.bag,
+                          cache_dir=args.cache, seed=args.seed, progress=shows_progress(args),
                           drive=not args.no_drive, drive_frames=args.drive_frames, drive_seed=args.drive_seed)
-    result = run_demo(options)
+    try:
+        result = run_demo(options)
+    except (RoadbevError, KeyboardInterrupt) as exc:
+        if not work.exists() or not any(work.iterdir()):
+            shutil.rmtree(work, ignore_errors=True)  # it failed before writing anything
+            raise
+        shutil.rmtree(failed, ignore_errors=True)
+        work.rename(failed)
+        kept = ", ".join(sorted(p.name for p in failed.iterdir())) or "nothing"
+        where = f"what it wrote is in {failed} ({kept}); {out} is as it was"
+        if isinstance(exc, KeyboardInterrupt):
+            raise CommandError(f"interrupted; {where}") from None
+        raise CommandError(f"{exc}; {where}") from None
+    shutil.rmtree(out, ignore_errors=True)
+    shutil.rmtree(failed, ignore_errors=True)
+    work.rename(out)
+    result = dataclasses.replace(result, out_dir=out,
+                                 files={name: out / path.relative_to(work) for name, path in result.files.items()})
     for line in summary_lines(result):
         print(line)
     return 0

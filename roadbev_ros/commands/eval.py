@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from roadbev_core.config import DEFAULT_BACKEND
-from roadbev_ros.cli import CommandError, progress_bar, warn
+from roadbev_ros.cli import CommandError, add_output_flags, progress_bar, shows_progress, warn
 
 HELP = "run a backend over every frame of a bag (no DDS) and report the metrics"
 
@@ -40,7 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", default=None, metavar="OUT", help="write the metrics as JSON here")
     parser.add_argument("--frames", type=int, default=None, metavar="N", help="evaluate only the first N frames")
     parser.add_argument("--checkpoint", default=None, help="checkpoint for the learned backends (stereo, mono)")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_output_flags(parser, summary=False)
     parser.add_argument("--out", default=None, metavar="OUT.mcap",
                         help="also write every output message (/roadbev/elevation, /roadbev/preview) to this bag")
     parser.add_argument("--lead-time", type=float, default=0.1, metavar="S",
@@ -144,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
         outputs = OutputBag(args.out, config, camera_frame=bag.camera_frame)
 
     total = len(bag) if args.frames is None else min(len(bag), args.frames)
-    bar = progress_bar(total=total, unit="frame", desc=f"eval {config.backend.name}", disable=args.no_progress,
+    bar = progress_bar(total=total, unit="frame", desc=f"eval {config.backend.name}", disable=not shows_progress(args),
                        leave=False)
     try:
         evaluation = run_prepared(prepared, lead_time_s=args.lead_time, max_frames=args.frames, progress=bar.update,

@@ -8,7 +8,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from roadbev_ros.cli import CommandError
+from roadbev_ros.cli import CommandError, add_output_flags, progress_bar, shows_progress
 
 HELP = "export a checkpoint for deployment (.pt or ONNX)"
 # Calibration frames of --int8: training seeds (disjoint from every test and tuning seed), as many
@@ -33,6 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="onnx: int8 convolutions (QDQ), ranges calibrated on synthetic training scenes")
     parser.add_argument("--calibration-scenes", type=int, default=CALIBRATION_SCENES, metavar="N",
                         help=f"--int8: training scenes (seeds 0..N-1) to calibrate on (default {CALIBRATION_SCENES})")
+    add_output_flags(parser, summary=False)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -76,12 +77,11 @@ def _write_int8(data: bytes, model: Any, args: argparse.Namespace) -> None:
     """Quantise the exported graph on training scenes and write it to ``args.out`` (atomically)."""
     from roadbev_core.deploy import DeployError, frame_feeds, quantize_int8, write_graph
     from roadbev_core.synth import make_sample
-    from roadbev_ros.cli import progress_bar
-
     if args.calibration_scenes < 1:
         raise CommandError(f"--calibration-scenes must be >= 1, got {args.calibration_scenes}")
     feeds = []
-    with progress_bar(total=args.calibration_scenes, unit="scene", desc="int8 calibration scenes") as bar:
+    with progress_bar(total=args.calibration_scenes, unit="scene", desc="int8 calibration scenes",
+                      disable=not shows_progress(args)) as bar:
         for seed in range(args.calibration_scenes):
             frame = make_sample(seed, grid=model.grid).frame
             feeds.append(frame_feeds(model.config, model.grid, frame))

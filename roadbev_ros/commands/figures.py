@@ -28,7 +28,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"road features placed in the grid, space-separated, from: {', '.join(FEATURE_NAMES)} "
              f"(default {' '.join(DEFAULT_FEATURES)}; give the flag alone for none)",
     )
-    parser.add_argument("--surface", default="asphalt", choices=("asphalt", "concrete"))
+    parser.add_argument("--surface", default="asphalt", choices=("asphalt", "concrete"),
+                        help="pavement of the rendered scene (default asphalt)")
     parser.add_argument("--step", type=int, default=8, help="draw every STEP-th grid row and column (default 8)")
 
 

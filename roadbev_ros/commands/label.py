@@ -24,7 +24,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from roadbev_ros.cli import CommandError, progress_bar
+from roadbev_ros.cli import CommandError, add_output_flags, progress_bar, shows_progress
 
 HELP = "label a recorded drive from its LiDAR: an evaluation/training bag with /ground_truth/elevation"
 EXTRINSIC = "label.lidar_extrinsic_xyz_rpy_deg"
@@ -41,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="PointCloud2 topic (default /lidar/points, else the bag's only PointCloud2 topic)",
     )
     parser.add_argument("--params", default=None, metavar="P", help="ROS 2 params YAML (grid, topics, label.*)")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    add_output_flags(parser)
 
 
 def _numbers(name: str, value: Any, n: int) -> list[float]:
@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
             if lidar in topics
             else sum(t.count for t in topics.values() if t.msgtype == "sensor_msgs/msg/PointCloud2")
         )
-        with progress_bar(total=total or None, unit="scan", desc="label", disable=args.quiet) as bar:
+        with progress_bar(total=total or None, unit="scan", desc="label", disable=not shows_progress(args)) as bar:
             report = label_bag(
                 args.bag,
                 args.out,

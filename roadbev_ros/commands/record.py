@@ -16,7 +16,7 @@ import threading
 import time
 from pathlib import Path
 
-from roadbev_ros.cli import CommandError, list_item, warn
+from roadbev_ros.cli import CommandError, add_output_flags, list_item, warn
 
 HELP = "record topics to an MCAP bag"
 
@@ -29,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-messages", type=int, default=0, metavar="N", help="stop after N messages")
     parser.add_argument("--compression", choices=("zstd", "none"), default="zstd",
                         help="MCAP chunk compression (default zstd)")
-    parser.add_argument("--quiet", action="store_true", help="no summary")
+    add_output_flags(parser, progress=False)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -69,4 +69,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"recorded {sum(counts.values())} messages to {args.out} ({summary})")
     for problem in recorder.problems:
         warn("record", f"not recorded: {problem}")
+    subscribed = set(recorder.subscribed)
+    for topic in args.topics:
+        if counts.get(topic, 0) == 0:
+            why = "no message arrived" if topic in subscribed else "nothing published it (never discovered)"
+            warn("record", f"{topic}: 0 messages recorded: {why}")
     return 0

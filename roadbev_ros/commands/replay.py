@@ -20,10 +20,13 @@ import argparse
 import signal
 import sys
 import threading
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from roadbev_ros.cli import CommandError, list_item, progress_bar, warn
+from msg_bridge.bag import bag_topics
+from roadbev_core.errors import RoadbevError
+from roadbev_ros.cli import CommandError, add_output_flags, list_item, progress_bar, shows_progress, warn
 
 HELP = "publish a bag's topics over ROS 2 with their original timing"
 DEFAULT_WAIT_S = 10.0
@@ -46,15 +49,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                            "on a timeout say which topics have none and replay anyway")
     wait.add_argument("--no-wait", action="store_true", help="start at once, subscribed or not")
     parser.add_argument("--json", type=Path, metavar="OUT", help="write the replay statistics here")
-    parser.add_argument("--quiet", action="store_true", help="no progress output")
+    add_output_flags(parser)
 
 
 def waited_topics(bag_path: Path, topics: list[str] | None) -> list[str] | None:
     """The topics the replay waits for: the replayed image topics (None = all, when none)."""
-    from msg_bridge import bag
     from roadbev_ros.replay import IMAGE_TYPES
 
-    available = bag.bag_topics(bag_path)
+    available = bag_topics(bag_path)
     images = [t for t, info in available.items() if info.msgtype in IMAGE_TYPES and (topics is None or t in topics)]
     return images or None
 
@@ -69,6 +71,16 @@ def transport_hint(node: Any, topic: str) -> str:
     transport = "compressed" if topic.endswith(COMPRESSED_SUFFIX) else "raw"
     return (f" ({other} has a subscriber: the bag's images are {transport}, start the node with "
             f"-p image_transport:={transport})")
+
+
+def published_of_bag(bag: Path, per_topic: Mapping[str, int]) -> str:
+    """What a stopped replay published of each topic of the bag: ``/a 12 of 40, /b 0 of 3``."""
+    try:
+        totals = {topic: info.count for topic, info in bag_topics(bag).items()}
+    except (RoadbevError, OSError):
+        totals = {}
+    topics = sorted(set(totals) | set(per_topic))
+    return ", ".join(f"{t} {per_topic.get(t, 0)}" + (f" of {totals[t]}" if t in totals else "") for t in topics)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -89,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     node = rclpy.create_node("roadbev_replay")
-    bar = progress_bar(unit="msg", desc="replay", disable=args.quiet)
+    bar = progress_bar(unit="msg", desc="replay", disable=not shows_progress(args))
 
     def unmatched(topics: list[str]) -> None:
         for topic in topics:
@@ -122,6 +134,8 @@ def run(args: argparse.Namespace) -> int:
         warn("replay", f"the bag is not whole: published what is readable; messages left out: {lost}")
         for problem in stats.read_problems:
             print(f"  {problem}", file=sys.stderr)
+    if stop.is_set():
+        warn("replay", f"interrupted after {stats.duration_s:.2f} s: {published_of_bag(args.bag, stats.per_topic)}")
     if not args.quiet:
         print(
             f"published {stats.messages} messages on {len(stats.per_topic)} topics in "

@@ -20,7 +20,7 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
-from roadbev_ros.cli import CommandError, list_item, progress_bar
+from roadbev_ros.cli import CommandError, add_output_flags, list_item, progress_bar, shows_progress
 
 HELP = "write a synthetic evaluation/training bag (MCAP)"
 
@@ -46,7 +46,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"road features repeated along the drive, space-separated, from: "
                         f"{', '.join(FEATURE_NAMES)} "
                         "(default: the synthesiser's mix; give the flag alone for none)")
-    parser.add_argument("--surface", choices=["asphalt", "concrete"], default="asphalt")
+    parser.add_argument("--surface", choices=["asphalt", "concrete"], default="asphalt",
+                        help="pavement texture (default asphalt)")
     parser.add_argument("--grade", type=float, default=None, help="road grade dz/dx (default 0; |g| <= 0.012)")
     parser.add_argument("--cross-slope", type=float, default=None, help="cross slope dz/dy (default 0.02)")
     parser.add_argument("--roughness-scale", type=float, default=None, help="ISO 8608 amplitude factor (default 1)")
@@ -75,7 +76,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--jpeg-quality", type=int, default=90, metavar="Q", help="JPEG quality (default 90)")
     parser.add_argument("--compression", choices=["zstd", "none"], default="zstd",
                         help="MCAP chunk compression (default zstd)")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    add_output_flags(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -141,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         drive = SyntheticDrive(config)
         write = write_eval_bag
-    with progress_bar(total=len(drive), unit="frame", desc="synth", disable=args.quiet) as bar:
+    with progress_bar(total=len(drive), unit="frame", desc="synth", disable=not shows_progress(args)) as bar:
         counts = write(
             args.out,
             drive,

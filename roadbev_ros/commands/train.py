@@ -11,7 +11,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from roadbev_ros.cli import CommandError
+from roadbev_ros.cli import CommandError, add_output_flags, shows_progress
 
 HELP = "train RoadBEV-mono / RoadBEV-stereo"
 DEFAULT_CACHE = Path(".cache") / "roadbev"
@@ -39,22 +39,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     data.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help=f"scene cache (default {DEFAULT_CACHE})")
     data.add_argument("--bag", type=Path, action="append", default=[], help="an evaluation bag with ground truth")
     data.add_argument("--rsrd", type=Path, help="RSRD root (<split>/<sequence>/...)")
-    data.add_argument("--rsrd-split", default="train")
+    data.add_argument("--rsrd-split", default="train", help="split of the RSRD dataset to train on (default train)")
     data.add_argument("--rsrd-info", type=Path, nargs="+", default=[],
                       help="sample-info pickles to read (trusted files only: pickle runs code)")
     data.add_argument("--rsrd-calib", type=Path, nargs="+", default=[],
                       help="calib_<YYYYMMDD>_half.pkl files to read (trusted files only)")
     opt = parser.add_argument_group("optimisation")
-    opt.add_argument("--epochs", type=int, default=10)
+    opt.add_argument("--epochs", type=int, default=10, help="passes over the training data (default 10)")
     opt.add_argument("--batch-size", type=int, default=2, help="global batch size")
     opt.add_argument("--lr", type=float, help="peak learning rate (default 8e-4 mono, 5e-4 stereo)")
-    opt.add_argument("--weight-decay", type=float, default=1e-4)
+    opt.add_argument("--weight-decay", type=float, default=1e-4, help="AdamW weight decay (default 1e-4)")
     opt.add_argument("--pct-start", type=float, default=0.1, help="one-cycle warm-up share")
-    opt.add_argument("--seed", type=int, default=0)
+    opt.add_argument("--seed", type=int, default=0, help="seed of the weights' initialisation and the data order")
     opt.add_argument("--max-minutes", type=float, help="wall-clock cap; saves and stops when crossed")
     opt.add_argument("--threads", type=int, help="torch threads")
     parser.add_argument("--log", type=Path, help="also append the epoch summaries to this file")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_output_flags(parser, summary=False)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
         last = args.synth_seed + args.synth
         if args.synth_seed < 0 or last > TEST_SEED_START:
             raise CommandError(f"training seeds must lie in [0, {TEST_SEED_START}) (test scenes use the rest)")
-        sources.append(SyntheticSet(args.cache, range(args.synth_seed, last), progress=not args.quiet,
+        sources.append(SyntheticSet(args.cache, range(args.synth_seed, last), progress=shows_progress(args),
                                     appearance=args.synth_appearance))
     sources.extend(LabelledFrames(*bag_frames(bag), what=str(bag)) for bag in args.bag)
     if args.rsrd:
@@ -96,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
 
     result = train(model_config(args.preset, args.kind), grid, data, config, args.out, resume=args.resume,
                    init=args.init, model_overrides=overrides, pretrained=args.pretrained,
-                   progress=not args.quiet, log=log)
+                   progress=shows_progress(args), log=log)
     if result.checkpoint is not None:
         last = result.history[-1] if result.history else {}
         loss, err = last.get("loss", float("nan")), last.get("abs_err_cm", float("nan"))

@@ -156,3 +156,28 @@ def test_the_demo_report_bar_counts_files(monkeypatch: pytest.MonkeyPatch) -> No
     demo._bar(None, "report", True, unit="file")
     demo._bar(3, "offline", True)
     assert units == ["file", "frame"]
+
+
+@pytest.mark.parametrize("name", sorted(cli.COMMANDS))
+def test_every_option_has_help_and_the_output_flags_are_spelled_one_way(name: str) -> None:
+    import argparse
+    import inspect
+
+    module = cli._load(name)
+    parser = argparse.ArgumentParser()
+    module.add_arguments(parser)
+    groups = [parser] + [a.choices[c] for a in parser._actions if isinstance(a, argparse._SubParsersAction)
+                         for c in a.choices]
+    source = inspect.getsource(module)
+    for group in groups:
+        for action in group._actions:
+            if action.option_strings and not isinstance(action, argparse._HelpAction):
+                assert action.help, f"roadbev {name} {action.option_strings[0]} has no help"
+        flags = {o: a.help for a in group._actions for o in a.option_strings}
+        if "--quiet" in flags:
+            assert flags["--quiet"] == "no progress bar and no summary (errors and warnings only)"
+        if "--no-progress" in flags:
+            assert flags["--no-progress"] == "no progress bar"
+    options = {o for group in groups for a in group._actions for o in a.option_strings}
+    if "progress_bar(" in source or "progress=shows_progress" in source:  # the command draws a bar
+        assert "--no-progress" in options, f"roadbev {name} draws a progress bar without --no-progress"

@@ -274,6 +274,29 @@ def test_cli_missing_bag_exits_with_one_line(tmp_path: Path) -> None:
                           capture_output=True, text=True, env=child_env(), timeout=60)
     assert proc.returncode == 2
     assert proc.stderr.strip().count("\n") == 0 and "bag not found" in proc.stderr
+    assert not any(tmp_path.glob("o*"))  # it failed before writing anything: no folder left
+
+
+def test_a_failed_demo_keeps_the_last_report_and_names_what_it_wrote(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    from roadbev_ros import cli, demo
+
+    out = tmp_path / "report"
+    out.mkdir()
+    (out / "index.html").write_text("the last good report")
+
+    def failing(options: DemoOptions, **_kwargs: object) -> DemoResult:
+        options.out_dir.mkdir(parents=True)
+        (options.out_dir / "node.log").write_text("what the node said")
+        raise DemoError("ROS 2 stage failed: the node exited")
+
+    monkeypatch.setattr(demo, "run_demo", failing)
+    assert cli.main(["demo", "--out", str(out), "--no-progress", "--no-drive"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (f"roadbev demo: error: ROS 2 stage failed: the node exited; what it wrote is in "
+                   f"{tmp_path / 'report.failed'} (node.log); {out} is as it was")
+    assert (out / "index.html").read_text() == "the last good report"
+    assert (tmp_path / "report.failed" / "node.log").is_file() and not (tmp_path / "report.partial").exists()
 
 
 def test_demo_on_a_truncated_bag_without_ground_truth_writes_the_report(demo, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]

@@ -168,3 +168,18 @@ def test_sigkill_at_random_moments_loses_nothing_older_than_a_second(ros: Any, t
         before_kill = sum(1 for when, _t, _d in published if when < killed_at[run])
         print(f"run {run}: killed {killed_at[run] - published[0][0]:.2f} s in; published before the kill "
               f"{before_kill}, of them older than 1 s {len(old_enough)}; recovered {sum(recorded.values())}")
+
+
+def test_a_topic_nothing_published_is_warned_of(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    from roadbev_ros.dds import child_env
+
+    out = tmp_path / "silent.mcap"
+    proc = subprocess.run([sys.executable, "-m", "roadbev_ros.cli", "record", str(out), "--topics",
+                           "/nobody/publishes/this", "--duration", "1"], capture_output=True, text=True, timeout=60,
+                          env=child_env())
+    assert proc.returncode == 0, proc.stderr
+    assert ("roadbev record: warning: /nobody/publishes/this: 0 messages recorded: nothing published it "
+            "(never discovered)") in proc.stderr

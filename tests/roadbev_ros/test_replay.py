@@ -202,3 +202,29 @@ def test_replay_waits_only_for_the_topics_it_is_told(listener: Listener, imu_bag
                        on_wait_timeout=missed.append)
     assert stats.unmatched == [] and missed == [] and stats.waited_s < 10.0
     assert stats.per_topic["/imu/data"] == N
+
+
+def test_an_interrupted_replay_says_how_much_it_published_of_what(imu_bag: Path) -> None:
+    from roadbev_ros.commands.replay import published_of_bag
+
+    assert published_of_bag(imu_bag, {"/imu/data": 7}) == f"/imu/data 7 of {N}, /note 0 of 1"
+
+
+def test_the_replay_command_reports_an_interruption(imu_bag: Path) -> None:
+    import signal
+    import subprocess
+    import sys
+
+    from roadbev_ros.dds import child_env
+
+    proc = subprocess.Popen([sys.executable, "-m", "roadbev_ros.cli", "replay", str(imu_bag), "--rate", "0.02",
+                             "--no-wait", "--loop"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=child_env())
+    try:
+        time.sleep(4.0)  # up and publishing: at 1/50 of the bag's rate it is far from its end
+    finally:
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    assert "roadbev replay: warning: interrupted after " in err, err
+    assert f" of {N}" in err and "/note " in err
