@@ -47,7 +47,9 @@ GT_TOPIC = "/ground_truth/elevation"
 ELEVATION_TOPIC = "/roadbev/elevation"
 PREVIEW_TOPIC = "/roadbev/preview"
 MAP_TOPIC = "/roadbev/map"
-OUTPUT_TOPICS = (ELEVATION_TOPIC, PREVIEW_TOPIC, MAP_TOPIC, "/diagnostics")
+# the node's outputs, and the TF viewers need to place them (the node's per-frame TF on /tf, the
+# mount the replay publishes on /tf_static)
+OUTPUT_TOPICS = (ELEVATION_TOPIC, PREVIEW_TOPIC, MAP_TOPIC, "/diagnostics", "/tf", "/tf_static")
 
 
 class OnlineEvalError(RoadbevError, RuntimeError):

@@ -202,7 +202,10 @@ def test_a_drive_replayed_into_the_node_gives_the_fused_map_and_previews_of_eval
     result = evaluate_online(drive, tmp_path / "online")
     online = result.metrics
     assert online["online"]["frames_without_output"] == 0, result.node_log
-    assert bag.bag_topics(result.recorded)["/roadbev/map"].count == 8
+    recorded = bag.bag_topics(result.recorded)
+    assert recorded["/roadbev/map"].count == 8
+    # what a viewer needs to place the outputs: the node's per-frame TF and the replayed mount
+    assert recorded["/tf"].count == 8 and recorded["/tf_static"].count == 1
     for section in ("preview_at_arrival", "map"):
         for key, value in offline[section].items():
             if isinstance(value, float):
