@@ -17,15 +17,18 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
+import string
 import sys
 from collections.abc import Sequence
-from typing import Any
+from pathlib import Path
+from typing import Any, NoReturn
 
 from roadbev_core.errors import RoadbevError
 
 __all__ = [
-    "COMMANDS", "CommandError", "add_output_flags", "error_line", "list_item", "main", "progress_bar", "shows_progress",
-    "version", "warn",
+    "COMMANDS", "CommandError", "add_output_flags", "error_line", "list_item", "main", "output_path", "progress_bar",
+    "seconds", "shows_progress", "topic_name", "version", "warn",
 ]
 
 # name -> one-line help (the module docstring says more)
@@ -93,6 +96,56 @@ def list_item(text: str) -> str:
     return text
 
 
+def seconds(text: str) -> float:
+    """argparse ``type`` of a duration: a finite number of seconds, >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number of seconds: {text!r}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number of seconds >= 0, got {text!r}")
+    return value
+
+
+_TOPIC_CHARS = frozenset(string.ascii_letters + string.digits + "_/~")
+
+
+def topic_name(text: str) -> str:
+    """argparse ``type`` of a topic name, by the rules ROS 2 applies to one before any remapping
+    (rcl's topic name validation): letters, digits, ``_`` and ``/``; no empty token (``//``), no
+    trailing ``/``, no token starting with a digit; ``~`` only first, then ``/``. Substitutions
+    (``{node}``) are refused: a command line names topics as they are."""
+    name = list_item(text)
+    bad = sorted(set(name) - _TOPIC_CHARS)
+    reason = ""
+    if not name:
+        reason = "it is empty"
+    elif bad:
+        reason = f"{''.join(bad)!r} is not allowed (letters, digits, '_' and '/' only)"
+    elif "~" in name[1:] or (name.startswith("~") and name[1:2] not in ("", "/")):
+        reason = "'~' may only start the name, followed by '/'"
+    elif name.endswith("/") and name != "/":
+        reason = "it ends with '/'"
+    elif name == "/":
+        reason = "it names no topic"
+    elif "//" in name:
+        reason = "it has an empty token ('//')"
+    elif any(token[:1].isdigit() for token in name.lstrip("~").split("/")):
+        reason = "a token starts with a digit"
+    if reason:
+        raise argparse.ArgumentTypeError(f"not a ROS topic name: {text!r}: {reason}")
+    return name
+
+
+def output_path(text: str) -> Path:
+    """argparse ``type`` of a file to write: its folder must exist (nothing is created unasked)."""
+    path = Path(text)
+    folder = path.parent
+    if not folder.is_dir():
+        raise argparse.ArgumentTypeError(f"folder {folder} does not exist (for {text})")
+    return path
+
+
 def version() -> str:
     """The installed version of ``roadbev_ros`` (package.xml's, through setup.py)."""
     from importlib.metadata import PackageNotFoundError
@@ -108,8 +161,16 @@ def _load(name: str):  # type: ignore[no-untyped-def]
     return importlib.import_module(f"roadbev_ros.commands.{name.replace('-', '_')}")
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse without the usage block before a refusal: a bad command line is one line,
+    ``roadbev <command>: error: <reason>``, as every other refusal (``--help`` shows the usage)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
 def _build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="roadbev", description=__doc__.splitlines()[0])
+    parser = _OneLineParser(prog="roadbev", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"roadbev {version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     # Only the chosen command's module is imported: the others show their one-line help.
@@ -131,6 +192,10 @@ def _build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args_list = list(sys.argv[1:] if argv is None else argv)
+    chosen = next((a for a in args_list if not a.startswith("-")), None)
+    if chosen is not None and chosen not in COMMANDS:
+        print(f"roadbev: error: unknown command {chosen!r} (choose from {', '.join(COMMANDS)})", file=sys.stderr)
+        return 2
     parser = _build_parser(args_list)
     args = parser.parse_args(args_list)
     if args.command is None:

@@ -19,7 +19,7 @@ import argparse
 import json
 from pathlib import Path
 
-from roadbev_ros.cli import add_output_flags, progress_bar, shows_progress
+from roadbev_ros.cli import add_output_flags, output_path, progress_bar, shows_progress
 
 HELP = "what a bag holds (and whether it was closed cleanly); recover what is readable"
 
@@ -31,11 +31,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                           description="topics, message counts, clean close, damage")
     info.add_argument("bag", type=Path, metavar="BAG", help="rosbag2 directory or .mcap file")
     info.add_argument("--no-verify", action="store_true", help="read the indexes only (no CRC check of the chunks)")
-    info.add_argument("--json", type=Path, default=None, metavar="OUT", help="also write the report as JSON here")
+    info.add_argument("--json", type=output_path, default=None, metavar="OUT",
+                      help="also write the report as JSON here")
     recover = sub.add_parser("recover", help="a complete, indexed copy of everything readable",
                              description="a complete, indexed copy of everything readable")
     recover.add_argument("bag", type=Path, metavar="BAG", help="rosbag2 directory or .mcap file (unfinished, damaged)")
-    recover.add_argument("out", type=Path, metavar="OUT", help="the copy: .mcap or rosbag2 directory (must not exist)")
+    recover.add_argument("out", type=output_path, metavar="OUT",
+                         help="the copy: .mcap or rosbag2 directory (must not exist; its folder must)")
     recover.add_argument("--compression", choices=("zstd", "none"), default="zstd",
                          help="MCAP chunk compression of the copy (default zstd)")
     add_output_flags(recover, summary=False)

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from roadbev_core.config import DEFAULT_BACKEND
-from roadbev_ros.cli import CommandError, add_output_flags, progress_bar, shows_progress, warn
+from roadbev_ros.cli import CommandError, add_output_flags, progress_bar, seconds, shows_progress, warn
 
 HELP = "run a backend over every frame of a bag (no DDS) and report the metrics"
 
@@ -37,13 +37,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--backend", default=None, help=f"elevation backend (default: the params' 'backend', else {DEFAULT_BACKEND})"
     )
     parser.add_argument("--params", default=None, metavar="P", help="ROS 2 params YAML (grid, base_height, backend)")
-    parser.add_argument("--json", default=None, metavar="OUT", help="write the metrics as JSON here")
+    parser.add_argument("--json", default=None, metavar="OUT",
+                        help="write the metrics as JSON here (its folder is created)")
     parser.add_argument("--frames", type=int, default=None, metavar="N", help="evaluate only the first N frames")
     parser.add_argument("--checkpoint", default=None, help="checkpoint for the learned backends (stereo, mono)")
     add_output_flags(parser, summary=False)
     parser.add_argument("--out", default=None, metavar="OUT.mcap",
-                        help="also write every output message (/roadbev/elevation, /roadbev/preview) to this bag")
-    parser.add_argument("--lead-time", type=float, default=0.1, metavar="S",
+                        help="also write every output message (/roadbev/elevation, /roadbev/preview) to this bag (its "
+                             "folder is created)")
+    parser.add_argument("--lead-time", type=seconds, default=0.1, metavar="S",
                         help="drive bags: preview at arrival counts messages stamped this long before (default 0.1 s)")
     fused = parser.add_mutually_exclusive_group()
     fused.add_argument("--map", dest="map", action="store_true", default=None,

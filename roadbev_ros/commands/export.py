@@ -8,7 +8,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from roadbev_ros.cli import CommandError, add_output_flags, progress_bar, shows_progress
+from roadbev_ros.cli import CommandError, add_output_flags, output_path, progress_bar, shows_progress
 
 HELP = "export a checkpoint for deployment (.pt or ONNX)"
 # Calibration frames of --int8: training seeds (disjoint from every test and tuning seed), as many
@@ -20,7 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from roadbev_core.deploy import OPSET
 
     parser.add_argument("checkpoint", type=Path, help="a checkpoint written by `roadbev train`")
-    parser.add_argument("out", type=Path, help="where to write the export")
+    parser.add_argument("out", type=output_path, help="where to write the export")
     parser.add_argument("--format", choices=("pt", "onnx"), default="pt",
                         help="pt: a deployment checkpoint (default); onnx: the network as an ONNX graph whose "
                              "geometry (voxel sampling coordinates) are inputs, for ONNX Runtime, OpenVINO, TensorRT")

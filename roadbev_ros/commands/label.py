@@ -24,7 +24,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from roadbev_ros.cli import CommandError, add_output_flags, progress_bar, shows_progress
+from roadbev_ros.cli import CommandError, add_output_flags, output_path, progress_bar, shows_progress
 
 HELP = "label a recorded drive from its LiDAR: an evaluation/training bag with /ground_truth/elevation"
 EXTRINSIC = "label.lidar_extrinsic_xyz_rpy_deg"
@@ -33,7 +33,7 @@ EXTRINSIC = "label.lidar_extrinsic_xyz_rpy_deg"
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``roadbev label``."""
     parser.add_argument("bag", metavar="BAG", type=Path, help="recorded drive: rosbag2 directory or .mcap file")
-    parser.add_argument("out", metavar="OUT", type=Path, help="output bag: NAME.mcap or a directory")
+    parser.add_argument("out", metavar="OUT", type=output_path, help="output bag: NAME.mcap or a directory")
     parser.add_argument(
         "--lidar-topic",
         default=None,

@@ -14,16 +14,15 @@ import signal
 import sys
 import threading
 import time
-from pathlib import Path
 
-from roadbev_ros.cli import CommandError, add_output_flags, list_item, warn
+from roadbev_ros.cli import CommandError, add_output_flags, output_path, topic_name, warn
 
 HELP = "record topics to an MCAP bag"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("out", type=Path, help="output .mcap file (or rosbag2 directory); must not exist")
-    parser.add_argument("--topics", nargs="+", type=list_item, required=True, metavar="TOPIC",
+    parser.add_argument("out", type=output_path, help="output .mcap file (or rosbag2 directory); must not exist")
+    parser.add_argument("--topics", nargs="+", type=topic_name, required=True, metavar="TOPIC",
                         help="topics to record (space-separated)")
     parser.add_argument("--duration", type=float, default=0.0, metavar="S", help="stop after S seconds")
     parser.add_argument("--max-messages", type=int, default=0, metavar="N", help="stop after N messages")

@@ -26,18 +26,27 @@ from typing import Any
 
 from msg_bridge.bag import bag_topics
 from roadbev_core.errors import RoadbevError
-from roadbev_ros.cli import CommandError, add_output_flags, list_item, progress_bar, shows_progress, warn
+from roadbev_ros.cli import (
+    CommandError,
+    add_output_flags,
+    output_path,
+    progress_bar,
+    shows_progress,
+    topic_name,
+    warn,
+)
 
 HELP = "publish a bag's topics over ROS 2 with their original timing"
 DEFAULT_WAIT_S = 10.0
+MIN_RATE, MAX_RATE = 1e-3, 1000.0  # speed factors a replay can keep (a slower one would seem to hang)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bag", type=Path, help="rosbag2 directory or .mcap file")
     parser.add_argument("--rate", type=float, default=1.0,
-                        help="speed factor (default 1.0; 0 = as fast as possible)")
+                        help=f"speed factor in [{MIN_RATE:g}, {MAX_RATE:g}] (default 1.0; 0 = as fast as possible)")
     parser.add_argument("--loop", action="store_true", help="start again at the end (Ctrl-C stops)")
-    parser.add_argument("--topics", nargs="+", type=list_item, metavar="TOPIC",
+    parser.add_argument("--topics", nargs="+", type=topic_name, metavar="TOPIC",
                         help="only these topics (space-separated)")
     parser.add_argument("--restamp", action="store_true",
                         help="set header stamps to the wall-clock publication time")
@@ -48,7 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                            f"topic when the bag has no images) before starting (default {DEFAULT_WAIT_S:g}); "
                            "on a timeout say which topics have none and replay anyway")
     wait.add_argument("--no-wait", action="store_true", help="start at once, subscribed or not")
-    parser.add_argument("--json", type=Path, metavar="OUT", help="write the replay statistics here")
+    parser.add_argument("--json", type=output_path, metavar="OUT", help="write the replay statistics here")
     add_output_flags(parser)
 
 
@@ -88,8 +97,9 @@ def run(args: argparse.Namespace) -> int:
     from roadbev_ros.dds import init_ros
     from roadbev_ros.replay import replay_bag
 
-    if args.rate < 0 or args.rate != args.rate:
-        raise CommandError(f"--rate must be >= 0, got {args.rate}")
+    if not (args.rate == 0 or MIN_RATE <= args.rate <= MAX_RATE):
+        raise CommandError(f"--rate must be 0 (as fast as possible) or in [{MIN_RATE:g}, {MAX_RATE:g}], "
+                           f"got {args.rate}")
     if not args.wait_for_subscribers >= 0:
         raise CommandError(f"--wait-for-subscribers must be >= 0 s, got {args.wait_for_subscribers}")
     if not args.bag.exists():

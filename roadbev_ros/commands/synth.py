@@ -28,7 +28,8 @@ HELP = "write a synthetic evaluation/training bag (MCAP)"
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from roadbev_core.synth import FEATURE_NAMES
 
-    parser.add_argument("out", type=Path, help="output bag: NAME.mcap (single file) or a directory")
+    parser.add_argument("out", type=Path, help="output bag: NAME.mcap (single file) or a directory (its folder is "
+                        "created)")
     parser.add_argument("--drive", action="store_true",
                         help="a drive bag: the car rides on its road (suspension, /odom, /ground_truth/odom, "
                         "/tf_static, /ground_truth/road_map)")

@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -22,10 +23,44 @@ def test_no_command_prints_help_and_fails(capsys: pytest.CaptureFixture[str]) ->
     assert "COMMAND" in capsys.readouterr().out
 
 
-def test_unknown_command_is_a_usage_error() -> None:
-    with pytest.raises(SystemExit) as exc:
-        cli.main(["fly"])
-    assert exc.value.code == 2
+def test_unknown_command_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["fly"]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"roadbev: error: unknown command 'fly' (choose from {', '.join(cli.COMMANDS)})"]
+
+
+@pytest.mark.parametrize("argv, reason", [
+    (["eval", "b.mcap", "--lead-time", "-1"], "argument --lead-time: must be a finite number of seconds >= 0"),
+    (["eval", "b.mcap", "--lead-time", "nan"], "argument --lead-time: must be a finite number of seconds >= 0"),
+    (["record", "{missing}/r.mcap", "--topics", "/a"], "argument out: folder {missing} does not exist"),
+    (["bag", "info", "b.mcap", "--json", "{missing}/i.json"], "argument --json: folder {missing} does not exist"),
+    (["record", "o.mcap", "--topics", "not a topic!"], "not a ROS topic name: 'not a topic!'"),
+    (["record", "o.mcap", "--topics", "/a//b"], "it has an empty token"),
+    (["replay", "b.mcap", "--topics", "/cam/0left"], "a token starts with a digit"),
+    (["replay", "b.mcap", "--rate", "inf"], "--rate must be 0 (as fast as possible) or in [0.001, 1000], got inf"),
+    (["replay", "b.mcap", "--rate", "1e-300"], "--rate must be 0 (as fast as possible) or in [0.001, 1000]"),
+])
+def test_bad_command_lines_are_refused_in_one_line_before_any_work(
+        argv: list[str], reason: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    missing = tmp_path / "nowhere"
+    bag = tmp_path / "b.mcap"
+    bag.write_bytes(b"")
+    args = [a.replace("b.mcap", str(bag)).replace("o.mcap", str(tmp_path / "o.mcap")).format(missing=missing)
+            for a in argv]
+    try:
+        code = cli.main(args)
+    except SystemExit as exc:  # argparse's refusal
+        code = int(exc.code or 0)
+    assert code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"roadbev {argv[0]}") and ": error: " in lines[0], lines
+    assert reason.format(missing=missing) in lines[0]
+    assert not missing.exists()  # no folder created unasked
+
+
+@pytest.mark.parametrize("name", ["/stereo/left/image_rect", "imu", "~/save_map", "/a_1/b2"])
+def test_valid_topic_names_pass(name: str) -> None:
+    assert cli.topic_name(name) == name
 
 
 @pytest.mark.parametrize("name", sorted(cli.COMMANDS))
