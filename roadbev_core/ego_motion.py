@@ -9,7 +9,15 @@ only a speed is known, the pose is dead reckoned from it and the IMU's yaw. Vert
 interpolation (yaw unwrapped) between the two samples around it; a stamp just beyond the newest
 sample is extrapolated with that sample's twist, up to ``max_age_s``. As with the IMU, a frame
 waits for a sample at or after its stamp (:meth:`EgoMotion.brackets`), so the pose the node uses
-is the one ``roadbev eval`` computes from the same bag. Pure Python/numpy.
+is the one ``roadbev eval`` computes from the same bag.
+
+Every sample is gated against what a car can do before it is kept: a speed (reported, or implied
+by the distance from the sample before it) above ``max_speed_mps``, or a heading change faster
+than ``max_yaw_rate``, is refused (:class:`OdometryJump`) and the history is left as it was. When
+``reanchor_samples`` refused samples in a row agree with each other (each plausible from the
+one before), the odometry itself has jumped (a localisation reset, a re-initialised
+odometer): the history starts again from them and :meth:`EgoMotion.add` says so, so that the
+map built in the old frame is dropped rather than smeared. Pure Python/numpy.
 """
 
 from __future__ import annotations
@@ -21,11 +29,15 @@ from typing import NamedTuple
 
 from roadbev_core.errors import RoadbevError
 
-__all__ = ["EgoMotion", "EgoMotionError", "EgoMotionStale", "PlanarPose"]
+__all__ = ["EgoMotion", "EgoMotionError", "EgoMotionStale", "OdometryJump", "PlanarPose"]
 
 
 class EgoMotionError(RoadbevError, ValueError):
     """An odometry sample that cannot be used (non-finite, no stamp)."""
+
+
+class OdometryJump(EgoMotionError):
+    """An odometry sample no car could have produced from the one before it (refused)."""
 
 
 class EgoMotionStale(RoadbevError, RuntimeError):
@@ -61,17 +73,28 @@ class EgoMotion:
         horizon_s: history kept behind the newest sample.
         jump_back_s: a sample this much older than the newest means the clock jumped back
             (a bag started again): the history starts again from it.
+        max_speed_mps: the fastest the vehicle goes: a faster reported speed, or a move from the
+            sample before that needs one, is refused.
+        max_yaw_rate: the fastest the heading turns (rad/s), reported or implied.
+        position_noise_m: the odometry's own position noise, allowed on top of the move.
+        reanchor_samples: refused samples in a row, consistent with each other, that mean the
+            odometry itself jumped: the history starts again from them.
     """
 
     max_age_s: float = 0.2
     max_gap_s: float = 0.5
     horizon_s: float = 5.0
     jump_back_s: float = 1.0
+    max_speed_mps: float = 70.0
+    max_yaw_rate: float = 2.0
+    position_noise_m: float = 0.5
+    reanchor_samples: int = 5
 
     def __post_init__(self) -> None:
         self._stamps: list[int] = []
         self._poses: list[PlanarPose] = []
         self._reckoned: PlanarPose | None = None  # dead reckoning state (speed + IMU yaw)
+        self._refused: list[PlanarPose] = []  # the refused samples in a row, newest last
 
     def __len__(self) -> int:
         return len(self._stamps)
@@ -84,12 +107,34 @@ class EgoMotion:
         self._stamps.clear()
         self._poses.clear()
         self._reckoned = None
+        self._refused.clear()
 
-    def add(self, pose: PlanarPose) -> None:
+    def implausible(self, before: PlanarPose, after: PlanarPose) -> str:
+        """Why ``after`` cannot follow ``before`` (either order in time), or ""."""
+        dt = abs(after.stamp_ns - before.stamp_ns) * 1e-9
+        if abs(after.speed) > self.max_speed_mps:
+            return f"a speed of {after.speed:.1f} m/s (limit {self.max_speed_mps:g})"
+        if abs(after.yaw_rate) > self.max_yaw_rate:
+            return f"a yaw rate of {after.yaw_rate:.2f} rad/s (limit {self.max_yaw_rate:g})"
+        moved = math.hypot(after.x - before.x, after.y - before.y)
+        if moved > self.max_speed_mps * dt + self.position_noise_m:
+            return (f"a move of {moved:.2f} m in {dt:.3f} s (limit {self.max_speed_mps:g} m/s + "
+                    f"{self.position_noise_m:g} m)")
+        turned = abs(math.remainder(after.yaw - before.yaw, 2 * math.pi))
+        if turned > self.max_yaw_rate * dt + 0.1:
+            return f"a turn of {turned:.2f} rad in {dt:.3f} s (limit {self.max_yaw_rate:g} rad/s)"
+        return ""
+
+    def add(self, pose: PlanarPose) -> bool:
         """One odometry sample (a repeated stamp replaces the earlier one).
+
+        Returns:
+            True when the sample completed a run of refused samples that agree with each other:
+            the odometry jumped, and the history now starts from that run (re-anchored).
 
         Raises:
             EgoMotionError: a non-finite value or a stamp <= 0.
+            OdometryJump: a sample no car could have produced from the one before it (not kept).
         """
         if pose.stamp_ns <= 0:
             raise EgoMotionError("odometry sample has no stamp")
@@ -98,6 +143,24 @@ class EgoMotion:
             raise EgoMotionError(f"odometry sample at {pose.stamp_ns} ns is not finite: {values}")
         if self._stamps and pose.stamp_ns < self._stamps[-1] - int(self.jump_back_s * 1e9):
             self.clear()
+        i = bisect.bisect_left(self._stamps, pose.stamp_ns)
+        neighbour = self._poses[i - 1] if i > 0 else (self._poses[i] if i < len(self._poses) else None)
+        why = self.implausible(neighbour, pose) if neighbour is not None else ""
+        if why:
+            agrees = not self._refused or not self.implausible(self._refused[-1], pose)
+            self._refused = [*self._refused, pose] if agrees else [pose]
+            if len(self._refused) < self.reanchor_samples:
+                raise OdometryJump(f"odometry at {pose.stamp_ns * 1e-9:.3f} s refused: {why}")
+            run = list(self._refused)
+            self.clear()
+            for sample in run:
+                self._insert(sample)
+            return True
+        self._refused.clear()
+        self._insert(pose)
+        return False
+
+    def _insert(self, pose: PlanarPose) -> None:
         i = bisect.bisect_left(self._stamps, pose.stamp_ns)
         # keep the yaw continuous with the neighbour before it
         if i > 0:

@@ -169,7 +169,7 @@ class Pipeline:
         self.imu = self._imu_buffer(config)
         self._speed: tuple[int, float] | None = None  # (stamp ns, m/s)
         self._with_preview = self._tracks_fit(config)
-        self.ego = EgoMotion(max_age_s=config.map.odom_max_age_s)
+        self.ego = self._ego_motion(config)
         self._odometry_seen = False
         # the left camera on base_link: position [3] and R optical -> base_link (None until /tf_static)
         self._camera_mount: tuple[np.ndarray, np.ndarray | None] = (
@@ -223,7 +223,9 @@ class Pipeline:
                 self.imu.max_age_s = self.imu.max_gap_s = config.imu.max_age_s
                 self.imu.horizon_s = config.imu.buffer_s
                 self.imu.imu_to_camera_rpy_deg = config.imu.imu_to_camera_rpy_deg
-            self.ego.max_age_s = config.map.odom_max_age_s
+            m = config.map
+            self.ego.max_age_s, self.ego.max_speed_mps = m.odom_max_age_s, m.odom_max_speed_mps
+            self.ego.max_yaw_rate, self.ego.reanchor_samples = m.odom_max_yaw_rate, m.odom_reanchor_samples
             if not self._mount_from_tf:
                 self._camera_mount = (np.array(config.vehicle.camera_position_m, np.float64), None)
             if (config.map_settings(), config.vehicle) != (old.map_settings(), old.vehicle):
@@ -297,15 +299,31 @@ class Pipeline:
         with self._lock:
             self._speed = (int(stamp_ns), float(speed_mps))
 
-    def add_odometry(self, pose: PlanarPose) -> None:
+    @staticmethod
+    def _ego_motion(config: RoadbevConfig) -> EgoMotion:
+        m = config.map
+        return EgoMotion(max_age_s=m.odom_max_age_s, max_speed_mps=m.odom_max_speed_mps,
+                         max_yaw_rate=m.odom_max_yaw_rate, reanchor_samples=m.odom_reanchor_samples)
+
+    def add_odometry(self, pose: PlanarPose) -> bool:
         """One odometry sample (``base_link`` in ``odom``, planar).
 
+        Returns:
+            True when the odometry jumped and is followed from its new frame: the fused map,
+            built in the old one, starts again (:meth:`EgoMotion.add`).
+
         Raises:
-            EgoMotionError: a sample that cannot be used (it is not kept).
+            EgoMotionError: a sample that cannot be used (it is not kept): an OdometryJump for one
+                no car could have produced from the one before.
         """
         with self._lock:
-            self.ego.add(pose)
+            reanchored = self.ego.add(pose)
             self._odometry_seen = True
+            if reanchored:
+                if self.fused is not None:
+                    self.fused.reset()
+                self.last_map = None
+            return reanchored
 
     def attitude_ready(self, stamp_ns: int) -> bool:
         """Whether the IMU has a sample at or after ``stamp_ns`` (the attitude will not change)."""

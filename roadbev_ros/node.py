@@ -277,7 +277,9 @@ class RoadBevNode(Node):
 
     def _on_odometry(self, msg: Any) -> None:
         try:
-            self.pipeline.add_odometry(odometry_sample(msg))
+            if self.pipeline.add_odometry(odometry_sample(msg)):
+                self._problem("odometry jump", "the odometry jumped and is followed from its new frame; the fused "
+                              "map starts again")
             self._motion_in += 1
             self._motion_at = time.monotonic()
             if self.config.topics.publish_odom_tf:

@@ -314,6 +314,14 @@ class MapConfig:
                           "working directory; the reply gives the absolute path)")
     odom_max_age_s: float = param("map.odom_max_age_s", 0.2, "largest distance from a frame's stamp to the "
                                   "odometry around it (s); beyond it the frame is not fused", 0.001, 10.0)
+    odom_max_speed_mps: float = param("map.odom_max_speed_mps", 70.0, "odometry gate: a sample reporting a faster "
+                                      "speed, or moved further from the one before than this speed allows "
+                                      "(+ 0.5 m of noise), is refused and counted (m/s)", 1.0, 200.0)
+    odom_max_yaw_rate: float = param("map.odom_max_yaw_rate", 2.0, "odometry gate: the fastest the heading may "
+                                     "turn, reported or implied (rad/s)", 0.1, 10.0)
+    odom_reanchor_samples: int = param("map.odom_reanchor_samples", 5, "refused odometry samples in a row that "
+                                       "agree with each other mean the odometry jumped: it is followed from "
+                                       "them and the map starts again (a WARN)", 2, 1000)
 
 
 @dataclass(frozen=True)

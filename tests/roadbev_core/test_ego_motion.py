@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from roadbev_core.ego_motion import EgoMotion, EgoMotionError, EgoMotionStale, PlanarPose
+from roadbev_core.ego_motion import EgoMotion, EgoMotionError, EgoMotionStale, OdometryJump, PlanarPose
 
 S = 1_000_000_000
 
@@ -58,3 +58,55 @@ def test_dead_reckoning_follows_speed_and_yaw() -> None:
     assert pose.x == pytest.approx(10.0 + 10.0 * math.cos(math.pi / 4))
     assert pose.y == pytest.approx(10.0 * math.sin(math.pi / 4))
     assert ego.pose_at(2 * S).x == pytest.approx(10.0)
+
+
+def _drive(ego: EgoMotion, start: int, n: int, x0: float = 0.0, speed: float = 10.0) -> None:
+    for k in range(n):  # 50 Hz along x
+        ego.add(PlanarPose(start + k * S // 50, x0 + speed * k / 50, 0.0, 0.0, speed, 0.0))
+
+
+def test_a_teleport_is_refused_and_the_history_kept() -> None:
+    ego = EgoMotion()
+    _drive(ego, S, 10)
+    before = ego.newest
+    with pytest.raises(OdometryJump, match=r"a move of 99999\d\.\d+ m in 0\.020 s"):
+        ego.add(PlanarPose(S + 10 * S // 50, 1e6, 0.0, 0.0, 10.0, 0.0))
+    assert ego.newest == before
+    _drive(ego, S + 11 * S // 50, 3, x0=11 * 10 / 50)  # the odometry goes on where it was
+    assert ego.newest is not None and ego.newest.x == pytest.approx(2.6)
+
+
+@pytest.mark.parametrize("bad, reason", [
+    (PlanarPose(S + S // 50, 0.2, 0.0, 0.0, 120.0, 0.0), "a speed of 120.0 m/s"),
+    (PlanarPose(S + S // 50, 0.2, 0.0, 0.0, 10.0, 5.0), "a yaw rate of 5.00 rad/s"),
+    (PlanarPose(S + S // 50, 0.2, 0.0, 1.0, 10.0, 0.0), "a turn of 1.00 rad in 0.020 s"),
+    (PlanarPose(S + S // 50, 50.2, 0.0, 0.0, 10.0, 0.0), "a move of 50.20 m in 0.020 s"),
+])
+def test_what_no_car_can_do_is_refused_with_the_reason(bad: PlanarPose, reason: str) -> None:
+    ego = EgoMotion()
+    ego.add(PlanarPose(S, 0.0, 0.0, 0.0, 10.0, 0.0))
+    with pytest.raises(OdometryJump, match=reason):
+        ego.add(bad)
+    assert len(ego) == 1
+
+
+def test_a_sustained_jump_reanchors_after_the_refused_run_agrees() -> None:
+    ego = EgoMotion(reanchor_samples=5)
+    _drive(ego, S, 10)
+    jumped = [PlanarPose(S + (10 + k) * S // 50, 500.0 + 0.2 * k, 3.0, 0.0, 10.0, 0.0) for k in range(5)]
+    for pose in jumped[:4]:
+        with pytest.raises(OdometryJump):
+            ego.add(pose)
+    assert ego.add(jumped[4]) is True  # the fifth in a row that agree: the odometry itself jumped
+    assert len(ego) == 5 and ego.newest == jumped[4]
+    assert ego.pose_at(jumped[2].stamp_ns).x == pytest.approx(500.4)
+    assert ego.add(PlanarPose(jumped[4].stamp_ns + S // 50, 501.0, 3.0, 0.0, 10.0, 0.0)) is False
+
+
+def test_scattered_outliers_never_reanchor() -> None:
+    ego = EgoMotion(reanchor_samples=3)
+    _drive(ego, S, 5)
+    for k, x in enumerate((1e3, -1e3, 5e3, 1e4)):  # refused, but not a consistent run
+        with pytest.raises(OdometryJump):
+            ego.add(PlanarPose(S + (5 + k) * S // 50, x, 0.0, 0.0, 10.0, 0.0))
+    assert ego.newest is not None and ego.newest.x == pytest.approx(0.8)

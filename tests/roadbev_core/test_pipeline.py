@@ -136,3 +136,21 @@ def test_without_odometry_a_speed_and_the_imu_yaw_are_dead_reckoned() -> None:
         poses.append(out.base_pose.x)
     np.testing.assert_allclose(np.diff(poses), 1.0, atol=1e-9)  # 10 m/s for 0.1 s per frame
     assert pipeline.map_active
+
+
+def test_an_odometry_teleport_is_refused_and_a_sustained_jump_restarts_the_map() -> None:
+    from roadbev_core.ego_motion import OdometryJump
+
+    pipeline = _pipeline(**{"map.odom_reanchor_samples": 3})
+    pipeline.set_camera_mount([1.6, 0.0, 1.1], R_BODY_FROM_OPTICAL)
+    _drive(pipeline, 4)
+    assert pipeline.fused is not None and not pipeline.fused.empty
+    with pytest.raises(OdometryJump, match="refused"):  # one sample 1e6 m away: refused, the map kept
+        pipeline.add_odometry(PlanarPose(S // 10 * 6, 1e6, 0.0, 0.0, 10.0, 0.0))
+    assert not pipeline.fused.empty and pipeline.ego.newest is not None and pipeline.ego.newest.x == 4.0
+    jumped = [PlanarPose(S // 10 * (6 + k), 300.0 + k, 0.0, 0.0, 10.0, 0.0) for k in range(3)]
+    for pose in jumped[:2]:
+        with pytest.raises(OdometryJump):
+            pipeline.add_odometry(pose)
+    assert pipeline.add_odometry(jumped[2]) is True  # three that agree: the odometry jumped
+    assert pipeline.fused.empty and pipeline.last_map is None  # the map built in the old frame is gone

@@ -592,3 +592,24 @@ def test_publish_odom_tf_rebroadcasts_the_odometry_as_tf(harness: Harness) -> No
     (tf,) = [t for m in tfs for t in transforms_from_tf(m) if t.parent == "odom"]
     assert tf.child == "base_link"
     np.testing.assert_allclose(tf.translation, [12.5, 0.0, 0.3])
+
+
+def test_an_odometry_teleport_is_refused_and_named(harness: Harness) -> None:
+    from nav_msgs.msg import Odometry
+
+    odom = harness.feeder.create_publisher(Odometry, "/odom", 50)
+    assert wait_for(lambda: odom.get_subscription_count() > 0)
+
+    def publish(k: int, x: float) -> None:
+        msg = Odometry()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(START_NS + k * 20 * MS, 1_000_000_000)
+        msg.header.frame_id, msg.child_frame_id = "odom", "base_link"
+        msg.pose.pose.position.x, msg.pose.pose.orientation.w, msg.twist.twist.linear.x = x, 1.0, 10.0
+        odom.publish(msg)
+
+    for k in range(3):
+        publish(k, 0.2 * k)
+    publish(3, 1e6)
+    assert wait_for(lambda: harness.node.health.problems["bad odometry"] == 1, 5.0)
+    assert "refused: a move of" in harness.node.health.last_error
+    assert harness.node.pipeline.ego.newest is not None and harness.node.pipeline.ego.newest.x < 1.0
