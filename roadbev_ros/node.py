@@ -20,12 +20,14 @@ and the running backend stays.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import signal
 import sys
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections import deque
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -89,6 +91,8 @@ OUTPUT_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 TF_STATIC_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
 _FACTORY = RclpyFactory()
+RESTART_MARGIN_S = 0.1  # motion samples this far (+ imu_max_age_s) around the new timeline's frames
+RECENT_MOTION_S = 3.0  # ... that arrived at most this long ago
 
 
 class RoadBevNode(Node):
@@ -137,13 +141,18 @@ class RoadBevNode(Node):
         self._received: dict[str, int] = dict.fromkeys(self._inputs, 0)
         for which, topic, kind in inputs:
             self.create_subscription(kind, topic, functools.partial(self._on_input, which), SENSOR_QOS)
-        self.create_subscription(ImuMsg, topics.imu, self._on_imu, IMU_QOS)
+        # IMU, speed and odometry messages of the last seconds: when the stamps jump back, the
+        # reset is believed a message later, and the samples of the new timeline that arrived
+        # meanwhile are given again to the fresh pipeline (its held first frames need them)
+        self._recent_motion: deque[tuple[float, int, Callable[[Any], None], Any]] = deque(maxlen=4000)
+        self.create_subscription(ImuMsg, topics.imu, self._remembered(self._on_imu), IMU_QOS)
         if topics.speed:
-            self.create_subscription(speed_message_type(topics.speed_type), topics.speed, self._on_speed, SENSOR_QOS)
+            self.create_subscription(speed_message_type(topics.speed_type), topics.speed,
+                                     self._remembered(self._on_speed), SENSOR_QOS)
         if topics.odom:
             from nav_msgs.msg import Odometry
 
-            self.create_subscription(Odometry, topics.odom, self._on_odometry, IMU_QOS)
+            self.create_subscription(Odometry, topics.odom, self._remembered(self._on_odometry), IMU_QOS)
         from std_srvs.srv import Trigger
         from tf2_msgs.msg import TFMessage
 
@@ -176,7 +185,7 @@ class RoadBevNode(Node):
         s = self.config.sync
         return ApproximateTimeSync(n, s.queue_size, s.slop_s, self._on_set, self._on_sync_drop,
                                    jump_back_s=TIME_JUMP_BACK_S, on_reset=self._on_time_jump,
-                                   max_bytes=int(s.queue_mb * 2**20))
+                                   max_bytes=int(s.queue_mb * 2**20), on_outlier=self._on_stamp_outlier)
 
     def _diagnostics_timer(self, period_s: float) -> Any:
         """On the steady clock: diagnostics go on while a simulated /clock stops or jumps back."""
@@ -233,21 +242,30 @@ class RoadBevNode(Node):
         self.sync.add(index, stamp, (which, msg), nbytes)
 
     def _on_time_jump(self, topic: int, jump_ns: int) -> None:
-        """A looped or restarted bag (the synchroniser saw a stamp jump back and has reset
-        itself): not an error (rosbag2 stacks expect it), a reset, logged and counted once."""
+        """A looped or restarted bag, or a /clock reset (the synchroniser saw the stamps jump back
+        and stay back, and has reset itself): a reset of everything fused, a WARN and a count."""
         self._passes += 1
         self.pipeline.reset()
+        self._restore_motion()
         if self._mailbox.clear():  # a set of the old pass must not meet the new pass's IMU
             self.health.drop("sync")
         self.health.time_jump()
-        self.get_logger().info(f"stamps went back {jump_ns * 1e-9:.2f} s (a bag started again?): the "
-                               "synchroniser, the IMU history and the pipeline state start afresh")
+        self.get_logger().warning(f"stamps went back {jump_ns * 1e-9:.2f} s and stayed back (a bag started "
+                                  "again, a /clock reset): the synchroniser, the IMU history, the odometry "
+                                  "and the fused map start afresh")
+
+    def _on_stamp_outlier(self, topic: int, ahead_ns: int) -> None:
+        """One set stamped far ahead of the stream (a stamp glitch): it was dropped downstream or
+        published; the stream goes on from the stamps before it and nothing is reset."""
+        if topic == 0:
+            self._problem("stamp order", f"a left image stamped {ahead_ns * 1e-9:.2f} s ahead of the stream "
+                          "(a stamp glitch): nothing was reset")
 
     def _on_sync_drop(self, topic: int, stamp: int, item: Any, reason: str) -> None:
         which = item[0]
         if reason == DropReason.RESET:
             pass  # counted below; the jump itself is logged once by _on_time_jump
-        elif reason in (DropReason.OUT_OF_ORDER, DropReason.DUPLICATE):
+        elif reason in (DropReason.OUT_OF_ORDER, DropReason.DUPLICATE, DropReason.GLITCH):
             self._problem("stamp order", f"{which} at {stamp * 1e-9:.6f} s: {reason}")
         elif which == LEFT_IMAGE:
             stereo = self.sync.n_topics == 4
@@ -268,6 +286,26 @@ class RoadBevNode(Node):
         self.health.set_in()
         if self._mailbox.put(tuple(msg for _, msg in items)):
             self.health.drop("busy")  # the waiting set was replaced by a newer one
+
+    def _remembered(self, handler: Callable[[Any], None]) -> Callable[[Any], None]:
+        """``handler`` for a subscription, the message kept in :attr:`_recent_motion` first."""
+        def callback(msg: Any) -> None:
+            with contextlib.suppress(MessageError):  # the handler names a bad stamp
+                self._recent_motion.append((time.monotonic(), stamp_from_header(msg), handler, msg))
+            handler(msg)
+        return callback
+
+    def _restore_motion(self) -> None:
+        """Give the fresh pipeline the motion samples of the new timeline that arrived before the
+        jump back was believed: stamps within the span the synchroniser saw, arrived lately."""
+        span = self.sync.restart_span
+        if span is None:
+            return
+        margin = int((self.config.imu.max_age_s + RESTART_MARGIN_S) * 1e9)
+        since = time.monotonic() - RECENT_MOTION_S
+        for arrived, stamp, handler, msg in list(self._recent_motion):
+            if arrived >= since and span[0] - margin <= stamp <= span[1] + margin:
+                handler(msg)
 
     def _on_imu(self, msg: Any) -> None:
         try:

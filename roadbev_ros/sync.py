@@ -16,8 +16,18 @@ Two additions make it suitable for a node that must account for every frame:
   they are discarded and reported through ``on_drop`` (``message_filters`` keeps them until they
   overflow the queue);
 * a message older than the last emitted set on its topic (out of order) is refused and reported;
-  one older by more than ``jump_back_s`` means the clock jumped back (a bag started again): the
-  synchroniser resets itself (reported through ``on_reset``) and goes on from that message;
+  one older by more than ``jump_back_s`` is judged by the rules of the input clock:
+
+  - it continues the timeline from before the last emitted set (newer than the set emitted
+    before that one, which lies more than ``jump_back_s`` behind the last): the last set was a
+    single stamp outlier ahead of time; the topic goes on from the set before it (reported
+    through ``on_outlier``), nothing is reset;
+  - otherwise it is held, not yet believed: when the next message of its topic continues the new,
+    earlier timeline (newer than the held one, still far behind the last set), the clock did jump
+    back (a bag started again, a ``/clock`` reset): the synchroniser resets itself (reported
+    through ``on_reset``) and goes on from the held messages of every topic, so that no frame of
+    the new timeline is lost; when the next message continues the old timeline instead, the held
+    one was a glitch and is dropped (:attr:`DropReason.GLITCH`). One message never resets;
 * the queues are bounded by bytes as well as by count (``max_bytes``, all topics together): large
   unpaired images are dropped, oldest first, before they can hold the memory of a whole queue.
 
@@ -50,6 +60,7 @@ class DropReason:
     OUT_OF_ORDER = "out of order"
     DUPLICATE = "duplicate stamp"
     RESET = "the clock jumped back (reset)"
+    GLITCH = "a stamp far behind the others, not followed by more (a glitch)"
 
 
 @dataclass
@@ -70,7 +81,10 @@ class ApproximateTimeSync:
             a queue without being emitted.
         jump_back_s: a stamp this much older than its topic's last emitted one resets the
             synchroniser (None: never; such messages are refused as out of order).
-        on_reset: called ``(topic_index, jump_ns)`` when a jump back reset the synchroniser.
+        on_reset: called ``(topic_index, jump_ns)`` when a jump back reset the synchroniser
+            (:attr:`restart_span` then holds the new timeline's stamps seen so far).
+        on_outlier: called ``(topic_index, ahead_ns)`` when the last emitted set of a topic turned
+            out to be a stamp outlier ahead of its timeline (module docstring).
         max_bytes: largest total size of the queued messages (as given to :meth:`add`); beyond
             it the oldest messages are dropped (None: no bound).
     """
@@ -85,6 +99,7 @@ class ApproximateTimeSync:
         jump_back_s: float | None = 1.0,
         on_reset: Callable[[int, int], None] | None = None,
         max_bytes: int | None = None,
+        on_outlier: Callable[[int, int], None] | None = None,
     ) -> None:
         if n_topics < 1:
             raise SyncError(f"need at least one topic, got {n_topics}")
@@ -93,6 +108,12 @@ class ApproximateTimeSync:
         self.queued_bytes = 0
         self.max_bytes = max_bytes
         self._last_emitted: list[int | None] = [None] * n_topics
+        self._emitted_before: list[int | None] = [None] * n_topics  # the set emitted before the last
+        self._held: dict[int, tuple[int, Any, int]] = {}  # topic -> a jumped-back message not yet believed
+        # the stamps of the new timeline seen when the last jump back was believed (oldest held
+        # message, the message that confirmed it): what the caller's other inputs must keep
+        self.restart_span: tuple[int, int] | None = None
+        self._on_outlier = on_outlier
         self._callback = callback
         self._on_drop = on_drop
         self._jump_ns = None if jump_back_s is None else int(jump_back_s * 1e9)
@@ -144,10 +165,18 @@ class ApproximateTimeSync:
         stamp_ns = int(stamp_ns)
         last = self._last_emitted[topic]
         if last is not None and self._jump_ns is not None and stamp_ns < last - self._jump_ns:
-            self.reset()
-            if self._on_reset is not None:
-                self._on_reset(topic, last - stamp_ns)
-            last = None
+            before = self._emitted_before[topic]
+            if before is not None and before < stamp_ns and last - before > self._jump_ns:
+                # the last set was one outlier ahead of the timeline this message continues
+                self._last_emitted[topic], self._emitted_before[topic] = before, None
+                if self._on_outlier is not None:
+                    self._on_outlier(topic, last - stamp_ns)
+                last = before
+            else:
+                return self._jumped_back(topic, stamp_ns, msg, nbytes, last)
+        elif topic in self._held:  # the old timeline goes on: the held message was a glitch
+            held_stamp, held_msg, _ = self._held.pop(topic)
+            self._drop(topic, held_stamp, held_msg, DropReason.GLITCH)
         if last is not None and stamp_ns <= last:
             reason = DropReason.DUPLICATE if stamp_ns == last else DropReason.OUT_OF_ORDER
             self._drop(topic, stamp_ns, msg, reason)
@@ -168,6 +197,25 @@ class ApproximateTimeSync:
         if stamp_ns not in queue:  # the new message itself was the oldest
             return False
         return self._try_emit(topic, stamp_ns)
+
+    def _jumped_back(self, topic: int, stamp_ns: int, msg: Any, nbytes: int, last: int) -> bool:
+        """A message far behind its topic's last set: held until the next one says whether the
+        clock jumped back (then reset and replay the held messages) or it was a glitch."""
+        held = self._held.get(topic)
+        if held is None or not held[0] < stamp_ns:
+            if held is not None:
+                self._drop(topic, held[0], held[1], DropReason.GLITCH)
+            self._held[topic] = (stamp_ns, msg, int(nbytes))
+            return False
+        waiting = sorted((h[0], index, h[1], h[2]) for index, h in self._held.items())
+        self._held.clear()
+        self.restart_span = (waiting[0][0], stamp_ns)
+        self.reset()
+        if self._on_reset is not None:
+            self._on_reset(topic, last - stamp_ns)
+        for held_stamp, index, held_msg, held_bytes in waiting:
+            self.add(index, held_stamp, held_msg, held_bytes)
+        return self.add(topic, stamp_ns, msg, nbytes)
 
     def _try_emit(self, pivot_topic: int, pivot_stamp: int) -> bool:
         # Candidates per other topic: stamps within slop of the pivot (a wider one cannot be in
@@ -194,6 +242,7 @@ class ApproximateTimeSync:
         chosen = best[2]
         msgs = [self._pop(i, s) for i, s in enumerate(chosen)]
         for index, stamp in enumerate(chosen):
+            self._emitted_before[index] = self._last_emitted[index]
             self._last_emitted[index] = stamp
             queue = self._queues[index]
             for old in sorted(s for s in queue if s < stamp):
@@ -208,4 +257,8 @@ class ApproximateTimeSync:
         for index, queue in enumerate(self._queues):
             for stamp in sorted(queue):
                 self._drop(index, stamp, self._pop(index, stamp), DropReason.RESET)
+        for index, (stamp, msg, _) in sorted(self._held.items()):
+            self._drop(index, stamp, msg, DropReason.RESET)
+        self._held.clear()
         self._last_emitted = [None] * self.n_topics
+        self._emitted_before = [None] * self.n_topics

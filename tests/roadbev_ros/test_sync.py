@@ -141,7 +141,7 @@ def test_many_interleaved_topics_pair_every_frame() -> None:
     assert rec.drops == []
 
 
-def test_a_jump_back_resets_instead_of_refusing_everything() -> None:
+def test_a_sustained_jump_back_resets_and_keeps_the_new_timelines_first_messages() -> None:
     rec = Recorder()
     resets: list[tuple[int, int]] = []
     sync = ApproximateTimeSync(2, 10, 0.01, rec.emit, rec.drop, jump_back_s=1.0,
@@ -150,16 +150,50 @@ def test_a_jump_back_resets_instead_of_refusing_everything() -> None:
     sync.add(1, 5_000 * MS, "b")
     sync.add(0, 5_100 * MS, "queued")  # waiting for its partner when the clock jumps back
     assert not sync.add(1, 4_500 * MS, "late")  # half a second back: only out of order
-    assert sync.add(1, 100 * MS, "b0") is False  # five seconds back: a reset, then queued
-    assert resets == [(1, 4_900 * MS)]
+    assert sync.add(1, 100 * MS, "b0") is False  # five seconds back: held, one message never resets
+    assert sync.add(0, 100 * MS, "a0") is False  # held as well
+    assert resets == [] and rec.sets == [("a", "b")]
+    assert sync.add(1, 200 * MS, "b1") is False  # the new timeline goes on: the clock did jump back
+    assert resets == [(1, 4_800 * MS)]
     assert (0, 5_100 * MS, DropReason.RESET) in rec.drops
-    assert sync.add(0, 100 * MS, "a0")
-    assert rec.sets[-1] == ("a0", "b0")
+    assert rec.sets[-1] == ("a0", "b0")  # the held messages were not lost
+    assert sync.add(0, 200 * MS, "a1")
+    assert rec.sets[-1] == ("a1", "b1")
     never = ApproximateTimeSync(2, 10, 0.01, rec.emit, rec.drop, jump_back_s=None)
     never.add(0, 5_000 * MS, "a")
     never.add(1, 5_000 * MS, "b")
     never.add(0, 100 * MS, "x")
     assert rec.drops[-1] == (0, 100 * MS, DropReason.OUT_OF_ORDER)
+
+
+def test_one_set_stamped_far_ahead_is_an_outlier_not_a_restart() -> None:
+    rec = Recorder()
+    resets: list[tuple[int, int]] = []
+    outliers: list[tuple[int, int]] = []
+    sync = ApproximateTimeSync(2, 10, 0.01, rec.emit, rec.drop, jump_back_s=1.0,
+                               on_reset=lambda t, j: resets.append((t, j)),
+                               on_outlier=lambda t, a: outliers.append((t, a)))
+    for k, stamp in enumerate((1_000, 1_100, 1_001_200, 1_300, 1_400)):  # the third stamped 1000 s ahead
+        sync.add(0, stamp * MS, f"a{k}")
+        sync.add(1, stamp * MS, f"b{k}")
+    assert resets == []
+    assert outliers == [(0, 999_900 * MS), (1, 999_900 * MS)]
+    assert rec.sets == [("a0", "b0"), ("a1", "b1"), ("a2", "b2"), ("a3", "b3"), ("a4", "b4")]
+
+
+def test_a_stamp_glitch_behind_is_dropped_and_never_resets() -> None:
+    rec = Recorder()
+    resets: list[tuple[int, int]] = []
+    sync = ApproximateTimeSync(2, 10, 0.01, rec.emit, rec.drop, jump_back_s=1.0,
+                               on_reset=lambda t, j: resets.append((t, j)))
+    for k in range(6):  # every other set stamped 10 s back
+        stamp = (10_000 + 100 * k - (10_000 if k % 2 else 0)) * MS
+        sync.add(0, stamp, f"a{k}")
+        sync.add(1, stamp, f"b{k}")
+    assert resets == []
+    assert rec.sets == [("a0", "b0"), ("a2", "b2"), ("a4", "b4")]
+    glitches = [d for d in rec.drops if d[2] == DropReason.GLITCH]
+    assert [(t, s // MS) for t, s, _ in glitches] == [(0, 100), (1, 100), (0, 300), (1, 300)]
 
 
 def test_the_queues_are_bounded_by_bytes_too() -> None:
