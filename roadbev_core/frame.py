@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -10,11 +11,45 @@ from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.errors import RoadbevError
 from roadbev_core.geometry import Attitude
 
-__all__ = ["Estimate", "Frame", "FrameError"]
+__all__ = ["Estimate", "Frame", "FrameError", "ImplausibleFrame", "implausible"]
 
 
 class FrameError(RoadbevError, ValueError):
     """A frame whose images or calibration cannot be processed."""
+
+
+class ImplausibleFrame(FrameError):
+    """A frame whose rig or attitude no road camera has (a broken calibration or IMU): refused with
+    the cause, instead of a grid that comes out empty without saying why."""
+
+
+# What a road-facing camera on a car can be: wider limits than any rig the package was made for,
+# so that only a broken calibration or attitude trips them.
+HFOV_DEG = (10.0, 150.0)  # horizontal field of view
+ASPECT = (0.8, 1.25)  # fx / fy (pixels nearly square)
+BASELINE_M = (0.02, 2.0)  # stereo baseline
+MAX_TILT_DEG = 30.0  # |roll| and |pitch| against gravity
+
+
+def implausible(frame: Frame) -> str:
+    """Why ``frame``'s rig or attitude is not a road camera's (the first reason), or ""."""
+    cam = frame.camera
+    hfov = math.degrees(2.0 * math.atan2(cam.width / 2.0, cam.fx))
+    if not HFOV_DEG[0] <= hfov <= HFOV_DEG[1]:
+        return (f"calibration: fx {cam.fx:g} px gives a {hfov:.1f} deg horizontal field of view on a {cam.width} px "
+                f"image (plausible {HFOV_DEG[0]:g}-{HFOV_DEG[1]:g})")
+    if not ASPECT[0] <= cam.fx / cam.fy <= ASPECT[1]:
+        return f"calibration: fx / fy = {cam.fx / cam.fy:.2f} (plausible {ASPECT[0]:g}-{ASPECT[1]:g})"
+    if not (0.0 <= cam.cx <= cam.width and 0.0 <= cam.cy <= cam.height):
+        return (f"calibration: the principal point ({cam.cx:g}, {cam.cy:g}) lies outside the "
+                f"{cam.width}x{cam.height} image")
+    if frame.is_stereo and not BASELINE_M[0] <= cam.baseline <= BASELINE_M[1]:
+        return f"calibration: stereo baseline {cam.baseline:g} m (plausible {BASELINE_M[0]:g}-{BASELINE_M[1]:g} m)"
+    roll, pitch = math.degrees(frame.attitude.roll), math.degrees(frame.attitude.pitch)
+    if max(abs(roll), abs(pitch)) > MAX_TILT_DEG:
+        return (f"attitude: roll {roll:.1f} deg, pitch {pitch:.1f} deg against gravity (a road camera stays within "
+                f"{MAX_TILT_DEG:g} deg: check the IMU and imu_to_camera_rpy_deg)")
+    return ""
 
 
 @dataclass(frozen=True)

@@ -43,7 +43,7 @@ from roadbev_core.backends import Backend, BackendError, create
 from roadbev_core.config import RoadbevConfig, StereoCamera, check_image_size
 from roadbev_core.ego_motion import EgoMotion, EgoMotionStale, PlanarPose
 from roadbev_core.errors import RoadbevError
-from roadbev_core.frame import Estimate, Frame
+from roadbev_core.frame import Estimate, Frame, ImplausibleFrame, implausible
 from roadbev_core.fusion import FrameFusion, FramePlacement, FusedMap, MapSettings, MapWindow, place_frame
 from roadbev_core.geometry import Attitude, quaternion_to_rotation
 from roadbev_core.map_preview import contact_plane_on_map, map_preview
@@ -412,6 +412,9 @@ class Pipeline:
         return self.process(CameraInput(frame.left, frame.right, frame.camera, frame.stamp_ns), frame.attitude)
 
     def _run(self, frame: Frame, config: RoadbevConfig, backend: Backend) -> PipelineOutput:
+        why = implausible(frame)
+        if why:
+            raise ImplausibleFrame(why)
         flush_denormals()
         t0 = time.perf_counter()
         estimate = backend.estimate(frame)

@@ -474,10 +474,11 @@ def level_name(level: int) -> str:
 def problem_kind(exc: Exception) -> str:
     """The diagnostics kind under which a refused frame is counted and logged."""
     from roadbev_core.attitude import ImuStale
-    from roadbev_core.frame import FrameError
+    from roadbev_core.frame import FrameError, ImplausibleFrame
     from roadbev_core.preview import PreviewError
 
-    kinds = ((ImuStale, "imu stale"), (FrameError, "bad frame"), (PreviewError, "preview"))
+    kinds = ((ImuStale, "imu stale"), (ImplausibleFrame, "implausible input"), (FrameError, "bad frame"),
+             (PreviewError, "preview"))
     return next((kind for cls, kind in kinds if isinstance(exc, cls)), "bad input")
 
 

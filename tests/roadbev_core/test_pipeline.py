@@ -154,3 +154,25 @@ def test_an_odometry_teleport_is_refused_and_a_sustained_jump_restarts_the_map()
             pipeline.add_odometry(pose)
     assert pipeline.add_odometry(jumped[2]) is True  # three that agree: the odometry jumped
     assert pipeline.fused.empty and pipeline.last_map is None  # the map built in the old frame is gone
+
+
+@pytest.mark.parametrize("change, cause", [
+    ({"baseline": 1e6}, r"stereo baseline 1e\+06 m"),
+    ({"fx": 1e5, "fy": 1e5}, "horizontal field of view"),
+    ({"fx": 350.0}, "fx / fy"),
+    ({"cx": -50.0}, "principal point"),
+    ({"attitude": Attitude.from_degrees(60.0, 0.0)}, "roll 60.0 deg"),
+    ({"attitude": Attitude.from_degrees(0.0, 60.0)}, "pitch 60.0 deg"),
+])
+def test_a_rig_or_attitude_no_road_camera_has_is_refused_with_its_cause(change: dict[str, Any], cause: str) -> None:
+    from dataclasses import replace
+
+    from roadbev_core.frame import ImplausibleFrame
+
+    attitude = change.pop("attitude", Attitude(0.0, 0.0))
+    camera = replace(CAMERA, **change)
+    image = np.zeros((camera.height, camera.width, 3), np.uint8)
+    frame = Frame(image, image, camera, attitude, S)
+    with pytest.raises(ImplausibleFrame, match=cause):
+        _pipeline().process_frame(frame)
+    _pipeline().process_frame(Frame(image, image, CAMERA, Attitude.from_degrees(5.0, 8.0), S))  # a real one passes

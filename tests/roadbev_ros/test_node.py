@@ -655,3 +655,21 @@ def test_one_camera_set_stamped_far_ahead_leaves_the_map_alone(harness: Harness)
     assert harness.node.health.problems["stamp order"] > before  # counted, named
     assert harness.node.pipeline.fused is fused and not fused.empty
     assert harness.node._fused == 7  # every good frame fused into the one map
+
+
+def test_a_rig_no_road_camera_has_is_a_named_fault_and_the_node_goes_on(harness: Harness) -> None:
+    from dataclasses import replace
+
+    from msg_bridge.camera_info import camera_info_from_stereo
+
+    from ._ros_harness import CAMERA
+
+    stamp = START_NS
+    wide = replace(CAMERA, baseline=CAMERA.baseline * 1e7)  # a baseline of about a thousand kilometres
+    bad = camera_info_from_stereo(wide, harness.factory, right=True, stamp_ns=stamp, frame_id="right")
+    harness.imu_around(stamp + 3 * MS, pitch_ramp)
+    harness.publish_frame(stamp, replace={"right_info": bad})
+    assert wait_for(lambda: harness.node.health.problems["implausible input"] == 1, 5.0)
+    assert "stereo baseline" in harness.node.health.last_error
+    assert wait_for(lambda: "problem.implausible input" in harness.latest_diagnostics(), 3.0)
+    harness.wait_output(feed(harness, 1))  # the next good frame is answered
