@@ -203,4 +203,10 @@ def run(args: argparse.Namespace) -> int:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(to_json(record))
         print(f"metrics written to {out}")
+    if metrics["frames"] == 0 and result.refused:
+        reasons = "; ".join(f"{n} x {reason}" for reason, n in sorted(result.refused.items()))
+        raise CommandError(f"every frame was refused: {reasons}")
+    if metrics.get("frames_with_truth", 0) > 0 and metrics.get("coverage_pct") == 0:
+        raise CommandError("every frame came out empty (coverage 0 %)"
+                           + (f": {metrics['self_check']}" if metrics.get("self_check") else ""))
     return 0

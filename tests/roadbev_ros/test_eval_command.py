@@ -242,15 +242,20 @@ def test_a_bag_without_ground_truth_writes_every_output_and_says_there_is_nothin
     assert [p.stamp_ns for p in previews] == [m.stamp_ns for m in maps] == eval_bag.stamps
 
 
-def test_a_wrong_base_height_gets_a_self_check_hint(
+def test_a_wrong_base_height_gets_a_self_check_hint_and_fails(
     bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     params = tmp_path / "wrong.yaml"
     params.write_text("roadbev:\n  ros__parameters:\n    base_height: 1.60\n")  # the road at z = -0.5 m
     out = tmp_path / "m.json"
+    # every frame comes out empty: the metrics are printed and written, and the command fails with the cause
     assert main(["eval", str(bag), "--backend", "bev_sweep", "--params", str(params), "--json", str(out),
-                 "--no-progress"]) == 0
-    printed = capsys.readouterr().out
+                 "--no-progress"]) == 2
+    captured = capsys.readouterr()
+    printed = captured.out
+    error = captured.err.strip().splitlines()[-1]
+    assert error.startswith("roadbev eval: error: every frame came out empty (coverage 0 %): ")
+    assert "base_height" in error
     assert "uncertainty: error within 1 / 2 / 3 sigma" in printed
     hint = next(line for line in printed.splitlines() if line.startswith("self-check:"))
     assert "(low)" in hint and "base_height" in hint
