@@ -572,9 +572,12 @@ def _metadata(path: Path) -> dict[str, Any] | None:
     if not meta.is_file():
         return None
     try:
-        info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
+        info = yaml.safe_load(meta.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+    except UnicodeDecodeError as exc:
+        raise BagError(f"{meta}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     except (yaml.YAMLError, KeyError, TypeError) as exc:
-        raise BagError(f"{meta}: not a rosbag2 metadata file ({exc})") from None
+        flat = " ".join(line.strip() for line in str(exc).splitlines() if line.strip())
+        raise BagError(f"{meta}: not a rosbag2 metadata file ({flat})") from None
     if not isinstance(info, dict):
         raise BagError(f"{meta}: not a rosbag2 metadata file")
     return info

@@ -69,9 +69,11 @@ def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> ParamsFile
     """
     path = Path(path)
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ParamError(f"cannot read params file {path}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ParamError(f"params file {path} is not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:

@@ -485,3 +485,16 @@ def test_a_chunk_without_crc_is_checked_against_its_index_and_reported(tmp_path:
     assert len(list(read_messages(path, on_damage="skip", stats=stats))) == 5
     assert stats.unverified_chunks == 1 and "without CRC" in stats.summary()
     assert bag_info(path).chunks_without_crc == 1
+
+
+@pytest.mark.parametrize("content, reason", [
+    (b"rosbag2_bagfile_information:\n  version: \xff\xfe\n", "not UTF-8 text"),
+    (b"rosbag2_bagfile_information: [unclosed\n", "not a rosbag2 metadata file"),
+])
+def test_a_bad_metadata_file_is_a_one_line_bag_error(tmp_path: Path, content: bytes, reason: str) -> None:
+    folder = tmp_path / "bag"
+    folder.mkdir()
+    (folder / "metadata.yaml").write_bytes(content)
+    with pytest.raises(BagError, match=reason) as exc:
+        bag_topics(folder)
+    assert "\n" not in str(exc.value)

@@ -163,3 +163,12 @@ def test_command_line_assignments_parse_json_values_and_fall_back_to_text() -> N
         "zncc_subsamples": 2, "zncc_full_resolution": True, "sampling": "integer"}
     with pytest.raises(ParamError, match="--model-option takes NAME=VALUE"):
         parse_assignments(["zncc_subsamples"], "--model-option")
+
+
+def test_a_params_file_that_is_not_utf8_is_one_line(tmp_path: Path) -> None:
+    from roadbev_core.config import ParamError, load_params_file
+
+    path = tmp_path / "latin1.yaml"
+    path.write_bytes("roadbev:\n  ros__parameters:\n    frame_id: stra\xdfe\n".encode("latin-1"))
+    with pytest.raises(ParamError, match=r"is not UTF-8 text \(byte \d+: invalid"):
+        load_params_file(path)
