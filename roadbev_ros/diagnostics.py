@@ -252,7 +252,9 @@ class Health:
     rate_tolerance: float = 0.1
     min_stamp_age_s: float = -1.0
     max_stamp_age_s: float = 0.0
+    max_latency_ms: float = 0.0  # 0 = no bound
     input_rate: RateMeter = field(init=False)
+    stale_rate: RateMeter = field(init=False)  # outputs dropped for their latency
     set_rate: RateMeter = field(init=False)
     output_rate: RateMeter = field(init=False)
     latency_ms: LatencyWindow = field(init=False)
@@ -267,6 +269,7 @@ class Health:
     dropped_busy: int = 0
     dropped_sync: int = 0
     dropped_invalid: int = 0
+    dropped_stale: int = 0
     problems: Counter[str] = field(default_factory=Counter)
     time_jumps: int = 0
     last_error: str = ""
@@ -282,6 +285,7 @@ class Health:
         self.input_rate = RateMeter(self.window_s, self.clock)
         self.set_rate = RateMeter(self.window_s, self.clock)
         self.output_rate = RateMeter(self.window_s, self.clock)
+        self.stale_rate = RateMeter(self.window_s, self.clock)
         windows = ("latency_ms", "stamp_age_ms", "arrival_age_ms", "inference_ms", "overhead_ms", "imu_wait_ms")
         for name in windows:
             setattr(self, name, LatencyWindow(window_s=self.window_s, clock=self.clock))
@@ -290,7 +294,7 @@ class Health:
         """Take the window and the bounds from a :class:`roadbev_core.config.tree.DiagnosticsConfig`."""
         with self._lock:
             self.window_s = config.window_s
-            for meter in (self.input_rate, self.set_rate, self.output_rate):
+            for meter in (self.input_rate, self.set_rate, self.output_rate, self.stale_rate):
                 meter.window_s = config.window_s
             for window in (self.latency_ms, self.stamp_age_ms, self.arrival_age_ms, self.inference_ms,
                            self.overhead_ms, self.imu_wait_ms):
@@ -298,6 +302,7 @@ class Health:
             self.min_rate_hz, self.max_rate_hz = config.min_rate_hz, config.max_rate_hz
             self.rate_tolerance = config.rate_tolerance
             self.min_stamp_age_s, self.max_stamp_age_s = config.min_stamp_age_s, config.max_stamp_age_s
+            self.max_latency_ms = config.max_latency_s * 1e3
 
     def frame_in(self, stamp_age_s: float | None = None) -> None:
         """A left image arrived; ``stamp_age_s``: the node's clock minus its stamp."""
@@ -335,10 +340,13 @@ class Health:
 
     def drop(self, kind: str, count: int = 1) -> None:
         """Frames lost: ``busy`` (worker still busy: newest kept), ``sync`` (never paired),
-        ``invalid`` (refused input)."""
+        ``stale`` (outputs later than the latency bound, not published), ``invalid`` (refused input)."""
         with self._lock:
             if kind == "busy":
                 self.dropped_busy += count
+            elif kind == "stale":
+                self.dropped_stale += count
+                self.stale_rate.tick()
             elif kind == "sync":
                 self.dropped_sync += count
             else:
@@ -413,6 +421,8 @@ class Health:
                 "dropped_busy": str(self.dropped_busy),
                 "dropped_sync": str(self.dropped_sync),
                 "dropped_invalid": str(self.dropped_invalid),
+                "dropped_stale": str(self.dropped_stale),
+                "max_latency_ms": f"{self.max_latency_ms:g}",
                 "imu_age_s": "none" if self.imu_age_s is None else f"{self.imu_age_s:.3f}",
                 "time_jumps": str(self.time_jumps),
                 "last_error": self.last_error,
@@ -422,8 +432,15 @@ class Health:
             low_coverage = not self.coverage_ok
             for kind, count in sorted(self.problems.items()):
                 values[f"problem.{kind}"] = str(count)
+            stale_now = self.stale_rate.in_window()
+            latency_p95 = pct(self.latency_ms, 95)
         # the node's own state, most telling first; the worst level wins, its first message is shown
         states: list[tuple[int, str]] = [(rate.level, rate.message)] if rate.level == ERROR else []
+        if stale_now:
+            states.append((ERROR, f"{stale_now} output(s) in the last {self.window_s:g} s later than max_latency_s "
+                                  f"({self.max_latency_ms:g} ms): not published"))
+        elif self.max_latency_ms and latency_p95 > self.max_latency_ms:
+            states.append((WARN, f"latency p95 {latency_p95:.0f} ms over max_latency_s ({self.max_latency_ms:g} ms)"))
         if recent_problem:
             states.append((WARN, self.last_error))
         if in_rate > 0 and self.output_rate.in_window() == 0:

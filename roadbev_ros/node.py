@@ -486,6 +486,13 @@ class RoadBevNode(Node):
                                    camera_frame=self._camera_frame)
         if not self.context.ok():
             return  # shutting down (SIGINT): publishing on a shut-down context can crash the process
+        late_s = time.monotonic() - arrival
+        bound_s = config.diagnostics.max_latency_s
+        if bound_s and late_s > bound_s:  # a preview this late points at road already driven over
+            self.health.drop("stale")
+            self._problem("stale output", f"the frame at {inputs.stamp_ns * 1e-9:.3f} s was ready {late_s * 1e3:.0f} "
+                          f"ms after its input arrived (max_latency_s {bound_s:g}): not published")
+            return
         self._out.publish(messages)
         self._note_outputs(output)
         t3 = time.perf_counter()
@@ -544,7 +551,7 @@ class RoadBevNode(Node):
         """Frame accounting: every left image is an output, a drop, queued or in flight."""
         h = self.health
         return {"frames_in": h.frames_in, "outputs": h.outputs, "dropped_busy": h.dropped_busy,
-                "dropped_sync": h.dropped_sync, "dropped_invalid": h.dropped_invalid,
+                "dropped_sync": h.dropped_sync, "dropped_invalid": h.dropped_invalid, "dropped_stale": h.dropped_stale,
                 "queued": self.sync.queued()[0] + self._mailbox.waiting}
 
     def shutdown(self) -> None:

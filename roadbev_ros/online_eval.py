@@ -247,6 +247,9 @@ def evaluate_online(
         # loaded machine they can take longer than the default 50 ms to arrive. Waiting for them
         # keeps the node's attitude (slerp between two samples) equal to the offline one.
         extra.setdefault("imu_wait_s", 1.0)
+        # and every frame is scored against the offline run: none may be left unpublished for
+        # its latency on a busy machine (a real-time replay keeps the node's bound)
+        extra.setdefault("max_latency_s", 0.0)
     command = node_command(backend, grid.to_dict(), Path(params_file) if params_file else None, extra)
     log_path = out_dir / "node.log"
     rclpy = init_ros()

@@ -381,6 +381,11 @@ class DiagnosticsConfig:
                                    "stamp on arrival, by the node's clock (s; 0 = no check; replaying a bag: "
                                    "use_sim_time with replay --clock)", 0.0, 1e9)
 
+    max_latency_s: float = param("max_latency_s", 0.3, "bound on the time from a frame's last input arriving to "
+                                 "its outputs (s): a later preview points at road already driven over, so it is "
+                                 "not published (dropped_stale; ERROR while it happens, WARN when the latency "
+                                 "p95 exceeds it); 0 = no bound", 0.0, 10.0)
+
     def __post_init__(self) -> None:
         if self.max_rate_hz and self.min_rate_hz > self.max_rate_hz:
             raise ParamError(f"diagnostics.min_rate_hz = {self.min_rate_hz} is above diagnostics.max_rate_hz "

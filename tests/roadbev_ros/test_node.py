@@ -83,19 +83,38 @@ def test_compressed_transport(harness: Harness) -> None:
     harness.wait_output(feed(harness, 4))
 
 
-@pytest.mark.parametrize("harness", [{"delay_s": 0.15}], indirect=True)
+@pytest.mark.parametrize("harness", [{"delay_s": 0.15, "params": {"max_latency_s": 0.0}}], indirect=True)
 def test_slow_inference_keeps_the_newest_set_and_counts_drops(harness: Harness) -> None:
     stamps = []
     for k in range(12):  # 40 Hz into a 6.7 Hz backend
         stamps.append(feed(harness, k))
         time.sleep(0.025)
-    last = harness.wait_output(stamps[-1], timeout=15.0)  # the newest set is never dropped
+    last = harness.wait_output(stamps[-1], timeout=15.0)  # the newest set is never dropped (no latency bound)
     assert last is not None
     counts = harness.node.counts()
     assert counts["dropped_busy"] > 0, harness.node.health.last_error
     assert counts["outputs"] + counts["dropped_busy"] + counts["dropped_sync"] + counts["dropped_invalid"] == 12, counts
     assert counts["outputs"] == len(harness.output_stamps())
     assert harness.output_stamps() == sorted(harness.output_stamps())
+
+
+@pytest.mark.parametrize("harness", [{"delay_s": 0.15, "params": {"max_latency_s": 0.1, "diagnostics_period_s": 0.1}}],
+                         indirect=True)
+def test_an_output_later_than_the_latency_bound_is_not_published(harness: Harness) -> None:
+    for k in range(3):
+        feed(harness, k)
+        time.sleep(0.3)
+    assert wait_for(lambda: harness.node.counts()["dropped_stale"] == 3, 5.0), harness.node.counts()
+    assert harness.node.counts()["outputs"] == 0 and not harness.elevation
+    assert "max_latency_s 0.1): not published" in harness.node.health.last_error
+
+    def error_said() -> bool:
+        with harness.lock:
+            status = harness.diagnostics[-1].status[0] if harness.diagnostics else None
+        return status is not None and status.level == b"\x02" and "later than max_latency_s" in status.message
+
+    assert wait_for(error_said, 3.0)
+    assert harness.latest_diagnostics()["dropped_stale"] == "3"
 
 
 def _bad_image(h: Harness, stamp: int, **fields: Any) -> Any:
@@ -172,7 +191,8 @@ def test_bad_input_is_reported_and_the_node_recovers(harness: Harness) -> None:
     good()
     # every left image is accounted for
     counts = h.node.counts()
-    accounted = counts["outputs"] + counts["dropped_busy"] + counts["dropped_sync"] + counts["dropped_invalid"]
+    accounted = (counts["outputs"] + counts["dropped_busy"] + counts["dropped_sync"] + counts["dropped_invalid"]
+                 + counts["dropped_stale"])
     assert accounted + counts["queued"] == counts["frames_in"], counts
     # diagnostics report the problems and the backend
     assert wait_for(lambda: "problem.imu stale" in h.latest_diagnostics(), 3.0)
