@@ -43,11 +43,11 @@ import numpy as np
 
 from benchmarks.common import CACHE, RESULTS, machine_info, write_json
 from benchmarks.preview_budget import (
-    DEFAULT_CANDIDATES,
     STAGE_SEPARATOR,
     STAGES,
     Candidate,
     DriveFrames,
+    add_candidate_arguments,
     candidate_previews,
     candidates_from_node,
     make_backend,
@@ -238,16 +238,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, default=1, help="drives per speed and camera rate")
     parser.add_argument("--speeds", type=float, nargs="+", default=[5.0, 10.0, 20.0, 30.0])
     parser.add_argument("--rates", type=float, nargs="+", default=[5.0, 10.0])
-    parser.add_argument("--candidates", nargs="+", default=list(DEFAULT_CANDIDATES), metavar="NAME=BACKEND[:P=V,...]",
-                        help="configurations of the node (node parameters after the colon; each needs a row in "
-                             "--node-results)")
-    parser.add_argument("--node-results", default=str(RESULTS / "node_candidates.json"), metavar="JSON",
-                        help="bench_node --drive results: each candidate's latency and time per frame in the node")
-    parser.add_argument("--budget", nargs="*", default=None, metavar="NAME",
-                        help="add the error budget of these candidates (all when none is named): one row per "
-                             "stage taken from the truth (preview_budget.STAGES)")
-    parser.add_argument("--frame-cache", default=str(CACHE / "arrival_frames"), metavar="DIR",
-                        help="rendered drive frames are kept here and read back by later runs")
+    add_candidate_arguments(parser, CACHE / "arrival_frames", "configurations of the node (node parameters after "
+                            "the colon; each needs a row in --node-results)")
     parser.add_argument("--lead-time", type=float, default=0.1, help="lead time of messages without a receipt time")
     parser.add_argument("--jobs", type=int, default=1, help="drives run in parallel processes")
     parser.add_argument("--out", default=str(RESULTS / "arrival.json"))

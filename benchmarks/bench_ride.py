@@ -52,11 +52,11 @@ import numpy as np
 
 from benchmarks.common import CACHE, RESULTS, machine_info, write_json
 from benchmarks.preview_budget import (
-    DEFAULT_CANDIDATES,
     STAGE_SEPARATOR,
     STAGES,
     Candidate,
     DriveFrames,
+    add_candidate_arguments,
     candidate_previews,
     candidates_from_node,
     make_backend,
@@ -406,16 +406,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--render-seeds", type=int, default=1, help="rendered drives per road kind and speed")
     parser.add_argument("--render-duration", type=float, default=6.0,
                         help="seconds of camera frames per rendered drive")
-    parser.add_argument("--candidates", nargs="*", default=list(DEFAULT_CANDIDATES), metavar="NAME=BACKEND[:P=V,...]",
-                        help="configurations of the node to ride with (node parameters after the colon; each "
-                             "needs a row in --node-results); none: truth rows only")
-    parser.add_argument("--node-results", default=str(RESULTS / "node_candidates.json"), metavar="JSON",
-                        help="bench_node --drive results: each candidate's latency and time per frame in the node")
-    parser.add_argument("--budget", nargs="*", default=None, metavar="NAME",
-                        help="add the error budget of these candidates (all when none is named): one row per "
-                             "stage taken from the truth (preview_budget.STAGES)")
-    parser.add_argument("--frame-cache", default=str(CACHE / "ride_frames"), metavar="DIR",
-                        help="rendered drive frames are kept here and read back by later runs")
+    add_candidate_arguments(parser, CACHE / "ride_frames", "configurations of the node to ride with (node "
+                            "parameters after the colon; each needs a row in --node-results); none: truth rows only")
     parser.add_argument("--seed-base", type=int, default=SEED_BASE,
                         help="drive seeds start here (the benchmark's own by default; tuning runs take others)")
     parser.add_argument("--latency", type=float, default=0.1, help="latency of the truth rows (s)")

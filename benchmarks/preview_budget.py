@@ -26,6 +26,7 @@ only in the stage they replace. Lab code: it drives :class:`roadbev_core.pipelin
 
 from __future__ import annotations
 
+import argparse
 import hashlib
 import json
 import math
@@ -36,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.common import RESULTS
 from roadbev_core.arrival import REFERENCE_CONTACT_PLANE, RoadMap, TimedPreview, Trajectory, per_frame_previews
 from roadbev_core.backends import Backend, create
 from roadbev_core.config import GridSpec, RoadbevConfig
@@ -107,6 +109,20 @@ class Candidate:
     def backend_options(self) -> dict[str, Any]:
         """The options the registry builds the backend with (as the node's config gives them)."""
         return self.config(GridSpec()).backend.options_of()
+
+
+def add_candidate_arguments(parser: argparse.ArgumentParser, frame_cache: Path, candidates_help: str) -> None:
+    """The options of a benchmark that runs node candidates with their error budget:
+    ``--candidates``, ``--node-results``, ``--budget`` and ``--frame-cache``."""
+    parser.add_argument("--candidates", nargs="*", default=list(DEFAULT_CANDIDATES), metavar="NAME=BACKEND[:P=V,...]",
+                        help=candidates_help)
+    parser.add_argument("--node-results", default=str(RESULTS / "node_candidates.json"), metavar="JSON",
+                        help="bench_node --drive results: each candidate's latency and time per frame in the node")
+    parser.add_argument("--budget", nargs="*", default=None, metavar="NAME",
+                        help="add the error budget of these candidates (all when none is named): one row per "
+                             "stage taken from the truth (preview_budget.STAGES)")
+    parser.add_argument("--frame-cache", default=str(frame_cache), metavar="DIR",
+                        help="rendered drive frames are kept here and read back by later runs")
 
 
 def parse_candidate(spec: str) -> tuple[str, str, dict[str, Any]]:
