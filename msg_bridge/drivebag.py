@@ -29,7 +29,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from msg_bridge._common import MessageError, TypestoreFactory, field, stamp_from_header
-from msg_bridge.bag import BagError, BagWriter, bag_topics, read_messages
+from msg_bridge.bag import BagError, BagWriter, ReadStats, bag_topics, read_messages
 from msg_bridge.evalbag import LEFT_FRAME, write_eval_bag
 from msg_bridge.grid_map import decode_grid_map, grid_map_message_at
 from msg_bridge.tf import StaticTransform, odometry_message, tf_message, transforms_from_tf
@@ -185,7 +185,9 @@ def read_drive_truth(
     camera: tuple[np.ndarray, np.ndarray] | None = None
     wanted = [topics["ground_truth_odom_topic"], topics["road_map_topic"], topics["tf_static_topic"]]
     bad = 0
-    for item in read_messages(path, wanted):
+    read = ReadStats()
+    # a damaged or cut bag: the truth as far as it is readable scores the frames it covers
+    for item in read_messages(path, wanted, on_damage="skip", stats=read):
         msg = item.msg
         try:
             if item.topic == topics["ground_truth_odom_topic"]:
@@ -212,6 +214,8 @@ def read_drive_truth(
             continue
     if bad:
         notes.append(f"{bad} malformed ground-truth message(s) ignored")
+    if not read.complete:
+        notes.append(f"ground truth read as far as the bag is readable: {read.summary()}")
     if len(poses) < 2:
         raise BagError(f"{path}: {topics['ground_truth_odom_topic']} has {len(poses)} usable pose(s); need >= 2")
     if road is None:

@@ -558,6 +558,17 @@ def read_eval_bag(path: str | os.PathLike[str], params: Mapping[str, Any] | None
             except MessageError as exc:
                 raise BagError(f"{path}: CameraInfo for the frame at {stamp} ns: {exc}") from None
         frames.append(_FrameIndex(stamp, cameras[camera_key]))
+    if not collected.read.complete:
+        # a damaged or cut bag: a frame the readable IMU (or odometry) does not reach past would
+        # take an extrapolated attitude (pose), not the one the whole bag gives it; such frames are
+        # lost with the damage rather than scored with other inputs
+        ends = [max(sample.stamp_ns for sample in collected.imu)] if collected.imu else []
+        ends += [max(p.stamp_ns for p in collected.odometry)] if collected.odometry else []
+        if ends:
+            reached = [f for f in frames if f.stamp_ns <= min(ends)]
+            for _ in range(len(frames) - len(reached)):
+                skip("the readable IMU or odometry ends before it (the bag is damaged)")
+            frames = reached
     if not frames:
         damage = f"; {collected.read.summary()}" if not collected.read.complete else ""
         raise BagError(f"{path}: no usable frames ({skipped or 'no left images'}){damage}")

@@ -260,3 +260,26 @@ def test_a_wrong_base_height_gets_a_self_check_hint_and_fails(
     hint = next(line for line in printed.splitlines() if line.startswith("self-check:"))
     assert "(low)" in hint and "base_height" in hint
     assert "base_height" in json.loads(out.read_text())["self_check"]
+
+
+def test_a_cut_drive_bag_scores_every_readable_frame_as_the_whole_bag_does(tmp_path: Path) -> None:
+    from msg_bridge.bag import read_messages
+    from msg_bridge.grid_map import grid_map_to_arrays
+
+    from ._damaged_bags import truncate
+
+    whole = tmp_path / "drive.mcap"
+    assert main(["synth", str(whole), "--drive", "--frames", "6", "--image-scale", "0.25", "--quiet"]) == 0
+    cut = truncate(whole, tmp_path / "cut.mcap", 0.9)
+    maps = {}
+    for name, path in (("whole", whole), ("cut", cut)):
+        out = tmp_path / f"{name}_out.mcap"
+        assert main(["eval", str(path), "--backend", "bm", "--json", str(tmp_path / f"{name}.json"), "--out", str(out),
+                     "--no-progress"]) == 0
+        maps[name] = {item.log_time_ns: grid_map_to_arrays(item.msg).layers["elevation"]
+                      for item in read_messages(out, ["/roadbev/elevation"])}
+    cut_json = json.loads((tmp_path / "cut.json").read_text())
+    assert cut_json["losses"] and cut_json["preview_at_arrival"]["points"] > 0  # scored, with what was lost
+    assert 0 < len(maps["cut"]) < len(maps["whole"])
+    same = [np.array_equal(e, maps["whole"][s], equal_nan=True) for s, e in sorted(maps["cut"].items())]
+    assert all(same), same
