@@ -62,7 +62,7 @@ from benchmarks.preview_budget import (
     make_backend,
 )
 
-SEED_BASE = 310_000  # disjoint from training, test, tuning (200000+) and bench_arrival (300000+) seeds
+SEED_BASE = 310_000  # disjoint from training, test, tuning (200000+) and the map's tuning drives (300001+)
 CAMERA_RATE_HZ = 10.0  # drives are rendered at 10 Hz; slower cameras take every k-th frame
 ROAD_KINDS = ("bumps", "potholes", "rough")
 # (drive, rendered frames, frame step of the camera rate, ride settings) -> the row's messages
