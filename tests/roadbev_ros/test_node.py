@@ -693,3 +693,42 @@ def test_a_rig_no_road_camera_has_is_a_named_fault_and_the_node_goes_on(harness:
     assert "stereo baseline" in harness.node.health.last_error
     assert wait_for(lambda: "problem.implausible input" in harness.latest_diagnostics(), 3.0)
     harness.wait_output(feed(harness, 1))  # the next good frame is answered
+
+
+class _Failing:
+    name = "failing"
+    needs_stereo = True
+
+    def __init__(self, grid: Any) -> None:
+        self.grid = grid
+        self.calls = 0
+
+    def estimate(self, frame: Any) -> Any:
+        self.calls += 1
+        if self.calls > 1:  # the warm-up passes, the frames fail
+            raise RuntimeError("the accelerator went away")
+        from roadbev_core.frame import Estimate
+
+        return Estimate(np.zeros(self.grid.shape, np.float32), np.full(self.grid.shape, 0.01, np.float32))
+
+
+def test_a_backend_exception_and_a_malformed_tf_are_named_and_the_node_goes_on(ros: Any) -> None:
+    from tf2_msgs.msg import TFMessage
+
+    from msg_bridge import RclpyFactory
+    from msg_bridge.tf import StaticTransform, tf_message
+    from roadbev_ros.node import TF_STATIC_QOS
+
+    h = Harness(ros, backend_factory=lambda name, grid, **options: _Failing(grid))
+    try:
+        feed(h, 0)
+        assert wait_for(lambda: h.node.health.problems["backend error"] == 1, 5.0)
+        assert "RuntimeError: the accelerator went away" in h.node.health.last_error
+        tf = tf_message([StaticTransform("base_link", "left", np.eye(3), np.zeros(3))], RclpyFactory())
+        tf.transforms[0].transform.rotation.w = 0.0  # not a rotation
+        h.feeder.create_publisher(TFMessage, "/tf_static", TF_STATIC_QOS).publish(tf)
+        assert wait_for(lambda: h.node.health.problems["bad tf"] == 1, 5.0)
+        feed(h, 1)
+        assert wait_for(lambda: h.node.health.problems["backend error"] == 2, 5.0)  # still running
+    finally:
+        h.close()
