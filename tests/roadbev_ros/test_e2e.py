@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -15,12 +16,15 @@ import pytest
 
 from msg_bridge import bag
 from msg_bridge.evalbag import read_eval_bag, write_eval_bag
+from msg_bridge.tf import TransformTree, transforms_from_tf
 from roadbev_core.backends import create
 from roadbev_core.config import DEFAULT_BACKEND, StereoCamera
 from roadbev_core.evaluation import evaluate
 from roadbev_core.synth import DriveConfig, SyntheticDrive
 from roadbev_ros.dds import child_env
 from roadbev_ros.online_eval import evaluate_online, format_online
+
+ROOT = Path(__file__).resolve().parents[2]
 
 FRAMES = 6
 METRIC_KEYS = ("frames", "cells", "abs_err_cm", "rmse_cm", "gt_0p5cm_pct", "coverage_pct",
@@ -201,13 +205,24 @@ def test_a_drive_replayed_into_the_node_gives_the_fused_map_and_previews_of_eval
     assert main(["eval", str(drive), "--map", "--json", str(offline_json), "--no-progress"]) == 0
     offline = json.loads(offline_json.read_text())
     assert offline["backend"] == DEFAULT_BACKEND
-    result = evaluate_online(drive, tmp_path / "online")
+    result = evaluate_online(drive, tmp_path / "online", node_params={"publish_odom_tf": True})
     online = result.metrics
     assert online["online"]["frames_without_output"] == 0, result.node_log
     recorded = bag.bag_topics(result.recorded)
     assert recorded["/roadbev/map"].count == 8
-    # what a viewer needs to place the outputs: the node's per-frame TF and the replayed mount
-    assert recorded["/tf"].count == 8 and recorded["/tf_static"].count == 1
+    # what a viewer needs to place the outputs: the node's TF (per frame, and odom -> base_link
+    # from the odometry) and the replayed mount join every frame the outputs and the shipped
+    # viewer configs name to RViz's fixed frame
+    assert recorded["/tf"].count > 8 and recorded["/tf_static"].count == 1
+    tree = TransformTree(tf for item in bag.read_messages(result.recorded, ["/tf", "/tf_static"])
+                         for tf in transforms_from_tf(item.msg))
+    outputs = {item.msg.header.frame_id for item in bag.read_messages(
+        result.recorded, ["/roadbev/elevation", "/roadbev/preview", "/roadbev/map"])}
+    configs = (ROOT / "config" / "roadbev.rviz").read_text() + (ROOT / "config" / "roadbev.foxglove.json").read_text()
+    named = set(re.findall(r'(?:Fixed Frame: |"followTf": "|"frameId": ")(\w+)', configs))
+    assert {"odom", "base_link"} <= named and {"roadbev_road", "base_link", "odom"} <= outputs
+    for frame in sorted(named | outputs):
+        tree.lookup("odom", frame)  # raises when a frame is not joined to the fixed frame
     for section in ("preview_at_arrival", "map"):
         for key, value in offline[section].items():
             if isinstance(value, float):
