@@ -380,6 +380,24 @@ class MapWindow(NamedTuple):
         y = self.centre[1] + 0.5 * n_cols * r - (np.arange(n_cols) + 0.5) * r
         return x, y
 
+    def crop(self, position: tuple[float, float], length: tuple[float, float]) -> MapWindow | None:
+        """The cells whose centres lie in the ``length`` (x, y) rectangle centred on ``position``
+        (``odom``), as a window of their own (grid_map's sub-map); None when none does.
+        A zero or negative length means the whole window along that axis."""
+        x, y = self.cell_centres()
+        half_x = length[0] / 2 if length[0] > 0 else math.inf
+        half_y = length[1] / 2 if length[1] > 0 else math.inf
+        rows = np.flatnonzero(np.abs(x - position[0]) <= half_x + 1e-9)  # [k] contiguous: x falls with the row
+        cols = np.flatnonzero(np.abs(y - position[1]) <= half_y + 1e-9)
+        if rows.size == 0 or cols.size == 0:
+            return None
+        r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+        cut = (slice(r0, r1), slice(c0, c1))
+        centre = (float(x[r0:r1].mean()), float(y[c0:c1].mean()))
+        datum = None if self.datum_uncertainty is None else self.datum_uncertainty[cut]
+        return MapWindow(self.elevation[cut], self.uncertainty[cut], self.observations[cut], self.age[cut],
+                         self.resolution, centre, self.stamp_ns, datum)
+
 
 # the sums per cell: w, w z, w z^2, w sigma, w^2 sigma^2, w s (s: the map's odometer at the fusion)
 _W, _S1, _S2, _WSIG, _W2VAR, _WODO = range(6)

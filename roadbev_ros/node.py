@@ -31,6 +31,7 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
+from grid_map_msgs.srv import GetGridMap
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
@@ -40,6 +41,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from sensor_msgs.msg import Imu as ImuMsg
 
 from msg_bridge import MessageError, RclpyFactory, stamp_from_header
+from msg_bridge.grid_map import fused_map_message
 from msg_bridge.image import check_image_message
 from msg_bridge.imu import imu_orientation
 from msg_bridge.pipeline_io import (
@@ -159,6 +161,7 @@ class RoadBevNode(Node):
         self.create_subscription(TFMessage, "/tf_static", self._on_tf_static, TF_STATIC_QOS)
         self.create_service(Trigger, "~/clear_map", self._on_clear_map)
         self.create_service(Trigger, "~/save_map", self._on_save_map)
+        self.create_service(GetGridMap, "~/get_submap", self._on_get_submap)
         self._camera_frame: str | None = None  # the left images' frame_id (the TF's parent)
         self._motion_in = 0  # odometry and speed samples taken: what the map needs besides frames
         self._motion_at: float | None = None  # monotonic time of the newest of them
@@ -387,6 +390,43 @@ class RoadBevNode(Node):
             return response
         response.success, response.message = True, str(path)
         self.get_logger().info(f"fused map saved to {path}")
+        return response
+
+    def _on_get_submap(self, request: Any, response: Any) -> Any:
+        """``~/get_submap`` (grid_map_msgs/GetGridMap, as elevation_mapping's): the cells of the
+        newest fused map within ``length_x`` x ``length_y`` around ``position`` in ``frame_id`` (the
+        map's frame; a length <= 0 takes the whole map along it), with the ``layers`` asked for (all
+        when none). The service has no status field: when nothing can be served the answer is a map
+        without layers, and the reason goes to the log (a client's request is not the node's
+        fault, so the diagnostics are left alone)."""
+        window = self.pipeline.last_map
+        frame = self.config.map.frame
+        reason = ""
+        if window is None:
+            reason = f"no fused map: {self._why_no_map()}"
+        elif request.frame_id.lstrip("/") not in ("", frame):
+            reason = f"frame {request.frame_id!r}: the map is served in its own frame, {frame!r}"
+        else:
+            window = window.crop((request.position_x, request.position_y), (request.length_x, request.length_y))
+            if window is None:
+                reason = (f"no cell of the map within {request.length_x:g} x {request.length_y:g} m around "
+                          f"({request.position_x:g}, {request.position_y:g}) in {frame!r}")
+        if reason or window is None:
+            self.get_logger().warning(f"~/get_submap: {reason}")
+            response.map.header.frame_id = frame
+            return response
+        msg = fused_map_message(window, _FACTORY, frame_id=frame)
+        wanted = list(request.layers)
+        unknown = [name for name in wanted if name not in msg.layers]
+        if unknown:
+            self.get_logger().warning(f"~/get_submap: no layer {', '.join(unknown)} (the map has "
+                                      f"{', '.join(msg.layers)})")
+        if wanted:
+            keep = [i for i, name in enumerate(msg.layers) if name in wanted]
+            msg.layers = [msg.layers[i] for i in keep]
+            msg.data = [msg.data[i] for i in keep]
+            msg.basic_layers = [name for name in msg.basic_layers if name in msg.layers]
+        response.map = msg
         return response
 
     def _why_no_map(self) -> str:

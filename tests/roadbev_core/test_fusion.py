@@ -314,3 +314,25 @@ def test_settings_refuse_an_empty_or_costly_corridor() -> None:
         MapSettings(resolution=0.03, behind_m=1.0, ahead_m=-2.0, y_min=-1.0, y_max=1.0, base_height=1.1)
     with pytest.raises(FusionError):
         MapSettings(resolution=0.001, behind_m=10.0, ahead_m=100.0, y_min=-10.0, y_max=10.0, base_height=1.1)
+
+
+def test_a_window_crops_to_the_cells_around_a_position() -> None:
+    from roadbev_core.fusion import MapWindow
+
+    n_rows, n_cols, r = 10, 6, 0.5  # cell centres x 12.25 down to 7.75, y 2.25 down to -0.25
+    elevation = np.arange(n_rows * n_cols, dtype=np.float32).reshape(n_rows, n_cols)
+    window = MapWindow(elevation, elevation + 100, np.ones_like(elevation), np.zeros_like(elevation), r,
+                       (10.0, 1.0), 7, elevation + 200)
+    x, y = window.cell_centres()
+    sub = window.crop((11.0, 1.0), (2.0, 1.0))
+    assert sub is not None and sub.elevation.shape == (4, 2) and sub.stamp_ns == 7
+    sx, sy = sub.cell_centres()
+    assert np.all(np.abs(sx - 11.0) <= 1.0) and np.all(np.abs(sy - 1.0) <= 0.5)
+    rows = [int(np.flatnonzero(np.isclose(x, v))[0]) for v in sx]
+    cols = [int(np.flatnonzero(np.isclose(y, v))[0]) for v in sy]
+    np.testing.assert_array_equal(sub.elevation, elevation[np.ix_(rows, cols)])  # the same cells, same order
+    assert sub.datum_uncertainty is not None and sub.datum_uncertainty[0, 0] == sub.elevation[0, 0] + 200
+    whole = window.crop((0.0, 0.0), (0.0, 0.0))  # no length: the whole map
+    assert whole is not None and whole.elevation.shape == (n_rows, n_cols)
+    assert whole.centre == pytest.approx((10.0, 1.0))
+    assert window.crop((50.0, 1.0), (1.0, 1.0)) is None  # outside the map

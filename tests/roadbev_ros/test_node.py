@@ -443,12 +443,32 @@ def test_with_odometry_the_node_publishes_the_fused_map_its_tf_and_clears_it_on_
     assert wait_for(saved.done) and saved.result().success, saved.result().message
     stored = [item.msg for item in read_messages(saved.result().message, ["/roadbev/map"])]
     assert len(stored) == 1 and set(decode_grid_map(stored[0]).layers) == set(decoded.layers)
+    from grid_map_msgs.srv import GetGridMap
+
+    submap = harness.feeder.create_client(GetGridMap, f"/{harness.node.get_name()}/get_submap")
+    assert submap.wait_for_service(timeout_sec=10.0)
+    window = harness.node.pipeline.last_map
+    assert window is not None
+    xs, ys = window.cell_centres()
+    ask = GetGridMap.Request(frame_id="odom", position_x=float(xs.mean()), position_y=float(ys.mean()),
+                             length_x=0.6, length_y=0.3, layers=["elevation", "uncertainty"])
+    answer = submap.call_async(ask)
+    assert wait_for(answer.done)
+    sub = decode_grid_map(answer.result().map)
+    assert set(sub.layers) == {"elevation", "uncertainty"} and sub.frame_id == "odom"
+    assert sub.layers["elevation"].shape[0] * window.resolution <= 0.6 + window.resolution + 1e-6
+    assert sub.layers["elevation"].shape[1] * window.resolution <= 0.3 + window.resolution + 1e-6
+    wrong = submap.call_async(GetGridMap.Request(frame_id="base_link", length_x=1.0, length_y=1.0))
+    assert wait_for(wrong.done) and list(wrong.result().map.layers) == []  # only the map's frame is served
     client = harness.feeder.create_client(Trigger, f"/{harness.node.get_name()}/clear_map")
     assert client.wait_for_service(timeout_sec=10.0)
     future = client.call_async(Trigger.Request())
     assert wait_for(future.done) and future.result().success
     assert harness.node.pipeline.fused is not None and harness.node.pipeline.fused.empty
     assert Path(saved.result().message).is_absolute()
+    # the map was cleared: no sub-map to serve, an answer without layers
+    empty = submap.call_async(GetGridMap.Request(frame_id="odom", position_x=10.0, length_x=1.0, length_y=1.0))
+    assert wait_for(empty.done) and list(empty.result().map.layers) == []
     again = saver.call_async(Trigger.Request())  # the reply says why there is nothing to save now
     assert wait_for(again.done) and not again.result().success
     assert "cleared by ~/clear_map" in again.result().message, again.result().message
