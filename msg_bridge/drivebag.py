@@ -32,13 +32,12 @@ from msg_bridge._common import MessageError, TypestoreFactory, field, stamp_from
 from msg_bridge.bag import BagError, BagWriter, ReadStats, bag_topics, read_messages
 from msg_bridge.evalbag import LEFT_FRAME, write_eval_bag
 from msg_bridge.grid_map import decode_grid_map, grid_map_message_at
-from msg_bridge.tf import StaticTransform, odometry_message, tf_message, transforms_from_tf
+from msg_bridge.tf import StaticTransform, camera_mount, odometry_message, tf_message, transforms_from_tf
 from roadbev_core.arrival import ArrivalSettings, RoadMap, TimedPreview, Trajectory, preview_at_arrival
-from roadbev_core.config import RoadbevConfig
+from roadbev_core.config import BASE_FRAME, RoadbevConfig
 from roadbev_core.geometry import GeometryError, quaternion_to_rotation
 
 __all__ = [
-    "BASE_FRAME",
     "DRIVE_TOPICS",
     "ODOM_FRAME",
     "DriveTruth",
@@ -50,7 +49,6 @@ __all__ = [
 ]
 
 ODOM_FRAME = "odom"
-BASE_FRAME = "base_link"
 # Parameter-style name -> default topic.
 DRIVE_TOPICS: dict[str, str] = {
     "odom_topic": "/odom",
@@ -182,7 +180,8 @@ def read_drive_truth(
     notes: list[str] = []
     poses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     road: RoadMap | None = None
-    camera: tuple[np.ndarray, np.ndarray] | None = None
+    static: list[StaticTransform] = []
+    base = str((params or {}).get("base_frame", BASE_FRAME))
     wanted = [topics["ground_truth_odom_topic"], topics["road_map_topic"], topics["tf_static_topic"]]
     bad = 0
     read = ReadStats()
@@ -204,9 +203,7 @@ def read_drive_truth(
                     notes.append(f"road map in frame {raw.frame_id!r}, taken as the ground truth's frame")
                 road = RoadMap(np.asarray(raw.layers["elevation"], np.float32), raw.resolution, raw.centre)
             else:
-                for tf in transforms_from_tf(msg):
-                    if tf.parent == BASE_FRAME and tf.child == camera_frame:
-                        camera = (tf.translation, tf.rotation)
+                static += transforms_from_tf(msg)
         except (MessageError, GeometryError, TypeError, ValueError, AttributeError) as exc:
             if isinstance(exc, BagError):
                 raise
@@ -220,8 +217,9 @@ def read_drive_truth(
         raise BagError(f"{path}: {topics['ground_truth_odom_topic']} has {len(poses)} usable pose(s); need >= 2")
     if road is None:
         raise BagError(f"{path}: no road map on {topics['road_map_topic']}")
+    camera = camera_mount(static, base, camera_frame)
     if camera is None:
-        notes.append(f"no {BASE_FRAME} -> {camera_frame} on {topics['tf_static_topic']}: "
+        notes.append(f"no {base} -> {camera_frame} on {topics['tf_static_topic']}: "
                      "the camera position comes from vehicle.camera_position_m")
     stamps = np.array(sorted(poses), np.int64)
     position = np.array([poses[s][0] for s in stamps])

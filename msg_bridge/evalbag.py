@@ -50,10 +50,10 @@ from msg_bridge.camera_info import camera_info_from_stereo, stereo_camera_from_c
 from msg_bridge.grid_map import ROAD_FRAME, grid_map_message, grid_map_to_arrays
 from msg_bridge.image import array_to_compressed, array_to_image, compressed_to_rgb, image_to_rgb
 from msg_bridge.imu import imu_message, imu_orientation
-from msg_bridge.pipeline_io import BASE_FRAME, odometry_sample
+from msg_bridge.pipeline_io import odometry_sample
 from msg_bridge.tf import StaticTransform, camera_mount, transforms_from_tf
 from roadbev_core.attitude import ImuBuffer, ImuSample, ImuStale
-from roadbev_core.config import ConfigError, GridSpec, StereoCamera
+from roadbev_core.config import BASE_FRAME, ConfigError, GridSpec, StereoCamera
 from roadbev_core.ego_motion import PlanarPose
 from roadbev_core.frame import Frame
 from roadbev_core.pipeline import CameraInput
@@ -579,7 +579,7 @@ def read_eval_bag(path: str | os.PathLike[str], params: Mapping[str, Any] | None
     bag.odometry = collected.odometry
     camera_frame = collected.left_frame or LEFT_FRAME
     bag.camera_frame = camera_frame
-    bag.camera_mount = camera_mount(collected.static, BASE_FRAME, camera_frame)
+    bag.camera_mount = camera_mount(collected.static, str((params or {}).get("base_frame", BASE_FRAME)), camera_frame)
     return bag
 
 

@@ -46,7 +46,7 @@ from msg_bridge.tf import (
     transforms_from_tf,
 )
 from roadbev_core.attitude import ImuBuffer, ImuError, ImuStale
-from roadbev_core.config import GridSpec, StereoCamera, VehicleConfig
+from roadbev_core.config import BASE_FRAME, GridSpec, StereoCamera, VehicleConfig
 from roadbev_core.geometry import R_BODY_FROM_OPTICAL
 from roadbev_core.lidar_labels import LabelConfig, LabelError, accumulate_label, planar_transform, scan_to_road
 
@@ -64,7 +64,6 @@ DEFAULT_LIDAR_TOPIC = "/lidar/points"
 DEFAULT_ODOM_TOPIC = "/odom"
 TF_STATIC = "/tf_static"
 POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
-BASE_LINK = "base_link"
 DEFAULT_CAMERA_POSITION_M = VehicleConfig().camera_position_m  # contract: vehicle.camera_position_m
 
 
@@ -241,12 +240,12 @@ def label_bag(
         notes.append(f"no odometry on {odom_topic}: each frame is labelled from its nearest scan, uncompensated")
 
     camera_xy_yaw = (float(camera_position_m[0]), float(camera_position_m[1]), 0.0)
-    if left_frame and BASE_LINK in tree.frames:
+    if left_frame and BASE_FRAME in tree.frames:
         try:
-            R, t = tree.lookup(BASE_LINK, left_frame)
+            R, t = tree.lookup(BASE_FRAME, left_frame)
             forward = R @ R_BODY_FROM_OPTICAL.T[:, 0]  # camera body x in base_link
             camera_xy_yaw = (float(t[0]), float(t[1]), math.atan2(float(forward[1]), float(forward[0])))
-            notes.append(f"camera in {BASE_LINK} from {TF_STATIC}: x {t[0]:.2f} m, y {t[1]:.2f} m")
+            notes.append(f"camera in {BASE_FRAME} from {TF_STATIC}: x {t[0]:.2f} m, y {t[1]:.2f} m")
         except TransformError:
             pass
 

@@ -32,7 +32,6 @@ from roadbev_core.pipeline import CameraInput, PipelineOutput
 from roadbev_core.preview import REFERENCE_CONTACT_PLANE
 
 __all__ = [
-    "BASE_FRAME",
     "OutputMessages",
     "camera_input",
     "odometry_sample",
@@ -41,7 +40,6 @@ __all__ = [
     "speed_message_type",
 ]
 
-BASE_FRAME = "base_link"  # the contract's vehicle frame: the frame of contact-plane previews
 
 
 def camera_input(msgs: Sequence[Any], image_transport: str) -> CameraInput:
@@ -141,7 +139,7 @@ def output_messages(
     elevation = elevation_grid_map(
         estimate.elevation, estimate.uncertainty, grid, factory, stamp_ns=stamp, frame_id=frame_id
     )
-    preview_frame = BASE_FRAME if output.preview.reference == REFERENCE_CONTACT_PLANE else frame_id
+    preview_frame = config.topics.base_frame if output.preview.reference == REFERENCE_CONTACT_PLANE else frame_id
     preview = road_preview_message(output.preview, factory, stamp_ns=stamp, frame_id=preview_frame)
     points = None
     if with_points:

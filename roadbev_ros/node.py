@@ -45,7 +45,6 @@ from msg_bridge.grid_map import fused_map_message
 from msg_bridge.image import check_image_message
 from msg_bridge.imu import imu_orientation
 from msg_bridge.pipeline_io import (
-    BASE_FRAME,
     camera_input,
     odometry_sample,
     output_messages,
@@ -342,7 +341,8 @@ class RoadBevNode(Node):
     def _apply_camera_mount(self) -> None:
         if self._camera_frame is None:
             return
-        mount = camera_mount(list(self._static.values()), BASE_FRAME, self._camera_frame)
+        base = self.config.topics.base_frame
+        mount = camera_mount(list(self._static.values()), base, self._camera_frame)
         if mount is None:
             return  # not joined (yet): vehicle.camera_position_m stands
         translation, rotation = mount
@@ -352,10 +352,10 @@ class RoadBevNode(Node):
         try:
             self.pipeline.set_camera_mount(translation, rotation)
         except RoadbevError as exc:
-            self._problem("bad tf", f"{BASE_FRAME} -> {self._camera_frame}: {exc}")
+            self._problem("bad tf", f"{base} -> {self._camera_frame}: {exc}")
             return
         self._mount = key
-        self.get_logger().info(f"camera mount from /tf_static: {BASE_FRAME} -> {self._camera_frame} at "
+        self.get_logger().info(f"camera mount from /tf_static: {base} -> {self._camera_frame} at "
                                f"{[round(float(v), 3) for v in translation]} m")
 
     def _on_clear_map(self, request: Any, response: Any) -> Any:

@@ -51,13 +51,12 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from msg_bridge import MessageError
 from msg_bridge.grid_map import ROAD_FRAME
 from msg_bridge.preview import preview_from_message
-from roadbev_core.config import ParamError
+from roadbev_core.config import BASE_FRAME, ParamError
 from roadbev_core.ride import OnlinePreviewController, PreviewLqr, RideError
 from roadbev_ros.node_params import declare_typed
 
 __all__ = ["PreviewControllerNode", "main", "plane_slope_x"]
 
-BASE_FRAME = "base_link"
 TIME_JUMP_BACK_S = 1.0
 MAX_CATCH_UP = 50  # model steps one timer callback may run (a longer pause: the model skips ahead)
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -71,6 +70,7 @@ DEFAULTS: dict[str, Any] = {
     "diagnostics_period_s": 1.0,
     "vehicle.wheelbase_m": 2.80,
     "vehicle.camera_position_m": [1.60, 0.0, 1.10],
+    "base_frame": BASE_FRAME,
 }
 
 
@@ -107,7 +107,7 @@ class PreviewControllerNode(Node):
         camera = [float(v) for v in p["vehicle.camera_position_m"]]
         if len(camera) != 3:
             raise RideError(f"vehicle.camera_position_m needs 3 values, got {camera}")
-        self.wheel_x = {BASE_FRAME: float(p["vehicle.wheelbase_m"]),
+        self.wheel_x = {str(p["base_frame"]): float(p["vehicle.wheelbase_m"]),
                         ROAD_FRAME: float(p["vehicle.wheelbase_m"]) - camera[0]}
         self.control = OnlinePreviewController(PreviewLqr(dt=1.0 / rate, horizon_s=float(p["horizon_s"])),
                                                hold=int(p["hold"]), max_age_s=float(p["max_age_s"]))
@@ -134,7 +134,7 @@ class PreviewControllerNode(Node):
         try:
             decoded = preview_from_message(msg)
             if decoded.frame_id not in self.wheel_x:
-                raise RideError(f"frame {decoded.frame_id!r} is neither {ROAD_FRAME} nor {BASE_FRAME}")
+                raise RideError(f"frame {decoded.frame_id!r} is none of {', '.join(sorted(self.wheel_x))}")
             self.control.receive(decoded.stamp_ns, decoded.profiles, self.wheel_x[decoded.frame_id],
                                  slope_x=plane_slope_x(msg))
         except (MessageError, RideError) as exc:

@@ -11,6 +11,7 @@ from roadbev_core.config.grid import GRID_PRESETS, ConfigError, GridSpec, grid_p
 from roadbev_core.config.params_file import NODE_NAME, ParamError, ParamsFile, load_params_file, parse_assignments
 from roadbev_core.config.rig import RSRD_CROP_TOP, StereoCamera
 from roadbev_core.config.tree import (
+    BASE_FRAME,
     DEFAULT_BACKEND,
     GRID_PARAMS,
     MAX_GRID_VOXELS,
@@ -31,6 +32,7 @@ from roadbev_core.config.tree import (
 )
 
 __all__ = [
+    "BASE_FRAME",
     "DEFAULT_BACKEND",
     "GRID_PARAMS",
     "GRID_PRESETS",

@@ -66,6 +66,9 @@ MAX_SYNC_SETS = 1_000_000
 # The backend of the node, `roadbev eval` and the demo when none is named: the configuration whose
 # preview the ride benchmark found worth the most (README, "What the preview is worth").
 DEFAULT_BACKEND = "ensemble"
+# The vehicle body frame (REP-105; Autoware's convention, contract): the frame of contact-plane
+# previews and the parent the camera mount is looked up from.
+BASE_FRAME = "base_link"
 
 
 @dataclass(frozen=True)
@@ -212,6 +215,9 @@ class TopicsConfig:
     points: str = param("points_topic", "/roadbev/points", "PointCloud2 output for viewers ('' = off)",
                         read_only=True)
     frame_id: str = param("frame_id", "roadbev_road", "frame of the outputs", read_only=True)
+    base_frame: str = param("base_frame", BASE_FRAME, "the vehicle body frame (REP-105): the frame of the "
+                            "contact-plane previews, and the parent the camera mount is looked up from on "
+                            "/tf_static", read_only=True)
 
 
 @dataclass(frozen=True)

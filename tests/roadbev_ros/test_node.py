@@ -752,3 +752,19 @@ def test_a_backend_exception_and_a_malformed_tf_are_named_and_the_node_goes_on(r
         assert wait_for(lambda: h.node.health.problems["backend error"] == 2, 5.0)  # still running
     finally:
         h.close()
+
+
+@pytest.mark.parametrize("harness", [{"params": {"base_frame": "chassis"}}], indirect=True)
+def test_the_body_frame_is_a_parameter(harness: Harness) -> None:
+    from tf2_msgs.msg import TFMessage
+
+    from msg_bridge import RclpyFactory
+    from msg_bridge.tf import StaticTransform, tf_message
+    from roadbev_ros.node import TF_STATIC_QOS
+
+    mount = np.array([1.5, 0.1, 1.3])
+    body = harness.feeder.create_publisher(TFMessage, "/tf_static", TF_STATIC_QOS)
+    body.publish(tf_message([StaticTransform("chassis", "left", np.eye(3), mount)], RclpyFactory()))
+    harness.wait_output(feed(harness, 0))
+    assert wait_for(lambda: harness.node.pipeline.camera_mount[1] is not None, 5.0)
+    np.testing.assert_allclose(harness.node.pipeline.camera_mount[0], mount)
