@@ -175,6 +175,12 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     return payload
 
 
+# Largest magnitude of any trained weight or batch-norm statistic a checkpoint may hold: trained
+# RoadBEV models stay within a few thousand (running variances the largest); a file far beyond it
+# would give an all-NaN or all-saturated output instead of an error.
+MAX_WEIGHT = 1e6
+
+
 def load_model(path: str | Path, *, grid: GridSpec | None = None) -> tuple[RoadBEV, dict[str, Any]]:
     """Rebuild the network of a checkpoint, for its own grid or another one of the same shape class.
 
@@ -197,6 +203,11 @@ def load_model(path: str | Path, *, grid: GridSpec | None = None) -> tuple[RoadB
     if broken:
         more = f" and {len(broken) - 1} more" if len(broken) > 1 else ""
         raise CheckpointError(f"checkpoint {path} has non-finite weights (NaN or inf) in {broken[0]}{more}")
+    largest = max(((float(v.abs().max()), k) for k, v in state.items() if v.is_floating_point() and v.numel()),
+                  default=(0.0, ""))
+    if largest[0] > MAX_WEIGHT:
+        raise CheckpointError(f"checkpoint {path} has implausible weights: |{largest[1]}| up to {largest[0]:.3g} "
+                              f"(a trained model stays far below {MAX_WEIGHT:g}); a damaged or tampered file?")
     try:
         model.load_state_dict(state)
     except RuntimeError as exc:

@@ -62,6 +62,18 @@ def test_non_finite_weights_are_refused_at_load(tmp_path: Path) -> None:
         load_model(path)
 
 
+def test_weights_scaled_beyond_any_trained_model_are_refused(tmp_path: Path) -> None:
+    torch.manual_seed(0)
+    model = RoadBEV(model_config("tiny", "mono"), GridSpec())
+    with torch.no_grad():
+        for value in model.state_dict().values():
+            if value.is_floating_point():
+                value.mul_(1e30)  # still finite in float32, but no trained model holds such weights
+    path = save_checkpoint(tmp_path / "huge.pt", model)
+    with pytest.raises(CheckpointError, match=r"implausible weights: \|.*\| up to .*e\+\d+"):
+        load_model(path)
+
+
 def test_training_envelope_names_what_is_out_of_range(tmp_path: Path) -> None:
     model = RoadBEV(model_config("tiny", "mono"), GridSpec())
     payload = read_checkpoint(save_checkpoint(tmp_path / "m.pt", model))
