@@ -36,22 +36,12 @@ from benchmarks.bench_node import drive_bag
 from benchmarks.common import RESULTS, machine_info, write_json
 from msg_bridge.bag import read_messages
 from roadbev_core.config import DEFAULT_BACKEND
-from roadbev_ros.online_eval import PREVIEW_TOPIC
+from roadbev_ros.online_eval import PREVIEW_TOPIC, stop_process
 
 MAP_TOPIC = "/roadbev/map"
 FORCE_TOPIC = "/roadbev/suspension/force"
 VIEWER_SIGMA_RANGE_M = 0.02  # config/roadbev.rviz and config/roadbev.foxglove.json colour the map's sigma over 0-2 cm
 CONTROLLER_STATUS = "roadbev: preview controller"
-
-
-def _stop(proc: subprocess.Popen[bytes], timeout: float = 15.0) -> None:
-    if proc.poll() is None:
-        proc.send_signal(2)  # SIGINT: the nodes and the recorder close cleanly on it
-        try:
-            proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5.0)
 
 
 def _wait_for(path: Path, text: str, timeout_s: float) -> None:
@@ -92,7 +82,7 @@ def run_chain(bag: Path, work: Path, backend: str, rate: float) -> Path:
         time.sleep(3.0)  # the last frame's outputs and one more second of the controller's diagnostics
     finally:
         for proc in reversed(procs):
-            _stop(proc)
+            stop_process(proc, timeout=15.0)
     return recorded
 
 

@@ -41,7 +41,7 @@ from roadbev_core.metrics import MetricAccumulator, Metrics, SigmaAccumulator
 from roadbev_ros.dds import child_env, init_ros
 from roadbev_ros.replay import header_stamp_ns, replay_bag
 
-__all__ = ["OnlineEvalError", "OnlineResult", "evaluate_online", "format_online", "node_command"]
+__all__ = ["OnlineEvalError", "OnlineResult", "evaluate_online", "format_online", "node_command", "stop_process"]
 
 GT_TOPIC = "/ground_truth/elevation"
 ELEVATION_TOPIC = "/roadbev/elevation"
@@ -177,7 +177,9 @@ def _estimates(recorded: Path, grid: Any) -> dict[int, tuple[np.ndarray, np.ndar
     return out
 
 
-def _stop_process(proc: subprocess.Popen[bytes], timeout: float = 10.0) -> None:
+def stop_process(proc: subprocess.Popen[bytes], timeout: float = 10.0) -> None:
+    """Stop a node or tool process as Ctrl-C does (SIGINT, so it closes cleanly); killed when it
+    has not ended after ``timeout`` s."""
     if proc.poll() is None:
         proc.send_signal(signal.SIGINT)
         try:
@@ -310,7 +312,7 @@ def evaluate_online(
         # one more diagnostics period so the final counts are in
         time.sleep(1.2)
     finally:
-        _stop_process(proc)
+        stop_process(proc)
         recorder.close()
         spinning.clear()
         spinner.join(2.0)
