@@ -169,12 +169,11 @@ class _OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def _build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
+def _build_parser(chosen: str | None) -> argparse.ArgumentParser:
     parser = _OneLineParser(prog="roadbev", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"roadbev {version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     # Only the chosen command's module is imported: the others show their one-line help.
-    chosen = next((a for a in argv if not a.startswith("-")), None)
     for name, help_text in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
         if name == chosen:
@@ -196,7 +195,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if chosen is not None and chosen not in COMMANDS:
         print(f"roadbev: error: unknown command {chosen!r} (choose from {', '.join(COMMANDS)})", file=sys.stderr)
         return 2
-    parser = _build_parser(args_list)
+    parser = _build_parser(chosen)
     args = parser.parse_args(args_list)
     if args.command is None:
         parser.print_help()

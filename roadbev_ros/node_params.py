@@ -29,18 +29,21 @@ __all__ = [
 ]
 
 
+_TYPE_NAMES = ((bool, "bool"), (int, "integer"), (float, "double"), (str, "string"))  # bool before int
+
+
+def _type_name(value: Any) -> str | None:
+    return next((name for cls, name in _TYPE_NAMES if isinstance(value, cls)), None)
+
+
 def _kind(value: Any) -> str:
-    if isinstance(value, bool):
-        return "a bool (true or false)"
-    if isinstance(value, int):
-        return "an integer"
-    if isinstance(value, float):
-        return "a double"
-    if isinstance(value, str):
-        return "a string"
+    """How a parameter value reads in a message: ``a double``, ``a list of doubles``..."""
     if isinstance(value, (list, tuple)):
-        return "a list" + (f" of {_kind(value[0]).split(' (')[0].split(' ', 1)[1]}s" if value else "")
-    return type(value).__name__
+        return "a list" + (f" of {_type_name(value[0]) or type(value[0]).__name__}s" if value else "")
+    name = _type_name(value)
+    if name is None:
+        return type(value).__name__
+    return ("an " if name[0] in "aeiou" else "a ") + name + (" (true or false)" if name == "bool" else "")
 
 
 def type_mismatch(name: str, given: Any, default: Any) -> str:
