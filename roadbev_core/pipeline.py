@@ -169,7 +169,7 @@ class Pipeline:
         self.imu = self._imu_buffer(config)
         self._speed: tuple[int, float] | None = None  # (stamp ns, m/s)
         self._with_preview = self._tracks_fit(config)
-        self.ego = self._ego_motion(config)
+        self.ego = EgoMotion(**self._ego_settings(config))
         self._odometry_seen = False
         # the left camera on base_link: position [3] and R optical -> base_link (None until /tf_static)
         self._camera_mount: tuple[np.ndarray, np.ndarray | None] = (
@@ -223,9 +223,8 @@ class Pipeline:
                 self.imu.max_age_s = self.imu.max_gap_s = config.imu.max_age_s
                 self.imu.horizon_s = config.imu.buffer_s
                 self.imu.imu_to_camera_rpy_deg = config.imu.imu_to_camera_rpy_deg
-            m = config.map
-            self.ego.max_age_s, self.ego.max_speed_mps = m.odom_max_age_s, m.odom_max_speed_mps
-            self.ego.max_yaw_rate, self.ego.reanchor_samples = m.odom_max_yaw_rate, m.odom_reanchor_samples
+            for name, value in self._ego_settings(config).items():
+                setattr(self.ego, name, value)
             if not self._mount_from_tf:
                 self._camera_mount = (np.array(config.vehicle.camera_position_m, np.float64), None)
             if (config.map_settings(), config.vehicle) != (old.map_settings(), old.vehicle):
@@ -300,10 +299,11 @@ class Pipeline:
             self._speed = (int(stamp_ns), float(speed_mps))
 
     @staticmethod
-    def _ego_motion(config: RoadbevConfig) -> EgoMotion:
+    def _ego_settings(config: RoadbevConfig) -> dict[str, Any]:
+        """The :class:`EgoMotion` fields the config sets (at start and on a parameter change)."""
         m = config.map
-        return EgoMotion(max_age_s=m.odom_max_age_s, max_speed_mps=m.odom_max_speed_mps,
-                         max_yaw_rate=m.odom_max_yaw_rate, reanchor_samples=m.odom_reanchor_samples)
+        return {"max_age_s": m.odom_max_age_s, "max_speed_mps": m.odom_max_speed_mps,
+                "max_yaw_rate": m.odom_max_yaw_rate, "reanchor_samples": m.odom_reanchor_samples}
 
     def add_odometry(self, pose: PlanarPose) -> bool:
         """One odometry sample (``base_link`` in ``odom``, planar).
