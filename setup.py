@@ -42,12 +42,14 @@ setup(
     description="RoadBEV road surface elevation maps from stereo cameras and an IMU, for ROS 2",
     license="MIT",
     python_requires=">=3.10",
-    packages=find_packages(include=["roadbev_core*", "msg_bridge*", "roadbev_ros*"]),
+    packages=find_packages(include=["roadbev_core*", "msg_bridge*", "roadbev_ros*", "roadbev_lab*", "roadbev_cli*"]),
     # py.typed (PEP 561): the packages' annotations are their public types
     package_data={
         "roadbev_core": ["data/*", "py.typed"],
         "msg_bridge": ["py.typed"],
-        "roadbev_ros": ["data/*", "py.typed"],
+        "roadbev_ros": ["py.typed"],
+        "roadbev_lab": ["py.typed"],
+        "roadbev_cli": ["py.typed"],
     },
     data_files=_data_files(),
     install_requires=["numpy", "torch", "opencv-python-headless", "mcap", "rosbags", "pyyaml"],
@@ -59,7 +61,7 @@ setup(
     zip_safe=False,
     entry_points={
         "console_scripts": [
-            "roadbev = roadbev_ros.cli:main",
+            "roadbev = roadbev_cli.cli:main",
             "roadbev_node = roadbev_ros.node:main",
             "roadbev_preview_controller = roadbev_ros.preview_controller:main",
             "roadbev_hazard_monitor = roadbev_ros.hazard_monitor:main",

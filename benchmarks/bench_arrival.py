@@ -1,6 +1,6 @@
 """Preview at arrival of node configurations on drives where the car rides on its road, with an error budget.
 
-For every speed, camera rate and seed one :class:`roadbev_core.synth.RidingDrive` (the full
+For every speed, camera rate and seed one :class:`roadbev_lab.synth.RidingDrive` (the full
 960x528 rig, a random road of the test-scene distribution plus speed bumps and potholes, a
 feature every 3 m, the body on its suspension, S-curves, the ``real-road`` look) is rendered once
 (its frames kept in ``--frame-cache``). Each **candidate** (``--candidates``, a configuration of
@@ -10,12 +10,12 @@ drifting odometry and ``/tf_static`` mount), on the frames the node's schedule l
 preview used from when it is received:
 
 * ``<name>``: its fused-map previews (contact-plane reference, the stream the node publishes);
-  its map is scored against the true road too (:func:`roadbev_core.arrival.map_accuracy`,
+  its map is scored against the true road too (:func:`roadbev_lab.evaluation.arrival.map_accuracy`,
   against the road under the car);
 * ``<name>:per_frame``: the same frames through the per-frame pipeline (``--no-map``);
 * with ``--budget`` one row per stage of the error budget (``<name>:true_answered``, ...).
 
-Every row is scored at the front wheels' arrival (:func:`roadbev_core.arrival.preview_at_arrival`,
+Every row is scored at the front wheels' arrival (:func:`roadbev_lab.evaluation.arrival.preview_at_arrival`,
 against the true counterpart of the reference each message declares, and against the true contact
 plane). The per-frame grid metrics of each candidate's estimates on the drive frames are kept too.
 
@@ -52,20 +52,20 @@ from benchmarks.preview_budget import (
     candidates_from_node,
     make_backend,
 )
-from roadbev_core.arrival import TimedPreview, map_accuracy, preview_at_arrival
 from roadbev_core.fusion import MapWindow
-from roadbev_core.metrics import MetricAccumulator
-from roadbev_core.ride import RideSettings
+from roadbev_lab.evaluation.arrival import TimedPreview, map_accuracy, preview_at_arrival
+from roadbev_lab.evaluation.metrics import MetricAccumulator
+from roadbev_lab.ride import RideSettings
 
 SEED_BASE = 310_000  # disjoint from training (< 1e5), test (1e5+), tuning (2e5+) and the map's tuning drive (300001)
 FEATURES = ("speed_bump", "pothole")  # added to each drive's random features: the feature points a controller needs
 
 
 def make_drive(speed: float, rate: float, duration: float, seed: int) -> Any:
-    """The benchmark's drive (a :class:`roadbev_core.synth.RidingDrive`, not yet rendered): a
+    """The benchmark's drive (a :class:`roadbev_lab.synth.RidingDrive`, not yet rendered): a
     random road of the test-scene distribution plus FEATURES, a feature every 3 m."""
-    from roadbev_core.synth import DriveConfig, RidingConfig, RidingDrive
-    from roadbev_core.synth.drive import random_road
+    from roadbev_lab.synth import DriveConfig, RidingConfig, RidingDrive
+    from roadbev_lab.synth.drive import random_road
 
     road = random_road(np.random.default_rng(seed))  # class, surface, slopes, noise as the test scenes
     road = replace(road, features=tuple(dict.fromkeys((*FEATURES, *road.features))), feature_spacing_m=3.0)
@@ -91,9 +91,9 @@ class DriveTruth(NamedTuple):
 
 
 def drive_truth(drive: Any, lead: float) -> DriveTruth:
-    """The truth and odometry of a :class:`roadbev_core.synth.RidingDrive`."""
-    from roadbev_core.arrival import ArrivalSettings, Trajectory
-    from roadbev_core.synth.riding import planar_odometry
+    """The truth and odometry of a :class:`roadbev_lab.synth.RidingDrive`."""
+    from roadbev_lab.evaluation.arrival import ArrivalSettings, Trajectory
+    from roadbev_lab.synth.riding import planar_odometry
 
     gt = drive.ground_truth_poses()
     grid = drive.config.grid
@@ -104,11 +104,11 @@ def drive_truth(drive: Any, lead: float) -> DriveTruth:
 
 def evaluate_on_drive(drive: Any, samples: list[Any], backend: str, fused: bool, odometry: list[Any]) -> Any:
     """``backend`` through the pipeline over a drive's rendered samples, map on or off, as
-    ``roadbev eval --map`` / ``--no-map`` run it (an :class:`~roadbev_core.evaluation.EvalResult`
+    ``roadbev eval --map`` / ``--no-map`` run it (an :class:`~roadbev_lab.evaluation.frames.EvalResult`
     with the outputs kept)."""
     from roadbev_core.config import RoadbevConfig
-    from roadbev_core.evaluation import evaluate
     from roadbev_core.pipeline import Pipeline
+    from roadbev_lab.evaluation.frames import evaluate
 
     grid = drive.config.grid
     config = RoadbevConfig.from_params({**grid.to_dict(), "backend": backend, "map.enabled": fused})
@@ -205,7 +205,7 @@ def summarise(results: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
 def plot(table: Sequence[dict[str, Any]], candidates: Sequence[str], path: Path) -> None:
     """Error at arrival, against the true contact plane, and coverage against speed: one colour per
     candidate (fused map solid, per frame dotted), circles 10 Hz / squares 5 Hz."""
-    from roadbev_core.figures import new_figure
+    from roadbev_lab.reports.figures import new_figure
 
     fig, axes = new_figure(1, 3, figsize=(14, 4.2), dpi=100)
     rates = sorted({t["rate_hz"] for t in table})

@@ -7,7 +7,7 @@ Run (from the repository root)::
 The held-out drives are :mod:`benchmarks.training_drives` at seeds
 :data:`~benchmarks.training_drives.VALIDATION_SEED_BASE` + i (10 drives: 5, 10, 15, 20 and 25 m/s
 twice; 12 frames each; rendered once into ``--drives`` and read back), never trained on and never
-used by another benchmark. Every frame goes through :func:`roadbev_core.evaluation.evaluate` (the
+used by another benchmark. Every frame goes through :func:`roadbev_lab.evaluation.frames.evaluate` (the
 registry's backend with its calibrated sigma, the attitude from the bag's IMU as the node reads it),
 so each figure is the Table I metric: per drive, and over all drive frames (cell-weighted), next to
 the 24 Table I frames (seeds 100000-100023). Writes ``benchmarks/results/drive_frames.json``.
@@ -36,11 +36,11 @@ def _scores(result: Any) -> dict[str, float]:
 
 
 def run(checkpoints: list[Path], kind: str, drives: Path) -> dict[str, Any]:
-    from msg_bridge.evalbag import bag_frames
     from roadbev_core.backends import create
     from roadbev_core.config import GridSpec
-    from roadbev_core.datasets import LabelledFrames
-    from roadbev_core.evaluation import evaluate
+    from roadbev_lab.evaluation.evalbag import bag_frames
+    from roadbev_lab.evaluation.frames import evaluate
+    from roadbev_lab.training.datasets import LabelledFrames
 
     drives.mkdir(parents=True, exist_ok=True)
     bags = [write_drive(drives, i, FRAMES, SPACING_M, VALIDATION_SEED_BASE) for i in range(DRIVES)]

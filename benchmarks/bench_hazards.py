@@ -1,7 +1,7 @@
 """Road hazards: what the detector finds on a perfect map, and what the tracker reports from the
 fused map of rendered drives, how early.
 
-**True road maps** (default): for every seed, a :class:`roadbev_core.synth.RidingDrive` over a
+**True road maps** (default): for every seed, a :class:`roadbev_lab.synth.RidingDrive` over a
 class-B road with speed bumps, humps and potholes every ~8 m, and three smooth roads without
 features (ISO 8608 A, B, C), 200 m each (10 m/s, 20 s); :func:`roadbev_core.hazards.detect_hazards`
 runs on the drive's true road map cut to the corridor a fused map covers (the path's lateral span
@@ -52,7 +52,7 @@ ROADS: dict[str, tuple[str, tuple[str, ...]]] = {
 def run_drive(kind: str, seed: int, duration: float, speed: float) -> dict[str, Any]:
     """One drive's detections against its features."""
     from roadbev_core.hazards import band, detect_hazards
-    from roadbev_core.synth import REAL_ROAD_MIDDLE, DriveConfig, RidingConfig, RidingDrive, RoadConfig
+    from roadbev_lab.synth import REAL_ROAD_MIDDLE, DriveConfig, RidingConfig, RidingDrive, RoadConfig
 
     road_class, features = ROADS[kind]
     road = REAL_ROAD_MIDDLE.apply(RoadConfig(road_class=road_class, features=features, feature_spacing_m=8.0))
@@ -120,12 +120,12 @@ def run_map_drive(speed: float, rate: float, duration: float, seed: int, spacing
     """Render one drive, build its fused map with ``backend``, track hazards on every window,
     score the reports against the drive's features."""
     from roadbev_core.config import RoadbevConfig
-    from roadbev_core.evaluation import evaluate
     from roadbev_core.geometry import quaternion_to_rotation
     from roadbev_core.hazard_tracking import HazardTracker, TrackerSettings
     from roadbev_core.pipeline import Pipeline
-    from roadbev_core.synth import REAL_ROAD_MIDDLE, DriveConfig, RidingConfig, RidingDrive, RoadConfig
-    from roadbev_core.synth.riding import planar_odometry
+    from roadbev_lab.evaluation.frames import evaluate
+    from roadbev_lab.synth import REAL_ROAD_MIDDLE, DriveConfig, RidingConfig, RidingDrive, RoadConfig
+    from roadbev_lab.synth.riding import planar_odometry
 
     features_on = ("speed_bump", "hump", "pothole") if features else ()
     road = REAL_ROAD_MIDDLE.apply(RoadConfig(road_class="B", features=features_on, feature_spacing_m=spacing))

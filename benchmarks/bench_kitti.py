@@ -4,14 +4,14 @@ The frames (``../shared/realdata/kitti``, SOURCES.md there) are a *test set*: no
 on them. For each frame this script does what a user with a LiDAR would do:
 
 1. fit the camera's roll, pitch and height over the road robustly on the ground-truth points
-   under the window (``roadbev_core.kitti.fit_road_pose``): ``base_height`` and the attitude the
+   under the window (``roadbev_lab.data.kitti.fit_road_pose``): ``base_height`` and the attitude the
    IMU message of the bag carries (these frames come without an IMU; the fitted road plane is the
    reference, so the road is level by construction);
 2. write a recording (stereo pair, CameraInfos, IMU, the ground-truth points as a PointCloud2 —
    the Velodyne scan with its ``/tf_static``, or the disparity map's points in the left optical
-   frame) and run ``roadbev label`` on it (``msg_bridge.labelbag.label_bag``, the same road-surface
+   frame) and run ``roadbev label`` on it (``roadbev_lab.data.labelbag.label_bag``, the same road-surface
    test and per-cell mean as for any drive);
-3. run every backend through ``roadbev_core.evaluation.evaluate`` on the labelled bag, and score
+3. run every backend through ``roadbev_lab.evaluation.frames.evaluate`` on the labelled bag, and score
    the flat prior (elevation 0 everywhere: the fitted plane) on the same cells.
 
 Window: x 6.5-18.5 m, y -2..2 m, 0.1 m cells (KITTI cameras look horizontally from ~1.65 m, so
@@ -39,7 +39,7 @@ import torch
 
 from benchmarks.common import RESULTS, machine_info, write_json
 from roadbev_core.config import GridSpec
-from roadbev_core.kitti import KittiFrame, RoadPose, fit_road_pose, load_frames
+from roadbev_lab.data.kitti import KittiFrame, RoadPose, fit_road_pose, load_frames
 
 KITTI = Path(__file__).resolve().parents[1].parent / "shared" / "realdata" / "kitti"
 WINDOW = GridSpec(x_min=6.5, x_max=18.5, y_min=-2.0, y_max=2.0, resolution=0.1, base_height=1.65)
@@ -61,11 +61,11 @@ def frame_grid(frame: KittiFrame) -> tuple[GridSpec, RoadPose]:
 
 def labelled_bag(frame: KittiFrame, workdir: Path) -> tuple[Path, GridSpec, RoadPose, dict[str, Any]]:
     """Recording of one frame -> ``label_bag`` -> the evaluation bag, its grid and the fit."""
-    from msg_bridge.labelbag import RecordedFrame, label_bag, write_recording
     from msg_bridge.tf import StaticTransform
     from roadbev_core.attitude import quaternion_from_rotation
     from roadbev_core.geometry import rotation_from_rpy
-    from roadbev_core.lidar_labels import LabelConfig
+    from roadbev_lab.data.labelbag import RecordedFrame, label_bag, write_recording
+    from roadbev_lab.data.lidar_labels import LabelConfig
 
     grid, pose = frame_grid(frame)
     q = quaternion_from_rotation(rotation_from_rpy(pose.attitude.roll, pose.attitude.pitch, 0.0))
@@ -119,12 +119,12 @@ def run_backend(name: str, bag_path: Path, row_offset_px: float = 0.0) -> dict[s
 
     Args:
         row_offset_px: the right image moved down by this many pixels first (a rectification
-            residual, :func:`roadbev_core.synth.render.shift_rows`; 0 = the frame as recorded).
+            residual, :func:`roadbev_lab.synth.render.shift_rows`; 0 = the frame as recorded).
     """
-    from msg_bridge.evalbag import read_eval_bag
     from roadbev_core.backends import BackendError, create
-    from roadbev_core.evaluation import evaluate
-    from roadbev_core.synth.render import shift_rows
+    from roadbev_lab.evaluation.evalbag import read_eval_bag
+    from roadbev_lab.evaluation.frames import evaluate
+    from roadbev_lab.synth.render import shift_rows
 
     bag = read_eval_bag(bag_path)
     try:
@@ -183,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
         for frame in load_frames(KITTI):
             t0 = time.perf_counter()
             bag, grid, pose, info = labelled_bag(frame, Path(tmp))
-            from msg_bridge.evalbag import read_eval_bag
+            from roadbev_lab.evaluation.evalbag import read_eval_bag
 
             truth = next(iter(read_eval_bag(bag))).truth
             assert truth is not None  # the bag was just labelled

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from roadbev_core.config import GridSpec
-from roadbev_core.evaluation import to_json
 from roadbev_core.labels import elevation_map
+from roadbev_lab.evaluation.frames import to_json
 
 RESULTS = Path(__file__).resolve().parent / "results"
 

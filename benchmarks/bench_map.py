@@ -1,6 +1,6 @@
 """Cost of the map stage per frame (fusion, contact plane, preview, window), without a backend.
 
-A :class:`roadbev_core.synth.RidingDrive` gives the true road in ``odom``, the true poses and the
+A :class:`roadbev_lab.synth.RidingDrive` gives the true road in ``odom``, the true poses and the
 drive's own odometry (no image is rendered); each frame's "estimate" is the true road in that
 frame's road frame (below the true camera) plus 3 mm of white noise, with sigma 5 mm, handed to
 the pipeline by a stub backend, so only the map stage is timed (``PipelineOutput.timings_ms["map"]``
@@ -28,13 +28,13 @@ from benchmarks.common import RESULTS, ReplayBackend, machine_info, write_json
 
 
 def main(argv: list[str] | None = None) -> int:
-    from roadbev_core.arrival import Trajectory
     from roadbev_core.config import RoadbevConfig
     from roadbev_core.frame import Estimate, Frame
     from roadbev_core.geometry import R_BODY_FROM_OPTICAL, attitude_from_rotation
     from roadbev_core.pipeline import Pipeline
-    from roadbev_core.synth import DriveConfig, RidingConfig, RidingDrive
-    from roadbev_core.synth.riding import planar_odometry
+    from roadbev_lab.evaluation.arrival import Trajectory
+    from roadbev_lab.synth import DriveConfig, RidingConfig, RidingDrive
+    from roadbev_lab.synth.riding import planar_odometry
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--frames", type=int, default=60)

@@ -2,7 +2,7 @@
 
 The test set is the scenes of seeds 100000 .. 100000 + N - 1 (disjoint from the training seeds,
 which stay below 100000), rendered once and cached under ``--cache``. Each backend runs through
-:func:`roadbev_core.evaluation.evaluate`, as ``roadbev eval`` does.
+:func:`roadbev_lab.evaluation.frames.evaluate`, as ``roadbev eval`` does.
 
 Besides the paper's metrics it reports the abs. error left after removing, per frame, the
 median of the error (an elevation offset) or its least-squares plane (offset, grade and cross
@@ -29,9 +29,9 @@ from benchmarks.common import add_appearance_argument
 from roadbev_core.backends import create
 from roadbev_core.backends.learned import LearnedBackend
 from roadbev_core.config import GridSpec
-from roadbev_core.datasets import TEST_SEED_START, SyntheticSet, as_samples
-from roadbev_core.evaluation import evaluate, to_json
 from roadbev_core.frame import Frame
+from roadbev_lab.evaluation.frames import evaluate, to_json
+from roadbev_lab.training.datasets import TEST_SEED_START, SyntheticSet, as_samples
 
 RESULTS = Path(__file__).resolve().parent / "results"
 

@@ -18,14 +18,14 @@ from typing import Any
 import numpy as np
 
 from msg_bridge import RclpyFactory, bag_factory
-from msg_bridge.evalbag import read_eval_bag
 from msg_bridge.grid_map import elevation_grid_map, grid_map_to_arrays
 from msg_bridge.image import array_to_compressed, array_to_image, compressed_to_rgb, image_to_rgb
 from msg_bridge.point_cloud import elevation_point_cloud
 from msg_bridge.preview import road_preview_message
 from roadbev_core.config import GridSpec
-from roadbev_core.evaluation import to_json
 from roadbev_core.preview import wheel_track_profiles
+from roadbev_lab.evaluation.evalbag import read_eval_bag
+from roadbev_lab.evaluation.frames import to_json
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"

@@ -54,10 +54,10 @@ def drive_bag(frames: int, scale: float, seed: int = 7, *, riding: bool = False,
               speed: float = 10.0) -> Path:
     """A synthetic drive as an evaluation bag (cached by its arguments); ``riding``: a drive bag
     where the car rides on its road, with ``/odom`` and ``/tf_static`` (the node fuses the map)."""
-    from msg_bridge.drivebag import write_drive_bag
-    from msg_bridge.evalbag import write_eval_bag
     from roadbev_core.config import StereoCamera
-    from roadbev_core.synth import REAL_ROAD_MIDDLE, DriveConfig, RidingConfig, RidingDrive, RoadConfig, SyntheticDrive
+    from roadbev_lab.evaluation.drivebag import write_drive_bag
+    from roadbev_lab.evaluation.evalbag import write_eval_bag
+    from roadbev_lab.synth import REAL_ROAD_MIDDLE, DriveConfig, RidingConfig, RidingDrive, RoadConfig, SyntheticDrive
 
     CACHE.mkdir(exist_ok=True)
     kind = f"_drive_{rate:g}hz_{speed:g}mps" if riding else ""
@@ -97,7 +97,7 @@ def run_one(
     bag: Path, backend: str, mode: str, work: Path, node_params: dict[str, Any] | None = None
 ) -> dict[str, Any]:
     """One backend (``NAME[:OPTION=VALUE,...]``) in one mode: throughput, latency, node figures, accuracy."""
-    from roadbev_ros.online_eval import evaluate_online
+    from roadbev_lab.evaluation.online import evaluate_online
 
     rate = 1.0 if mode == "5hz" else None
     name, options = backend_spec(backend)

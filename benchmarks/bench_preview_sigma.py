@@ -1,13 +1,13 @@
 """Is the preview's sigma honest where it matters: behind speed bumps, at the wheels' arrival?
 
 The uncertainty issue's last target: *on the demo drive, no preview sample behind a bump is off by
-more than 2 cm while its sigma is below 1 cm*. The demo's drive (:func:`roadbev_ros.demo_drive.
+more than 2 cm while its sigma is below 1 cm*. The demo's drive (:func:`roadbev_lab.demo.drive.
 drive_config`, seed 330000: 10 m/s, camera at 10 Hz, ISO class C with a speed bump and a pothole
 every ~5 m) is rendered once; each backend runs through the pipeline with the map off (per-frame
 previews, ``roadbev_road``) and on (contact-plane previews from the fused map), as ``roadbev eval
 --no-map`` / ``--map`` do. The samples scored are the ones a controller acts on: at every 3 cm of
 each front wheel's path, the latest message stamped at least the lead time (0.1 s) before the
-wheel gets there (:func:`roadbev_core.arrival.arrival_points`), with the sigma that same message
+wheel gets there (:func:`roadbev_lab.evaluation.arrival.arrival_points`), with the sigma that same message
 gave there. Errors are against the true counterpart of the reference each message declares.
 
 *Behind a bump* is the strip from a speed bump's (or hump's) centre to 2 m past it along the road
@@ -66,9 +66,9 @@ def score_points(error: np.ndarray, sigma: np.ndarray, where: np.ndarray) -> dic
 
 def run(backends: list[str], lead: float) -> dict[str, Any]:
     """Render the demo drive and score every backend with the map off and on."""
-    from roadbev_core.arrival import arrival_points, per_frame_previews
-    from roadbev_core.synth import RidingDrive
-    from roadbev_ros.demo_drive import DRIVE_SEED, drive_config
+    from roadbev_lab.demo.drive import DRIVE_SEED, drive_config
+    from roadbev_lab.evaluation.arrival import arrival_points, per_frame_previews
+    from roadbev_lab.synth import RidingDrive
 
     drive = RidingDrive(drive_config())
     start = time.perf_counter()

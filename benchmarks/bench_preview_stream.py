@@ -36,7 +36,7 @@ from benchmarks.bench_node import drive_bag
 from benchmarks.common import RESULTS, machine_info, write_json
 from msg_bridge.bag import read_messages
 from roadbev_core.config import DEFAULT_BACKEND
-from roadbev_ros.online_eval import PREVIEW_TOPIC, stop_process
+from roadbev_lab.evaluation.online import PREVIEW_TOPIC, stop_process
 
 MAP_TOPIC = "/roadbev/map"
 FORCE_TOPIC = "/roadbev/suspension/force"
@@ -55,7 +55,7 @@ def _wait_for(path: Path, text: str, timeout_s: float) -> None:
 
 def run_chain(bag: Path, work: Path, backend: str, rate: float) -> Path:
     """Replay ``bag`` into the node, the reference controller and a recorder; the recording."""
-    roadbev = [sys.executable, "-m", "roadbev_ros.cli"]
+    roadbev = [sys.executable, "-m", "roadbev_cli.cli"]
     recorded = work / "outputs.mcap"
     env = {**os.environ, "ROS_DOMAIN_ID": str(random.SystemRandom().randint(1, 100)),
            "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}

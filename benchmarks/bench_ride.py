@@ -1,6 +1,6 @@
 """What the preview is worth: a preview suspension controller riding drives over bumps, potholes and rough road.
 
-For every road kind, speed and seed a :class:`roadbev_core.synth.RidingDrive` is built (the car
+For every road kind, speed and seed a :class:`roadbev_lab.synth.RidingDrive` is built (the car
 riding its road, camera at 10 Hz; the 5 Hz camera is every other frame of the same drive) and a
 quarter car with the preview LQR of Bender (1968) / Tomizuka (1976)
 (:mod:`roadbev_core.ride`) rides the true road under each front wheel, its force computed from
@@ -27,7 +27,7 @@ Each preview row's ``share`` is the share of the ceiling's gain over the no-prev
 in Wk-weighted RMS body acceleration it delivers (:func:`roadbev_core.ride.gain_share`). Another
 preview source is one more entry in :data:`PREVIEW_MAKERS`: a function of (drive, the rendered
 frames, the frame step of the camera rate, the ride settings) returning a list of
-:class:`roadbev_core.arrival.TimedPreview`.
+:class:`roadbev_lab.evaluation.arrival.TimedPreview`.
 
 Run: ``.venv/bin/python -m benchmarks.bench_ride [--duration 20] [--seeds 3] [--speeds 5 10 20]
 [--rates 5 10] [--render-seeds 1] [--render-duration 6] [--candidates stereo_int8=stereo:...]
@@ -76,7 +76,7 @@ def road_config(kind: str, rng: np.random.Generator) -> Any:
     class B road, or a rough class D road without features; surface, slopes and noise drawn."""
     from dataclasses import replace
 
-    from roadbev_core.synth import REAL_ROAD_MIDDLE, RoadConfig
+    from roadbev_lab.synth import REAL_ROAD_MIDDLE, RoadConfig
 
     if kind == "bumps":
         road = RoadConfig(road_class="A", features=("speed_bump", "hump"), feature_spacing_m=12.0)
@@ -135,7 +135,7 @@ def candidate_makers(candidates: Sequence[Candidate], budget: Sequence[str] | No
 def scores(rows: dict[str, dict[str, Any]]) -> dict[str, float]:
     """Share of the ceiling's Wk gain over ``no_preview`` per preview row (needs ``no_preview`` and
     ``true_road``; the other rows but ``passive``)."""
-    from roadbev_core.ride import gain_share
+    from roadbev_lab.ride import gain_share
 
     none, ceiling = rows["no_preview"]["mean"]["wk_rms_mps2"], rows["true_road"]["mean"]["wk_rms_mps2"]
     return {name: gain_share(none, ceiling, row["mean"]["wk_rms_mps2"]) for name, row in rows.items()
@@ -146,8 +146,8 @@ def run_cell(kind: str, speed: float, seed: int, duration: float, rates: Sequenc
              makers: dict[str, PreviewMaker], frame_cache: Any = None, preview_gain: bool = True) -> dict[str, Any]:
     """One drive: every source ridden at every camera rate (rendered only when ``makers``; its
     frames from ``frame_cache``, a :class:`benchmarks.preview_budget.DriveFrames`, when given)."""
-    from roadbev_core.arrival import ArrivalSettings, Trajectory, preview_at_arrival
-    from roadbev_core.ride import (
+    from roadbev_lab.evaluation.arrival import ArrivalSettings, Trajectory, preview_at_arrival
+    from roadbev_lab.ride import (
         RideSettings,
         carried_plane_slopes,
         perfect_map_previews,
@@ -155,7 +155,7 @@ def run_cell(kind: str, speed: float, seed: int, duration: float, rates: Sequenc
         ride,
         true_plane_slopes,
     )
-    from roadbev_core.synth import DriveConfig, RidingConfig, RidingDrive
+    from roadbev_lab.synth import DriveConfig, RidingConfig, RidingDrive
 
     rng = np.random.default_rng(seed)
     frames = max(2, int(round(duration * CAMERA_RATE_HZ)))
@@ -280,7 +280,7 @@ def _row_order(name: str) -> tuple[int, str]:
 def plot(table: Sequence[dict[str, Any]], path: Path) -> None:
     """Wk RMS (truth-only drives) and the share of the ceiling's gain per preview row against speed:
     a colour per row, solid 10 Hz / dashed 5 Hz, circles truth-only / squares rendered drives."""
-    from roadbev_core.figures import new_figure
+    from roadbev_lab.reports.figures import new_figure
 
     fig, axes = new_figure(1, 2, figsize=(12, 4.4), dpi=100)
     names = sorted({r for t in table for r in t["rows"]}, key=_row_order)

@@ -10,7 +10,7 @@ Every (model, runtime) pair is created once (``stereo`` / ``mono`` with ``runtim
 ``onnxruntime``, ``openvino``; with ``--int8 KIND=PATH`` also the int8 graph of ``roadbev export
 --int8`` in each ONNX engine, rows ``<engine> int8``) and all of them run on frame i before any runs on frame i + 1, in
 an order that rotates from frame to frame, so that a load change on a shared machine hits every
-runtime alike. Accuracy is scored by :func:`roadbev_core.evaluation.evaluate` (the Table I
+runtime alike. Accuracy is scored by :func:`roadbev_lab.evaluation.frames.evaluate` (the Table I
 metrics of ``benchmarks.run_all``) on the estimates each runtime produced; FPS is the mean of
 ``estimate()`` over the frames after the first (the warm-up, as in ``evaluate``). The JSON also
 gives each runtime's mean / max |elevation - torch's| and the issue's targets. Writes
@@ -32,8 +32,8 @@ from benchmarks.common import EVAL_SEED_BASE, RESULTS, ReplayBackend, eval_sampl
 from roadbev_core.backends import Backend, BackendError, create
 from roadbev_core.config import GridSpec
 from roadbev_core.deploy import RUNTIMES
-from roadbev_core.evaluation import evaluate
 from roadbev_core.frame import Estimate
+from roadbev_lab.evaluation.frames import evaluate
 
 TARGET_SPEEDUP = 1.5  # the best CPU runtime against torch, stereo
 TARGET_ACCURACY_CM = 0.01  # |abs. err. - torch's abs. err.| on the Table I frames

@@ -41,8 +41,8 @@ def main() -> None:
     args = parser.parse_args()
 
     from roadbev_core.config import StereoCamera
-    from roadbev_core.synth import REAL_ROAD_MIDDLE, DriveConfig, RoadConfig, SyntheticDrive, make_sample
-    from roadbev_core.synth.render import render_stereo
+    from roadbev_lab.synth import REAL_ROAD_MIDDLE, DriveConfig, RoadConfig, SyntheticDrive, make_sample
+    from roadbev_lab.synth.render import render_stereo
 
     info = machine_info()
     camera = StereoCamera.rsrd_half()

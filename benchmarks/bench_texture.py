@@ -3,7 +3,7 @@
 Real: the three KITTI frames (a test set: nothing is tuned on them), the road cells of their
 labels (``benchmarks.bench_kitti.labelled_bag``: ``roadbev label`` on their ground truth) over the
 window x 6.5-18.5 m, y +-2 m, 0.1 m cells. Synthetic: scenes of the project's generator
-(``roadbev_core.synth``, its default random roads, seeds 300,000+) rendered with the KITTI rig
+(``roadbev_lab.synth``, its default random roads, seeds 300,000+) rendered with the KITTI rig
 (fx 721.5377, B 0.5327 m, 1242 x 375) from 1.65 m with roll = pitch = 0, over the same window.
 
 Per road cell the left image is sampled at the cell's centre (at its label height):
@@ -17,7 +17,7 @@ Per road cell the left image is sampled at the cell's centre (at its label heigh
 
 Both are summarised per distance band (6.5-9.5, 9.5-12.5, 12.5-15.5, 15.5-18.5 m) by their
 quartiles, pooled over the frames. The matchers' cell coverage (``bm``, ``sgbm``,
-``bev_sweep``: labelled cells that got an estimate, from ``roadbev_core.evaluation``) is counted
+``bev_sweep``: labelled cells that got an estimate, from ``roadbev_lab.evaluation.frames``) is counted
 per band too; the real frames' labels crowd the near bands (36 / 30 / 19 / 15 % of them) where the
 synthetic ones fill the window evenly, so the synthetic coverage is compared at the real frames'
 label mix (:func:`coverage_at_mix`): each band's coverage weighted by the real label count.
@@ -53,7 +53,7 @@ from benchmarks.bench_kitti import KITTI, WINDOW, labelled_bag
 from benchmarks.common import RESULTS, machine_info, write_json
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.geometry import Attitude, project_points, road_to_camera
-from roadbev_core.synth.appearance import REAL_ROAD, Appearance
+from roadbev_lab.synth.appearance import REAL_ROAD, Appearance
 
 KITTI_RIG = StereoCamera(721.5377, 721.5377, 609.5593, 172.854, 0.5327, 1242, 375)
 CAMERA_HEIGHT_M = 1.65
@@ -77,7 +77,7 @@ class Setting(NamedTuple):
 
 
 def range_setting(name: str, appearance: Appearance) -> Setting:
-    """The setting of one point of an appearance range (``roadbev_core.synth.appearance``: its
+    """The setting of one point of an appearance range (``roadbev_lab.synth.appearance``: its
     fields are :class:`Setting`'s of the same names)."""
     return Setting(name, **asdict(appearance))
 
@@ -269,7 +269,7 @@ def _coverage(
     """A matcher's coverage (%) of the samples' labelled cells (``truths``, one [n_rows, n_cols] per
     sample), and its per-band counts."""
     from roadbev_core.backends import create
-    from roadbev_core.evaluation import evaluate
+    from roadbev_lab.evaluation.frames import evaluate
 
     result = evaluate(create(name, grid), samples, keep_estimates=True)
     assert result.estimates is not None  # keep_estimates
@@ -330,8 +330,8 @@ class _Pool:
 
 
 def real_statistics(workdir: Path) -> dict[str, Any]:
-    from msg_bridge.evalbag import bag_frames
-    from roadbev_core.kitti import load_frames
+    from roadbev_lab.data.kitti import load_frames
+    from roadbev_lab.evaluation.evalbag import bag_frames
 
     pool = _Pool()
     coverage = _Coverage()
@@ -357,9 +357,9 @@ def real_statistics(workdir: Path) -> dict[str, Any]:
 
 def synthetic_scenes(n: int) -> list[tuple[Any, Any]]:
     """``n`` scenes of the generator's random roads and the KITTI-like camera pose over them."""
-    from roadbev_core.synth.drive import _place_in_grid, _wheel_heights, random_road
-    from roadbev_core.synth.render import LOOK_AHEAD_M, CameraPose
-    from roadbev_core.synth.scene import build_scene
+    from roadbev_lab.synth.drive import _place_in_grid, _wheel_heights, random_road
+    from roadbev_lab.synth.render import LOOK_AHEAD_M, CameraPose
+    from roadbev_lab.synth.scene import build_scene
 
     grid = WINDOW.with_overrides(base_height=CAMERA_HEIGHT_M)
     out = []
@@ -376,8 +376,8 @@ def synthetic_scenes(n: int) -> list[tuple[Any, Any]]:
 
 
 def synthetic_statistics(scenes: list[tuple[Any, Any]], setting: Setting) -> dict[str, Any]:
-    from roadbev_core.synth.drive import LidarConfig, render_sample
-    from roadbev_core.synth.scene import glint_tiles
+    from roadbev_lab.synth.drive import LidarConfig, render_sample
+    from roadbev_lab.synth.scene import glint_tiles
 
     grid = WINDOW.with_overrides(base_height=CAMERA_HEIGHT_M)
     pool = _Pool()

@@ -37,7 +37,7 @@ from roadbev_core.backends import RefinedBackend, create
 from roadbev_core.backends.bev_sweep import BevSweep
 from roadbev_core.box_filter import WindowSize, box_mean
 from roadbev_core.config import GridSpec
-from roadbev_core.evaluation import evaluate
+from roadbev_lab.evaluation.frames import evaluate
 
 RELIEF_BINS_CM = (0.0, 1.0, 2.0, 4.0, 8.0, float("inf"))
 TAIL_CM = 1.5  # a "tail" cell: off by more than this
@@ -151,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tuning", action="store_true", help="the 16 tuning frames instead of the 24 Table I frames")
     parser.add_argument("--frames", type=int, default=None)
     args = parser.parse_args(argv)
-    from roadbev_core.synth import make_sample
+    from roadbev_lab.synth import make_sample
 
     base = TUNING_SEED_BASE if args.tuning else EVAL_SEED_BASE
     frames = args.frames or (16 if args.tuning else 24)

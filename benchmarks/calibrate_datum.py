@@ -36,11 +36,11 @@ from benchmarks.common import RESULTS, machine_info, write_json
 
 def datum_errors(drive: Any, samples: list[Any], backend: str) -> tuple[np.ndarray, np.ndarray]:
     """[K] datum errors (m) and [K] distances driven (m) of one backend on one rendered drive."""
-    from roadbev_core.arrival import Trajectory
     from roadbev_core.config import RoadbevConfig
-    from roadbev_core.evaluation import evaluate
     from roadbev_core.pipeline import Pipeline
-    from roadbev_core.synth.riding import planar_odometry
+    from roadbev_lab.evaluation.arrival import Trajectory
+    from roadbev_lab.evaluation.frames import evaluate
+    from roadbev_lab.synth.riding import planar_odometry
 
     gt = drive.ground_truth_poses()
     truth = Trajectory(gt.stamp_ns, gt.position, gt.orientation_xyzw)

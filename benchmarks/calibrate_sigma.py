@@ -43,8 +43,6 @@ from benchmarks.common import available_backends, machine_info, scene_samples
 from benchmarks.tune_bev_sweep import TUNING_SEED_BASE
 from roadbev_core.backends import create
 from roadbev_core.config import GridSpec
-from roadbev_core.evaluation import json_safe
-from roadbev_core.metrics import sigma_counts, sigma_metrics
 from roadbev_core.uncertainty import (
     CALIBRATION_FILE,
     SigmaFeatures,
@@ -53,6 +51,8 @@ from roadbev_core.uncertainty import (
     fit_sigma_model,
     visible_estimate,
 )
+from roadbev_lab.evaluation.frames import json_safe
+from roadbev_lab.evaluation.metrics import sigma_counts, sigma_metrics
 
 BACKENDS = ("bev_sweep", "bm", "sgbm", "stereo", "mono")
 # SPEED:RATE:SEED of the tuning drives: two speeds, 5 Hz (consecutive frames 2 and 4 m apart)
@@ -147,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-within-2sigma", type=float, default=98.0, help="per cent (default 98)")
     parser.add_argument("--max-sharpness", type=float, default=1.5, help="mean sigma / RMSE at most (default 1.5)")
     parser.add_argument("--scene-cache", default=None, metavar="DIR",
-                        help="keep the rendered scenes here (roadbev_core.datasets.SyntheticSet) for later runs")
+                        help="keep the rendered scenes here (a SyntheticSet cache) for later runs")
     parser.add_argument("--out", default=str(CALIBRATION_FILE), help="calibration table to write")
     args = parser.parse_args(argv)
     wanted = args.backends.split(",")

@@ -19,8 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from roadbev_core.config import GridSpec, StereoCamera
-from roadbev_core.evaluation import to_json
 from roadbev_core.frame import Estimate, Frame
+from roadbev_lab.evaluation.frames import to_json
 
 __all__ = [
     "CACHE",
@@ -40,7 +40,7 @@ EVAL_SEED_BASE = 100_000
 
 class ReplayBackend:
     """A backend that hands back estimates already made, in order (to score them again with
-    :func:`roadbev_core.evaluation.evaluate`, e.g. pooled or interleaved runs)."""
+    :func:`roadbev_lab.evaluation.frames.evaluate`, e.g. pooled or interleaved runs)."""
 
     def __init__(self, name: str, grid: GridSpec, estimates: Iterable[Estimate], needs_stereo: bool) -> None:
         self.name = name
@@ -53,11 +53,11 @@ class ReplayBackend:
 
 
 def add_appearance_argument(parser: argparse.ArgumentParser, frames: str) -> None:
-    """``--appearance NAME``: the range of ``roadbev_core.synth.APPEARANCE_NAMES`` that ``frames``
+    """``--appearance NAME``: the range of ``roadbev_lab.synth.APPEARANCE_NAMES`` that ``frames``
     (the help's subject) draw their appearance from (``real-road``, the default) or ``clean``
     (the generator's own, scene version 1's default). Every function here that takes an
     appearance reads None as the default."""
-    from roadbev_core.synth.appearance import APPEARANCE_NAMES, DEFAULT_APPEARANCE
+    from roadbev_lab.synth.appearance import APPEARANCE_NAMES, DEFAULT_APPEARANCE
 
     parser.add_argument(
         "--appearance", default=DEFAULT_APPEARANCE, choices=APPEARANCE_NAMES,
@@ -76,13 +76,13 @@ def eval_samples(
 ) -> list[Any]:
     """``n_frames`` rendered samples (``DriveSample``), seeds ``EVAL_SEED_BASE + i``.
 
-    Each seed draws its own road (``roadbev_core.synth`` random roads: ISO 8608 class A-E, one to
+    Each seed draws its own road (``roadbev_lab.synth`` random roads: ISO 8608 class A-E, one to
     three features, asphalt or concrete, read noise 0.5-3 DN, gain mismatch up to 8 %, JPEG on
     about 30 % of frames) and camera attitude from the RSRD distribution, and its pavement and
-    camera appearance from ``appearance`` (a name of ``roadbev_core.synth.APPEARANCE_NAMES``;
+    camera appearance from ``appearance`` (a name of ``roadbev_lab.synth.APPEARANCE_NAMES``;
     None: the default range).
     """
-    from roadbev_core.synth import appearance_range, make_sample
+    from roadbev_lab.synth import appearance_range, make_sample
 
     drawn = appearance_range(appearance)
     out = []
@@ -99,19 +99,19 @@ def scene_samples(
     """(frame, truth [n_rows, n_cols]) of the synthetic scenes ``seeds`` on the RSRD rig.
 
     With ``cache`` the scenes are rendered once into that folder
-    (:class:`roadbev_core.datasets.SyntheticSet`) and read back afterwards: the same frames,
+    (:class:`roadbev_lab.training.datasets.SyntheticSet`) and read back afterwards: the same frames,
     without minutes of rendering per benchmark run. ``appearance`` names the range of
-    ``roadbev_core.synth.APPEARANCE_NAMES`` to draw each scene's appearance from (None: the
+    ``roadbev_lab.synth.APPEARANCE_NAMES`` to draw each scene's appearance from (None: the
     default range).
     """
     seeds = list(seeds)
     if cache is None:
-        from roadbev_core.synth import appearance_range, make_sample
+        from roadbev_lab.synth import appearance_range, make_sample
 
         drawn = appearance_range(appearance)
         samples = (make_sample(seed, grid=grid, appearance=drawn) for seed in seeds)
         return [(s.frame, s.truth.elevation) for s in samples]
-    from roadbev_core.datasets import SyntheticSet
+    from roadbev_lab.training.datasets import SyntheticSet
 
     scenes = SyntheticSet(cache, seeds, grid=grid, appearance=appearance)
     return [scenes[i] for i in range(len(scenes))]

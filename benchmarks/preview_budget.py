@@ -21,7 +21,7 @@ shipped (:data:`STAGES`):
 
 Every row is built from one set of estimates per frame (:class:`CachedEstimates`), so rows differ
 only in the stage they replace. Lab code: it drives :class:`roadbev_core.pipeline.Pipeline` as
-``roadbev eval --map`` does, with the truth of a :class:`roadbev_core.synth.RidingDrive`.
+``roadbev eval --map`` does, with the truth of a :class:`roadbev_lab.synth.RidingDrive`.
 """
 
 from __future__ import annotations
@@ -38,21 +38,27 @@ from typing import Any
 import numpy as np
 
 from benchmarks.common import RESULTS
-from roadbev_core.arrival import REFERENCE_CONTACT_PLANE, RoadMap, TimedPreview, Trajectory, per_frame_previews
 from roadbev_core.backends import Backend, create
 from roadbev_core.config import GridSpec, RoadbevConfig
-from roadbev_core.datasets import SCENE_VERSION
-from roadbev_core.evaluation import evaluate
 from roadbev_core.frame import Estimate, Frame
 from roadbev_core.fusion import FrameFusion, FramePlacement, FusedMap, MapSettings, MapWindow
 from roadbev_core.labels import ElevationLabel
 from roadbev_core.pipeline import Pipeline, PipelineOutput
 from roadbev_core.preview import ContactPlane, TrackProfile
-from roadbev_core.ride import RideSettings, true_contact_planes
-from roadbev_core.synth import RidingDrive
-from roadbev_core.synth.drive import DriveSample
-from roadbev_core.synth.riding import DRIVE_VERSION, planar_odometry
 from roadbev_core.vehicle import planar_yaw
+from roadbev_lab.evaluation.arrival import (
+    REFERENCE_CONTACT_PLANE,
+    RoadMap,
+    TimedPreview,
+    Trajectory,
+    per_frame_previews,
+)
+from roadbev_lab.evaluation.frames import evaluate
+from roadbev_lab.ride import RideSettings, true_contact_planes
+from roadbev_lab.synth import RidingDrive
+from roadbev_lab.synth.drive import DriveSample
+from roadbev_lab.synth.riding import DRIVE_VERSION, planar_odometry
+from roadbev_lab.training.datasets import SCENE_VERSION
 
 __all__ = [
     "DEFAULT_CANDIDATES",

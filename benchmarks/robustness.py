@@ -33,11 +33,11 @@ import torch
 from benchmarks.common import EVAL_SEED_BASE, RESULTS, add_appearance_argument, machine_info, write_json
 from roadbev_core.backends import create
 from roadbev_core.config import GridSpec
-from roadbev_core.evaluation import evaluate
 from roadbev_core.frame import Frame
 from roadbev_core.geometry import Attitude
-from roadbev_core.synth.appearance import DEFAULT_APPEARANCE
-from roadbev_core.synth.render import shift_rows
+from roadbev_lab.evaluation.frames import evaluate
+from roadbev_lab.synth.appearance import DEFAULT_APPEARANCE
+from roadbev_lab.synth.render import shift_rows
 
 # perturbation -> levels (the unperturbed level included)
 LEVELS: dict[str, list[float]] = {
@@ -101,11 +101,11 @@ def clean_samples(
 ) -> list[tuple[Frame, np.ndarray]]:
     """Rendered frames for the sweep (a mix of roads with features, low noise, no JPEG).
 
-    Their appearance spans the range ``appearance`` names (``roadbev_core.synth.APPEARANCE_NAMES``;
+    Their appearance spans the range ``appearance`` names (``roadbev_lab.synth.APPEARANCE_NAMES``;
     None: the default range) from its weak to its strong end, evenly in frame order; ``clean``
     leaves them the generator's own Lambertian pavement and a clean camera.
     """
-    from roadbev_core.synth import RoadConfig, appearance_range, make_sample
+    from roadbev_lab.synth import RoadConfig, appearance_range, make_sample
 
     roads = [
         RoadConfig(road_class=c, features=f, noise_sigma=0.5, gain_mismatch=0.0, jpeg_quality=None)
@@ -170,7 +170,7 @@ def run_sweep(
 
 def plot(results: dict[str, Any], names: list[str], path: Path, frames: int) -> None:
     """Abs. error (top) and coverage (bottom) vs each perturbation, one line per backend."""
-    from roadbev_core.figures import new_figure
+    from roadbev_lab.reports.figures import new_figure
 
     kinds = list(results)
     fig, axes = new_figure(2, len(kinds), figsize=(3.3 * len(kinds), 5.6), dpi=110)

@@ -39,10 +39,10 @@ from benchmarks.common import (
 )
 from roadbev_core.backends import create
 from roadbev_core.config import GridSpec
-from roadbev_core.evaluation import common_cell_errors, evaluate, format_table
-from roadbev_core.figures import FigureError, reliability_figure
-from roadbev_core.metrics import N_BANDS
-from roadbev_core.synth.appearance import DEFAULT_APPEARANCE
+from roadbev_lab.evaluation.frames import common_cell_errors, evaluate, format_table
+from roadbev_lab.evaluation.metrics import N_BANDS
+from roadbev_lab.reports.figures import FigureError, reliability_figure
+from roadbev_lab.synth.appearance import DEFAULT_APPEARANCE
 
 DEFAULT_FRAMES = 24
 QUICK_FRAMES = 3
@@ -163,7 +163,7 @@ def common_cell_markdown(comparison: dict[str, Any]) -> str:
 
 def plot_bands(rows: list[dict[str, Any]], grid_x: tuple[float, float], path: Path, title: str) -> None:
     """Abs. error per distance band, one line per backend (the paper's Fig. 9)."""
-    from roadbev_core.figures import new_figure
+    from roadbev_lab.reports.figures import new_figure
 
     x_min, x_max = grid_x
     width = (x_max - x_min) / N_BANDS
@@ -253,7 +253,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default=str(RESULTS), help="results folder")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     parser.add_argument("--scene-cache", default=None, metavar="DIR",
-                        help="keep the rendered frames here for later runs (roadbev_core.datasets.SyntheticSet)")
+                        help="keep the rendered frames here for later runs (a SyntheticSet cache)")
     parser.add_argument(
         "--torch-threads", type=int, default=None, help="torch intra-op threads (default: torch's, = cores)"
     )

@@ -30,7 +30,7 @@ SPEEDS = (5.0, 10.0, 15.0, 20.0, 25.0)
 
 def write_drive(out: Path, index: int, frames: int, spacing: float, seed_base: int = SEED_BASE) -> Path:
     """Render drive ``index`` (seed ``seed_base + index``; cached: an existing bag is kept)."""
-    from msg_bridge.drivebag import write_drive_bag
+    from roadbev_lab.evaluation.drivebag import write_drive_bag
 
     path = out / f"drive_{seed_base + index}.mcap"
     if path.exists():

@@ -19,7 +19,7 @@ import torch
 
 from benchmarks.common import RESULTS, machine_info, write_json
 from roadbev_core.backends import create
-from roadbev_core.evaluation import evaluate
+from roadbev_lab.evaluation.frames import evaluate
 
 TUNING_SEED_BASE = 200_000
 
@@ -76,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.tune_bev_sweep", description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=16, help="tuning frames (default 16)")
     args = parser.parse_args(argv)
-    from roadbev_core.synth import make_sample
+    from roadbev_lab.synth import make_sample
 
     samples = [make_sample(TUNING_SEED_BASE + i) for i in range(args.frames)]
     rows = []

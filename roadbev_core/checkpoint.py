@@ -112,7 +112,7 @@ def training_envelope(payload: dict[str, Any]) -> TrainingEnvelope:
     """The :class:`TrainingEnvelope` of a checkpoint dict.
 
     Checkpoints without an ``envelope`` entry were all trained on the synthetic RSRD
-    half-resolution rig (``StereoCamera.rsrd_half``, ``roadbev_core.synth``) on their own grid.
+    half-resolution rig (``StereoCamera.rsrd_half``, ``roadbev_lab.synth``) on their own grid.
     """
     try:
         if "envelope" in payload:

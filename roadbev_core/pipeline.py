@@ -98,7 +98,7 @@ class PipelineOutput:
         estimate: elevation and 1-sigma uncertainty on the config's grid.
         preview: the wheel-track profiles of the estimate (times of arrival when a speed is known);
             None only for a pipeline around a backend whose grid the tracks do not fit
-            (:func:`roadbev_core.evaluation.pipeline_for`: a validated config always fits).
+            (:func:`roadbev_lab.evaluation.frames.pipeline_for`: a validated config always fits).
         timings_ms: ``estimate``, ``preview`` (and with the map ``map``) wall times (the
             backend's own stages are in ``estimate.timings_ms``).
         map: the fused map's window after this frame (None with the map off).

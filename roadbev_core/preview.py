@@ -48,6 +48,8 @@ __all__ = [
     "TrackProfile",
     "bridge_gaps",
     "check_tracks",
+    "read_profile",
+    "read_profile_with_sigma",
     "wheel_track_profiles",
 ]
 
@@ -339,3 +341,35 @@ def wheel_track_profiles(
         vehicle_speed=None if vehicle_speed is None else float(vehicle_speed),
         reference_distance=float(reference_distance),
     )
+
+
+def read_profile(profiles: PreviewProfiles, track: str, x: np.ndarray) -> np.ndarray:
+    """[N] the profile of ``track`` read at x [N] (see the module docstring; NaN = no value)."""
+    return read_profile_with_sigma(profiles, track, x)[0]
+
+
+def read_profile_with_sigma(profiles: PreviewProfiles, track: str, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """[N] the profile of ``track`` read at x [N] and [N] its 1-sigma, read with the same weights
+    (the elevation's known samples decide them; NaN = no value)."""
+    profile = profiles.track(track)
+    elev = np.asarray(profile.elevation, np.float64)  # [S]
+    sig = np.asarray(profile.uncertainty, np.float64)  # [S]
+    n = elev.size
+    f = (np.asarray(x, np.float64) - profiles.start_distance) / profiles.spacing  # [N] fractional index
+    out, out_sigma = np.full(f.shape, np.nan), np.full(f.shape, np.nan)
+    if n == 0:
+        return out, out_sigma
+    i0 = np.floor(f).astype(np.int64)
+    ok = (i0 >= 0) & (i0 < n - 1)
+    a = np.where(ok, i0, 0)
+    both = ok & np.isfinite(elev[a]) & np.isfinite(elev[np.minimum(a + 1, n - 1)])
+    t = f - i0
+    out[both] = elev[a[both]] * (1 - t[both]) + elev[a[both] + 1] * t[both]
+    out_sigma[both] = sig[a[both]] * (1 - t[both]) + sig[a[both] + 1] * t[both]
+    near = np.rint(f).astype(np.int64)
+    fill = ~both & (near >= 0) & (near < n) & (np.abs(f - near) <= 0.5)
+    near_ok = np.where(fill, near, 0)
+    fill &= np.isfinite(elev[near_ok])
+    out[fill] = elev[near_ok[fill]]
+    out_sigma[fill] = sig[near_ok[fill]]
+    return out, out_sigma

@@ -3,7 +3,7 @@
 ISO 8608 describes a road profile by its one-sided displacement PSD ``Gd(n) = Gd(n0) (n /
 n0)^-2`` (``n0`` = 0.1 cycle/m) and names classes by ``Gd(n0)``: A below 32e-6 m^3, B below
 128e-6, and so on, each class four times the one before (the geometric means are
-:data:`roadbev_core.synth.heightfield.ISO8608_GD0`). A map holds only metres of road ahead, so
+:data:`ISO8608_GD0`). A map holds only metres of road ahead, so
 :func:`profile_roughness` fits the law over the spatial frequencies such a profile resolves
 (``band_cycles_per_m``, default 0.3-2 cycle/m: wavelengths 0.5-3.3 m):
 
@@ -27,11 +27,13 @@ from typing import NamedTuple
 import numpy as np
 
 from roadbev_core.errors import RoadbevError
-from roadbev_core.synth.heightfield import ISO8608_GD0, ISO8608_N0
 
-__all__ = ["ISO8608_CLASSES", "Roughness", "RoughnessError", "RoughnessSettings", "iso8608_class",
-           "profile_roughness"]
+__all__ = ["ISO8608_CLASSES", "ISO8608_GD0", "ISO8608_N0", "Roughness", "RoughnessError", "RoughnessSettings",
+           "iso8608_class", "profile_roughness"]
 
+# ISO 8608 geometric-mean displacement PSD at n0 = 0.1 cycle/m, m^3 (classes A..E).
+ISO8608_GD0: dict[str, float] = {"A": 16e-6, "B": 64e-6, "C": 256e-6, "D": 1024e-6, "E": 4096e-6}
+ISO8608_N0 = 0.1
 # Class -> upper bound of Gd(n0) (m^3): twice the class's geometric mean (the classes are a factor 4 apart);
 # beyond E the standard goes on (F, G, H) with the same factor.
 ISO8608_CLASSES: tuple[tuple[str, float], ...] = tuple(

@@ -56,7 +56,6 @@ from roadbev_core.config import ParamError, RoadbevConfig
 from roadbev_core.errors import RoadbevError
 from roadbev_core.pipeline import BackendFactory, Pipeline
 from roadbev_core.selfcheck import self_check
-from roadbev_ros.commands import node as node_command
 from roadbev_ros.diagnostics import (
     COMPRESSED_SUFFIX,
     Health,
@@ -66,6 +65,7 @@ from roadbev_ros.diagnostics import (
     transport_hint,
 )
 from roadbev_ros.mailbox import Mailbox
+from roadbev_ros.node_args import parser as node_parser
 from roadbev_ros.node_params import (
     ROS_PARAMETERS,
     check_params_files,
@@ -610,7 +610,7 @@ def main(args: Sequence[str] | None = None) -> int:
 
     argv = list(sys.argv if args is None else args)
     if asks_for_help(argv):
-        node_command.parser("roadbev_node").print_help()
+        node_parser("roadbev_node").print_help()
         return 0
     rclpy = None
     try:

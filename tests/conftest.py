@@ -1,18 +1,33 @@
-"""Shared test set-up: deterministic, denormal-free torch; paths to shared data."""
+"""Shared test set-up: deterministic, denormal-free torch; paths to shared data; a private DDS
+domain per test session; both message factories.
+
+Several sessions run ROS tests on this machine at once; a random ``ROS_DOMAIN_ID`` per session
+(set before anything imports rclpy) and localhost-only discovery keep them from hearing each
+other. Processes the tests start inherit both.
+"""
 
 from __future__ import annotations
 
 import os
+import random
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+
+from msg_bridge import MessageFactory, RclpyFactory, bag_factory
+from tests.msg_bridge._msg_bridge_fakes import FakeDrive
 
 REPO = Path(__file__).resolve().parent.parent
 SHARED = REPO.parent / "shared"
 RSRD = SHARED / "rsrd"
 
 os.environ.setdefault("MPLBACKEND", "Agg")
+if "ROADBEV_TEST_DOMAIN_ID" not in os.environ:
+    os.environ["ROADBEV_TEST_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 100))
+os.environ["ROS_DOMAIN_ID"] = os.environ["ROADBEV_TEST_DOMAIN_ID"]
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 try:  # torch is optional for the pure-numpy tests
     import torch
@@ -57,3 +72,28 @@ def saved_figures(monkeypatch: pytest.MonkeyPatch) -> list[Any]:
 
     monkeypatch.setattr(Figure, "savefig", keep)
     return saved
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line("markers", "soak: long-running memory soak test (deselect with -m 'not soak')")
+
+
+@pytest.fixture(scope="session")
+def ros() -> Iterator[Any]:
+    """rclpy initialised once for the session (with the DDS profile), shut down at the end."""
+    from roadbev_ros.dds import init_ros
+
+    rclpy = init_ros()
+    yield rclpy
+    rclpy.try_shutdown()
+
+
+@pytest.fixture
+def fake_drive() -> FakeDrive:
+    return FakeDrive()
+
+
+@pytest.fixture(params=["rclpy", "typestore"])
+def factory(request: pytest.FixtureRequest) -> MessageFactory:
+    """Both message factories: every converter must work on both libraries' messages."""
+    return RclpyFactory() if request.param == "rclpy" else bag_factory()

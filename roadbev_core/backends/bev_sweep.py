@@ -57,7 +57,7 @@ class SweepParams:
     """Tuning of the sweep (defaults chosen by measurement, see ``benchmarks/tune_bev_sweep.py``).
 
     The figures quoted below are those the defaults were chosen on: the tuning frames of scene
-    version 1 (``roadbev_core.datasets.SCENE_VERSION``, the clean appearance). On version 2's
+    version 1 (``roadbev_lab.training.datasets.SCENE_VERSION``, the clean appearance). On version 2's
     ``real-road`` range the same defaults answer about half as many of the tuning frames' cells
     (40.8 against 77.9 %, ``benchmarks/results/bev_sweep_tuning.json``); they were not re-tuned.
 

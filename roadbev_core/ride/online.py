@@ -6,7 +6,7 @@ frame by dead reckoning along x at the message's own ``vehicle_speed`` from its 
 wheel_x + v (now - stamp)``; ``wheel_x`` is the front axle's x in the message's frame at its
 stamp: ``vehicle.wheelbase_m`` for ``base_link`` messages, ``wheelbase_m - camera x`` for
 ``roadbev_road`` ones), reads the road over the horizon ahead from the newest message that has a
-value at each point (:func:`roadbev_core.arrival.read_profile`, as the preview-at-arrival metric),
+value at each point (:func:`roadbev_core.preview.read_profile`, as the preview-at-arrival metric),
 turns it into road velocity within that one message (so each message's own reference height
 drops out) and applies :class:`PreviewLqr`, its feedforward scaled by the preview's gain measured
 on the road the wheel has ridden (:class:`roadbev_core.ride.preview_gain.PreviewGain`: a preview
@@ -28,12 +28,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from roadbev_core.arrival import read_profile
-from roadbev_core.preview import PreviewProfiles
+from roadbev_core.preview import PreviewProfiles, read_profile
 from roadbev_core.ride.preview_gain import DEFAULT_TIME_CONSTANT_S, PreviewGain
 from roadbev_core.ride.preview_lqr import PreviewLqr
-from roadbev_core.ride.quarter_car import RideError
-from roadbev_core.ride.simulate import FRONT_WHEELS
+from roadbev_core.ride.quarter_car import FRONT_WHEELS, RideError
 
 __all__ = ["HeldPreview", "OnlinePreviewController", "WheelCommand"]
 

@@ -18,7 +18,7 @@ deviations from static equilibrium::
 The road enters as its velocity ``w'`` (the slope along the path times the speed), so a road
 profile given in any reference that differs from the truth by a constant offset drives the model
 identically. Default parameters: one corner of the synthetic drives' car
-(:class:`roadbev_core.synth.SuspensionSpec`: 1500 kg body on four 21 kN/m, 1.68 kNs/m corners ->
+(:class:`roadbev_lab.synth.SuspensionSpec`: 1500 kg body on four 21 kN/m, 1.68 kNs/m corners ->
 375 kg, body mode 1.19 Hz, damping ratio 0.30), with a 40 kg wheel and a 200 kN/m tyre (wheel
 hop about 11.8 Hz): the ranges of Gillespie's Table 5.1 (body 1-1.5 Hz, wheel hop 10-12 Hz,
 m_u / m_s ~ 0.1, k_t / k_s ~ 10). Pure numpy.
@@ -34,9 +34,11 @@ import numpy as np
 from roadbev_core.errors import RoadbevError
 from roadbev_core.ride.lti import discretise
 
-__all__ = ["GRAVITY", "QuarterCar", "RideError"]
+__all__ = ["FRONT_WHEELS", "GRAVITY", "QuarterCar", "RideError"]
 
 GRAVITY = 9.81
+# The wheels a preview reaches before the car does (the rear ones ride what the front ones rode).
+FRONT_WHEELS: tuple[str, ...] = ("front_left", "front_right")
 
 
 class RideError(RoadbevError, ValueError):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from benchmarks.bench_arrival import make_drive
-from roadbev_core.arrival import ArrivalSettings, Trajectory, wheel_paths
+from roadbev_lab.evaluation.arrival import ArrivalSettings, Trajectory, wheel_paths
 
 
 @pytest.mark.parametrize(("speed", "seed"), [(10.0, 310001), (20.0, 310002)])

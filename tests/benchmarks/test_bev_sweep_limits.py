@@ -9,7 +9,7 @@ from benchmarks.bev_sweep_limits import measure, zone_smoothed
 from roadbev_core.backends import RefinedBackend, create
 from roadbev_core.backends.bev_sweep import BevSweep
 from roadbev_core.config import GridSpec, StereoCamera
-from roadbev_core.synth import make_sample
+from roadbev_lab.synth import make_sample
 
 GRID = GridSpec()
 

@@ -8,7 +8,7 @@ from benchmarks.bench_arrival import SEED_BASE as BENCH_DRIVE_SEEDS
 from benchmarks.bench_hazards import MAP_SEED_BASE, SEED_BASE
 from benchmarks.calibrate_sigma import TUNING_DRIVES, drive_samples
 from roadbev_core.config import GridSpec
-from roadbev_ros.demo_drive import DRIVE_SEED
+from roadbev_lab.demo.drive import DRIVE_SEED
 
 
 def test_the_tuning_drives_are_none_of_the_evaluation_drives() -> None:

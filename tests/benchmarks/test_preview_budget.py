@@ -20,11 +20,11 @@ from benchmarks.preview_budget import (
     parse_candidate,
     with_true_plane,
 )
-from roadbev_core.arrival import REFERENCE_CONTACT_PLANE, ArrivalSettings, Trajectory
 from roadbev_core.config import GridSpec
 from roadbev_core.frame import Estimate
-from roadbev_core.ride import RideSettings, perfect_map_previews
-from roadbev_core.synth import DriveConfig, RidingConfig, RidingDrive, RoadConfig
+from roadbev_lab.evaluation.arrival import REFERENCE_CONTACT_PLANE, ArrivalSettings, Trajectory
+from roadbev_lab.ride import RideSettings, perfect_map_previews
+from roadbev_lab.synth import DriveConfig, RidingConfig, RidingDrive, RoadConfig
 
 MS = 1_000_000
 

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.training_drives import SEED_BASE, SPEEDS, write_drive
-from msg_bridge.evalbag import bag_frames
-from roadbev_core.datasets import LabelledFrames
+from roadbev_lab.evaluation.evalbag import bag_frames
+from roadbev_lab.training.datasets import LabelledFrames
 
 
 def test_a_training_drive_is_labelled_spaced_and_cached(tmp_path: Path) -> None:

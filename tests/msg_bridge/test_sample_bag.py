@@ -13,9 +13,9 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from msg_bridge import bag_topics, read_messages
-from msg_bridge.evalbag import read_eval_bag
 from msg_bridge.grid_map import grid_map_to_arrays
 from roadbev_core.config import GridSpec
+from roadbev_lab.evaluation.evalbag import read_eval_bag
 
 BAGS = Path(__file__).resolve().parents[2] / "bags"
 SAMPLE = BAGS / "sample_drive.mcap"

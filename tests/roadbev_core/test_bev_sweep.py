@@ -13,9 +13,9 @@ import torch
 from roadbev_core.backends import BackendError, RefinedBackend, create
 from roadbev_core.backends.bev_sweep import BevSweep, SweepParams, _outliers
 from roadbev_core.config import ConfigError, GridSpec, StereoCamera
-from roadbev_core.evaluation import evaluate
 from roadbev_core.frame import Frame, FrameError
 from roadbev_core.geometry import Attitude
+from roadbev_lab.evaluation.frames import evaluate
 
 from ._frames import right_of
 
@@ -28,7 +28,7 @@ GRID = GridSpec().scaled(2)  # 82 x 32 cells of 6 cm
 @pytest.fixture(scope="module")
 def samples() -> list[tuple[Frame, np.ndarray]]:
     """Two rendered half-resolution frames with a textured asphalt road and a pothole."""
-    from roadbev_core.synth import RoadConfig, make_sample
+    from roadbev_lab.synth import RoadConfig, make_sample
 
     road = RoadConfig(road_class="C", features=("pothole",), surface="asphalt", noise_sigma=1.0)
     out = []

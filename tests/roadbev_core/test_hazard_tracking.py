@@ -13,7 +13,7 @@ import pytest
 from roadbev_core.ego_motion import PlanarPose
 from roadbev_core.fusion import MapWindow
 from roadbev_core.hazard_tracking import HazardReport, HazardTracker, TrackerError, TrackerSettings, distance_ahead
-from roadbev_core.synth.heightfield import roughness_field
+from roadbev_lab.synth.heightfield import roughness_field
 
 RES = 0.03
 

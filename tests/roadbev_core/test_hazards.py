@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from roadbev_core.hazards import HazardError, HazardSettings, band, detect_hazards, road_residual, severity_cost
-from roadbev_core.synth import DriveConfig, RidingConfig, RidingDrive, RoadConfig
+from roadbev_lab.synth import DriveConfig, RidingConfig, RidingDrive, RoadConfig
 
 RES = 0.02
 

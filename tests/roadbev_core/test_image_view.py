@@ -11,9 +11,9 @@ import pytest
 from roadbev_core.backends import BackendError, RefinedBackend, create
 from roadbev_core.backends.image_view import ImageViewStereo, match_window
 from roadbev_core.config import GridSpec, StereoCamera
-from roadbev_core.evaluation import evaluate
 from roadbev_core.frame import Frame, FrameError
 from roadbev_core.geometry import Attitude, project_voxels
+from roadbev_lab.evaluation.frames import evaluate
 
 from ._frames import right_of
 
@@ -24,7 +24,7 @@ GRID = GridSpec().scaled(2)  # 82 x 32 cells of 6 cm
 @pytest.fixture(scope="module")
 def samples() -> list[tuple[Frame, np.ndarray]]:
     """Two rendered half-resolution frames (same scenes as the bev_sweep tests)."""
-    from roadbev_core.synth import RoadConfig, make_sample
+    from roadbev_lab.synth import RoadConfig, make_sample
 
     road = RoadConfig(road_class="C", features=("pothole",), surface="asphalt", noise_sigma=1.0)
     return [

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from roadbev_core.roughness import RoughnessError, RoughnessSettings, iso8608_class, profile_roughness
-from roadbev_core.synth.heightfield import ISO8608_GD0, roughness_field
+from roadbev_core.roughness import ISO8608_GD0, RoughnessError, RoughnessSettings, iso8608_class, profile_roughness
+from roadbev_lab.synth.heightfield import roughness_field
 
 RES = 0.03
 

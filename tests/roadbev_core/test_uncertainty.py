@@ -9,8 +9,6 @@ from roadbev_core.backends import RefinedBackend, available, create
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.frame import Estimate, Frame
 from roadbev_core.geometry import Attitude
-from roadbev_core.metrics import sigma_counts, sigma_metrics
-from roadbev_core.synth.heightfield import SpeedBump
 from roadbev_core.uncertainty import (
     CALIBRATION_FILE,
     SigmaFeatures,
@@ -20,6 +18,8 @@ from roadbev_core.uncertainty import (
     refine,
     visible_estimate,
 )
+from roadbev_lab.evaluation.metrics import sigma_counts, sigma_metrics
+from roadbev_lab.synth.heightfield import SpeedBump
 
 GRID = GridSpec()
 CAMERA = StereoCamera.rsrd_half().scaled(0.25)

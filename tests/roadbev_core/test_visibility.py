@@ -4,15 +4,15 @@ import numpy as np
 import pytest
 
 from roadbev_core.config import GridSpec
-from roadbev_core.synth.heightfield import SpeedBump
 from roadbev_core.visibility import fill_holes, fit_road_plane, hidden_cells, line_of_sight
+from roadbev_lab.synth.heightfield import SpeedBump
 
 GRID = GridSpec()
 CAMERAS = (0.0, -0.12)
 
 
 def bump_road(height: float, x_centre: float, length: float = 0.5) -> np.ndarray:
-    """[R, C] a flat road with a parabolic speed bump across the whole grid (roadbev_core.synth)."""
+    """[R, C] a flat road with a parabolic speed bump across the whole grid (roadbev_lab.synth)."""
     bump = SpeedBump(x=x_centre, y=0.0, length=length, height=height, width=10.0, profile="parabolic")
     profile = bump.along(GRID.x_centres() - x_centre).astype(np.float32)  # [R]
     return np.repeat(profile[:, None], GRID.n_cols, axis=1)

@@ -15,14 +15,14 @@ import numpy as np
 import pytest
 
 from msg_bridge import bag
-from msg_bridge.evalbag import read_eval_bag, write_eval_bag
 from msg_bridge.tf import TransformTree, transforms_from_tf
 from roadbev_core.backends import create
 from roadbev_core.config import DEFAULT_BACKEND, StereoCamera
-from roadbev_core.evaluation import evaluate
-from roadbev_core.synth import DriveConfig, SyntheticDrive
+from roadbev_lab.evaluation.evalbag import read_eval_bag, write_eval_bag
+from roadbev_lab.evaluation.frames import evaluate
+from roadbev_lab.evaluation.online import evaluate_online, format_online
+from roadbev_lab.synth import DriveConfig, SyntheticDrive
 from roadbev_ros.dds import child_env
-from roadbev_ros.online_eval import evaluate_online, format_online
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -43,7 +43,7 @@ def drive_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def start(args: list[str], log: Path) -> subprocess.Popen[bytes]:
     with log.open("wb") as out:
-        return subprocess.Popen([sys.executable, "-m", "roadbev_ros.cli", *args], stdout=out,
+        return subprocess.Popen([sys.executable, "-m", "roadbev_cli.cli", *args], stdout=out,
                                 stderr=subprocess.STDOUT, env=child_env())
 
 
@@ -126,14 +126,14 @@ def test_replay_and_record_commands_round_trip_raw_bytes(drive_bag: Path, tmp_pa
 def test_node_command_rejects_a_nonsense_params_file(tmp_path: Path) -> None:
     params = tmp_path / "bad.yaml"
     params.write_text("roadbev:\n  ros__parameters:\n    resolution: 0.07\n")
-    proc = subprocess.run([sys.executable, "-m", "roadbev_ros.cli", "node", "--params", str(params),
+    proc = subprocess.run([sys.executable, "-m", "roadbev_cli.cli", "node", "--params", str(params),
                            "--backend", "bm"], capture_output=True, text=True, timeout=60, env=child_env())
     assert proc.returncode == 2
     assert "whole number" in proc.stderr
 
 
 def test_replay_command_refuses_a_missing_bag(tmp_path: Path) -> None:
-    proc = subprocess.run([sys.executable, "-m", "roadbev_ros.cli", "replay", str(tmp_path / "nope.mcap")],
+    proc = subprocess.run([sys.executable, "-m", "roadbev_cli.cli", "replay", str(tmp_path / "nope.mcap")],
                           capture_output=True, text=True, timeout=60, env={**os.environ})
     assert proc.returncode == 2 and "not found" in proc.stderr
 
@@ -194,7 +194,7 @@ def test_a_drive_replayed_into_the_node_gives_the_fused_map_and_previews_of_eval
     publishes the previews and maps that ``roadbev eval --map`` computes, scored the same."""
     import json
 
-    from roadbev_ros.cli import main
+    from roadbev_cli.cli import main
 
     drive = tmp_path / "drive.mcap"
     assert main(["synth", str(drive), "--drive", "--duration", "0.8", "--rate", "10", "--speed", "8",

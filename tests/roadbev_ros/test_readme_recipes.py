@@ -49,7 +49,7 @@ def user_folder(tmp_path: Path) -> Path:
     bin_dir.mkdir(parents=True)
     roadbev = bin_dir / "roadbev"
     roadbev.write_text(f'#!/bin/sh\nPYTHONPATH="{ROOT}${{PYTHONPATH:+:$PYTHONPATH}}" '
-                       f'exec "{sys.executable}" -m roadbev_ros.cli "$@"\n')
+                       f'exec "{sys.executable}" -m roadbev_cli.cli "$@"\n')
     roadbev.chmod(0o755)
     (tmp_path / "bags").symlink_to(ROOT / "bags")
     return tmp_path

@@ -95,7 +95,7 @@ def _record_and_kill(ros: Any, source: Path, outs: list[Path], kill_after: list[
     procs = []
     for i, out in enumerate(outs):
         with (tmp_path / f"record{i}.log").open("wb") as log:
-            procs.append(subprocess.Popen([sys.executable, "-m", "roadbev_ros.cli", "record", str(out),
+            procs.append(subprocess.Popen([sys.executable, "-m", "roadbev_cli.cli", "record", str(out),
                                            "--topics", "/imu/data", "/cam/image"],
                                           stdout=log, stderr=subprocess.STDOUT, env=child_env()))
 
@@ -177,7 +177,7 @@ def test_a_topic_nothing_published_is_warned_of(tmp_path: Path) -> None:
     from roadbev_ros.dds import child_env
 
     out = tmp_path / "silent.mcap"
-    proc = subprocess.run([sys.executable, "-m", "roadbev_ros.cli", "record", str(out), "--topics",
+    proc = subprocess.run([sys.executable, "-m", "roadbev_cli.cli", "record", str(out), "--topics",
                            "/nobody/publishes/this", "--duration", "1"], capture_output=True, text=True, timeout=60,
                           env=child_env())
     assert proc.returncode == 0, proc.stderr

@@ -181,7 +181,7 @@ def test_the_replay_command_waits_then_says_who_is_missing_and_replays_anyway(ro
         topic = "/stereo/left/image_rect/compressed"
         before = time.monotonic()
         # (4 s: the replay process must discover the listener first, slow on a loaded machine)
-        proc = subprocess.run([sys.executable, "-m", "roadbev_ros.cli", "replay", str(SAMPLE), "--topics", topic,
+        proc = subprocess.run([sys.executable, "-m", "roadbev_cli.cli", "replay", str(SAMPLE), "--topics", topic,
                                "--wait-for-subscribers", "4", "--rate", "0"],
                               capture_output=True, text=True, timeout=120, env=child_env())
         took = time.monotonic() - before
@@ -205,7 +205,7 @@ def test_replay_waits_only_for_the_topics_it_is_told(listener: Listener, imu_bag
 
 
 def test_an_interrupted_replay_says_how_much_it_published_of_what(imu_bag: Path) -> None:
-    from roadbev_ros.commands.replay import published_of_bag
+    from roadbev_cli.commands.replay import published_of_bag
 
     assert published_of_bag(imu_bag, {"/imu/data": 7}) == f"/imu/data 7 of {N}, /note 0 of 1"
 
@@ -217,7 +217,7 @@ def test_the_replay_command_reports_an_interruption(imu_bag: Path) -> None:
 
     from roadbev_ros.dds import child_env
 
-    proc = subprocess.Popen([sys.executable, "-m", "roadbev_ros.cli", "replay", str(imu_bag), "--rate", "0.02",
+    proc = subprocess.Popen([sys.executable, "-m", "roadbev_cli.cli", "replay", str(imu_bag), "--rate", "0.02",
                              "--no-wait", "--loop"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=child_env())
     try:

@@ -65,9 +65,9 @@ def test_shipped_checkpoints_measure_the_road(kind: str, bound_cm: float, share_
     broken input path (wrong images, a photometric channel read at the wrong scale) loses the
     stereo model's centimetre accuracy and brings mono near the flat road's error.
     """
-    from roadbev_core.datasets import TEST_SEED_START
-    from roadbev_core.evaluation import evaluate
-    from roadbev_core.synth import make_sample
+    from roadbev_lab.evaluation.frames import evaluate
+    from roadbev_lab.synth import make_sample
+    from roadbev_lab.training.datasets import TEST_SEED_START
 
     torch.set_flush_denormal(True)
     samples = [make_sample(TEST_SEED_START + i) for i in range(2)]

@@ -104,7 +104,7 @@ def test_bad_inputs_are_refused() -> None:
 
 def test_photometric_channel_reads_the_full_resolution_frames() -> None:
     """With the full-resolution channel the score peaks at the true height of a textured plane."""
-    from roadbev_core.synth import make_sample
+    from roadbev_lab.synth import make_sample
 
     grid = GridSpec(x_min=3.0, x_max=4.2, y_min=-0.48, y_max=0.48)
     sample = make_sample(100_003, grid=grid)

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from roadbev_core.arrival import RoadMap, Trajectory
+from roadbev_lab.evaluation.arrival import RoadMap, Trajectory
 
 S = 1_000_000_000
 T0 = 1_700_000_000 * S

@@ -7,18 +7,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from roadbev_core.arrival import ArrivalSettings
 from roadbev_core.config import GridSpec
 from roadbev_core.preview import PreviewProfiles, TrackProfile
-from roadbev_core.ride import (
-    OnlinePreviewController,
-    PreviewLqr,
-    RideError,
-    RideSettings,
-    perfect_previews,
-    preview_feedforward,
-    wheel_road,
-)
+from roadbev_core.ride import OnlinePreviewController, PreviewLqr, RideError
+from roadbev_lab.evaluation.arrival import ArrivalSettings
+from roadbev_lab.ride import RideSettings, perfect_previews, preview_feedforward, wheel_road
 
 from ._roads import T0, S, bump_map, straight
 

@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from roadbev_core.ride import LqrWeights, PreviewLqr, RideError, simulate, weighted_rms
+from roadbev_core.ride import LqrWeights, PreviewLqr, RideError
+from roadbev_lab.ride import simulate, weighted_rms
 
 
 def _bump_velocity(dt: float, speed: float = 10.0, height: float = 0.05, length: float = 0.6) -> np.ndarray:

@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from roadbev_core.ride import GRAVITY, PreviewLqr, QuarterCar, RideError, simulate
+from roadbev_core.ride import GRAVITY, PreviewLqr, QuarterCar, RideError
+from roadbev_lab.ride import simulate
 
 
 def test_modes_and_static_load() -> None:

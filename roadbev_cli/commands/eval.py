@@ -1,0 +1,212 @@
+"""``roadbev eval BAG``: run a backend over every frame of a bag (no DDS) and report the metrics.
+
+The bag (a rosbag2 directory with ``metadata.yaml`` or a single ``.mcap`` file) carries the
+stereo images, camera infos, the IMU and ``/ground_truth/elevation``; the horizontal grid comes
+from the ground truth's GridMap info, ``base_height`` and the vertical range from ``--params``
+(a standard ROS 2 params YAML; defaults otherwise). The metrics are those of
+:mod:`roadbev_lab.evaluation.frames`, the same code the demo and the benchmarks use; the bag, the pipeline
+and the drive keys are :mod:`roadbev_lab.evaluation.offline` (which the demo runs on its drive too).
+
+Backend options may be given in the params file as ``<backend>.<option>`` (for example
+``bev_sweep.patch_cells: 5``); the learned backends take ``checkpoint`` (or ``--checkpoint``).
+
+A truncated, unfinished or partly damaged bag is evaluated on every readable frame; the lost
+frames and the reasons are printed (and are in the JSON: ``lost_frames``, ``losses``). The exit is
+non-zero only when no frame at all could be evaluated. ``--out OUT.mcap`` writes the outputs
+(``/roadbev/elevation``, ``/roadbev/preview``, as the node publishes them); on a bag without
+ground truth that is the result, and the command says there is nothing to score.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from roadbev_cli.cli import CommandError, add_output_flags, progress_bar, seconds, shows_progress, warn
+from roadbev_core.config import DEFAULT_BACKEND
+
+HELP = "run a backend over every frame of a bag (no DDS) and report the metrics"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``roadbev eval``."""
+    parser.add_argument("bag", metavar="BAG", help="rosbag2 directory (with metadata.yaml) or .mcap file")
+    parser.add_argument(
+        "--backend", default=None, help=f"elevation backend (default: the params' 'backend', else {DEFAULT_BACKEND})"
+    )
+    parser.add_argument("--params", default=None, metavar="P", help="ROS 2 params YAML (grid, base_height, backend)")
+    parser.add_argument("--json", default=None, metavar="OUT",
+                        help="write the metrics as JSON here (its folder is created)")
+    parser.add_argument("--frames", type=int, default=None, metavar="N", help="evaluate only the first N frames")
+    parser.add_argument("--checkpoint", default=None, help="checkpoint for the learned backends (stereo, mono)")
+    add_output_flags(parser, summary=False)
+    parser.add_argument("--out", default=None, metavar="OUT.mcap",
+                        help="also write every output message (/roadbev/elevation, /roadbev/preview) to this bag (its "
+                             "folder is created)")
+    parser.add_argument("--lead-time", type=seconds, default=0.1, metavar="S",
+                        help="drive bags: preview at arrival counts messages stamped this long before (default 0.1 s)")
+    fused = parser.add_mutually_exclusive_group()
+    fused.add_argument("--map", dest="map", action="store_true", default=None,
+                       help="run the fused road map (needs odometry in the bag; default: on when the bag has it)")
+    fused.add_argument("--no-map", dest="map", action="store_false", help="the per-frame pipeline only")
+
+
+def _check_bag_path(path: Path) -> None:
+    """A bag is a directory with metadata.yaml or an .mcap file (contract, "Command line")."""
+    if not path.exists():
+        raise CommandError(f"bag not found: {path}")
+    if path.is_dir():
+        if not (path / "metadata.yaml").is_file() and not any(path.glob("*.mcap")):
+            raise CommandError(f"{path} is a directory without metadata.yaml or .mcap files: not a rosbag2 bag")
+    elif path.suffix != ".mcap":
+        raise CommandError(f"{path} is neither a rosbag2 directory nor an .mcap file")
+
+
+def _explicit_params(args: argparse.Namespace) -> dict[str, Any]:
+    """The parameters the user gave (params file, --backend, --checkpoint), checked by name and type."""
+    from roadbev_core.backends import takes_checkpoint
+    from roadbev_core.config import RoadbevConfig, load_params_file
+
+    explicit: dict[str, Any] = {}
+    if args.params is not None:
+        loaded = load_params_file(args.params)
+        note = loaded.note()
+        if note:
+            warn("eval", note)
+        explicit.update(loaded.values)
+    if args.backend:
+        explicit["backend"] = args.backend
+    name = explicit.get("backend", DEFAULT_BACKEND)
+    if args.checkpoint:
+        if not takes_checkpoint(str(name)):
+            raise CommandError(f"--checkpoint applies to the learned backends (stereo, mono), not {name!r}")
+        explicit["checkpoint"] = args.checkpoint
+    RoadbevConfig.from_params(explicit)  # unknown names, wrong types, ranges: refused here
+    return explicit
+
+
+def _print_drive_keys(metrics: dict[str, Any]) -> None:
+    """One line for the previews at arrival (per frame or from the map) and one for the map."""
+    out = metrics.get("preview_at_arrival")
+    if out is None:
+        return
+    kind = "fused map" if "map" in metrics else "per frame"
+    print(f"preview at arrival, {kind} (lead {out['lead_time_s']:g} s, {out['points']} points): abs. error "
+          f"{_cm(out['abs_err_cm'])} cm, coverage {_cm(out['coverage_pct'], 1)} %, features "
+          f"{_cm(out['features_abs_err_cm'])} cm, smooth {_cm(out['smooth_abs_err_cm'])} cm, vs the contact plane "
+          f"{_cm(out['contact_plane_abs_err_cm'])} cm")
+    fused = metrics.get("map")
+    if fused is not None:
+        print(f"fused map vs /ground_truth/road_map ({fused['windows']} windows): abs. error "
+              f"{_cm(fused['abs_err_cm'])} cm, coverage {_cm(fused['coverage_pct'], 1)} %, confidently wrong "
+              f"{_cm(fused['confident_wrong_pct'], 2)} %")
+
+
+def _cm(value: Any, digits: int = 3) -> str:
+    return "nan" if value is None else f"{float(value):.{digits}f}"
+
+
+def coverage_hint(pipeline: Any, path: Path, coverage_pct: float | None) -> str | None:
+    """The self-check's one-line hint (:func:`roadbev_core.selfcheck.self_check` on the first
+    frame, through the same pipeline) when the evaluation's coverage fell below the threshold;
+    None otherwise."""
+    from roadbev_core.selfcheck import MIN_COVERAGE_PCT, self_check
+    from roadbev_lab.evaluation.evalbag import bag_frames
+
+    if coverage_pct is None or coverage_pct >= MIN_COVERAGE_PCT:
+        return None
+    frames = bag_frames(path, pipeline.config.to_params())[1][:1]
+    if not frames:
+        return None
+    frame = frames[0].frame
+    return self_check(pipeline.process_frame(frame).estimate, frame, pipeline.config.grid).message
+
+
+def run(args: argparse.Namespace) -> int:
+    """Evaluate, print the table, write the JSON; non-zero exit (via CommandError) on bad input."""
+    from roadbev_lab.evaluation.frames import format_table, to_json
+    from roadbev_lab.evaluation.offline import OfflineEvalError, prepare_bag, run_prepared
+
+    path = Path(args.bag)
+    _check_bag_path(path)
+    if args.frames is not None and args.frames < 1:
+        raise CommandError(f"--frames must be >= 1, got {args.frames}")
+    explicit = _explicit_params(args)
+    try:
+        prepared = prepare_bag(path, explicit, map_enabled=args.map)
+    except OfflineEvalError as exc:
+        raise CommandError(str(exc)) from exc
+    bag, config, pipeline = prepared.bag, prepared.config, prepared.pipeline
+    outputs = None
+    if args.out:
+        from msg_bridge.outputs import OutputBag
+
+        outputs = OutputBag(args.out, config, camera_frame=bag.camera_frame)
+
+    total = len(bag) if args.frames is None else min(len(bag), args.frames)
+    bar = progress_bar(total=total, unit="frame", desc=f"eval {config.backend.name}", disable=not shows_progress(args),
+                       leave=False)
+    try:
+        evaluation = run_prepared(prepared, lead_time_s=args.lead_time, max_frames=args.frames, progress=bar.update,
+                                  on_output=None if outputs is None else outputs.write)
+    except OfflineEvalError as exc:
+        if outputs is not None:
+            outputs.abort()
+        raise CommandError(str(exc)) from exc
+    except BaseException:
+        if outputs is not None:
+            outputs.abort()
+        raise
+    finally:
+        bar.close()
+    if outputs is not None:
+        outputs.close()
+    metrics, result = evaluation.metrics, evaluation.result
+    for line in metrics["losses"]:
+        print(f"lost: {line}", file=sys.stderr)
+    print(format_table([metrics]))
+    for reason, count in sorted(result.refused.items()):
+        print(f"{count} frame(s) refused: {reason}", file=sys.stderr)
+    if metrics.get("frames_with_truth", 0) == 0:
+        print(f"nothing to score: {path} has no ground truth ({bag.topics['ground_truth_topic']}); "
+              f"{metrics['frames']} frame(s) ran" + (f", outputs in {args.out}" if args.out else
+                                                      "; --out OUT.mcap saves the outputs"))
+    else:
+        _print_drive_keys(metrics)  # contract, "Drive bags": the previews at the wheels' arrival (and the map)
+        bands = ", ".join("-" if b is None else f"{b:.3f}" for b in metrics["band_abs_err_cm"])
+        print(f"abs. error per distance band (cm, near to far): {bands}")
+        print(
+            "uncertainty: error within 1 / 2 / 3 sigma "
+            + " / ".join("-" if metrics.get(k) is None else f"{metrics[k]:.1f}"
+                         for k in ("within_1sigma_pct", "within_2sigma_pct", "within_3sigma_pct"))
+            + " %, confidently wrong "
+            + ("-" if metrics.get("confident_wrong_pct") is None else f"{metrics['confident_wrong_pct']:.2f}")
+            + " %, mean sigma "
+            + ("-" if metrics.get("mean_sigma_cm") is None else f"{metrics['mean_sigma_cm']:.3f}")
+            + " cm"
+        )
+        hint = coverage_hint(pipeline, path, metrics.get("coverage_pct"))
+        if hint:
+            print(f"self-check: {hint}")
+            metrics["self_check"] = hint
+    if outputs is not None:
+        counts = ", ".join(f"{t}: {n}" for t, n in sorted(outputs.counts.items()))
+        print(f"outputs written to {args.out} ({counts})")
+    if args.json:
+        record = {**metrics, "bag": str(path), "grid": bag.grid.to_dict(),
+                  "backend_options": config.backend.options_of()}
+        if args.params:
+            record["params_file"] = str(args.params)
+        out = Path(args.json)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(to_json(record))
+        print(f"metrics written to {out}")
+    if metrics["frames"] == 0 and result.refused:
+        reasons = "; ".join(f"{n} x {reason}" for reason, n in sorted(result.refused.items()))
+        raise CommandError(f"every frame was refused: {reasons}")
+    if metrics.get("frames_with_truth", 0) > 0 and metrics.get("coverage_pct") == 0:
+        raise CommandError("every frame came out empty (coverage 0 %)"
+                           + (f": {metrics['self_check']}" if metrics.get("self_check") else ""))
+    return 0

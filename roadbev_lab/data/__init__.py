@@ -1,0 +1,1 @@
+"""Real data and labels: KITTI and RSRD readers, LiDAR-made labels, labelling a recorded bag."""

@@ -1,0 +1,208 @@
+"""Offline evaluation of a bag: what ``roadbev eval`` runs, also for the demo (no DDS).
+
+:func:`evaluate_bag` reads a contract bag, builds the :class:`roadbev_core.pipeline.Pipeline` from
+the parameters and the bag's grid (the ground truth's GridMap info), the camera's mounting from
+``/tf_static`` where the bag has it, runs every frame (with the bag's odometry: the fused map when
+it is on) and returns the metrics as ``roadbev eval --json`` writes them; on a drive bag with
+ground truth also the contract's ``preview_at_arrival`` (and, with the map, ``map``) keys
+(:func:`drive_keys`). The command only adds printing, the self-check hint and ``--json``; the demo
+evaluates its drive with the map on and off through the same function, so its numbers are
+``roadbev eval``'s.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from roadbev_core.errors import RoadbevError
+
+__all__ = [
+    "BagEvaluation",
+    "OfflineEvalError",
+    "PreparedBag",
+    "drive_keys",
+    "evaluate_bag",
+    "prepare_bag",
+    "run_prepared",
+]
+
+
+class OfflineEvalError(RoadbevError, ValueError):
+    """The bag cannot be evaluated (unreadable, no frames, --map without odometry...); one line."""
+
+
+@dataclass
+class BagEvaluation:
+    """What :func:`evaluate_bag` measured.
+
+    Attributes:
+        metrics: the JSON keys of ``roadbev eval`` (without ``bag``, ``grid``,
+            ``backend_options`` and ``params_file``, which the command adds).
+        result: the typed evaluation (its ``outputs`` kept on drive bags).
+        pipeline: the pipeline that ran (its config, its map's state).
+        bag: the opened bag (:class:`roadbev_lab.evaluation.evalbag.EvalBag`).
+        drive: whether the bag is a drive bag (ground-truth poses and road map).
+    """
+
+    metrics: dict[str, Any]
+    result: Any
+    pipeline: Any
+    bag: Any
+    drive: bool
+
+
+def _read_failures(samples: Any, path: Path) -> Iterator[Any]:
+    """Re-raise bag read/decode failures during iteration as a one-line OfflineEvalError."""
+    iterator = iter(samples)
+    while True:
+        try:
+            sample = next(iterator)
+        except StopIteration:
+            return
+        except Exception as exc:  # rosbags/mcap raise many types for a damaged bag
+            raise OfflineEvalError(f"cannot read bag {path}: {type(exc).__name__}: {exc}") from exc
+        yield sample
+
+
+def drive_keys(path: Path, config: Any, result: Any, lead_time_s: float) -> dict[str, Any]:
+    """The pipeline's previews at the wheels' arrival (per frame or from the map: each message
+    says which) and, when the map ran, the fused map against the true road map: the contract's
+    ``preview_at_arrival`` and ``map`` keys.
+
+    Raises:
+        OfflineEvalError: the drive's truth cannot score the previews.
+    """
+    from roadbev_lab.evaluation.arrival import ArrivalError, map_accuracy, per_frame_previews
+    from roadbev_lab.evaluation.drivebag import evaluate_drive_previews, read_drive_truth
+    from roadbev_lab.evaluation.frames import json_safe
+
+    stamps = [int(r["stamp_ns"]) for r in result.per_frame]
+    outputs = result.outputs or []
+    try:
+        previews = per_frame_previews(outputs)
+        arrival = evaluate_drive_previews(path, previews, stamps, config.to_params(),
+                                          base_height=config.grid.base_height, lead_time_s=lead_time_s)
+        windows = [o.map for o in outputs if o.map is not None]
+        if windows:
+            drive_truth = read_drive_truth(path, config.to_params())
+            fused = map_accuracy(windows, drive_truth.road_map, drive_truth.trajectory, config.vehicle)
+        else:
+            fused = None
+    except (ArrivalError, ValueError) as exc:
+        raise OfflineEvalError(f"preview at arrival on {path}: {exc}") from exc
+    keys: dict[str, Any] = {"preview_at_arrival": dict(json_safe(arrival))}
+    if fused is not None:
+        keys["map"] = dict(json_safe(fused))
+    return keys
+
+
+@dataclass
+class PreparedBag:
+    """A bag opened for evaluation, with the pipeline its parameters and grid make.
+
+    Attributes:
+        path: the bag.
+        bag: the opened bag (:class:`roadbev_lab.evaluation.evalbag.EvalBag`).
+        config: the pipeline's config (the parameters, the map switch, the bag's grid).
+        pipeline: the pipeline (the camera mounted from ``/tf_static`` where the bag has it).
+        drive: whether the bag is a drive bag (ground-truth poses and road map).
+    """
+
+    path: Path
+    bag: Any
+    config: Any
+    pipeline: Any
+    drive: bool
+
+
+def prepare_bag(path: str | Path, explicit: Mapping[str, Any] | None = None, *,
+                map_enabled: bool | None = None) -> PreparedBag:
+    """Open a bag and build its pipeline as ``roadbev eval`` does.
+
+    Args:
+        path: a rosbag2 directory or an ``.mcap`` file.
+        explicit: parameters the user gave (params file, backend, checkpoint), already checked.
+        map_enabled: True (``--map``: needs odometry), False (``--no-map``), None (the
+            parameters' default: on when the bag has odometry).
+
+    Raises:
+        OfflineEvalError: the bag cannot be read, has no frames, or ``--map`` without odometry.
+    """
+    from roadbev_core.config import RoadbevConfig
+    from roadbev_core.pipeline import Pipeline
+    from roadbev_lab.evaluation.drivebag import is_drive_bag
+    from roadbev_lab.evaluation.evalbag import read_eval_bag
+
+    path = Path(path)
+    params = dict(explicit or {})
+    try:
+        bag = read_eval_bag(path, params)
+    except (RoadbevError, OSError):
+        raise
+    except Exception as exc:  # a damaged bag: rosbags/mcap raise many types; one line, no traceback
+        raise OfflineEvalError(f"cannot read bag {path}: {type(exc).__name__}: {exc}") from exc
+    if map_enabled and not bag.odometry:
+        raise OfflineEvalError(f"--map needs odometry: {path} has none on {bag.topics['odom_topic']}")
+    map_params = {} if map_enabled is None else {"map.enabled": bool(map_enabled)}
+    # the horizontal grid comes from the ground truth's GridMap info (contract)
+    config = RoadbevConfig.from_params({**params, **map_params, **bag.grid.to_dict()})
+    pipeline = Pipeline(config)
+    if bag.camera_mount is not None:  # /tf_static base_link -> camera wins over vehicle.camera_position_m
+        pipeline.set_camera_mount(*bag.camera_mount)
+    if len(bag) == 0:
+        raise OfflineEvalError(f"bag {path} has no complete frames to evaluate")
+    # a drive bag: the previews are scored at the wheels' arrival too
+    return PreparedBag(path, bag, config, pipeline, is_drive_bag(path))
+
+
+def run_prepared(
+    prepared: PreparedBag,
+    *,
+    lead_time_s: float = 0.1,
+    max_frames: int | None = None,
+    progress: Callable[[int], Any] | None = None,
+    on_output: Callable[[Any], Any] | None = None,
+) -> BagEvaluation:
+    """Evaluate every frame of a prepared bag (see the module docstring).
+
+    Args:
+        lead_time_s: the preview-at-arrival lead time (drive bags).
+        max_frames: evaluate only the first N frames.
+        progress: called with 1 per frame.
+        on_output: called with every :class:`roadbev_core.pipeline.PipelineOutput` (``--out``).
+
+    Raises:
+        OfflineEvalError: a frame cannot be read, or the drive's truth cannot score the previews.
+    """
+    from roadbev_lab.evaluation.frames import evaluate
+
+    bag, pipeline, path = prepared.bag, prepared.pipeline, prepared.path
+    result = evaluate(pipeline, _read_failures(bag, path), imu=bag.imu, odometry=bag.odometry, progress=progress,
+                      max_frames=max_frames, keep_estimates=prepared.drive, on_output=on_output)
+    metrics = result.to_dict()
+    if pipeline.map_active or pipeline.fused is not None:
+        metrics["map_enabled"] = True
+        if pipeline.map_skipped:
+            metrics["map_skipped"] = dict(pipeline.map_skipped)
+    metrics["lost_frames"] = bag.lost_frames()
+    metrics["losses"] = bag.losses()
+    if prepared.drive and metrics.get("frames_with_truth", 0) > 0:  # contract, "Drive bags"
+        metrics.update(drive_keys(path, prepared.config, result, lead_time_s))
+    return BagEvaluation(metrics, result, pipeline, bag, prepared.drive)
+
+
+def evaluate_bag(
+    path: str | Path,
+    explicit: Mapping[str, Any] | None = None,
+    *,
+    map_enabled: bool | None = None,
+    lead_time_s: float = 0.1,
+    max_frames: int | None = None,
+    progress: Callable[[int], Any] | None = None,
+) -> BagEvaluation:
+    """:func:`prepare_bag` then :func:`run_prepared` (``roadbev eval BAG [--map|--no-map]``)."""
+    return run_prepared(prepare_bag(path, explicit, map_enabled=map_enabled), lead_time_s=lead_time_s,
+                        max_frames=max_frames, progress=progress)

@@ -1,0 +1,1 @@
+"""Figures and the HTML reports of the demo and of drives."""

@@ -1,0 +1,1 @@
+"""Training the learned backends: datasets of synthetic and real frames, the training loop."""
