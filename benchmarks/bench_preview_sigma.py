@@ -25,7 +25,7 @@ import argparse
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -43,7 +43,7 @@ def behind_bumps(xy: np.ndarray, bumps_x: np.ndarray, behind_m: float = BEHIND_M
     if bumps_x.size == 0:
         return np.zeros(len(xy), bool)
     dx = xy[:, 0:1] - bumps_x[None, :]  # [P, B]
-    return np.any((dx > 0.0) & (dx <= behind_m), axis=1)
+    return cast("np.ndarray", np.any((dx > 0.0) & (dx <= behind_m), axis=1))
 
 
 def score_points(error: np.ndarray, sigma: np.ndarray, where: np.ndarray) -> dict[str, Any]:

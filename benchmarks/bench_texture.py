@@ -43,7 +43,7 @@ import tempfile
 import time
 from dataclasses import asdict, replace
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import cv2
 import numpy as np
@@ -163,7 +163,8 @@ def _zncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row-wise zero-mean normalised cross-correlation of [N, K] and [N, K]: [N]."""
     a = a - a.mean(axis=1, keepdims=True)
     b = b - b.mean(axis=1, keepdims=True)
-    return np.sum(a * b, axis=1) / np.sqrt(np.maximum(np.sum(a * a, axis=1) * np.sum(b * b, axis=1), 1e-9))
+    norm = np.sqrt(np.maximum(np.sum(a * a, axis=1) * np.sum(b * b, axis=1), 1e-9))
+    return cast("np.ndarray", np.sum(a * b, axis=1) / norm)
 
 
 def view_consistency(

@@ -25,7 +25,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import sys
-from typing import Any
+from typing import Any, cast
 
 import cv2
 import numpy as np
@@ -56,7 +56,7 @@ def zone_smoothed(truth: np.ndarray, sweep: BevSweep) -> np.ndarray:
 
     def box(size: WindowSize) -> np.ndarray:
         values, weight = box_mean(planes, size).numpy()
-        return values / np.maximum(weight, 1e-6)
+        return cast("np.ndarray", values / np.maximum(weight, 1e-6))
 
     mid_start, near_start = sweep._zone_rows()
     out = box(p.aggregation_cells)

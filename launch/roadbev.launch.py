@@ -44,7 +44,7 @@ def _flag(context: LaunchContext, name: str) -> bool:
     value = LaunchConfiguration(name).perform(context).strip().lower()
     if value not in ("true", "false"):
         raise ValueError(f"launch argument {name}:={value!r}: expected true or false")
-    return value == "true"
+    return bool(value == "true")
 
 
 def _node(context: LaunchContext, *_args: Any, **_kwargs: Any) -> list[Node]:

@@ -21,7 +21,7 @@ import array
 import importlib
 import math
 from functools import cache
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
 import numpy as np
 
@@ -165,7 +165,7 @@ class RclpyFactory:
 @cache
 def _rclpy_class(msgtype: str) -> type:
     package, kind, name = _split(msgtype)
-    return getattr(importlib.import_module(f"{package}.{kind}"), name)
+    return cast("type", getattr(importlib.import_module(f"{package}.{kind}"), name))
 
 
 def _split(msgtype: str) -> tuple[str, str, str]:

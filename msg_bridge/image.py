@@ -7,7 +7,7 @@ when ``step`` pads the rows) view of the message buffer. Camera images for the p
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import cv2
 import numpy as np
@@ -126,8 +126,8 @@ def image_to_array(msg: Any) -> np.ndarray:
     if dtype.itemsize > 1 and not dtype.isnative:
         pixels = pixels.astype(encoding.dtype)
     if encoding.channels == 1:
-        return pixels.reshape(height, width)
-    return pixels.reshape(height, width, encoding.channels)
+        return cast("np.ndarray", pixels.reshape(height, width))
+    return cast("np.ndarray", pixels.reshape(height, width, encoding.channels))
 
 
 def image_to_rgb(msg: Any) -> np.ndarray:

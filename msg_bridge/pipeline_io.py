@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 from msg_bridge._common import MessageError, MessageFactory, field, stamp_from_header
 from msg_bridge.camera_info import stereo_camera_from_camera_info
@@ -73,10 +73,10 @@ def speed_message_type(kind: str) -> type:
     if kind == "odometry":
         from nav_msgs.msg import Odometry
 
-        return Odometry
+        return cast("type", Odometry)
     from geometry_msgs.msg import TwistStamped
 
-    return TwistStamped
+    return cast("type", TwistStamped)
 
 
 def speed_from_message(msg: Any) -> tuple[int, float]:

@@ -21,7 +21,7 @@ import bisect
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import numpy as np
 
@@ -108,7 +108,7 @@ def slerp(q0: np.ndarray, q1: np.ndarray, t: float) -> np.ndarray:
         q1, dot = -q1, -dot
     if dot > 0.9999995:  # nearly parallel: normalised lerp is exact to float precision
         q = q0 + t * (q1 - q0)
-        return q / np.linalg.norm(q)
+        return cast("np.ndarray", q / np.linalg.norm(q))
     theta = math.acos(min(dot, 1.0))
     return (math.sin((1 - t) * theta) * q0 + math.sin(t * theta) * q1) / math.sin(theta)
 
@@ -187,7 +187,7 @@ class ImuBuffer:
             raise ImuStale("no IMU sample received")
         i = bisect.bisect_left(self._stamps, stamp_ns)
         if i < len(self._stamps) and self._stamps[i] == stamp_ns:
-            return self._quats[i].copy()
+            return cast("np.ndarray", self._quats[i].copy())
         if i == 0 or i == len(self._stamps):
             nearest = 0 if i == 0 else -1
             age = abs(stamp_ns - self._stamps[nearest]) * 1e-9
@@ -196,7 +196,7 @@ class ImuBuffer:
                 raise ImuStale(
                     f"image stamp is {age:.3f} s {where} the IMU samples (limit {self.max_age_s} s)"
                 )
-            return self._quats[nearest].copy()
+            return cast("np.ndarray", self._quats[nearest].copy())
         t0, t1 = self._stamps[i - 1], self._stamps[i]
         gap = (t1 - t0) * 1e-9
         if gap > self.max_gap_s:

@@ -44,7 +44,7 @@ import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -240,7 +240,7 @@ def export_onnx(
     data = proto.SerializeToString()
     if out is not None:
         write_graph(data, out)
-    return data
+    return cast("bytes", data)
 
 
 def write_graph(data: bytes, out: str | Path) -> Path:

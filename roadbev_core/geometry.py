@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import numpy as np
 
@@ -93,7 +93,7 @@ def _rz(a: float) -> np.ndarray:
 
 def rotation_from_rpy(roll: float, pitch: float, yaw: float = 0.0) -> np.ndarray:
     """[3, 3] rotation Rz(yaw) @ Ry(pitch) @ Rx(roll) (REP-103 fixed-axis XYZ = ZYX Euler)."""
-    return _rz(yaw) @ _ry(pitch) @ _rx(roll)
+    return cast("np.ndarray", _rz(yaw) @ _ry(pitch) @ _rx(roll))
 
 
 def attitude_from_rotation(R_world_body: np.ndarray) -> Attitude:
@@ -168,7 +168,7 @@ def rsrd_camera_attitude(
 def optical_from_road_rotation(attitude: Attitude) -> np.ndarray:
     """[3, 3] rotation taking road-frame directions to camera optical-frame directions."""
     R_level_body = rotation_from_rpy(attitude.roll, attitude.pitch)  # body -> level (road axes)
-    return (R_level_body @ R_BODY_FROM_OPTICAL).T
+    return cast("np.ndarray", (R_level_body @ R_BODY_FROM_OPTICAL).T)
 
 
 def road_frame_in_camera(attitude: Attitude, base_height: float) -> tuple[np.ndarray, np.ndarray]:
@@ -184,14 +184,14 @@ def road_to_camera(points_road: np.ndarray, attitude: Attitude, base_height: flo
     p = np.asarray(points_road, dtype=np.float64)
     R = optical_from_road_rotation(attitude)
     shifted = p - np.array([0.0, 0.0, base_height])
-    return shifted @ R.T
+    return cast("np.ndarray", shifted @ R.T)
 
 
 def camera_to_road(points_cam: np.ndarray, attitude: Attitude, base_height: float) -> np.ndarray:
     """Camera optical-frame points [..., 3] -> road-frame points [..., 3]."""
     p = np.asarray(points_cam, dtype=np.float64)
     R = optical_from_road_rotation(attitude)
-    return p @ R + np.array([0.0, 0.0, base_height])
+    return cast("np.ndarray", p @ R + np.array([0.0, 0.0, base_height]))
 
 
 def voxel_centres(grid: GridSpec) -> np.ndarray:

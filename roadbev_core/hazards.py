@@ -33,7 +33,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import cv2
 import numpy as np
@@ -184,7 +184,7 @@ def _local_plane(values: np.ndarray, weights: np.ndarray, X: np.ndarray, Y: np.n
     if ok.any():
         coef = np.linalg.solve(A[ok], rhs[ok][..., None])[..., 0]  # [N, 3]
         level[ok] = coef[:, 0] + coef[:, 1] * X[ok] + coef[:, 2] * Y[ok]
-    return level
+    return cast("np.ndarray", level)
 
 
 def detect_hazards(elevation: np.ndarray, sigma: np.ndarray | None, resolution: float, centre: tuple[float, float],

@@ -8,7 +8,7 @@ Vectorized with ``np.bincount`` (about 100x+ faster than a per-point loop, see
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import numpy as np
 
@@ -87,7 +87,7 @@ def elevation_map_from_camera(
 def elevation_to_class(elevation: np.ndarray, grid: GridSpec) -> np.ndarray:
     """Class index [...] (int64) of the bin holding each elevation, clipped to the range."""
     idx = np.floor((np.asarray(elevation, dtype=np.float64) - grid.z_min) / grid.class_resolution)
-    return np.clip(np.nan_to_num(idx, nan=0.0), 0, grid.n_classes - 1).astype(np.int64)
+    return cast("np.ndarray", np.clip(np.nan_to_num(idx, nan=0.0), 0, grid.n_classes - 1).astype(np.int64))
 
 
 def class_to_elevation(index: np.ndarray, grid: GridSpec) -> np.ndarray:

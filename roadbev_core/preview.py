@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -227,7 +228,7 @@ def _overlap(centres: np.ndarray, half_cell: float, lo: np.ndarray, hi: np.ndarr
     """[len(lo), len(centres)] length shared by cells [c - h, c + h] and windows [lo, hi]."""
     left = np.maximum(centres[None, :] - half_cell, lo[:, None])
     right = np.minimum(centres[None, :] + half_cell, hi[:, None])
-    return np.clip(right - left, 0.0, None)
+    return cast("np.ndarray", np.clip(right - left, 0.0, None))
 
 
 def check_tracks(grid: GridSpec, track_offsets_m: Sequence[float], tyre_width_m: float, spacing_m: float) -> None:

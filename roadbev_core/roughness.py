@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import numpy as np
 
@@ -106,7 +106,7 @@ def _longest_run(z: np.ndarray, max_gap: int) -> np.ndarray:
     seg = z[lo: hi + 1]
     ok = np.isfinite(seg)
     positions = np.arange(seg.size)
-    return np.interp(positions, positions[ok], seg[ok])
+    return cast("np.ndarray", np.interp(positions, positions[ok], seg[ok]))
 
 
 def profile_roughness(profile: np.ndarray, spacing_m: float, sigma_m: np.ndarray | float | None = None,

@@ -13,6 +13,8 @@ Poses are ``(position [3], R [3, 3])`` pairs taking ``base_link`` coordinates to
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from roadbev_core.config import VehicleConfig
@@ -46,7 +48,7 @@ def camera_extrinsic(vehicle: VehicleConfig, mount_roll: float, mount_pitch: flo
 def planar_yaw(R: np.ndarray) -> np.ndarray:
     """Yaw (rad, ZYX Euler) of rotations [..., 3, 3]: the heading of their x axis."""
     R = np.asarray(R, np.float64)
-    return np.arctan2(R[..., 1, 0], R[..., 0, 0])
+    return cast("np.ndarray", np.arctan2(R[..., 1, 0], R[..., 0, 0]))
 
 
 def contact_plane(points: np.ndarray) -> np.ndarray:

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
 from queue import Empty, Full, Queue
-from typing import Any
+from typing import Any, cast
 
 from msg_bridge import bag
 from roadbev_core.errors import RoadbevError
@@ -91,7 +91,7 @@ def starts_with_header(msgtype: str) -> bool:
     if not fields:
         return False
     name, (_kind, detail) = fields[0]
-    return name == "header" and detail == "std_msgs/msg/Header"
+    return cast("bool", name == "header" and detail == "std_msgs/msg/Header")
 
 
 def restamp_cdr(data: bytes, stamp_ns: int) -> bytes:
@@ -108,7 +108,7 @@ def header_stamp_ns(data: bytes) -> int:
     """The header stamp of a CDR message whose first field is a Header."""
     fmt = "<iI" if data[1] & 1 else ">iI"
     sec, nsec = struct.unpack_from(fmt, data, 4)
-    return sec * 1_000_000_000 + nsec
+    return cast("int", sec * 1_000_000_000 + nsec)
 
 
 def _prefetched(messages: Iterator[Any], stop: threading.Event, depth: int = 256) -> Iterator[Any]:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 import torch
 from torch import nn
@@ -124,7 +124,7 @@ class ConvBnAct(nn.Module):
         self.act: nn.Module = {"silu": nn.SiLU(), "relu": nn.ReLU(), "relu6": nn.ReLU6(), None: nn.Identity()}[act]
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.act(self.bn(self._conv(x)))
+        return cast("torch.Tensor", self.act(self.bn(self._conv(x))))
 
     def _conv(self, x: torch.Tensor) -> torch.Tensor:
         conv = self.conv
@@ -132,10 +132,11 @@ class ConvBnAct(nn.Module):
                 and _ONEDNN and not torch.jit.is_tracing()):  # an ONNX export traces the plain conv
             # torch's heuristic sends batch-1 3-D convs on small volumes (the hourglasses' inner
             # levels) to a reference kernel ~20x slower than oneDNN's: call oneDNN directly.
-            return torch.ops.aten.mkldnn_convolution(
+            out = torch.ops.aten.mkldnn_convolution(
                 x.contiguous(), conv.weight, conv.bias, conv.padding, conv.stride, conv.dilation, conv.groups
             )
-        return conv(x)
+            return cast("torch.Tensor", out)
+        return cast("torch.Tensor", conv(x))
 
 
 class SqueezeExcite(nn.Module):
@@ -168,7 +169,7 @@ class MBConv(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         y = self.expand(x) if self.expand is not None else x
         y = self.project(self.se(self.depthwise(y)))
-        return x + y if self.residual else y
+        return cast("torch.Tensor", x + y if self.residual else y)
 
 
 class EfficientNetFeatures(nn.Module):

@@ -8,6 +8,8 @@ resolution cheap on a CPU (a 3x3 conv over all concatenated backbone channels co
 
 from __future__ import annotations
 
+from typing import cast
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -38,4 +40,4 @@ class PyramidFusion(nn.Module):
             if f.shape[-2:] != size:
                 f = F.interpolate(f, size=size, mode="bilinear", align_corners=False)
             resized.append(f)
-        return self.out(self.mix(torch.cat(resized, dim=1)))  # [B, C, H/s, W/s]
+        return cast("torch.Tensor", self.out(self.mix(torch.cat(resized, dim=1))))  # [B, C, H/s, W/s]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import cast
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -30,7 +32,7 @@ class MonoHead(nn.Module):
         full = self.full(self.stem(bev))  # [B, W, Ny, Nx]
         coarse = self.coarse(full)  # [B, 2W, Ny/2, Nx/2]
         up = F.interpolate(coarse, size=full.shape[-2:], mode="bilinear", align_corners=False)
-        return self.classify(full + self.up(up))  # [B, Nc, Ny, Nx]
+        return cast("torch.Tensor", self.classify(full + self.up(up)))  # [B, Nc, Ny, Nx]
 
 
 def _conv3d(c_in: int, c_out: int, stride: int = 1) -> ConvBnAct:
@@ -77,4 +79,4 @@ class StereoHead(nn.Module):
             x = F.relu(x + pair(x))
         for hourglass in self.hourglasses:
             x = hourglass(x)
-        return self.out(x)[:, 0]  # [B, Nz, Ny, Nx]
+        return cast("torch.Tensor", self.out(x)[:, 0])  # [B, Nz, Ny, Nx]

@@ -16,7 +16,7 @@ per frame, so a batch carries one lookup per sample.
 from __future__ import annotations
 
 from functools import lru_cache
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import numpy as np
 import torch
@@ -193,4 +193,4 @@ def window_zncc(
     cov = mean_ac - mean_a * mean_c
     var_a = (mean_aa - mean_a * mean_a).clamp_min(0)
     var_c = (mean_cc - mean_c * mean_c).clamp_min(0)
-    return (cov / torch.sqrt(var_a * var_c + eps)).view(b, n_z, fine_y // n, fine_x // n)
+    return cast("torch.Tensor", (cov / torch.sqrt(var_a * var_c + eps)).view(b, n_z, fine_y // n, fine_x // n))

@@ -6,6 +6,7 @@ Pure numpy (no SciPy in the project's environment). Shapes in the comments.
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import numpy as np
 
@@ -103,5 +104,5 @@ def solve_dare(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, N: np
         Hk, Gk = H_next, G_next
         if done:
             P = 0.5 * (Hk + Hk.T)
-            return P
+            return cast("np.ndarray", P)
     raise LtiError(f"the Riccati iteration did not converge in {max_iter} doublings")

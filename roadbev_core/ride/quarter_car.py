@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -117,4 +118,4 @@ class QuarterCar:
         ks, cs, kt = self.spring_n_per_m, self.damper_ns_per_m, self.tyre_n_per_m
         susp = cs * s + ks
         den = (ms * s * s + susp) * (mu * s * s + susp + kt) - susp * susp
-        return np.abs(susp * kt / den)
+        return cast("np.ndarray", np.abs(susp * kt / den))

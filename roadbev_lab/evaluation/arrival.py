@@ -37,7 +37,7 @@ import math
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, cast
 
 import numpy as np
 
@@ -187,7 +187,7 @@ class RoadMap(NamedTuple):
         c, s = np.cos(heading)[:, None], np.sin(heading)[:, None]
         px = np.asarray(x)[:, None] + c * a - s * b  # [N, S]
         py = np.asarray(y)[:, None] + s * a + c * b
-        return self.height(px, py).mean(axis=1)
+        return cast("np.ndarray", self.height(px, py).mean(axis=1))
 
 
 @dataclass(frozen=True)
@@ -290,7 +290,7 @@ def feature_mask(heights: np.ndarray, spacing: float, threshold: float = 0.015, 
     for shift in range(1, d + 1):
         out[shift:] |= raw[:-shift]
         out[:-shift] |= raw[shift:]
-    return out
+    return cast("np.ndarray", out)
 
 
 def wheel_paths(truth: Trajectory, road_map: RoadMap, settings: ArrivalSettings, start_ns: int,

@@ -24,7 +24,7 @@ import math
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -121,7 +121,7 @@ class EvalResult:
         out = json_safe(dict(self.metrics))
         if per_frame:
             out["per_frame"] = json_safe(self.per_frame)
-        return out
+        return cast("dict[str, Any]", out)
 
 
 def json_safe(value: Any) -> Any:

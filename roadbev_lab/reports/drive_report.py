@@ -19,7 +19,7 @@ import html
 import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from matplotlib import patches
@@ -60,7 +60,7 @@ def format_cell(value: Any, pattern: str) -> str:
 def _top_down(layer: np.ndarray) -> np.ndarray:
     """A grid_map-order layer [R, C] (row 0 at the largest x, column 0 at the largest y) as an
     image with x to the right and y up: [C, R]."""
-    return np.asarray(layer).T[:, ::-1]
+    return cast("np.ndarray", np.asarray(layer).T[:, ::-1])
 
 
 def _map_axes(ax: Any, m: MapMosaic, layer: np.ndarray, title: str, cmap: str, unit: str,

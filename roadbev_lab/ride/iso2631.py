@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -115,7 +116,7 @@ class WkFilter:
             raise WeightingError(f"need a finite 1-D signal, got shape {y.shape}")
         for b, a in self.coefficients():
             y = _biquad(b, a, y)
-        return y
+        return cast("np.ndarray", y)
 
 
 def _biquad(b: np.ndarray, a: np.ndarray, x: np.ndarray) -> np.ndarray:

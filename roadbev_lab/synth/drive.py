@@ -18,7 +18,7 @@ import functools
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import numpy as np
 
@@ -412,7 +412,7 @@ def visible_points(
     surface = depth[v[idx].astype(np.int64), u[idx].astype(np.int64)]
     suspect = idx[surface < z[idx] - 0.02]
     if suspect.size == 0:
-        return seen
+        return cast("np.ndarray", seen)
     origin = np.array([pose.x, pose.y, pose.z])
     p = world[suspect]  # [M, 3]
     horizontal = np.hypot(p[:, 0] - origin[0], p[:, 1] - origin[1])  # [M]
@@ -428,7 +428,7 @@ def visible_points(
         below = q[..., 2] < scene.height(q[..., 0], q[..., 1]) - tolerance_m
         blocked[chunk] = np.any(below & (d <= reach[chunk, None]), axis=1)
     seen[suspect[blocked]] = False
-    return seen
+    return cast("np.ndarray", seen)
 
 
 # --- drives --------------------------------------------------------------------------------------

@@ -20,7 +20,7 @@ import itertools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, cast
 
 import cv2
 import numpy as np
@@ -124,7 +124,7 @@ def roughness_field(
     def psd(k: np.ndarray) -> np.ndarray:
         # ISO 8608 within its band; beyond n_max the spectrum steepens by n^-2 more (texture
         # below ~25 cm wavelength is the pavement's macrotexture, drawn by the albedo tiles).
-        return c * (k * k + kc * kc) ** -1.5 / (1.0 + (k / k_hi) ** 2)
+        return cast("np.ndarray", c * (k * k + kc * kc) ** -1.5 / (1.0 + (k / k_hi) ** 2))
 
     factor = 8
     coarse = resolution * factor
@@ -139,7 +139,7 @@ def roughness_field(
     ]
     high = _spectral_noise((n_x, n_y), resolution, rng, psd, lambda k: (k >= k_split).astype(np.float64))
     field = (up + high.astype(np.float32)) * np.float32(scale)
-    return (field - field.mean()).astype(np.float32)
+    return cast("np.ndarray", (field - field.mean()).astype(np.float32))
 
 
 def profile_psd(profile: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
@@ -197,11 +197,11 @@ class SurfaceCanvas:
 
     @property
     def x_end(self) -> float:
-        return self.x0 + (self.heights.shape[0] - 1) * self.resolution
+        return cast("float", self.x0 + (self.heights.shape[0] - 1) * self.resolution)
 
     @property
     def y_end(self) -> float:
-        return self.y0 + (self.heights.shape[1] - 1) * self.resolution
+        return cast("float", self.y0 + (self.heights.shape[1] - 1) * self.resolution)
 
     def window(
         self, x_lo: float, x_hi: float, y_lo: float, y_hi: float

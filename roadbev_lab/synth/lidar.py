@@ -11,6 +11,7 @@ The result is in the LiDAR's own frame (x forward, y left, z up), as a driver pu
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -58,7 +59,7 @@ def cast_rays(scene: Scene, origin: np.ndarray, directions: np.ndarray, max_rang
 
     def below(rays: np.ndarray, t: np.ndarray) -> np.ndarray:
         p = o + d[rays] * t[:, None]
-        return p[:, 2] <= scene.height(p[:, 0], p[:, 1])
+        return cast("np.ndarray", p[:, 2] <= scene.height(p[:, 0], p[:, 1]))
 
     n = d.shape[0]
     # Coarse steps grow with the range (rays reach the road at grazing angles far away).

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import cv2
 import numpy as np
@@ -110,7 +110,7 @@ def ray_directions(camera: StereoCamera, pose: CameraPose) -> np.ndarray:
     # d_opt @ M with d_opt = (u, v, 1), written out per row and column (separable, float32)
     cols = (u[:, None] * M[0]).astype(np.float32)  # [W, 3]
     rows = (v[:, None] * M[1] + M[2]).astype(np.float32)  # [H, 3]
-    return (rows[:, None, :] + cols[None, :, :]).reshape(-1, 3)
+    return cast("np.ndarray", (rows[:, None, :] + cols[None, :, :]).reshape(-1, 3))
 
 
 class ViewCrop(NamedTuple):
@@ -191,7 +191,7 @@ class _Rays(NamedTuple):
         row = np.clip(self.row0 + s * self.drow[sel], -2.0, crop.heights.shape[0] + 1.0)
         col = np.clip(self.col0 + s * self.dcol[sel], -2.0, crop.heights.shape[1] + 1.0)
         disp = remap_points(crop.heights, col, row, cv2.BORDER_CONSTANT, 0.0)
-        return self.f0 + s * self.df[sel] - disp
+        return cast("np.ndarray", self.f0 + s * self.df[sel] - disp)
 
 
 def _intersect(
@@ -380,9 +380,9 @@ def _glints(
         raise SynthError("glint tiles must be rip-mapped and laid like the pavement tile")
     lobe = np.float32(math.radians(scene.config.glint_lobe_deg))
     rho = np.exp(-np.square(np.float32(camera.baseline) / np.maximum(rng_m, np.float32(0.1)) / lobe))
-    return np.sqrt(rho) * sample_ripmap(shared_rip, ty, tx, lod_row, lod_col) + np.sqrt(1.0 - rho) * sample_ripmap(
-        own_rip, ty, tx, lod_row, lod_col
-    )
+    from_shared = sample_ripmap(shared_rip, ty, tx, lod_row, lod_col)
+    from_own = sample_ripmap(own_rip, ty, tx, lod_row, lod_col)
+    return cast("np.ndarray", np.sqrt(rho) * from_shared + np.sqrt(1.0 - rho) * from_own)
 
 
 def _shade_ground(
@@ -492,7 +492,7 @@ def _shade_ground(
         rgb[on] = rgb[on] * (1 - c) + paint[on] * wear * c
     rgb *= (shade[:, 2] * light)[:, None]
     haze = (1.0 - np.exp(-rng_m / np.float32(HAZE_DISTANCE_M)))[:, None]
-    return rgb * (1 - haze) + scene.sky_horizon.astype(np.float32) * haze
+    return cast("np.ndarray", rgb * (1 - haze) + scene.sky_horizon.astype(np.float32) * haze)
 
 
 def _shade_sky(scene: Scene, dirs: np.ndarray) -> np.ndarray:
@@ -508,7 +508,7 @@ def _shade_sky(scene: Scene, dirs: np.ndarray) -> np.ndarray:
     leaves = _FOLIAGE[(np.floor(az * 900.0).astype(np.int64) % 251), (np.floor(elev * 900.0).astype(np.int64) % 251)]
     trees = np.array([0.10, 0.13, 0.08]) * (0.6 + 0.8 * leaves)[:, None]
     trees = 0.6 * trees + 0.4 * scene.sky_horizon
-    return np.where((elev < tl)[:, None], trees, col).astype(np.float32)
+    return cast("np.ndarray", np.where((elev < tl)[:, None], trees, col).astype(np.float32))
 
 
 _FOLIAGE = cv2.GaussianBlur(np.random.default_rng(7).random((251, 251)).astype(np.float32), (0, 0), 1.0)
@@ -622,4 +622,4 @@ def sensor_image(
         if decoded is None:
             raise SynthError("JPEG decoding failed")
         out = decoded[:, :, ::-1].copy()
-    return out
+    return cast("np.ndarray", out)

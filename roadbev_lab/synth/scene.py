@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import cast
 
 import cv2
 import numpy as np
@@ -189,7 +190,7 @@ class Scene:
 
     def height(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Surface height at world points (plane + displacement, float64, bilinear)."""
-        return self.plane(x, y) + self.canvas.displacement(x, y)
+        return cast("np.ndarray", self.plane(x, y) + self.canvas.displacement(x, y))
 
 
 def _smooth_noise(shape: tuple[int, int], cells: float, rng: np.random.Generator) -> np.ndarray:

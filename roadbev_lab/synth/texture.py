@@ -16,6 +16,7 @@ import functools
 import itertools
 import math
 from dataclasses import dataclass
+from typing import cast
 
 import cv2
 import numpy as np
@@ -77,7 +78,7 @@ def remap_points(image: np.ndarray, col: np.ndarray, row: np.ndarray, border: in
     out = cv2.remap(
         image, mx.reshape(rows, width), my.reshape(rows, width), cv2.INTER_LINEAR, borderMode=border, borderValue=value
     )
-    return out.reshape(rows * width, *image.shape[2:])[:n]
+    return cast("np.ndarray", out.reshape(rows * width, *image.shape[2:])[:n])
 
 
 def sample_mip(
@@ -193,7 +194,7 @@ def _fourier_noise(size: int, rng: np.random.Generator, beta: float, k_lo: float
     amp = np.where((k >= k_lo) & (k <= k_hi), np.maximum(k, 1e-9) ** -beta, 0.0)
     spec = np.fft.rfft2(rng.standard_normal((size, size))) * amp
     field = np.fft.irfft2(spec, s=(size, size))
-    return (field / (field.std() + 1e-12)).astype(np.float32)
+    return cast("np.ndarray", (field / (field.std() + 1e-12)).astype(np.float32))
 
 
 def _brush_noise(size: int, rng: np.random.Generator) -> np.ndarray:
@@ -202,7 +203,7 @@ def _brush_noise(size: int, rng: np.random.Generator) -> np.ndarray:
     ky = np.fft.rfftfreq(size)[None, :]
     amp = np.exp(-0.5 * (ky / 0.004) ** 2) * ((np.abs(kx) > 0.01) & (np.abs(kx) < 0.25))
     field = np.fft.irfft2(np.fft.rfft2(rng.standard_normal((size, size))) * amp, s=(size, size))
-    return (field / (field.std() + 1e-12)).astype(np.float32)
+    return cast("np.ndarray", (field / (field.std() + 1e-12)).astype(np.float32))
 
 
 def _periodic_blobs(
@@ -234,7 +235,7 @@ def _composite_aggregate(
         colour = vsum / np.maximum(cov, 1e-6)
         alpha = np.clip(cov, 0.0, 1.0)
         out = out * (1.0 - alpha) + colour * alpha
-    return out
+    return cast("np.ndarray", out)
 
 
 @dataclass(frozen=True)

@@ -198,7 +198,7 @@ class LabelledFrames:
         return self.samples[index]
 
 
-class ModelInputs(Dataset):
+class ModelInputs(Dataset[dict[str, Any]]):
     """Tensors for a model from a frame source; prepared images are kept in memory if asked.
 
     Items are dicts: ``left``/``right`` uint8 [3, h, w] (right absent for mono), ``elevation``

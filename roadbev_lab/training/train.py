@@ -16,7 +16,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import torch
 import torch.distributed as dist
@@ -115,7 +115,7 @@ class CpuSyncBatchNorm(nn.modules.batchnorm._BatchNorm):
                 self.num_batches_tracked.add_(1)
         shape = (1, c, *([1] * (x.dim() - 2)))
         scale = (self.weight / torch.sqrt(var + self.eps)).view(shape)
-        return (x - mean.view(shape)) * scale + self.bias.view(shape)
+        return cast("torch.Tensor", (x - mean.view(shape)) * scale + self.bias.view(shape))
 
 
 def _to_cpu_sync_bn(module: nn.Module) -> nn.Module:

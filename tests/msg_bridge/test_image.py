@@ -104,7 +104,7 @@ def test_colour_orders_become_rgb(factory: MessageFactory) -> None:
         ({"data": np.zeros(10, np.uint8)}, "less than height\\*step"),
     ],
 )
-def test_malformed_images_raise_message_error(change: dict, message: str) -> None:
+def test_malformed_images_raise_message_error(change: dict[str, Any], message: str) -> None:
     factory = bag_factory()
     msg = array_to_image(_pixels("rgb8"), factory)  # 5x7 rgb8, step 21
     for name, value in change.items():

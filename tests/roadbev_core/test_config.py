@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -31,7 +33,7 @@ def test_default_grid_matches_contract() -> None:
         ({"class_resolution": 0.003}, "elevation classes"),
     ],
 )
-def test_grid_validation_gives_reasons(overrides: dict, message: str) -> None:
+def test_grid_validation_gives_reasons(overrides: dict[str, Any], message: str) -> None:
     with pytest.raises(ConfigError, match=message):
         GridSpec().with_overrides(**overrides)
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -128,7 +129,7 @@ def test_round_trip_and_typed_sections() -> None:
         ({"preview.tyre_width_m": 0.0}, "preview settings"),
     ],
 )
-def test_nonsense_is_refused_with_the_parameters_name(params: dict, reason: str) -> None:
+def test_nonsense_is_refused_with_the_parameters_name(params: dict[str, Any], reason: str) -> None:
     with pytest.raises(ParamError, match=reason):
         RoadbevConfig.from_params(params)
 

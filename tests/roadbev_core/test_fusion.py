@@ -6,6 +6,7 @@ import json
 import math
 from collections.abc import Callable
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import pytest
@@ -32,7 +33,7 @@ Road = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 def _settings(**changes: object) -> MapSettings:
-    return RoadbevConfig.from_params({f"map.{k}": v for k, v in changes.items()}).map_settings()
+    return cast("MapSettings", RoadbevConfig.from_params({f"map.{k}": v for k, v in changes.items()}).map_settings())
 
 
 def _frame(road: Road, base: PlanarPose, base_z: float, pitch: float = 0.0) -> np.ndarray:

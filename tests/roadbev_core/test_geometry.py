@@ -3,6 +3,7 @@ from __future__ import annotations
 import math
 import pickle
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -155,7 +156,7 @@ def test_points_behind_camera_are_outside() -> None:
     assert not proj.inside.all()
 
 
-def _rsrd_samples(rsrd: Path) -> list[dict]:
+def _rsrd_samples(rsrd: Path) -> list[dict[str, Any]]:
     out = []
     for f in sorted((rsrd / "sample_info").glob("*/*.pkl")):
         with f.open("rb") as fh:
@@ -169,7 +170,7 @@ def test_real_rsrd_rig_sees_the_whole_grid(rsrd_dir: Path) -> None:
     corners = centres[np.ix_([0, -1], [0, -1], [0, -1])].reshape(-1, 3)  # [8, 3]
     samples = _rsrd_samples(rsrd_dir)
     assert len(samples) == 1581
-    calibs: dict[str, dict] = {}
+    calibs: dict[str, dict[str, Any]] = {}
     pitches = []
     for s in samples:
         day = s["time"][:8]

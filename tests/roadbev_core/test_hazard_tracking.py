@@ -6,6 +6,7 @@ from __future__ import annotations
 import functools
 import itertools
 import math
+from typing import cast
 
 import numpy as np
 import pytest
@@ -27,7 +28,7 @@ def _road(x: np.ndarray, y: np.ndarray, rough: np.ndarray | None = None) -> np.n
     z -= np.where((np.abs(X - 26.0) < 0.3) & (np.abs(Y - 0.5) < 0.3), 0.04, 0.0)
     if rough is not None:
         z += rough
-    return z.astype(np.float32)
+    return cast("np.ndarray", z.astype(np.float32))
 
 
 @functools.cache

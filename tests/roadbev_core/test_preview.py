@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -96,7 +98,7 @@ def test_time_of_arrival_needs_a_positive_speed() -> None:
         ({"max_distance_m": 2.0}, "no sample"),
     ],
 )
-def test_bad_settings_raise_preview_error(kwargs: dict, message: str) -> None:
+def test_bad_settings_raise_preview_error(kwargs: dict[str, Any], message: str) -> None:
     with pytest.raises(PreviewError, match=message):
         wheel_track_profiles(np.zeros(GRID.shape), None, GRID, **kwargs)
 

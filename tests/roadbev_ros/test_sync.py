@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import pytest
 
 from roadbev_ros.sync import ApproximateTimeSync, DropReason, SyncError
@@ -11,7 +13,7 @@ MS = 1_000_000
 
 class Recorder:
     def __init__(self) -> None:
-        self.sets: list[tuple] = []
+        self.sets: list[tuple[Any, ...]] = []
         self.drops: list[tuple[int, int, str]] = []
 
     def emit(self, *msgs: object) -> None:

@@ -12,7 +12,7 @@ import json
 import re
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import pytest
 import yaml
@@ -60,7 +60,7 @@ def node_graph(ros: Any) -> Iterator[dict[str, Any]]:
 
 def known(graph: dict[str, Any], topic: str) -> str | None:
     """The type of ``topic`` as the node has it (None: the node neither publishes nor subscribes it)."""
-    return graph["published"].get(topic) or graph["subscribed"].get(topic)
+    return cast("str | None", graph["published"].get(topic) or graph["subscribed"].get(topic))
 
 
 def check_topic(graph: dict[str, Any], topic: str, msgtype: str | None = None) -> bool:

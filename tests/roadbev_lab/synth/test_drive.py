@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import pickle
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -203,7 +204,7 @@ def test_random_samples_differ_and_use_the_default_rig() -> None:
         ({"row_offset_px": float("nan")}, "row_offset_px"),
     ],
 )
-def test_road_config_rejects_bad_values(kwargs: dict, match: str) -> None:
+def test_road_config_rejects_bad_values(kwargs: dict[str, Any], match: str) -> None:
     with pytest.raises(SynthError, match=match):
         RoadConfig(**kwargs)
 
@@ -217,7 +218,7 @@ def test_road_config_rejects_bad_values(kwargs: dict, match: str) -> None:
         ({"frames": 1000, "speed_mps": 10.0}, "split it"),
     ],
 )
-def test_drive_config_rejects_bad_values(kwargs: dict, match: str) -> None:
+def test_drive_config_rejects_bad_values(kwargs: dict[str, Any], match: str) -> None:
     with pytest.raises(SynthError, match=match):
         DriveConfig(**kwargs)
     with pytest.raises(SynthError):
@@ -240,7 +241,7 @@ def test_short_drives_stay_realistic(frames: int) -> None:
 
 def test_embedded_attitude_statistics_match_the_real_rsrd_poses(rsrd_dir: Path) -> None:
     """RSRD_ATTITUDE (the library never loads the pickles) equals the stats of the real poses."""
-    calibs: dict[str, dict] = {}
+    calibs: dict[str, dict[str, Any]] = {}
     per_seq: dict[str, list[tuple[float, float]]] = {}
     for f in sorted((rsrd_dir / "sample_info").glob("*/*.pkl")):
         with f.open("rb") as fh:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -144,6 +145,6 @@ def test_road_map_is_the_scene_in_odom(drive: RidingDrive) -> None:
     [({"curve_amplitude_m": 3.0}, "curve_amplitude"), ({"tail_s": -1.0}, "tail_s"),
      ({"road_map_resolution_m": 0.0}, "road_map_resolution")],
 )
-def test_bad_riding_config(kwargs: dict, match: str) -> None:
+def test_bad_riding_config(kwargs: dict[str, Any], match: str) -> None:
     with pytest.raises(SynthError, match=match):
         RidingConfig(**kwargs)
