@@ -21,6 +21,7 @@ from msg_bridge._common import (
     field,
     make_header,
 )
+from roadbev_core.config import ConfigError, check_image_size
 
 __all__ = [
     "ENCODINGS",
@@ -68,7 +69,6 @@ def check_image_message(msg: Any, max_bytes: int, what: str = "image") -> int:
     Raises:
         MessageError: naming the size and the limit.
     """
-    from roadbev_core.config import ConfigError, check_image_size
 
     nbytes = len(field(msg, "data"))
     if nbytes > max_bytes:

@@ -16,6 +16,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from roadbev_core.attitude import ImuStale
+from roadbev_core.frame import FrameError, ImplausibleFrame
+from roadbev_core.preview import PreviewError
+
 __all__ = [
     "COMPRESSED_SUFFIX",
     "Check",
@@ -490,9 +494,6 @@ def level_name(level: int) -> str:
 
 def problem_kind(exc: Exception) -> str:
     """The diagnostics kind under which a refused frame is counted and logged."""
-    from roadbev_core.attitude import ImuStale
-    from roadbev_core.frame import FrameError, ImplausibleFrame
-    from roadbev_core.preview import PreviewError
 
     kinds = ((ImuStale, "imu stale"), (ImplausibleFrame, "implausible input"), (FrameError, "bad frame"),
              (PreviewError, "preview"))

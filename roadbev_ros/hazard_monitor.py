@@ -43,6 +43,7 @@ from roadbev_core.ego_motion import EgoMotion, EgoMotionError, EgoMotionStale
 from roadbev_core.errors import RoadbevError
 from roadbev_core.hazard_tracking import HazardTracker, TrackerError, TrackerSettings
 from roadbev_core.hazards import HazardSettings
+from roadbev_ros.dds import node_usage, run_node
 from roadbev_ros.node_params import declare_typed
 
 __all__ = ["DEFAULTS", "HazardMonitorNode", "main"]
@@ -167,7 +168,6 @@ class HazardMonitorNode(Node):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the node until Ctrl-C / SIGTERM; 2 on bad parameters."""
-    from roadbev_ros.dds import node_usage, run_node
 
     usage = node_usage("roadbev_hazard_monitor", (__doc__ or "").splitlines()[0], DEFAULTS)
     return run_node(HazardMonitorNode, "roadbev_hazard_monitor", (RoadbevError,), None if args is None else list(args),

@@ -53,6 +53,7 @@ from msg_bridge.grid_map import ROAD_FRAME
 from msg_bridge.preview import preview_from_message
 from roadbev_core.config import BASE_FRAME, ParamError
 from roadbev_core.ride import OnlinePreviewController, PreviewLqr, RideError
+from roadbev_ros.dds import node_usage, run_node
 from roadbev_ros.node_params import declare_typed
 
 __all__ = ["PreviewControllerNode", "main", "plane_slope_x"]
@@ -196,7 +197,6 @@ class PreviewControllerNode(Node):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the node until Ctrl-C / SIGTERM; 2 on bad parameters."""
-    from roadbev_ros.dds import node_usage, run_node
 
     usage = node_usage("roadbev_preview_controller", (__doc__ or "").splitlines()[0], DEFAULTS)
     return run_node(PreviewControllerNode, "roadbev_preview_controller", (RideError, ParamError),

@@ -19,6 +19,7 @@ import argparse
 import json
 from pathlib import Path
 
+from msg_bridge.bag import bag_info, recover_bag
 from roadbev_cli.cli import add_output_flags, output_path, progress_bar, shows_progress
 
 HELP = "what a bag holds (and whether it was closed cleanly); recover what is readable"
@@ -45,7 +46,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``info`` or ``recover``; a bag with nothing readable raises (exit 2)."""
-    from msg_bridge.bag import bag_info, recover_bag
 
     if args.bag_command == "info":
         info = bag_info(args.bag, verify=not args.no_verify)

@@ -13,15 +13,17 @@ import shutil
 from pathlib import Path
 
 from roadbev_cli.cli import CommandError, add_output_flags, shows_progress
+from roadbev_core.backends import available
 from roadbev_core.config import DEFAULT_BACKEND
+from roadbev_core.errors import RoadbevError
+from roadbev_lab.demo.drive import DEFAULT_DRIVE_FRAMES, DRIVE_SEED
+from roadbev_lab.demo.run import DEFAULT_FRAMES, DEFAULT_OUT, DemoOptions, run_demo, summary_lines
 
 HELP = "the main job: synthetic drive -> node over ROS 2 -> recorded outputs -> report (+ a drive, map on/off)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``roadbev demo``."""
-    from roadbev_lab.demo.drive import DEFAULT_DRIVE_FRAMES, DRIVE_SEED
-    from roadbev_lab.demo.run import DEFAULT_FRAMES, DEFAULT_OUT
 
     parser.add_argument("--frames", type=int, default=DEFAULT_FRAMES, metavar="N",
                         help=f"frames of the synthetic drive (default {DEFAULT_FRAMES}; ignored with --bag)")
@@ -51,9 +53,6 @@ def run(args: argparse.Namespace) -> int:
     run leaves the last good report as it was; what the failed one wrote (the node's log among
     it) is kept in ``DIR.failed`` and the error line names it.
     """
-    from roadbev_core.backends import available
-    from roadbev_core.errors import RoadbevError
-    from roadbev_lab.demo.run import DemoOptions, run_demo, summary_lines
 
     # DemoError and CommandError are RoadbevErrors: the CLI prints either as one line (it catches
     # the root class, so running as `python -m roadbev_cli.cli`, as `make demo` does, is no different)

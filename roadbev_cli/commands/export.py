@@ -9,6 +9,18 @@ from pathlib import Path
 from typing import Any
 
 from roadbev_cli.cli import CommandError, add_output_flags, output_path, progress_bar, shows_progress
+from roadbev_core.checkpoint import load_model, save_checkpoint
+from roadbev_core.deploy import (
+    OPSET,
+    DeployError,
+    export_onnx,
+    frame_feeds,
+    input_names,
+    quantize_int8,
+    trtexec_shapes,
+    write_graph,
+)
+from roadbev_lab.synth import make_sample
 
 HELP = "export a checkpoint for deployment (.pt or ONNX)"
 # Calibration frames of --int8: training seeds (disjoint from every test and tuning seed), as many
@@ -17,7 +29,6 @@ CALIBRATION_SCENES = 24
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from roadbev_core.deploy import OPSET
 
     parser.add_argument("checkpoint", type=Path, help="a checkpoint written by `roadbev train`")
     parser.add_argument("out", type=output_path, help="where to write the export")
@@ -37,7 +48,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from roadbev_core.checkpoint import load_model, save_checkpoint
 
     model, payload = load_model(args.checkpoint)
     meta = dict(payload.get("meta", {}))
@@ -48,7 +58,6 @@ def run(args: argparse.Namespace) -> int:
     if args.format == "onnx":
         if args.half:
             raise CommandError("--half is for --format pt (the ONNX graph is fp32; engines choose their precision)")
-        from roadbev_core.deploy import export_onnx, input_names
 
         data = export_onnx(model, None if args.int8 else args.out, meta=meta, opset=args.opset, gather=args.gather)
         path = args.out
@@ -63,7 +72,6 @@ def run(args: argparse.Namespace) -> int:
         what = "checkpoint"
     params = sum(p.numel() for p in model.parameters())
     if args.format == "onnx":
-        from roadbev_core.deploy import trtexec_shapes
 
         print("TensorRT (README, Deployment), batch 1 of 960x528 frames (grey's H x W follow the frames): "
               f"trtexec --onnx={path} --shapes={trtexec_shapes(model.config, model.grid, 960, 528)}")
@@ -75,8 +83,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _write_int8(data: bytes, model: Any, args: argparse.Namespace) -> None:
     """Quantise the exported graph on training scenes and write it to ``args.out`` (atomically)."""
-    from roadbev_core.deploy import DeployError, frame_feeds, quantize_int8, write_graph
-    from roadbev_lab.synth import make_sample
     if args.calibration_scenes < 1:
         raise CommandError(f"--calibration-scenes must be >= 1, got {args.calibration_scenes}")
     feeds = []

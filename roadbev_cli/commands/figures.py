@@ -11,6 +11,9 @@ import argparse
 from pathlib import Path
 
 from roadbev_cli.cli import list_item
+from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_lab.reports.figures import elevation_figure, voxel_columns_figure
+from roadbev_lab.synth import FEATURE_NAMES, REAL_ROAD_MIDDLE, RoadConfig, make_sample
 
 HELP = "render the geometry and label figures (voxel columns, GT elevation map)"
 DEFAULT_FEATURES = ("pothole", "speed_bump", "crack")
@@ -20,7 +23,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("figures"), help="output directory (default: ./figures)")
     parser.add_argument("--seed", type=int, default=0, help="synthetic scene seed (default 0)")
     parser.add_argument("--road-class", default="C", help="ISO 8608 roughness class A..E (default C)")
-    from roadbev_lab.synth import FEATURE_NAMES
 
     parser.add_argument(
         "--features", nargs="*", type=list_item, metavar="FEATURE", choices=FEATURE_NAMES,
@@ -35,9 +37,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     # Imported here: `roadbev --help` stays fast.
-    from roadbev_core.config import GridSpec, StereoCamera
-    from roadbev_lab.reports.figures import elevation_figure, voxel_columns_figure
-    from roadbev_lab.synth import REAL_ROAD_MIDDLE, RoadConfig, make_sample
 
     features = tuple(args.features)
     road = REAL_ROAD_MIDDLE.apply(RoadConfig(road_class=str(args.road_class).upper(), features=features,

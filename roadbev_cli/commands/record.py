@@ -16,6 +16,8 @@ import threading
 import time
 
 from roadbev_cli.cli import CommandError, add_output_flags, output_path, topic_name, warn
+from roadbev_ros.dds import init_ros
+from roadbev_ros.record import Recorder
 
 HELP = "record topics to an MCAP bag"
 
@@ -32,8 +34,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from roadbev_ros.dds import init_ros
-    from roadbev_ros.record import Recorder
 
     if args.out.exists():
         raise OSError(f"{args.out} exists already; not overwriting it")

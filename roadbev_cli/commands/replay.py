@@ -35,6 +35,10 @@ from roadbev_cli.cli import (
     warn,
 )
 from roadbev_core.errors import RoadbevError
+from roadbev_lab.evaluation.frames import to_json
+from roadbev_ros.dds import init_ros
+from roadbev_ros.diagnostics import COMPRESSED_SUFFIX, other_transport
+from roadbev_ros.replay import IMAGE_TYPES, replay_bag
 
 HELP = "publish a bag's topics over ROS 2 with their original timing"
 DEFAULT_WAIT_S = 10.0
@@ -63,7 +67,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def waited_topics(bag_path: Path, topics: list[str] | None) -> list[str] | None:
     """The topics the replay waits for: the replayed image topics (None = all, when none)."""
-    from roadbev_ros.replay import IMAGE_TYPES
 
     available = bag_topics(bag_path)
     images = [t for t, info in available.items() if info.msgtype in IMAGE_TYPES and (topics is None or t in topics)]
@@ -72,7 +75,6 @@ def waited_topics(bag_path: Path, topics: list[str] | None) -> list[str] | None:
 
 def transport_hint(node: Any, topic: str) -> str:
     """Why ``topic`` may have no subscriber: someone listens on its other image transport."""
-    from roadbev_ros.diagnostics import COMPRESSED_SUFFIX, other_transport
 
     other = other_transport(topic)
     if node.count_subscribers(other) == 0:
@@ -93,9 +95,6 @@ def published_of_bag(bag: Path, per_topic: Mapping[str, int]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from roadbev_lab.evaluation.frames import to_json
-    from roadbev_ros.dds import init_ros
-    from roadbev_ros.replay import replay_bag
 
     if not (args.rate == 0 or MIN_RATE <= args.rate <= MAX_RATE):
         raise CommandError(f"--rate must be 0 (as fast as possible) or in [{MIN_RATE:g}, {MAX_RATE:g}], "

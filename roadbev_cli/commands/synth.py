@@ -21,12 +21,23 @@ from dataclasses import replace
 from pathlib import Path
 
 from roadbev_cli.cli import CommandError, add_output_flags, list_item, progress_bar, shows_progress
+from roadbev_lab.evaluation.drivebag import write_drive_bag
+from roadbev_lab.evaluation.evalbag import write_eval_bag
+from roadbev_lab.synth import (
+    FEATURE_NAMES,
+    REAL_ROAD_MIDDLE,
+    DriveConfig,
+    OdometryNoise,
+    RidingConfig,
+    RidingDrive,
+    RoadConfig,
+    SyntheticDrive,
+)
 
 HELP = "write a synthetic evaluation/training bag (MCAP)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from roadbev_lab.synth import FEATURE_NAMES
 
     parser.add_argument("out", type=Path, help="output bag: NAME.mcap (single file) or a directory (its folder is "
                         "created)")
@@ -82,16 +93,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
 
-    from roadbev_lab.evaluation.evalbag import write_eval_bag
-    from roadbev_lab.synth import (
-        REAL_ROAD_MIDDLE,
-        DriveConfig,
-        OdometryNoise,
-        RidingConfig,
-        RidingDrive,
-        RoadConfig,
-        SyntheticDrive,
-    )
 
     if args.frames is not None and args.duration is not None:
         raise CommandError("give --frames or --duration, not both")
@@ -127,7 +128,6 @@ def run(args: argparse.Namespace) -> int:
     if args.image_scale != 1.0:
         config = replace(config, camera=config.camera.scaled(args.image_scale))
     if args.drive:
-        from roadbev_lab.evaluation.drivebag import write_drive_bag
 
         riding = RidingConfig(
             drive=config,

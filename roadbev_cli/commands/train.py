@@ -12,6 +12,12 @@ import sys
 from pathlib import Path
 
 from roadbev_cli.cli import CommandError, add_output_flags, shows_progress
+from roadbev_core.config import GridSpec, parse_assignments
+from roadbev_core.models.presets import model_config
+from roadbev_lab.data.rsrd import RsrdSet
+from roadbev_lab.evaluation.evalbag import bag_frames
+from roadbev_lab.training.datasets import TEST_SEED_START, ConcatSource, FrameSource, LabelledFrames, SyntheticSet
+from roadbev_lab.training.train import TrainConfig, train
 
 HELP = "train RoadBEV-mono / RoadBEV-stereo"
 DEFAULT_CACHE = Path(".cache") / "roadbev"
@@ -58,11 +64,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from roadbev_core.config import GridSpec, parse_assignments
-    from roadbev_core.models.presets import model_config
-    from roadbev_lab.evaluation.evalbag import bag_frames
-    from roadbev_lab.training.datasets import TEST_SEED_START, ConcatSource, FrameSource, LabelledFrames, SyntheticSet
-    from roadbev_lab.training.train import TrainConfig, train
 
     overrides = parse_assignments(args.model_option, "--model-option")  # before any data is read
     sources: list[FrameSource] = []
@@ -74,7 +75,6 @@ def run(args: argparse.Namespace) -> int:
                                     appearance=args.synth_appearance))
     sources.extend(LabelledFrames(*bag_frames(bag), what=str(bag)) for bag in args.bag)
     if args.rsrd:
-        from roadbev_lab.data.rsrd import RsrdSet
 
         if not args.rsrd_info or not args.rsrd_calib:
             raise CommandError("--rsrd needs --rsrd-info and --rsrd-calib files")

@@ -36,6 +36,14 @@ import numpy as np
 
 from roadbev_core.config import DEFAULT_BACKEND
 from roadbev_core.errors import RoadbevError
+from roadbev_core.hazards import HazardError, detect_hazards
+from roadbev_core.ride import RideError
+from roadbev_lab.evaluation.arrival import ArrivalError, arrival_points, per_frame_previews
+from roadbev_lab.evaluation.drivebag import arrival_settings, read_drive_truth
+from roadbev_lab.evaluation.frames import to_json
+from roadbev_lab.evaluation.offline import OfflineEvalError, prepare_bag, run_prepared
+from roadbev_lab.ride import RideSettings, gain_share, ride
+from roadbev_lab.synth import REAL_ROAD_MIDDLE, DriveConfig, RidingConfig, RoadConfig
 
 __all__ = [
     "DEFAULT_DRIVE_FRAMES",
@@ -74,7 +82,6 @@ def drive_config(frames: int = DEFAULT_DRIVE_FRAMES, seed: int = DRIVE_SEED, ima
     """The demo's drive (a :class:`roadbev_lab.synth.RidingConfig`): ``frames`` camera frames at
     10 Hz and 10 m/s over an ISO 8608 class C road with a speed bump and a pothole every ~5 m,
     the motion continuing 1.5 s after the last frame (the ride's ceiling needs the road ahead)."""
-    from roadbev_lab.synth import REAL_ROAD_MIDDLE, DriveConfig, RidingConfig, RoadConfig
 
     road = REAL_ROAD_MIDDLE.apply(
         RoadConfig(road_class="C", features=DRIVE_FEATURES, feature_spacing_m=DRIVE_FEATURE_SPACING_M))
@@ -328,7 +335,6 @@ def _read_features(bag: Path) -> list[TrueFeature] | None:
 def _truth_hazards(truth: Any, m: MapMosaic) -> list[TrueFeature]:
     """Hazards of the true road map over the cells the fused map held: the reference when the
     bag's true features are unknown."""
-    from roadbev_core.hazards import detect_hazards
 
     xs, ys = m.cell_centres()
     gx, gy = np.meshgrid(xs, ys, indexing="ij")
@@ -361,12 +367,6 @@ def run_drive_section(
     """
     import time
 
-    from roadbev_core.hazards import HazardError, detect_hazards
-    from roadbev_core.ride import RideError
-    from roadbev_lab.evaluation.arrival import ArrivalError, arrival_points, per_frame_previews
-    from roadbev_lab.evaluation.drivebag import arrival_settings, read_drive_truth
-    from roadbev_lab.evaluation.offline import OfflineEvalError, prepare_bag, run_prepared
-    from roadbev_lab.ride import RideSettings, gain_share, ride
 
     seconds: dict[str, float] = {}
     runs: dict[bool, Any] = {}
@@ -448,6 +448,5 @@ def run_drive_section(
 
 def _json(metrics: Mapping[str, Any]) -> dict[str, Any]:
     """The metrics as ``roadbev eval --json`` writes them (NaN as null)."""
-    from roadbev_lab.evaluation.frames import to_json
 
     return dict(json.loads(to_json(dict(metrics))))

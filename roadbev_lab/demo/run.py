@@ -35,13 +35,37 @@ from typing import Any
 
 import numpy as np
 
-from roadbev_core.config import DEFAULT_BACKEND
+import roadbev_lab.evaluation.drivebag
+import roadbev_lab.evaluation.evalbag
+import roadbev_lab.synth
+from msg_bridge import bag
+from msg_bridge.grid_map import grid_map_to_arrays
+from msg_bridge.preview import preview_from_message
+from roadbev_core.config import DEFAULT_BACKEND, RoadbevConfig
 from roadbev_core.errors import RoadbevError
-from roadbev_lab.demo.drive import DEFAULT_DRIVE_FRAMES, DRIVE_SEED, RIDE_ROWS, DriveDemoError, DriveSection
-from roadbev_lab.evaluation.frames import to_json
+from roadbev_core.pipeline import Pipeline
+from roadbev_core.preview import wheel_track_profiles
+from roadbev_core.uncertainty import camera_positions
+from roadbev_core.visibility import hidden_cells
+from roadbev_lab.demo.drive import (
+    DEFAULT_DRIVE_FRAMES,
+    DRIVE_SEED,
+    RIDE_ROWS,
+    DriveDemoError,
+    DriveSection,
+    drive_config,
+    features_path,
+    run_drive_section,
+)
+from roadbev_lab.evaluation.drivebag import is_drive_bag, write_drive_bag
+from roadbev_lab.evaluation.evalbag import read_eval_bag, write_eval_bag
+from roadbev_lab.evaluation.frames import evaluate, to_json
 from roadbev_lab.evaluation.metrics import differences
+from roadbev_lab.evaluation.online import OnlineEvalError, evaluate_online
 from roadbev_lab.progress import progress_bar
 from roadbev_lab.reports.report import FrameView, ReportData, RunSummary, TimingTrace, TrackProfile, write_report
+from roadbev_lab.synth import REAL_ROAD_MIDDLE, DriveConfig, RidingConfig, RidingDrive, RoadConfig, SyntheticDrive
+from roadbev_ros.dds import init_ros, raise_interrupt
 
 __all__ = [
     "DEFAULT_FRAMES",
@@ -134,7 +158,6 @@ class DemoResult:
 def demo_drive_config(frames: int, seed: int = 0, image_scale: float = 1.0) -> Any:
     """The demo's synthetic drive: ISO 8608 class C roughness plus a pothole, a speed bump and a
     rut repeated every 4 m, 5 m/s, 5 Hz stereo, 100 Hz IMU."""
-    from roadbev_lab.synth import REAL_ROAD_MIDDLE, DriveConfig, RoadConfig
 
     road = REAL_ROAD_MIDDLE.apply(RoadConfig(road_class="C", features=DEMO_ROAD_FEATURES, feature_spacing_m=4.0))
     config = DriveConfig(frames=frames, seed=seed, road=road)
@@ -146,9 +169,6 @@ def demo_drive_config(frames: int, seed: int = 0, image_scale: float = 1.0) -> A
 def _source_digest() -> str:
     """Hash of the code that makes a bag (synth + evalbag + drivebag), so a changed renderer
     refreshes the cache."""
-    import roadbev_lab.evaluation.drivebag
-    import roadbev_lab.evaluation.evalbag
-    import roadbev_lab.synth
 
     digest = hashlib.sha256()
     synth_dir = Path(roadbev_lab.synth.__file__).parent
@@ -178,10 +198,6 @@ def ensure_demo_bag(
     Returns:
         (path of the ``.mcap`` bag, whether it was reused).
     """
-    from roadbev_lab.demo.drive import features_path
-    from roadbev_lab.evaluation.drivebag import write_drive_bag
-    from roadbev_lab.evaluation.evalbag import write_eval_bag
-    from roadbev_lab.synth import RidingConfig, RidingDrive, SyntheticDrive
 
     cache_dir.mkdir(parents=True, exist_ok=True)
     riding = isinstance(config, RidingConfig)
@@ -229,7 +245,6 @@ def _interruptible_ros() -> Iterator[None]:
 
     import rclpy
 
-    from roadbev_ros.dds import init_ros, raise_interrupt
 
     owned = not rclpy.ok()
     init_ros(handle_signals=False)
@@ -266,9 +281,6 @@ class _Recorded:
 
 
 def _read_recorded(path: Path, grid: Any) -> _Recorded:
-    from msg_bridge import bag
-    from msg_bridge.grid_map import grid_map_to_arrays
-    from msg_bridge.preview import preview_from_message
 
     out = _Recorded({}, {}, {}, {})
     for item in bag.read_messages(path, [ELEVATION_TOPIC, PREVIEW_TOPIC], on_damage="skip"):
@@ -298,7 +310,6 @@ def _truth_profiles(truth: np.ndarray, grid: Any, like: Any, hidden: np.ndarray 
     """Ground-truth wheel-track profiles with the recorded preview's tracks, width and spacing;
     with ``hidden`` [R, C] (cells the truth hides from the cameras) each sample also says whether
     any cell of its tyre footprint is hidden."""
-    from roadbev_core.preview import wheel_track_profiles
 
     def profiles(layer: np.ndarray) -> tuple[TrackProfile, ...]:
         return _profiles_to_report(wheel_track_profiles(
@@ -404,7 +415,6 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
         bag_path, reused = _cached_bag(config, options.frames, "bag", options)
     stage_s["bag"] = time.monotonic() - t0
 
-    from roadbev_lab.evaluation.evalbag import read_eval_bag
 
     try:
         eval_bag = read_eval_bag(bag_path)
@@ -419,7 +429,6 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
         raise DemoError(f"bag {bag_path} has no complete frames")
 
     # 2. online over ROS 2
-    from roadbev_lab.evaluation.online import OnlineEvalError, evaluate_online
 
     t0 = time.monotonic()
     sent_ns: dict[int, int] = {}
@@ -440,11 +449,6 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
     stage_s["ROS 2 (node, replay, record)"] = time.monotonic() - t0
 
     # 3. offline, exactly as `roadbev eval`
-    from roadbev_core.config import RoadbevConfig
-    from roadbev_core.pipeline import Pipeline
-    from roadbev_core.uncertainty import camera_positions
-    from roadbev_core.visibility import hidden_cells
-    from roadbev_lab.evaluation.frames import evaluate
 
     t0 = time.monotonic()
     truths: list[np.ndarray | None] = []
@@ -551,8 +555,6 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
 
 def _drive_stage(options: DemoOptions, bag_path: Path, stage_s: dict[str, float]) -> tuple[DriveSection | None, str]:
     """The drive section (or None and the reason it was left out)."""
-    from roadbev_lab.demo.drive import drive_config, run_drive_section
-    from roadbev_lab.evaluation.drivebag import is_drive_bag
 
     if not options.drive:
         return None, ""

@@ -24,6 +24,7 @@ from typing import Any, cast
 import numpy as np
 from matplotlib import patches
 
+from roadbev_core.hazards import detect_hazards, road_residual
 from roadbev_lab.demo.drive import RIDE_ROWS, DriveSection, MapMosaic
 from roadbev_lab.reports.figures import new_figure
 
@@ -129,7 +130,6 @@ def plot_drive_hazards(section: DriveSection, path: str | Path) -> Path:
     """The residual (height above the road's own level) of the fused map and of the true road
     over the same cells, detections as boxes (red bumps, blue potholes, height in cm), the
     reference features as triangles (up: bump, down: pothole)."""
-    from roadbev_core.hazards import detect_hazards, road_residual
 
     m = section.fused
     xs, ys = m.cell_centres()

@@ -34,6 +34,8 @@ from roadbev_core.frame import Frame
 from roadbev_core.geometry import Attitude
 from roadbev_core.models.presets import ModelConfig
 from roadbev_core.models.roadbev import needs_full_grey, prepare_grey, prepare_image
+from roadbev_lab.synth import make_sample
+from roadbev_lab.synth.appearance import appearance_range
 
 __all__ = [
     "SCENE_VERSION",
@@ -122,7 +124,6 @@ class SyntheticSet:
             raise DatasetError("a synthetic set needs at least one seed")
         self.camera = camera or StereoCamera.rsrd_half()
         self.grid = grid or GridSpec()
-        from roadbev_lab.synth.appearance import appearance_range
 
         try:
             self.appearance: AppearanceRange | None = appearance_range(appearance)
@@ -140,7 +141,6 @@ class SyntheticSet:
         if not missing:
             return 0
         # Imported lazily: reading a cache needs no renderer.
-        from roadbev_lab.synth import make_sample
 
         self.folder.mkdir(parents=True, exist_ok=True)
         bar = _progress(missing, "rendering scenes", progress)

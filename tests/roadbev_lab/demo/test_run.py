@@ -280,7 +280,7 @@ def test_cli_missing_bag_exits_with_one_line(tmp_path: Path) -> None:
 def test_a_failed_demo_keeps_the_last_report_and_names_what_it_wrote(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     from roadbev_cli import cli
-    from roadbev_lab.demo import run as demo
+    from roadbev_cli.commands import demo as demo_command
 
     out = tmp_path / "report"
     out.mkdir()
@@ -291,7 +291,7 @@ def test_a_failed_demo_keeps_the_last_report_and_names_what_it_wrote(
         (options.out_dir / "node.log").write_text("what the node said")
         raise DemoError("ROS 2 stage failed: the node exited")
 
-    monkeypatch.setattr(demo, "run_demo", failing)
+    monkeypatch.setattr(demo_command, "run_demo", failing)
     assert cli.main(["demo", "--out", str(out), "--no-progress", "--no-drive"]) == 2
     err = capsys.readouterr().err.strip()
     assert err == (f"roadbev demo: error: ROS 2 stage failed: the node exited; what it wrote is in "

@@ -31,7 +31,7 @@ def test_scenes_are_rendered_once_and_read_back_identically(tmp_path: Path, monk
     def no_render(*args: object, **kwargs: object) -> None:
         raise AssertionError("a cached scene was rendered again")
 
-    monkeypatch.setattr(synth, "make_sample", no_render)
+    monkeypatch.setattr(datasets, "make_sample", no_render)
     again = SyntheticSet(tmp_path, [100_010], camera=CAMERA, grid=GRID)
     assert again.render_missing() == 0
     assert np.array_equal(again[0][0].left, frame.left)
@@ -67,7 +67,7 @@ def test_scenes_of_another_generator_version_are_not_read(tmp_path: Path, monkey
     def no_render(*args: object, **kwargs: object) -> None:
         raise AssertionError("rendered again")
 
-    monkeypatch.setattr(synth, "make_sample", no_render)
+    monkeypatch.setattr(datasets, "make_sample", no_render)
     assert SyntheticSet(tmp_path, [100_012], camera=CAMERA, grid=GRID).render_missing() == 0
     monkeypatch.setattr(datasets, "SCENE_VERSION", datasets.SCENE_VERSION + 1)
     with pytest.raises(AssertionError, match="rendered again"):
