@@ -146,7 +146,7 @@ def image_to_rgb(msg: Any) -> np.ndarray:
         return pixels
     if encoding in ("bgr8", "bgra8", "rgba8"):
         code = {"bgr8": cv2.COLOR_BGR2RGB, "bgra8": cv2.COLOR_BGRA2RGB, "rgba8": cv2.COLOR_RGBA2RGB}[encoding]
-        # OpenCV: 0.05 ms for 960x528 against 7 ms for a numpy channel flip (measured)
+        # OpenCV's conversion is far cheaper than a numpy channel flip (a strided copy)
         return cv2.cvtColor(np.ascontiguousarray(pixels), code)
     if encoding == "mono8":
         return pixels

@@ -35,8 +35,8 @@ def box_mean(volume: torch.Tensor, size: WindowSize) -> torch.Tensor:
         size: the window, odd: one side (square) or (rows, columns).
 
     Windows shrink at the borders (the mean over the cells inside the grid). OpenCV's box filter
-    (running sums, SIMD) costs the same for any window size and is 5-20x faster than pooling on a
-    CPU; tensors on another device, that need gradients or that an ONNX export traces take
+    (running sums, SIMD) costs the same for any window size and is many times faster than pooling
+    on a CPU; tensors on another device, that need gradients or that an ONNX export traces take
     torch's pooling (same result).
     A 1 x 1 window returns ``volume`` itself.
     """

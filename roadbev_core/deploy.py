@@ -262,8 +262,8 @@ def frame_feeds(config: ModelConfig, grid: GridSpec, frame: Any) -> dict[str, np
 
 # What int8 quantisation touches: the convolutions (2-D backbone and 3-D head), nothing else. The
 # voxel sampling coordinates, GridSample, the classification's softmax and soft-argmin stay fp32:
-# quantising every op the quantiser can (NNCF's default scope, tried on the shipped stereo model)
-# put the Table I frames' error at 10.9 cm instead of 0.41.
+# quantising every op the quantiser can (NNCF's default scope) ruins the shipped stereo model's
+# accuracy.
 INT8_OP_TYPES = ("Conv",)
 
 
@@ -451,7 +451,7 @@ class OnnxRunner:
 
 class _OpenVinoEngine:
     """OpenVINO on the CPU: the graph compiled for any shape, and for each input shape it meets
-    compiled again with those shapes fixed (measured 8-19 % faster here), before that shape's
+    compiled again with those shapes fixed (faster than the any-shape graph), before that shape's
     first frame runs. The two compilations do not give the same numbers to the last bit, so
     every frame of a shape is computed by the same one whatever came before (the node and
     ``roadbev eval`` agree): the first shape is compiled by the node's warm-up (``Pipeline.warm_up``,

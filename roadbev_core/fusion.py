@@ -42,10 +42,9 @@ part that does grow with the distance driven, for diagnostics.)
 ``w = 1 / (s^2 (x / x_near)^k)``: ``s`` the observation's sigma, ``x`` its distance ahead of the
 camera, ``x_near`` the grid's near edge, ``k = range_exponent``. Nearer is better, and by more
 than the calibrated sigma says: that sigma is fitted per cell on features of the estimate and
-hardly grows with distance (bev_sweep on a drive: 0.59 cm at 2.2 m, 0.93 cm at 6.5 m), while
-the error does (0.15 cm to 0.86 cm; stereo height error grows with the square of the distance,
-so its variance with the fourth power: k = 4). Errors of one backend on one road are correlated
-from frame to frame, so the fused variance is not the independent one: with correlation ``rho``
+hardly grows with distance, while the error does (stereo height error grows with the square of
+the distance, so its variance with the fourth power: k = 4). Errors of one backend on one road
+are correlated from frame to frame, so the fused variance is not the independent one: with correlation ``rho``
 it is ``(1 - rho) sum(w^2 s^2) / W^2 + rho (sum(w s) / W)^2`` (``W = sum w``; for N equal
 observations ``s^2 (rho + (1 - rho) / N)``, the variance of a mean of equicorrelated errors), and
 never less than the spread of the accepted observations around their mean. An observation farther than

@@ -526,14 +526,14 @@ class Pipeline:
 
     def warm_up(self) -> None:
         """Run the backend once on a blank frame, so one-time costs (torch kernels and thread
-        pools, OpenCV buffers: about 30 ms on bev_sweep, more on the networks) stay out of the
-        first real frame. A backend that cannot run on the stand-in rig is simply not warmed.
+        pools, OpenCV buffers; more on the networks) stay out of the first real frame. A backend
+        that cannot run on the stand-in rig is simply not warmed.
 
         The stand-in is the RSRD half-resolution rig at its full 960 x 528: an ONNX engine
         prepares per input shape (OpenVINO compiles a fixed-shape graph for each one it meets,
-        and the int8 graph's first run at a new shape took 1.5 s here), so a warm-up at another
-        size left that cost to the first real frame of the common rig, and a node at 5 Hz
-        dropped the frames that arrived meanwhile."""
+        and the int8 graph's first run at a new shape takes over a second), so a warm-up at
+        another size would leave that cost to the first real frame of the common rig, and a node
+        at 5 Hz would drop the frames that arrive meanwhile."""
         camera = StereoCamera.rsrd_half()
         blank = np.zeros((camera.height, camera.width, 3), np.uint8)
         with self._lock:

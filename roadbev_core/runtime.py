@@ -1,11 +1,11 @@
 """Process-wide compute settings, applied by the pipeline (never at import).
 
 * threads: OpenCV's and torch's intra-op pools. On a loaded machine a parallel section waits for
-  its slowest thread, and a node's executor thread needs a core for the callbacks: measured on the
-  2-core development machine, one torch thread ran bev_sweep 2-4x faster inside the node than two.
-* denormals: random or lightly trained weights produce denormal floats that made CPU inference
-  3-10x slower and erratic (``shared/design/cpu-sizing.md``); flushing them to zero is a per-thread
-  CPU flag, so it is set in every thread that runs a backend.
+  its slowest thread, and a node's executor thread needs a core for the callbacks: on a 2-core
+  CPU one torch thread runs bev_sweep faster inside the node than two.
+* denormals: random or lightly trained weights produce denormal floats that make CPU inference
+  several times slower and erratic (``shared/design/cpu-sizing.md``); flushing them to zero is a
+  per-thread CPU flag, so it is set in every thread that runs a backend.
 """
 
 from __future__ import annotations

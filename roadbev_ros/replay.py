@@ -259,7 +259,7 @@ def replay_bag(
             if all(p.get_subscription_count() > 0 for p in waited_on):
                 # Discovery is two-sided: the writer seeing a reader does not mean that reader
                 # has matched the writer yet, and best-effort samples sent before it has are
-                # lost (measured: the first 3 of 6 frames of a 10 Hz replay, now and then).
+                # lost (at times the first frames of a replay).
                 time.sleep(settle_s)
                 break
             if time.monotonic() >= deadline:
@@ -330,8 +330,8 @@ def replay_bag(
             publisher.wait_for_all_acked(Duration(seconds=1.0))
         if stats.messages and not stop.is_set():
             # Best-effort subscribers (sensor-data QoS, as the node's) send no acks, and a writer
-            # destroyed right after its last publish can take those samples with it: measured as
-            # the bag's last stereo set never completing in about 1 of 6 lockstep replays.
+            # destroyed right after its last publish can take those samples with it (the bag's
+            # last stereo set would then never complete in a lockstep replay).
             time.sleep(linger_s)
         for publisher in publishers.values():
             node.destroy_publisher(publisher)

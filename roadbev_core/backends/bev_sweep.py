@@ -54,49 +54,44 @@ DEFAULT_Z_STEP = 0.02  # m: the sweep step when SweepParams.z_step is None (see 
 
 @dataclass(frozen=True)
 class SweepParams:
-    """Tuning of the sweep (defaults chosen by measurement, see ``benchmarks/tune_bev_sweep.py``).
+    """Settings of the sweep (defaults chosen with ``benchmarks/tune_bev_sweep.py``; its figures
+    are in ``docs/notes/tuning.md``).
 
-    The figures quoted below are those the defaults were chosen on: the tuning frames of scene
-    version 1 (``roadbev_lab.training.datasets.SCENE_VERSION``, the clean appearance). On version 2's
-    ``real-road`` range the same defaults answer about half as many of the tuning frames' cells
-    (40.8 against 77.9 %, ``benchmarks/results/bev_sweep_tuning.json``); they were not re-tuned.
+    The defaults were chosen on the tuning frames (seeds 200,000+, never the evaluation frames) of
+    scene version 1 (``roadbev_lab.training.datasets.SCENE_VERSION``, the clean appearance) and
+    not re-chosen for version 2's ``real-road`` range, where they answer fewer cells.
 
     Attributes:
         z_step: height step of the sweep (m); None = about ``DEFAULT_Z_STEP`` (2 cm), the grid's
             height range divided into a whole number of steps. The parabola through the peak
-            refines below the step: on the tuning frames (``benchmarks/tune_bev_sweep.py``) 2 cm
-            steps measured within 0.006 cm of 1 cm steps (0.363 vs 0.357 cm abs. err.) at about
-            half the time; 4 cm lost accuracy (0.415 cm).
+            refines below the step, so 2 cm steps are about as accurate as 1 cm ones and faster;
+            coarser steps lose accuracy.
         subsamples: samples per cell (along x = rows, along y = columns) in the middle rows.
             Across the road a 3 cm cell spans 4-13 pixels, along it (foreshortened) 1-6, so the
             near rows have many more pixels to use than the far ones.
         far_subsamples, near_subsamples: the same for the ``far_fraction`` / ``near_fraction``
-            zones. On the tuning frames (1, 2) far, (1, 3) middle, (2, 4) near measured 0.363 cm
-            against 0.384 cm for (1, 2) everywhere and 0.369 cm for (2, 4) everywhere (which
-            costs more time: far cells are narrower than a pixel along x).
+            zones: fewer samples far and more near beat one count everywhere (the near rows'
+            count everywhere costs more time: far cells are narrower than a pixel along x).
         patch_cells: the ZNCC window in cells (odd; one side or (rows, columns)).
         aggregation_cells: the box filter of the ZNCC volume over the BEV plane per height, for
             the rows between the near and far zones: (rows, columns) in cells, odd (one number =
             a square; 1 = none). Taller than wide because the road is foreshortened: a cell spans
             4-13 pixels across the image but 1-6 along it, so a square window holds several times
-            more independent pixels across than along and is needlessly wide. On the tuning
-            frames (21, 9) / far (35, 15) / near (13, 5) measured 0.337 cm at 77.9 % coverage
-            (with ``min_score`` 0.87) against 0.363 cm at 77.8 % for the squares 15 / 25 / 9.
+            more independent pixels across than along and is needlessly wide; the tall windows
+            give a lower error than squares at the same coverage.
         min_score: cells whose best aggregated ZNCC is below this are NaN (the strongest single
-            discriminator of wrong cells in the tuning sweep). With ``max_disagreement`` 2 cm and
-            the default windows, 0.87 gives the coverage of ``bm`` on the tuning frames (77.8 %),
-            so the two compare at equal coverage (0.337 against 0.480 cm; with the square windows
-            of before, 0.86 gave that coverage at 0.363 cm; without the window check, 0.88 gave
-            0.380 cm).
+            discriminator of wrong cells). It trades coverage for error: with the default windows
+            and ``max_disagreement``, 0.87 gave the coverage of ``bm`` on the version-1 tuning
+            frames, so the two compared at equal coverage.
         min_margin: a cell is NaN when a second peak (more than ``peak_exclusion`` from
             the best) scores within this margin of the best (ambiguous, e.g. repetitive texture).
         peak_exclusion: half-width (m) around the best height ignored when looking for a second peak.
         min_texture: std (grey levels of the filtered image) of the left patch below which a
             cell is texture-less (NaN).
-        temperature: softmax temperature on the aggregated ZNCC for the uncertainty. 0.005
-            measured on the tuning frames: 82 % of the errors within 1 sigma, 93 % within 2
-            (the errors are heavier-tailed than a Gaussian; 0.01 with the sweep step's
-            quantisation added gave 94 % / 98 %, too cautious to be useful).
+        temperature: softmax temperature on the aggregated ZNCC for the uncertainty. The errors
+            are heavier-tailed than a Gaussian, so no temperature makes the spread an exact
+            1-sigma; this one keeps it informative, where a larger one with the sweep step's
+            quantisation added covers nearly every error but is too cautious to be useful.
         blur_sigma: Gaussian pre-smoothing of the images (pixels; 0 = none).
         highpass_sigma: the images minus their Gaussian blur of this sigma (pixels; 0 = none):
             removes shading and exposure gradients that correlate at every height.
@@ -113,15 +108,14 @@ class SweepParams:
         max_disagreement: cells whose estimate differs by more than this (m) from the estimate
             with a ``check_cells`` window are NaN (0 = no check): the large far and middle windows
             straddle a bump's edge or the hidden strip behind it, where a small window disagrees.
-            On the tuning frames a better discriminator of wrong cells than ``min_score``: with
-            ``min_score`` 0.88, 0.334 cm at 75.2 % coverage with the check against 0.380 cm at
-            77.9 % without it, where ``min_score`` 0.90 alone gave 0.334 cm at 72.2 %.
+            A better discriminator of wrong cells than ``min_score``: with the check, a given
+            error is reached at a higher coverage than by raising ``min_score`` alone.
         check_cells: that small aggregation window (rows, columns), odd.
         max_deviation: cells further than this (m) from the median of their confident
             neighbours (5 x 5 cells) are NaN: isolated wrong peaks (0 = no check).
         threads: torch intra-op threads while estimating (the previous setting is restored
             after). One thread: on a shared 2-core CPU a second thread mostly waits for the busy
-            core, which measured several times slower under load; 0 = leave torch's setting.
+            core, which makes two threads slower than one under load; 0 = leave torch's setting.
         max_sigma: cells whose softmax spread (1-sigma, m) exceeds this are NaN: a flat
             or multi-modal score curve.
     """
@@ -286,8 +280,8 @@ def _outliers(surface: torch.Tensor, confident: torch.Tensor, tolerance: float) 
     ``surface`` is the estimate with its holes filled from confident neighbours (see
     :meth:`BevSweep._fill_holes`), so the median is over confident evidence only; a wrong peak in
     a texture-poor patch stands out from the surface around it (the BEV analogue of a speckle
-    filter). OpenCV's median (float32, 5 x 5) costs ~0.1 ms where a NaN-aware median over unfolded
-    windows measured 6.5 ms.
+    filter). OpenCV's median (float32, 5 x 5) over the filled surface is used because a NaN-aware
+    median over unfolded windows costs far more.
     """
     median = torch.from_numpy(cv2.medianBlur(np.ascontiguousarray(surface.numpy(), dtype=np.float32), 5))
     return confident & ((surface - median).abs() > tolerance)

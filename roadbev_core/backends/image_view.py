@@ -39,7 +39,8 @@ _SGBM_MODES = {
 
 @dataclass(frozen=True)
 class ImageViewParams:
-    """Matcher tuning (defaults chosen by measurement on the synthetic rig; see the benchmark).
+    """Matcher settings (defaults chosen on the synthetic rig's tuning frames; each matcher's own
+    are ``BM_DEFAULTS`` / ``SGBM_DEFAULTS``).
 
     Attributes:
         block_size: matching window side (odd; StereoBM needs >= 5).
@@ -253,10 +254,12 @@ class ImageViewStereo:
         return {"backend": self.name, **asdict(self.params)}
 
 
-# Defaults per matcher, chosen by measurement on tuning frames (seeds 200,000+; see
-# benchmarks/tune_bev_sweep.py): abs. err. / coverage, bm: block 9 0.614 cm / 61.6 %, block 11 +
-# uniqueness 15 0.603 / 63.6 %, block 15 0.679 / 71.1 %; sgbm: 5-path block 5 1.74 / 90.9 %,
-# 3-way block 7 + uniqueness 15 1.02 / 82.9 %.
+# Defaults per matcher, chosen on tuning frames (seeds 200,000+) of the clean appearance, before
+# scene version 2; benchmarks/tune_bev_sweep.py compares them with other settings
+# (docs/notes/tuning.md). bm: block 11 with a stricter uniqueness was at least as accurate as
+# block 9, at more coverage; block 15 covered more but was less accurate. sgbm: the 3-way mode
+# with block 7 and a stricter uniqueness was far more accurate than the 5-path mode with block 5,
+# at less coverage.
 BM_DEFAULTS: dict[str, Any] = {"block_size": 11, "texture_threshold": 10, "uniqueness_ratio": 15}
 SGBM_DEFAULTS: dict[str, Any] = {"block_size": 7, "mode": "3way", "uniqueness_ratio": 15}
 

@@ -131,7 +131,7 @@ class ConvBnAct(nn.Module):
         if (x.dim() == 5 and x.device.type == "cpu" and x.dtype == torch.float32 and not torch.is_grad_enabled()
                 and _ONEDNN and not torch.jit.is_tracing()):  # an ONNX export traces the plain conv
             # torch's heuristic sends batch-1 3-D convs on small volumes (the hourglasses' inner
-            # levels) to a reference kernel ~20x slower than oneDNN's: call oneDNN directly.
+            # levels) to a reference kernel many times slower than oneDNN's: call oneDNN directly.
             out = torch.ops.aten.mkldnn_convolution(
                 x.contiguous(), conv.weight, conv.bias, conv.padding, conv.stride, conv.dilation, conv.groups
             )

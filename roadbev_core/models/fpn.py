@@ -3,7 +3,7 @@
 As the paper: the 1/2-1/16 maps are interpolated to the target resolution (1/2 for stereo, 1/4 for
 mono), concatenated along channels and fused by convolutions into C channels. Each level is first
 reduced to C channels by a 1x1 conv at its own resolution, which keeps the fusion at 1/2
-resolution cheap on a CPU (a 3x3 conv over all concatenated backbone channels cost ~130 ms).
+resolution cheap on a CPU (a 3x3 conv over all the concatenated backbone channels is not).
 """
 
 from __future__ import annotations

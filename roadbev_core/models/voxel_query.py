@@ -132,7 +132,7 @@ def gather_voxels(features: torch.Tensor, lookup: VoxelLookup, sampling: str) ->
 
     The same numbers as ``grid_sample(align_corners=True, padding_mode="zeros")``, written with
     Floor / Gather / Mul only: what the ONNX export traces, because ONNX Runtime's GridSample
-    kernel measured several times slower than torch's on this CPU, while row gathers of the
+    kernel is several times slower than torch's on a CPU, while row gathers of the
     channels-last feature map are plain copies.
 
     Args / Returns: as :func:`query_voxels`.

@@ -44,8 +44,8 @@ class LqrWeights:
     Defaults: chosen once on two truth-only drives (speed bumps at 10 m/s and an ISO 8608 class
     D road at 20 m/s, seed 7, not a benchmark seed) from a 3 x 3 grid (travel 1e3 / 5e3 / 2e4,
     tyre 1e4 / 5e4 / 2e5) for a controller without preview that is clearly better than the
-    passive car (Wk RMS -14 to -16 %) at a cost of at most ~12 % more peak travel and tyre-load
-    variation; never tuned on any preview.
+    passive car at a small cost in peak travel and tyre-load variation; never tuned on any
+    preview.
 
     Attributes:
         body_acceleration: on (m/s^2)^2.

@@ -4,12 +4,12 @@ appearance, from weak to strong texture.
 Without a range (the ``clean`` appearance, scene version 1's generator) ``random_road`` and
 ``build_scene`` give a Lambertian pavement of one middling texture strength, seen by a clean
 camera. Real road is a range: on the three KITTI
-frames (``benchmarks.bench_texture``) one dark asphalt has a tenth of the synthetic gradient
-energy, two grainy ones five to ten times it, and on all three the cameras share much less of
-the texture (the 9 x 9 ZNCC of the two images' fine band at the true disparity is 0.35-0.6 where
-the synthetic road gives 0.7-0.8): sensor noise, a rectification residual and glints one camera
-sees alone. An :class:`AppearanceRange` spans that: each scene draws a strength in [0, 1] and
-gets the :class:`Appearance` between the range's weak and strong ends.
+frames (``benchmarks.bench_texture``; figures in the README, "Real against synthetic road
+texture") one dark asphalt has far less gradient energy than the synthetic road, two grainy ones
+several times more, and on all three the cameras share much less of the texture (the 9 x 9 ZNCC
+of the two images' fine band at the true disparity): sensor noise, a rectification residual and
+glints one camera sees alone. An :class:`AppearanceRange` spans that: each scene draws a
+strength in [0, 1] and gets the :class:`Appearance` between the range's weak and strong ends.
 
 Since scene version 2 the random scenes and drives draw their appearance from
 :data:`DEFAULT_APPEARANCE` (``real-road``), and the roads the demo and the benchmarks build by
@@ -68,9 +68,9 @@ class AppearanceRange:
 
     The texture scale is interpolated geometrically (it spans more than a decade); the read noise
     and the glint density, what the two cameras do not share, with the square of the strength
-    (a linear blend gives the middle of the real-road range less shared texture than either of
-    its real ends has: inter-view ZNCC of the fine band 0.31-0.40 against 0.35-0.6 measured,
-    ``benchmarks.bench_texture``); the rest linearly.
+    (a linear blend gives the middle of the real-road range less shared texture, by the
+    inter-view ZNCC of ``benchmarks.bench_texture``, than either of its real ends has); the rest
+    linearly.
     """
 
     name: str
