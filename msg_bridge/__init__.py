@@ -11,9 +11,9 @@ level.
 
 Modules: ``image`` (Image, CompressedImage), ``camera_info`` (CameraInfo <-> StereoCamera),
 ``imu`` (Imu -> Attitude, slerp), ``grid_map`` (GridMap <-> arrays + GridSpec), ``preview``
-(RoadPreview), ``point_cloud`` (PointCloud2), ``bag`` (MCAP bags: write, read, info, recover),
-``mcap_file`` (the CRC-checked MCAP record reader under ``bag``), ``evalbag`` (evaluation bags),
-``outputs`` (the node's output messages, and a bag of them).
+(RoadPreview), ``point_cloud`` (PointCloud2), ``bag`` (MCAP bags: write, read, info, recover,
+over its own CRC-checked MCAP record reader), ``evalbag`` (evaluation bags), ``outputs`` (the
+node's output messages, and a bag of them).
 """
 
 from __future__ import annotations

@@ -57,7 +57,7 @@ def test_info_and_recover_of_a_bag_whose_writer_was_killed(tmp_path: Path, capsy
 
 
 def test_info_and_recover_of_a_damaged_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from msg_bridge.mcap_file import scan_file
+    from msg_bridge.bag.mcap_file import scan_file
 
     path = tmp_path / "damaged.mcap"
     _write(path)

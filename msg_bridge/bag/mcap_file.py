@@ -15,7 +15,8 @@ default; this module is the project's own reader underneath :mod:`msg_bridge.bag
   their message index. A chunk that fails is a :class:`Damage` naming the file, the chunk and
   its offset, with the messages lost per channel (from its message index) — never decoded.
 * :func:`iter_messages` yields the messages of several scanned files in log-time order (a merge
-  over the chunks by their start times, as the MCAP readers do).
+  over the chunks by their start times, as the MCAP readers do); :func:`loose_message_channel`
+  reads the channel of one message outside chunks without reading the message.
 
 Byte layouts follow the MCAP specification (https://mcap.dev/spec); integers little-endian,
 strings and byte arrays prefixed with their uint32 length, maps with their uint32 byte length.
@@ -46,6 +47,7 @@ __all__ = [
     "Schema",
     "iter_messages",
     "load_chunk",
+    "loose_message_channel",
     "scan_file",
 ]
 
@@ -642,3 +644,10 @@ def _loose_messages(scan: FileScan) -> list[RawMessage]:
             channel_id, sequence, log_time, publish_time = struct.unpack_from("<HIQQ", body, 0)
             out.append(RawMessage(channel_id, sequence, log_time, publish_time, memoryview(body)[22:]))
         return out
+
+
+def loose_message_channel(scan: FileScan, offset: int) -> int:
+    """The channel id of the message outside chunks whose record starts at byte ``offset``."""
+    with scan.path.open("rb") as stream:
+        stream.seek(offset + 9)
+        return int.from_bytes(stream.read(2), "little")

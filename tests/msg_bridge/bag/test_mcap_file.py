@@ -1,14 +1,15 @@
 """The MCAP record reader: resynchronising after a damaged chunk header, the summary's index of
-what was lost, and files that are not MCAP."""
+what was lost, files that are not MCAP, and messages outside chunks."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
+from mcap.writer import Writer
 
-from msg_bridge import BagWriter, ReadStats, bag_factory, read_messages
-from msg_bridge.mcap_file import McapFormatError, load_chunk, scan_file
+from msg_bridge import BagWriter, ReadStats, bag_factory, bag_topics, read_messages, serialize, typestore
+from msg_bridge.bag.mcap_file import McapFormatError, load_chunk, loose_message_channel, scan_file
 
 N = 300
 
@@ -60,3 +61,23 @@ def test_not_an_mcap_file(tmp_path: Path) -> None:
     path.write_bytes(b"")
     with pytest.raises(McapFormatError, match="too short"):
         scan_file(path)
+
+
+def test_messages_outside_chunks_are_found_and_read(tmp_path: Path) -> None:
+    path = tmp_path / "loose.mcap"
+    factory = bag_factory()
+    text, _digest = typestore().generate_msgdef("std_msgs/msg/String", ros_version=2)
+    with path.open("wb") as stream:
+        writer = Writer(stream, use_chunking=False, use_statistics=False)
+        writer.start(profile="ros2", library="test")
+        schema = writer.register_schema("std_msgs/msg/String", "ros2msg", text.encode())
+        channels = [writer.register_channel(topic, "cdr", schema) for topic in ("/a", "/b")]
+        for k in range(5):
+            writer.add_message(channels[k % 2], k, serialize(factory.new("std_msgs/msg/String", data=f"m{k}")), k)
+        writer.finish()
+    scan = scan_file(path)
+    assert not scan.chunks and scan.statistics is None
+    assert [loose_message_channel(scan, offset) for _t, offset, _n in scan.loose] == [channels[k % 2] for k in range(5)]
+    assert {t: i.count for t, i in bag_topics(path).items()} == {"/a": 3, "/b": 2}
+    assert [(m.topic, m.msg.data) for m in read_messages(path)] == [("/a" if k % 2 == 0 else "/b", f"m{k}")
+                                                                     for k in range(5)]
