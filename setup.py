@@ -66,5 +66,15 @@ setup(
             "roadbev_preview_controller = roadbev_ros.preview_controller:main",
             "roadbev_hazard_monitor = roadbev_ros.hazard_monitor:main",
         ],
+        # the built-in backends, found by name like any plugin's (roadbev_core.backend_plugins, which
+        # also knows them without this metadata: BUILTIN_BACKENDS, checked equal by a test)
+        "roadbev.backends": [
+            "bev_sweep = roadbev_core.backends.bev_sweep:create_bev_sweep",
+            "bm = roadbev_core.backends.image_view:create_bm",
+            "sgbm = roadbev_core.backends.image_view:create_sgbm",
+            "ensemble = roadbev_core.backends.ensemble:create_ensemble",
+            "stereo = roadbev_core.backends.learned:create_stereo",
+            "mono = roadbev_core.backends.learned:create_mono",
+        ],
     },
 )

@@ -107,11 +107,11 @@ def evaluate_on_drive(drive: Any, samples: list[Any], backend: str, fused: bool,
     ``roadbev eval --map`` / ``--no-map`` run it (an :class:`~roadbev_lab.evaluation.frames.EvalResult`
     with the outputs kept)."""
     from roadbev_core.config import RoadbevConfig
-    from roadbev_core.pipeline import Pipeline
+    from roadbev_core.pipeline import Pipeline, check_config
     from roadbev_lab.evaluation.frames import evaluate
 
     grid = drive.config.grid
-    config = RoadbevConfig.from_params({**grid.to_dict(), "backend": backend, "map.enabled": fused})
+    config = check_config(RoadbevConfig.from_params({**grid.to_dict(), "backend": backend, "map.enabled": fused}))
     pipeline = Pipeline(config, configure_process=False)
     pipeline.set_camera_mount(*drive.base_to_camera)
     return evaluate(pipeline, samples, keep_estimates=True, odometry=odometry)

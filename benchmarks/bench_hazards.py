@@ -122,7 +122,7 @@ def run_map_drive(speed: float, rate: float, duration: float, seed: int, spacing
     from roadbev_core.config import RoadbevConfig
     from roadbev_core.geometry import quaternion_to_rotation
     from roadbev_core.hazard_tracking import HazardTracker, TrackerSettings
-    from roadbev_core.pipeline import Pipeline
+    from roadbev_core.pipeline import Pipeline, check_config
     from roadbev_lab.evaluation.frames import evaluate
     from roadbev_lab.synth import REAL_ROAD_MIDDLE, DriveConfig, RidingConfig, RidingDrive, RoadConfig
     from roadbev_lab.synth.riding import planar_odometry
@@ -133,7 +133,7 @@ def run_map_drive(speed: float, rate: float, duration: float, seed: int, spacing
     drive = RidingDrive(RidingConfig(drive=DriveConfig(frames=frames, speed_mps=speed, frame_rate_hz=rate, seed=seed,
                                                        road=road), tail_s=1.5))
     grid = drive.config.grid
-    config = RoadbevConfig.from_params({**grid.to_dict(), "backend": backend, "map.enabled": True})
+    config = check_config(RoadbevConfig.from_params({**grid.to_dict(), "backend": backend, "map.enabled": True}))
     pipeline = Pipeline(config, configure_process=False)
     pipeline.set_camera_mount(*drive.base_to_camera)
     tracker = HazardTracker(TrackerSettings(vehicle=config.vehicle))

@@ -31,7 +31,7 @@ def main(argv: list[str] | None = None) -> int:
     from roadbev_core.config import RoadbevConfig
     from roadbev_core.frame import Estimate, Frame
     from roadbev_core.geometry import R_BODY_FROM_OPTICAL, attitude_from_rotation
-    from roadbev_core.pipeline import Pipeline
+    from roadbev_core.pipeline import Pipeline, check_config
     from roadbev_lab.evaluation.arrival import Trajectory
     from roadbev_lab.synth import DriveConfig, RidingConfig, RidingDrive
     from roadbev_lab.synth.riding import planar_odometry
@@ -67,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
         estimates[int(stamp)] = Estimate(z.astype(np.float32), np.full(grid.shape, 0.005, np.float32))
         frames.append(Frame(blank, None, camera_rig, attitude_from_rotation(R_cam), int(stamp)))
 
-    config = RoadbevConfig.from_params({**grid.to_dict(), "require_imu": False})
+    config = check_config(RoadbevConfig.from_params({**grid.to_dict(), "require_imu": False}))
 
     def one_pass() -> tuple[list[float], list[float]]:
         """The whole drive through a new pipeline: the map stage's and the fusion's ms per frame."""

@@ -37,15 +37,16 @@ from benchmarks.common import RESULTS, machine_info, write_json
 def datum_errors(drive: Any, samples: list[Any], backend: str) -> tuple[np.ndarray, np.ndarray]:
     """[K] datum errors (m) and [K] distances driven (m) of one backend on one rendered drive."""
     from roadbev_core.config import RoadbevConfig
-    from roadbev_core.pipeline import Pipeline
+    from roadbev_core.pipeline import Pipeline, check_config
     from roadbev_lab.evaluation.arrival import Trajectory
     from roadbev_lab.evaluation.frames import evaluate
     from roadbev_lab.synth.riding import planar_odometry
 
     gt = drive.ground_truth_poses()
     truth = Trajectory(gt.stamp_ns, gt.position, gt.orientation_xyzw)
-    config = RoadbevConfig.from_params({**drive.config.grid.to_dict(), "backend": backend, "map.enabled": True,
-                                        "map.datum_sigma_m": 0.0, "map.datum_drift": 0.0})
+    config = check_config(RoadbevConfig.from_params({**drive.config.grid.to_dict(), "backend": backend,
+                                                     "map.enabled": True, "map.datum_sigma_m": 0.0,
+                                                     "map.datum_drift": 0.0}))
     pipeline = Pipeline(config, configure_process=False)
     pipeline.set_camera_mount(*drive.base_to_camera)
     result = evaluate(pipeline, samples, keep_estimates=True, odometry=planar_odometry(drive.odometry()))

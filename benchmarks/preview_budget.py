@@ -43,7 +43,7 @@ from roadbev_core.config import GridSpec, RoadbevConfig
 from roadbev_core.frame import Estimate, Frame
 from roadbev_core.fusion import FrameFusion, FramePlacement, FusedMap, MapSettings, MapWindow
 from roadbev_core.labels import ElevationLabel
-from roadbev_core.pipeline import Pipeline, PipelineOutput
+from roadbev_core.pipeline import Pipeline, PipelineOutput, check_config
 from roadbev_core.preview import ContactPlane, TrackProfile
 from roadbev_core.vehicle import planar_yaw
 from roadbev_lab.evaluation.arrival import (
@@ -109,8 +109,8 @@ class Candidate:
 
     def config(self, grid: GridSpec, extra: Mapping[str, Any] | None = None) -> RoadbevConfig:
         """The pipeline's config for this candidate on ``grid`` (map on)."""
-        return RoadbevConfig.from_params({**grid.to_dict(), "backend": self.backend, "map.enabled": True,
-                                          **self.params, **(extra or {})})
+        params = {**grid.to_dict(), "backend": self.backend, "map.enabled": True, **self.params, **(extra or {})}
+        return check_config(RoadbevConfig.from_params(params))
 
     def backend_options(self) -> dict[str, Any]:
         """The options the registry builds the backend with (as the node's config gives them)."""

@@ -65,7 +65,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from roadbev_core.config import GridSpec
+from roadbev_core.config import GridSpec, RoadbevConfig
 from roadbev_core.ego_motion import PlanarPose
 from roadbev_core.errors import RoadbevError
 from roadbev_core.geometry import R_BODY_FROM_OPTICAL, Attitude, rotation_from_rpy
@@ -82,6 +82,7 @@ __all__ = [
     "MapWindow",
     "Prepared",
     "datum_calibration_for",
+    "map_settings",
     "place_frame",
     "prepare_bilinear",
     "sample_bilinear",
@@ -172,6 +173,31 @@ class MapSettings:
         cells = (self.ahead_m + self.behind_m) * (self.y_max - self.y_min) / self.resolution ** 2
         if cells > 4_000_000:
             raise FusionError(f"the map corridor would hold {cells:,.0f} cells (limit 4,000,000): coarser cells")
+
+
+def map_settings(config: RoadbevConfig, camera_position_m: Sequence[float] | np.ndarray | None = None) -> MapSettings:
+    """The fused map's settings of ``config``: the ``map.*`` parameters, the corridor from the
+    grid and the camera's position on ``base_link`` (``camera_position_m``, [3]: from
+    ``/tf_static`` when known, else ``vehicle.camera_position_m``), and the backend's calibrated
+    datum where ``map.datum_sigma_m`` / ``map.datum_drift`` are -1.
+
+    Raises:
+        FusionError: settings the map cannot use.
+    """
+    cam = config.vehicle.camera_position_m if camera_position_m is None else tuple(camera_position_m)
+    m, g = config.map, config.grid
+    calibrated = datum_calibration_for(config.backend.name) or (0.0, 0.0)
+    datum_sigma = calibrated[0] if m.datum_sigma_m < 0 else m.datum_sigma_m
+    datum_drift = calibrated[1] if m.datum_drift < 0 else m.datum_drift
+    return MapSettings(
+        resolution=g.resolution, behind_m=m.behind_m, ahead_m=float(cam[0]) + g.x_max,
+        y_min=float(cam[1]) + g.y_min, y_max=float(cam[1]) + g.y_max, base_height=g.base_height,
+        error_correlation=m.error_correlation, gate_sigma=m.gate_sigma, reset_after=m.reset_after,
+        align=m.align, align_slopes=m.align_slopes, offset_prior_m=m.offset_prior_m,
+        slope_prior_rad=math.radians(m.slope_prior_deg), min_overlap_cells=m.min_overlap_cells,
+        range_exponent=m.range_exponent, align_correlation=m.align_correlation,
+        datum_sigma_m=datum_sigma, datum_drift=datum_drift,
+    )
 
 
 class FramePlacement(NamedTuple):

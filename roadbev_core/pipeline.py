@@ -40,11 +40,20 @@ import numpy as np
 
 from roadbev_core.attitude import ImuBuffer, ImuSample, ImuStale
 from roadbev_core.backends import Backend, BackendError, create
-from roadbev_core.config import RoadbevConfig, StereoCamera, check_image_size
+from roadbev_core.config import ParamError, RoadbevConfig, StereoCamera, check_image_size
 from roadbev_core.ego_motion import EgoMotion, EgoMotionStale, PlanarPose
 from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Estimate, Frame, ImplausibleFrame, implausible
-from roadbev_core.fusion import FrameFusion, FramePlacement, FusedMap, MapSettings, MapWindow, place_frame
+from roadbev_core.fusion import (
+    FrameFusion,
+    FramePlacement,
+    FusedMap,
+    FusionError,
+    MapSettings,
+    MapWindow,
+    map_settings,
+    place_frame,
+)
 from roadbev_core.geometry import Attitude, quaternion_to_rotation
 from roadbev_core.map_preview import contact_plane_on_map, map_preview
 from roadbev_core.preview import PreviewError, PreviewProfiles, check_tracks, wheel_track_profiles
@@ -61,6 +70,7 @@ __all__ = [
     "Pipeline",
     "PipelineOutput",
     "build_backend",
+    "check_config",
     "replay",
 ]
 
@@ -119,6 +129,28 @@ class PipelineOutput:
         return self.frame.stamp_ns
 
 
+def check_config(config: RoadbevConfig) -> RoadbevConfig:
+    """``config``, checked against the components that judge it: the fused map's settings
+    (:func:`roadbev_core.fusion.map_settings`) and the wheel tracks on the grid
+    (:func:`roadbev_core.preview.check_tracks`). Every entry point that builds a config from
+    parameters calls it after :meth:`RoadbevConfig.from_params` (which checks names, types,
+    ranges, the backend's name and the costs).
+
+    Raises:
+        ParamError: naming what does not work.
+    """
+    try:
+        map_settings(config)
+    except FusionError as exc:
+        raise ParamError(f"map settings do not work: {exc}") from None
+    p = config.preview
+    try:
+        check_tracks(config.grid, p.track_offsets_m, p.tyre_width_m, p.spacing_m)
+    except PreviewError as exc:
+        raise ParamError(f"preview settings do not fit the grid: {exc}") from None
+    return config
+
+
 def build_backend(config: RoadbevConfig, factory: BackendFactory | None = None) -> Backend:
     """The config's backend on the config's grid.
 
@@ -142,7 +174,7 @@ class Pipeline:
     """Camera sets, IMU and speed in; estimates and previews out (see the module docstring).
 
     Args:
-        config: a validated config (:meth:`RoadbevConfig.from_params`).
+        config: a validated config (:meth:`RoadbevConfig.from_params`, :func:`check_config`).
         backend_factory: ``factory(name, grid, **options) -> Backend`` (default: the registry).
         map_factory: ``factory(settings) -> FusedMap`` (default: :class:`FusedMap`).
         configure_process: apply the config's thread count process-wide (the node and the
@@ -227,7 +259,7 @@ class Pipeline:
                 setattr(self.ego, name, value)
             if not self._mount_from_tf:
                 self._camera_mount = (np.array(config.vehicle.camera_position_m, np.float64), None)
-            if (config.map_settings(), config.vehicle) != (old.map_settings(), old.vehicle):
+            if (map_settings(config), config.vehicle) != (map_settings(old), old.vehicle):
                 self.fused = None  # rebuilt with the new settings at the next frame (not for map.save_dir)
         if self._configure_process and config.backend.inference_threads != old.backend.inference_threads:
             configure_threads(config.backend.inference_threads)
@@ -471,7 +503,7 @@ class Pipeline:
             return self._frame_only_preview(frame, estimate, config), None, None, None
         position, R_mount = self.camera_mount
         if self.fused is None:
-            self.fused = self._map_factory(config.map_settings(position))
+            self.fused = self._map_factory(map_settings(config, position))
         fused = self.fused
         placement = place_frame(base, frame.attitude, position, R_mount)
         p = config.preview
@@ -505,7 +537,7 @@ class Pipeline:
             newest = self.ego.newest if self._odometry_seen else None
         speed = newest.speed if newest is not None else self.speed_at(frame.stamp_ns)
         position, R_mount = self.camera_mount
-        alone = self._map_factory(config.map_settings(position))
+        alone = self._map_factory(map_settings(config, position))
         placement = place_frame(PlanarPose(frame.stamp_ns, 0.0, 0.0, 0.0, speed or 0.0), frame.attitude, position,
                                 R_mount)
         alone.integrate(estimate.elevation, estimate.uncertainty, config.grid, placement, frame.stamp_ns,

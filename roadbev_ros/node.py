@@ -54,7 +54,7 @@ from msg_bridge.pipeline_io import (
 from msg_bridge.tf import StaticTransform, camera_mount, odometry_tf, transforms_from_tf
 from roadbev_core.config import ParamError, RoadbevConfig
 from roadbev_core.errors import RoadbevError
-from roadbev_core.pipeline import BackendFactory, Pipeline
+from roadbev_core.pipeline import BackendFactory, Pipeline, check_config
 from roadbev_core.selfcheck import self_check
 from roadbev_ros.diagnostics import (
     COMPRESSED_SUFFIX,
@@ -469,7 +469,7 @@ class RoadBevNode(Node):
         if not changes:  # use_sim_time: rclpy's time source takes it
             return SetParametersResult(successful=True)
         try:
-            config = self.config.with_params(changes)
+            config = check_config(self.config.with_params(changes))
             self.pipeline.reconfigure(config)  # builds a new backend first; the old one runs on failure
         except RoadbevError as exc:
             self._problem("parameter", f"rejected: {exc}")

@@ -2,7 +2,8 @@
 
 :func:`declare_parameters` declares every parameter of :func:`parameter_specs` with its
 description, range and read-only flag (``ros2 param describe``) plus the backend options given at
-start; :func:`config_of` builds the validated :class:`RoadbevConfig` from the declared values;
+start; :func:`config_of` builds the validated :class:`RoadbevConfig` from the declared values
+(checked against the components too: :func:`roadbev_core.pipeline.check_config`);
 :func:`check_overrides` refuses ``-p`` / ``--params-file`` names the node does not know, as
 :meth:`RoadbevConfig.from_params` refuses them everywhere else.
 """
@@ -17,8 +18,10 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from roadbev_core.backend_plugins import option_backend
 from roadbev_core.config import ParamError, ParamSpec, RoadbevConfig, load_params_file, parameter_specs
 from roadbev_core.config.tree import check_name, is_backend_option
+from roadbev_core.pipeline import check_config
 
 # Parameters every rclpy node has (not the config's).
 ROS_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service"})
@@ -149,7 +152,7 @@ def declare_parameters(node: Node) -> None:
     check_overrides(overrides)
     for name, override in overrides.items():
         if is_backend_option(name) and not node.has_parameter(name):
-            d = ParameterDescriptor(name=name, description=f"option of the {name.split('.', 1)[0]} backend",
+            d = ParameterDescriptor(name=name, description=f"option of the {option_backend(name)} backend",
                                     dynamic_typing=True)
             node.declare_parameter(name, override.value, d)
 
@@ -158,7 +161,7 @@ def config_of(node: Node, base: RoadbevConfig | None = None) -> RoadbevConfig:
     """The validated config of the node's declared parameters.
 
     Raises:
-        ParamError: see :meth:`RoadbevConfig.from_params`.
+        ParamError: see :meth:`RoadbevConfig.from_params` and :func:`check_config`.
     """
     known = {spec.name for spec in parameter_specs()}
     values = {
@@ -166,4 +169,4 @@ def config_of(node: Node, base: RoadbevConfig | None = None) -> RoadbevConfig:
         for name in node.get_parameters_by_prefix("")
         if name in known or is_backend_option(name)
     }
-    return RoadbevConfig.from_params(values, base=base)
+    return check_config(RoadbevConfig.from_params(values, base=base))

@@ -68,6 +68,7 @@ def _explicit_params(args: argparse.Namespace) -> dict[str, Any]:
     """The parameters the user gave (params file, --backend, --checkpoint), checked by name and type."""
     from roadbev_core.backends import takes_checkpoint
     from roadbev_core.config import RoadbevConfig, load_params_file
+    from roadbev_core.pipeline import check_config
 
     explicit: dict[str, Any] = {}
     if args.params is not None:
@@ -83,7 +84,7 @@ def _explicit_params(args: argparse.Namespace) -> dict[str, Any]:
         if not takes_checkpoint(str(name)):
             raise CommandError(f"--checkpoint applies to the learned backends (stereo, mono), not {name!r}")
         explicit["checkpoint"] = args.checkpoint
-    RoadbevConfig.from_params(explicit)  # unknown names, wrong types, ranges: refused here
+    check_config(RoadbevConfig.from_params(explicit))  # unknown names, wrong types, ranges, the whole: refused here
     return explicit
 
 

@@ -62,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
     from roadbev_cli.commands.eval import _check_bag_path
     from roadbev_core.config import RoadbevConfig, load_params_file
     from roadbev_core.geometry import rotation_from_rpy
+    from roadbev_core.pipeline import check_config
     from roadbev_lab.data.labelbag import Extrinsic, label_bag
     from roadbev_lab.data.lidar_labels import LabelConfig, LabelError
 
@@ -70,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError(f"{args.out} exists already; remove it first")
     raw = load_params_file(args.params).values if args.params else {}
     label_params = {k: v for k, v in raw.items() if k.startswith("label.") and k != EXTRINSIC}
-    node = RoadbevConfig.from_params({k: v for k, v in raw.items() if not k.startswith("label.")})
+    node = check_config(RoadbevConfig.from_params({k: v for k, v in raw.items() if not k.startswith("label.")}))
     config = LabelConfig.from_params(label_params)
     grid = node.grid
     extrinsic = None

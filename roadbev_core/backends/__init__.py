@@ -1,8 +1,10 @@
 """Backends behind one protocol: ``estimate(frame) -> Estimate``, chosen by name.
 
 The node, ``roadbev eval``, the demo and the benchmarks all create backends here, so a number in
-one is the number in all. Each backend module registers a factory with :func:`register`; modules
-are imported lazily so that choosing ``bm`` never imports torch, for example.
+one is the number in all. A name is looked up in :mod:`roadbev_core.backend_plugins` (the
+built-in backends, the ``roadbev.backends`` entry points of installed packages, or a
+``module:attr`` path) and its module is imported only when the backend is created, so choosing
+``bm`` never imports torch, for example. A factory is ``factory(grid, **options) -> Backend``.
 
 Every backend :func:`create` makes answers through :class:`RefinedBackend`: its estimates pass
 through :func:`roadbev_core.uncertainty.refine` (cells hidden behind a crest become NaN; sigma
@@ -13,20 +15,14 @@ gives the backend's own answer (used to calibrate).
 
 from __future__ import annotations
 
-import importlib
 import time
-from collections.abc import Callable
 from typing import Any, Protocol, runtime_checkable
 
+from roadbev_core.backend_plugins import BackendError, available, find, takes_checkpoint
 from roadbev_core.config import GridSpec
-from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Estimate, Frame
 
-__all__ = ["Backend", "BackendError", "RefinedBackend", "available", "create", "register", "takes_checkpoint"]
-
-
-class BackendError(RoadbevError, RuntimeError):
-    """A backend that cannot be created (unknown name, missing checkpoint, bad option)."""
+__all__ = ["Backend", "BackendError", "RefinedBackend", "available", "create", "takes_checkpoint"]
 
 
 @runtime_checkable
@@ -40,36 +36,6 @@ class Backend(Protocol):
     def estimate(self, frame: Frame) -> Estimate:
         """Elevation and uncertainty of ``self.grid`` for one frame."""
         ...
-
-
-Factory = Callable[..., Backend]
-_FACTORIES: dict[str, Factory] = {}
-# name -> module that registers it (imported on first use)
-_MODULES: dict[str, str] = {
-    "bev_sweep": "roadbev_core.backends.bev_sweep",
-    "sgbm": "roadbev_core.backends.image_view",
-    "bm": "roadbev_core.backends.image_view",
-    "stereo": "roadbev_core.backends.learned",
-    "mono": "roadbev_core.backends.learned",
-    "ensemble": "roadbev_core.backends.ensemble",
-}
-# Backends whose networks come from a checkpoint (the `checkpoint` parameter applies to them).
-_LEARNED = frozenset({"stereo", "mono"})
-
-
-def register(name: str) -> Callable[[Factory], Factory]:
-    """Class/function decorator adding a backend factory ``factory(grid, **options)``."""
-
-    def wrap(factory: Factory) -> Factory:
-        _FACTORIES[name] = factory
-        return factory
-
-    return wrap
-
-
-def available() -> list[str]:
-    """Names of all known backends."""
-    return sorted(_MODULES)
 
 
 class RefinedBackend:
@@ -106,33 +72,30 @@ class RefinedBackend:
         return getattr(self.inner, attribute)
 
 
-def takes_checkpoint(name: str) -> bool:
-    """Whether backend ``name`` reads a checkpoint (the learned ones)."""
-    return name in _LEARNED
-
-
 def create(name: str, grid: GridSpec | None = None, *, raw: bool = False, **options: Any) -> Backend:
     """Create backend ``name`` for ``grid`` (default grid when None).
 
     Args:
-        name: a registered backend.
+        name: a backend's name or ``module:attr`` path (:mod:`roadbev_core.backend_plugins`).
         grid: its grid (the contract's default when None).
         raw: the backend's own estimates, without the visibility step and the sigma
             calibration (:class:`RefinedBackend`).
         options: the backend's options.
 
     Raises:
-        BackendError: unknown name, or the backend refused its options.
+        BackendError: an unknown name (listing the known ones), a plugin that does not load or
+            does not make a :class:`Backend` (naming it), or the backend refused its options.
     """
-    if name not in _MODULES:
-        raise BackendError(f"unknown backend {name!r}; choose from {', '.join(available())}")
-    if name not in _FACTORIES:
-        importlib.import_module(_MODULES[name])
-    if name not in _FACTORIES:
-        raise BackendError(f"backend module {_MODULES[name]} did not register {name!r}")
+    plugin = find(name)
+    factory = plugin.load()
     try:
-        backend = _FACTORIES[name](grid or GridSpec(), **options)
+        backend = factory(grid or GridSpec(), **options)
     except (TypeError, ValueError) as exc:
         raise BackendError(f"backend {name!r}: {exc}") from exc
+    if not isinstance(backend, Backend) or not callable(getattr(backend, "estimate", None)):
+        missing = [m for m in ("name", "grid", "needs_stereo", "estimate") if not hasattr(backend, m)]
+        lacks = f"it lacks {', '.join(missing)}" if missing else "its estimate is not a method"
+        raise BackendError(f"backend plugin {name!r} ({plugin.target}, {plugin.source}) returned "
+                           f"{type(backend).__name__!r}, not a Backend: {lacks}")
     # an ensemble's members are refined themselves (their own calibrated sigma weighs them)
     return backend if raw or getattr(backend, "refines_itself", False) else RefinedBackend(backend)

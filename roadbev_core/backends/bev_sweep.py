@@ -35,7 +35,6 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from roadbev_core.backends import register
 from roadbev_core.backends.common import StageClock, grey_u8
 from roadbev_core.box_filter import WindowSize, box_mean, window_shape
 from roadbev_core.config import ConfigError, GridSpec, StereoCamera
@@ -44,7 +43,7 @@ from roadbev_core.geometry import Attitude
 from roadbev_core.image_sampling import sample_coordinates
 from roadbev_core.visibility import fill_holes
 
-__all__ = ["DEFAULT_Z_STEP", "BevSweep", "SweepParams", "grey_image"]
+__all__ = ["DEFAULT_Z_STEP", "BevSweep", "SweepParams", "create_bev_sweep", "grey_image"]
 
 _WORST = -2.0  # below any ZNCC: levels outside the image never win
 _OCCLUSION_SAMPLES = 16  # points per line of sight in the occlusion test
@@ -572,7 +571,6 @@ class BevSweep:
         return {"backend": self.name, "z_step": self.z_step, **asdict(self.params)}
 
 
-@register("bev_sweep")
 def create_bev_sweep(grid: GridSpec, **options: Any) -> BevSweep:
-    """Registry factory: ``create("bev_sweep", grid, patch_cells=3, ...)`` (see :class:`SweepParams`)."""
+    """Backend factory: ``create("bev_sweep", grid, patch_cells=3, ...)`` (see :class:`SweepParams`)."""
     return BevSweep(grid, SweepParams.from_options(options))

@@ -28,11 +28,11 @@ from typing import Any
 
 import numpy as np
 
-from roadbev_core.backends import Backend, BackendError, create, register
+from roadbev_core.backends import Backend, BackendError, create
 from roadbev_core.config import GridSpec
 from roadbev_core.frame import Estimate, Frame
 
-__all__ = ["DEFAULT_MEMBERS", "EnsembleBackend", "combine"]
+__all__ = ["DEFAULT_MEMBERS", "EnsembleBackend", "combine", "create_ensemble"]
 
 DEFAULT_MEMBERS = "bm+sgbm"
 
@@ -88,9 +88,8 @@ class EnsembleBackend:
         return {"backend": self.name, "members": [m.name for m in self.members]}
 
 
-@register("ensemble")
 def create_ensemble(grid: GridSpec, members: str = DEFAULT_MEMBERS) -> EnsembleBackend:
-    """Registry factory: ``create("ensemble", grid, members="stereo+sgbm")``.
+    """Backend factory: ``create("ensemble", grid, members="stereo+sgbm")``.
 
     Raises:
         BackendError: fewer than two members, an unknown or repeated one, or a member that cannot run.

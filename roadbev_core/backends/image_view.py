@@ -20,14 +20,13 @@ from typing import Any, NamedTuple
 import cv2
 import numpy as np
 
-from roadbev_core.backends import register
 from roadbev_core.backends.common import StageClock, grey_u8
 from roadbev_core.config import ConfigError, GridSpec, StereoCamera
 from roadbev_core.frame import Estimate, Frame, FrameError
 from roadbev_core.geometry import Attitude, optical_from_road_rotation, project_points, road_to_camera
 from roadbev_core.labels import elevation_map
 
-__all__ = ["ImageViewParams", "ImageViewStereo", "MatchWindow", "match_window"]
+__all__ = ["ImageViewParams", "ImageViewStereo", "MatchWindow", "create_bm", "create_sgbm", "match_window"]
 
 _SGBM_MODES = {
     "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
@@ -264,13 +263,11 @@ BM_DEFAULTS: dict[str, Any] = {"block_size": 11, "texture_threshold": 10, "uniqu
 SGBM_DEFAULTS: dict[str, Any] = {"block_size": 7, "mode": "3way", "uniqueness_ratio": 15}
 
 
-@register("bm")
 def create_bm(grid: GridSpec, **options: Any) -> ImageViewStereo:
-    """Registry factory for OpenCV StereoBM (options: see :class:`ImageViewParams`)."""
+    """Backend factory for OpenCV StereoBM (options: see :class:`ImageViewParams`)."""
     return ImageViewStereo("bm", grid, ImageViewParams.from_options(options, BM_DEFAULTS))
 
 
-@register("sgbm")
 def create_sgbm(grid: GridSpec, **options: Any) -> ImageViewStereo:
-    """Registry factory for OpenCV StereoSGBM (options: see :class:`ImageViewParams`)."""
+    """Backend factory for OpenCV StereoSGBM (options: see :class:`ImageViewParams`)."""
     return ImageViewStereo("sgbm", grid, ImageViewParams.from_options(options, SGBM_DEFAULTS))

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from roadbev_core.backends import BackendError, register
+from roadbev_core.backends import BackendError
 from roadbev_core.checkpoint import CheckpointError, load_model, training_envelope
 from roadbev_core.config import GridSpec
 from roadbev_core.deploy import (
@@ -57,6 +57,8 @@ __all__ = [
     "LearnedBackend",
     "OutOfDistributionError",
     "checkpoint_dir",
+    "create_mono",
+    "create_stereo",
     "default_checkpoint",
 ]
 
@@ -276,11 +278,11 @@ class LearnedBackend:
         return Estimate(elevation=elevation, uncertainty=uncertainty, timings_ms=timings)
 
 
-@register("stereo")
-def _stereo(grid: GridSpec, **options: Any) -> LearnedBackend:
+def create_stereo(grid: GridSpec, **options: Any) -> LearnedBackend:
+    """Backend factory of RoadBEV-stereo (options: see :class:`LearnedBackend`)."""
     return LearnedBackend("stereo", grid, **options)
 
 
-@register("mono")
-def _mono(grid: GridSpec, **options: Any) -> LearnedBackend:
+def create_mono(grid: GridSpec, **options: Any) -> LearnedBackend:
+    """Backend factory of RoadBEV-mono (options: see :class:`LearnedBackend`)."""
     return LearnedBackend("mono", grid, **options)

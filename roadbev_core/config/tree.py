@@ -10,11 +10,16 @@ adding a parameter is one edit here.
 Every entry point (node start-up, ``-p name:=value``, ``ros2 param set``, ``roadbev eval
 --params``, the demo, the benchmarks) builds its config with :meth:`RoadbevConfig.from_params`,
 which refuses an unknown name or a wrong type with the parameter's name, checks ranges, and
-checks the whole: the grid, the wheel tracks on it, and what the settings would cost
-(:data:`MAX_GRID_VOXELS`, :data:`MAX_SYNC_SETS`) before anything is allocated.
+checks the whole: the backend's name, the grid, and what the settings would cost
+(:data:`MAX_GRID_VOXELS`, :data:`MAX_SYNC_SETS`) before anything is allocated. What only a
+component can judge (the fused map's settings, the wheel tracks on the grid) is checked by
+:func:`roadbev_core.pipeline.check_config`, which those entry points call next; the config
+imports no component.
 
-Backend options are the open-ended parameters ``<backend>.<option>`` (for example
-``bev_sweep.patch_cells``); the backend itself checks their names and values when it is built.
+Backend names and options are looked up in :mod:`roadbev_core.backend_plugins` (the built-in
+backends, installed plugins, ``module:attr`` paths) without importing any backend. Options are
+the open-ended parameters ``<backend>.<option>`` (for example ``bev_sweep.patch_cells``); the
+backend itself checks their names and values when it is built.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from roadbev_core.backend_plugins import available, is_backend_name, option_backend, takes_checkpoint
 from roadbev_core.config.grid import ConfigError, GridSpec
 from roadbev_core.config.params_file import ParamError
 
@@ -83,6 +89,9 @@ class ParamSpec:
         low, high: inclusive numeric range (None = unbounded), also declared to ROS.
         choices: allowed string values (None = any).
         read_only: cannot change after start (topics, transports).
+        open_choices: ``choices`` are the values known now, not all of them: :meth:`check`
+            lets others through and the config judges them as a whole (the backend, which may
+            also be a ``module:attr`` path).
     """
 
     name: str
@@ -92,6 +101,7 @@ class ParamSpec:
     high: float | None = None
     choices: tuple[str, ...] | None = None
     read_only: bool = False
+    open_choices: bool = False
 
     def check(self, value: Any) -> Any:
         """``value`` checked (type, range, choices) and coerced to the parameter's type.
@@ -100,7 +110,7 @@ class ParamSpec:
             ParamError: naming the parameter.
         """
         value = _coerce(self, value)
-        if self.choices is not None and value not in self.choices:
+        if self.choices is not None and not self.open_choices and value not in self.choices:
             raise ParamError(f"{self.name} must be one of {', '.join(self.choices)}; got {value!r}")
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             if self.low is not None and value < self.low:
@@ -149,10 +159,11 @@ def param(
     *,
     choices: tuple[str, ...] | None = None,
     read_only: bool = False,
+    open_choices: bool = False,
 ) -> Any:
     """A config field read from ROS parameter ``name`` (lists are stored as tuples)."""
     spec = ParamSpec(name, list(default) if isinstance(default, tuple) else default, description,
-                     low, high, choices, read_only)
+                     low, high, choices, read_only, open_choices)
     return field(default=default, metadata={"param": spec})
 
 
@@ -166,7 +177,8 @@ def _specs_of(section: type) -> list[tuple[str, ParamSpec]]:
 class BackendConfig:
     """What estimates the elevation."""
 
-    name: str = param("backend", DEFAULT_BACKEND, "elevation backend (see roadbev_core.backends)")
+    name: str = param("backend", DEFAULT_BACKEND, "elevation backend (see roadbev_core.backends)",
+                      open_choices=True)
     checkpoint: str = param("checkpoint", "", "checkpoint file for the learned backends (stereo, mono); "
                             "empty = the shipped one")
     inference_threads: int = param("inference_threads", 0, "threads for the backend's torch/OpenCV work; "
@@ -177,8 +189,6 @@ class BackendConfig:
     def options_of(self, backend: str | None = None) -> dict[str, Any]:
         """Keyword options for ``backend`` (default: the chosen one), with the checkpoint for
         backends that take one."""
-        from roadbev_core.backends import takes_checkpoint
-
         name = backend or self.name
         prefix = f"{name}."
         out = {key[len(prefix):]: value for key, value in self.options.items() if key.startswith(prefix)}
@@ -463,7 +473,8 @@ class RoadbevConfig:
             section_type = {f.name: f.type for f in fields(cls)}[section_name]
             kind = _SECTION_TYPES[str(section_type)]
             sections[section_name] = kind(**{attr: values[spec.name] for attr, spec in _specs_of(kind)})
-        options = {k: v for k, v in values.items() if is_backend_option(k)}
+        specs = {spec.name for spec in parameter_specs()}
+        options = {k: v for k, v in values.items() if k not in specs and is_backend_option(k)}
         sections["backend"] = replace(sections["backend"], options=options)
         try:
             grid = GridSpec().with_overrides(**{spec.name: values[spec.name] for spec in GRID_PARAMS})
@@ -474,11 +485,9 @@ class RoadbevConfig:
         return config
 
     def _check(self) -> None:
-        """Checks across parameters: backend name, cost limits, the wheel tracks on the grid."""
-        from roadbev_core.backends import available
-        from roadbev_core.preview import PreviewError, check_tracks
-
-        if self.backend.name not in available():
+        """Checks across parameters: backend name, cost limits (the components' own checks:
+        :func:`roadbev_core.pipeline.check_config`)."""
+        if not is_backend_name(self.backend.name):
             raise ParamError(f"backend must be one of {', '.join(available())}; got {self.backend.name!r}")
         grid = self.grid
         voxels = grid.n_rows * grid.n_cols * max(grid.n_z, grid.n_classes)
@@ -495,37 +504,6 @@ class RoadbevConfig:
                 f"synchroniser try up to {sets:,.0f} stamp combinations per message (limit {MAX_SYNC_SETS:,}): "
                 "lower one of them"
             )
-        from roadbev_core.fusion import FusionError
-
-        try:
-            self.map_settings()
-        except FusionError as exc:
-            raise ParamError(f"map settings do not work: {exc}") from None
-        try:
-            check_tracks(grid, self.preview.track_offsets_m, self.preview.tyre_width_m, self.preview.spacing_m)
-        except PreviewError as exc:
-            raise ParamError(f"preview settings do not fit the grid: {exc}") from None
-
-    def map_settings(self, camera_position_m: Any = None) -> Any:
-        """The fused map's :class:`roadbev_core.fusion.MapSettings`: the corridor from the grid
-        and the camera's position on ``base_link`` (``camera_position_m``: from ``/tf_static``
-        when known, else ``vehicle.camera_position_m``)."""
-        from roadbev_core.fusion import MapSettings, datum_calibration_for
-
-        cam = self.vehicle.camera_position_m if camera_position_m is None else tuple(camera_position_m)
-        m, g = self.map, self.grid
-        calibrated = datum_calibration_for(self.backend.name) or (0.0, 0.0)
-        datum_sigma = calibrated[0] if m.datum_sigma_m < 0 else m.datum_sigma_m
-        datum_drift = calibrated[1] if m.datum_drift < 0 else m.datum_drift
-        return MapSettings(
-            resolution=g.resolution, behind_m=m.behind_m, ahead_m=float(cam[0]) + g.x_max,
-            y_min=float(cam[1]) + g.y_min, y_max=float(cam[1]) + g.y_max, base_height=g.base_height,
-            error_correlation=m.error_correlation, gate_sigma=m.gate_sigma, reset_after=m.reset_after,
-            align=m.align, align_slopes=m.align_slopes, offset_prior_m=m.offset_prior_m,
-            slope_prior_rad=math.radians(m.slope_prior_deg), min_overlap_cells=m.min_overlap_cells,
-            range_exponent=m.range_exponent, align_correlation=m.align_correlation,
-            datum_sigma_m=datum_sigma, datum_drift=datum_drift,
-        )
 
     def to_params(self) -> dict[str, Any]:
         """Flat ROS parameters (lists as lists), backend options included."""
@@ -549,11 +527,9 @@ _SECTION_TYPES: dict[str, type] = {
 
 
 def is_backend_option(name: str) -> bool:
-    """Whether ``name`` is a backend option ``<backend>.<option>`` of a known backend."""
-    from roadbev_core.backends import available
-
-    head, dot, tail = name.partition(".")
-    return bool(dot and tail) and head in available()
+    """Whether ``name`` is a backend option ``<backend>.<option>`` of a known backend (or of a
+    ``module:attr`` path: ``toy_backend:create.scale``)."""
+    return option_backend(name) is not None
 
 
 def check_name(name: str) -> None:
@@ -574,19 +550,15 @@ def check_name(name: str) -> None:
 
 
 @cache
-def parameter_specs() -> tuple[ParamSpec, ...]:
-    """Every ROS parameter of the node, in the order of the config tree (backend choices from the
-    backend registry)."""
-    from roadbev_core.backends import available
+def _tree_specs() -> tuple[ParamSpec, ...]:
+    return (*(spec for kind in _SECTION_TYPES.values() for _, spec in _specs_of(kind)), *GRID_PARAMS)
 
-    out: list[ParamSpec] = []
-    for kind in _SECTION_TYPES.values():
-        for _, spec in _specs_of(kind):
-            if spec.name == "backend":
-                spec = replace(spec, choices=tuple(available()))
-            out.append(spec)
-    out.extend(GRID_PARAMS)
-    return tuple(out)
+
+def parameter_specs() -> tuple[ParamSpec, ...]:
+    """Every ROS parameter of the node, in the order of the config tree (the backend's choices:
+    the backends known by name now, :func:`roadbev_core.backend_plugins.available`)."""
+    backends = tuple(available())
+    return tuple(replace(spec, choices=backends) if spec.name == "backend" else spec for spec in _tree_specs())
 
 
 def check_image_size(width: int, height: int, what: str = "image") -> None:

@@ -43,7 +43,7 @@ from msg_bridge.grid_map import grid_map_to_arrays
 from msg_bridge.preview import preview_from_message
 from roadbev_core.config import DEFAULT_BACKEND, RoadbevConfig
 from roadbev_core.errors import RoadbevError
-from roadbev_core.pipeline import Pipeline
+from roadbev_core.pipeline import Pipeline, check_config
 from roadbev_core.preview import wheel_track_profiles
 from roadbev_core.uncertainty import camera_positions
 from roadbev_core.visibility import hidden_cells
@@ -460,7 +460,7 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
             stamps.append(sample.inputs.stamp_ns)
             yield sample
 
-    pipeline = Pipeline(RoadbevConfig.from_params({"backend": options.backend, **grid.to_dict()}))
+    pipeline = Pipeline(check_config(RoadbevConfig.from_params({"backend": options.backend, **grid.to_dict()})))
     with _bar(n_frames, "offline", options.progress) as bar:
         offline_result = evaluate(pipeline, keep(eval_bag), imu=eval_bag.imu, progress=bar.update, keep_estimates=True)
     offline = offline_result.to_dict()

@@ -34,6 +34,7 @@ from msg_bridge.grid_map import decode_grid_map, grid_map_message_at
 from msg_bridge.tf import StaticTransform, camera_mount, odometry_message, tf_message, transforms_from_tf
 from roadbev_core.config import BASE_FRAME, RoadbevConfig
 from roadbev_core.geometry import GeometryError, quaternion_to_rotation
+from roadbev_core.pipeline import check_config
 from roadbev_lab.evaluation.arrival import ArrivalSettings, RoadMap, TimedPreview, Trajectory, preview_at_arrival
 from roadbev_lab.evaluation.evalbag import LEFT_FRAME, write_eval_bag
 
@@ -243,7 +244,7 @@ def arrival_settings(
     ``vehicle.wheelbase_m``, ``vehicle.track_width_m``, ``vehicle.camera_position_m``)."""
     names = ("preview.spacing_m", "preview.tyre_width_m", "vehicle.wheelbase_m", "vehicle.track_width_m",
              "vehicle.camera_position_m")
-    config = RoadbevConfig.from_params({k: v for k, v in (params or {}).items() if k in names})
+    config = check_config(RoadbevConfig.from_params({k: v for k, v in (params or {}).items() if k in names}))
     return ArrivalSettings(
         lead_time_s=float(lead_time_s),
         spacing_m=config.preview.spacing_m,

@@ -56,7 +56,7 @@ from roadbev_core.attitude import ImuBuffer, ImuSample, ImuStale
 from roadbev_core.config import BASE_FRAME, ConfigError, GridSpec, StereoCamera
 from roadbev_core.ego_motion import PlanarPose
 from roadbev_core.frame import Frame
-from roadbev_core.pipeline import CameraInput
+from roadbev_core.pipeline import CameraInput, check_config
 
 __all__ = [
     "DEFAULT_TOPICS",
@@ -598,7 +598,8 @@ def bag_frames(
     from roadbev_core.config import RoadbevConfig
 
     bag = read_eval_bag(path, params)
-    imu = RoadbevConfig.from_params({k: v for k, v in (params or {}).items() if k.startswith("imu_")}).imu
+    imu = check_config(RoadbevConfig.from_params({k: v for k, v in (params or {}).items()
+                                                  if k.startswith("imu_")})).imu
     buffer = ImuBuffer(max_age_s=imu.max_age_s, max_gap_s=imu.max_age_s, horizon_s=math.inf,
                        imu_to_camera_rpy_deg=imu.imu_to_camera_rpy_deg)
     return bag.grid, list(bag.labelled_frames(buffer))

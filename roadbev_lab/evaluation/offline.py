@@ -132,7 +132,7 @@ def prepare_bag(path: str | Path, explicit: Mapping[str, Any] | None = None, *,
         OfflineEvalError: the bag cannot be read, has no frames, or ``--map`` without odometry.
     """
     from roadbev_core.config import RoadbevConfig
-    from roadbev_core.pipeline import Pipeline
+    from roadbev_core.pipeline import Pipeline, check_config
     from roadbev_lab.evaluation.drivebag import is_drive_bag
     from roadbev_lab.evaluation.evalbag import read_eval_bag
 
@@ -148,7 +148,7 @@ def prepare_bag(path: str | Path, explicit: Mapping[str, Any] | None = None, *,
         raise OfflineEvalError(f"--map needs odometry: {path} has none on {bag.topics['odom_topic']}")
     map_params = {} if map_enabled is None else {"map.enabled": bool(map_enabled)}
     # the horizontal grid comes from the ground truth's GridMap info (contract)
-    config = RoadbevConfig.from_params({**params, **map_params, **bag.grid.to_dict()})
+    config = check_config(RoadbevConfig.from_params({**params, **map_params, **bag.grid.to_dict()}))
     pipeline = Pipeline(config)
     if bag.camera_mount is not None:  # /tf_static base_link -> camera wins over vehicle.camera_position_m
         pipeline.set_camera_mount(*bag.camera_mount)

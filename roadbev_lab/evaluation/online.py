@@ -36,6 +36,7 @@ from msg_bridge import bag
 from msg_bridge.grid_map import grid_map_to_arrays
 from roadbev_core.config import DEFAULT_BACKEND, RoadbevConfig
 from roadbev_core.errors import RoadbevError
+from roadbev_core.pipeline import check_config
 from roadbev_lab.evaluation.evalbag import read_eval_bag
 from roadbev_lab.evaluation.metrics import MetricAccumulator, Metrics, SigmaAccumulator
 from roadbev_ros.dds import child_env, init_ros
@@ -385,7 +386,8 @@ def drive_scores(bag_path: Path, recorded: Path, frame_stamps: Sequence[int], pa
         out["preview_at_arrival"] = dict(json_safe(arrival))
     if windows:
         drive_truth = read_drive_truth(bag_path, params)
-        vehicle = RoadbevConfig.from_params({k: v for k, v in params.items() if k.startswith("vehicle.")}).vehicle
+        vehicle = check_config(RoadbevConfig.from_params({k: v for k, v in params.items()
+                                                          if k.startswith("vehicle.")})).vehicle
         out["map"] = dict(json_safe(map_accuracy(windows, drive_truth.road_map, drive_truth.trajectory, vehicle)))
     return out
 

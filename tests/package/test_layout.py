@@ -3,7 +3,8 @@
 - the runtime (``roadbev_core``, ``msg_bridge``, ``roadbev_ros``: what a car runs) never imports
   the lab (``roadbev_lab``) or the command line (``roadbev_cli``);
 - the lab never imports the command line;
-- the project's modules import each other without a circle.
+- the project's modules import each other without a circle;
+- the config is a leaf: it imports nothing of the project above it.
 """
 
 from __future__ import annotations
@@ -128,3 +129,14 @@ def test_cycles_are_found() -> None:
 def test_no_import_circle() -> None:
     circles = _cycles(_graph())
     assert not circles, "modules that import each other in a circle:\n" + "\n".join(" <-> ".join(c) for c in circles)
+
+
+def test_the_config_is_a_leaf() -> None:
+    """The config imports only the errors, the backend names (a leaf itself) and its own modules:
+    what a component must judge is judged by the component (roadbev_core.pipeline.check_config)."""
+    graph = _graph()
+    allowed = {"roadbev_core.errors", "roadbev_core.backend_plugins"}
+    wrong = sorted(f"{m} -> {d}" for m, deps in graph.items() if m.startswith("roadbev_core.config")
+                   for d in deps if d not in allowed and not d.startswith("roadbev_core.config"))
+    assert not wrong, "the config imports above itself:\n" + "\n".join(wrong)
+    assert graph["roadbev_core.backend_plugins"] <= {"roadbev_core.errors"}

@@ -107,6 +107,24 @@ def test_round_trip_and_typed_sections() -> None:
     learned = RoadbevConfig.from_params({"backend": "stereo", "checkpoint": "x.pt", "stereo.runtime": "torch"})
     assert learned.backend.options_of() == {"runtime": "torch", "checkpoint": "x.pt"}
     assert learned.backend.options_of("bm") == {}
+    # the checkpoint parameter goes to the learned backends only
+    assert RoadbevConfig.from_params({"backend": "bm", "checkpoint": "x.pt"}).backend.options_of() == {}
+
+
+def test_a_backend_named_by_its_module_path_takes_its_options_without_being_imported() -> None:
+    config = RoadbevConfig.from_params({"backend": "no_such_pkg.road:create", "no_such_pkg.road:create.scale": 2,
+                                        "bm.block_size": 9})
+    assert config.backend.options_of() == {"scale": 2}
+    assert config.backend.options_of("bm") == {"block_size": 9}
+    assert RoadbevConfig.from_params(config.to_params()) == config
+    with pytest.raises(ParamError, match=r"unknown parameter 'no_such_pkg\.road\.scale'"):
+        RoadbevConfig.from_params({"no_such_pkg.road.scale": 2})
+
+
+def test_the_config_leaves_what_only_a_component_judges_to_the_component() -> None:
+    # the wheel tracks on the grid are checked by roadbev_core.pipeline.check_config, with the preview
+    config = RoadbevConfig.from_params({"preview.tyre_width_m": 0.0})
+    assert config.preview.tyre_width_m == 0.0
 
 
 @pytest.mark.parametrize(
@@ -125,8 +143,10 @@ def test_round_trip_and_typed_sections() -> None:
         ({"imu_to_camera_rpy_deg": [0.0, "a", 1.0]}, "list of finite"),
         ({"resolution": 0.07}, "whole number"),
         ({"z_max": 2.0}, "below the camera"),
-        ({"preview.track_offsets_m": [3.0, -0.8]}, "preview settings do not fit the grid"),
-        ({"preview.tyre_width_m": 0.0}, "preview settings"),
+        ({"backend": "not a path:"}, "backend must be one of bev_sweep, bm, ensemble, mono, sgbm, stereo; "
+                                     "got 'not a path:'"),
+        ({"bm": 5}, "unknown parameter 'bm'"),
+        ({"pkg.mod": 5}, "unknown parameter 'pkg.mod'"),
     ],
 )
 def test_nonsense_is_refused_with_the_parameters_name(params: dict[str, Any], reason: str) -> None:

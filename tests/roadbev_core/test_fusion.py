@@ -6,7 +6,6 @@ import json
 import math
 from collections.abc import Callable
 from pathlib import Path
-from typing import cast
 
 import numpy as np
 import pytest
@@ -18,6 +17,7 @@ from roadbev_core.fusion import (
     FusionError,
     MapSettings,
     datum_calibration_for,
+    map_settings,
     place_frame,
     prepare_bilinear,
     sample_bilinear,
@@ -33,7 +33,7 @@ Road = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 def _settings(**changes: object) -> MapSettings:
-    return cast("MapSettings", RoadbevConfig.from_params({f"map.{k}": v for k, v in changes.items()}).map_settings())
+    return map_settings(RoadbevConfig.from_params({f"map.{k}": v for k, v in changes.items()}))
 
 
 def _frame(road: Road, base: PlanarPose, base_z: float, pitch: float = 0.0) -> np.ndarray:
@@ -301,9 +301,9 @@ def test_the_datum_calibration_is_read_per_backend_and_params_override_it(tmp_pa
     # -1 (the default) takes the shipped calibration of the chosen backend; a value given wins
     for backend in ("bev_sweep", "bm"):
         calibrated = datum_calibration_for(backend) or (0.0, 0.0)
-        settings = RoadbevConfig.from_params({"backend": backend}).map_settings()
+        settings = map_settings(RoadbevConfig.from_params({"backend": backend}))
         assert (settings.datum_sigma_m, settings.datum_drift) == calibrated
-    settings = RoadbevConfig.from_params({"map.datum_drift": 0.001, "map.datum_sigma_m": 0.0}).map_settings()
+    settings = map_settings(RoadbevConfig.from_params({"map.datum_drift": 0.001, "map.datum_sigma_m": 0.0}))
     assert (settings.datum_sigma_m, settings.datum_drift) == (0.0, 0.001)
     with pytest.raises(FusionError):
         MapSettings(resolution=0.03, behind_m=1.0, ahead_m=8.0, y_min=-1.0, y_max=1.0, base_height=1.1,
@@ -315,6 +315,18 @@ def test_settings_refuse_an_empty_or_costly_corridor() -> None:
         MapSettings(resolution=0.03, behind_m=1.0, ahead_m=-2.0, y_min=-1.0, y_max=1.0, base_height=1.1)
     with pytest.raises(FusionError):
         MapSettings(resolution=0.001, behind_m=10.0, ahead_m=100.0, y_min=-10.0, y_max=10.0, base_height=1.1)
+
+
+def test_map_settings_lay_the_corridor_around_the_camera_on_base_link() -> None:
+    config = RoadbevConfig.from_params({"map.behind_m": 2.0, "map.slope_prior_deg": 0.5})
+    g = config.grid
+    settings = map_settings(config)  # the camera at vehicle.camera_position_m
+    assert settings.ahead_m == pytest.approx(config.vehicle.camera_position_m[0] + g.x_max)
+    assert (settings.behind_m, settings.resolution, settings.base_height) == (2.0, g.resolution, g.base_height)
+    assert settings.slope_prior_rad == pytest.approx(math.radians(0.5))
+    moved = map_settings(config, np.array([2.0, 0.5, 1.2]))  # from /tf_static
+    assert moved.ahead_m == pytest.approx(2.0 + g.x_max)
+    assert (moved.y_min, moved.y_max) == pytest.approx((0.5 + g.y_min, 0.5 + g.y_max))
 
 
 def test_a_window_crops_to_the_cells_around_a_position() -> None:

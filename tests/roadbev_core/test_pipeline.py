@@ -2,17 +2,18 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 import pytest
 
-from roadbev_core.config import GridSpec, RoadbevConfig, StereoCamera
+from roadbev_core.config import GridSpec, ParamError, RoadbevConfig, StereoCamera
 from roadbev_core.ego_motion import PlanarPose
 from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Estimate, Frame
 from roadbev_core.geometry import R_BODY_FROM_OPTICAL, Attitude
-from roadbev_core.pipeline import Pipeline
+from roadbev_core.pipeline import Pipeline, check_config
 from roadbev_core.preview import REFERENCE_CONTACT_PLANE, REFERENCE_ROAD
 
 S = 1_000_000_000
@@ -49,6 +50,26 @@ def _drive(pipeline: Pipeline, frames: int, speed: float = 10.0) -> list[Any]:
     for k in range(frames):
         outputs.append(pipeline.process_frame(_frame(k)))
     return outputs
+
+
+@pytest.mark.parametrize(
+    "params, reason",
+    [
+        ({"preview.track_offsets_m": [3.0, -0.8]}, "preview settings do not fit the grid: .*leaves the grid"),
+        ({"preview.tyre_width_m": 0.0}, "preview settings do not fit the grid: .*tyre width"),
+    ],
+)
+def test_check_config_refuses_tracks_off_the_grid(params: dict[str, Any], reason: str) -> None:
+    with pytest.raises(ParamError, match=reason):
+        check_config(RoadbevConfig.from_params(params))
+
+
+def test_check_config_refuses_map_settings_the_map_cannot_use() -> None:
+    config = RoadbevConfig()
+    assert check_config(config) is config
+    broken = replace(config, map=replace(config.map, reset_after=0))  # built around from_params' ranges
+    with pytest.raises(ParamError, match="map settings do not work: gate_sigma must be > 0 and reset_after >= 1"):
+        check_config(broken)
 
 
 def test_without_odometry_the_pipeline_is_per_frame() -> None:
