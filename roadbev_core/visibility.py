@@ -44,7 +44,7 @@ __all__ = [
 SAMPLES = 48  # points per line of sight (over the stretch that can hide the cell)
 # Samples stop this many cells before their target (its own neighbourhood is not an occluder).
 _GAP_CELLS = 1.5
-# Least clearance ratio of a visible line of sight (the same as bev_sweep's occlusion_clearance).
+# Least clearance ratio of a visible line of sight (bev_sweep's occlusion_clearance defaults to it).
 CLEARANCE = 0.3
 
 

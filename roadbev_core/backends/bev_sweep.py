@@ -41,7 +41,7 @@ from roadbev_core.config import ConfigError, GridSpec, StereoCamera
 from roadbev_core.frame import Estimate, Frame, FrameError
 from roadbev_core.geometry import Attitude
 from roadbev_core.image_sampling import sample_coordinates
-from roadbev_core.visibility import fill_holes
+from roadbev_core.visibility import CLEARANCE, fill_holes
 
 __all__ = ["DEFAULT_Z_STEP", "BevSweep", "SweepParams", "create_bev_sweep", "grey_image"]
 
@@ -132,7 +132,7 @@ class SweepParams:
     temperature: float = 0.005
     blur_sigma: float = 1.0
     highpass_sigma: float = 4.0
-    occlusion_clearance: float = 0.3
+    occlusion_clearance: float = CLEARANCE
     far_aggregation_cells: WindowSize = (35, 15)
     far_fraction: float = 0.33
     near_aggregation_cells: WindowSize = (13, 5)
