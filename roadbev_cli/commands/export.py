@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     if args.format == "onnx":
         from roadbev_core.deploy import trtexec_shapes
 
-        print("TensorRT (README, Deployment), batch 1 of 960x528 frames (grey's H x W follow the frames): "
+        print("TensorRT (docs/tutorials/deploy.md), batch 1 of 960x528 frames (grey's H x W follow the frames): "
               f"trtexec --onnx={path} --shapes={trtexec_shapes(model.config, model.grid, 960, 528)}")
     print(f"exported RoadBEV-{model.config.kind} ({model.config.backbone}, C={model.config.channels}, "
           f"{params / 1e6:.2f} M parameters) for a {model.grid.n_rows}x{model.grid.n_cols} grid to {path} "
