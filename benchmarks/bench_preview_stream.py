@@ -7,7 +7,7 @@ Run (from the repository root)::
 
 A drive bag where the car rides on its road (``bench_node``'s: 10 m/s, 10 Hz camera, class C
 with potholes and speed bumps, ``/odom`` and ``/tf_static``) is replayed with ``--clock`` into
-three processes started as the README starts them: ``roadbev node`` (its defaults: the fused map
+three processes started as docs/tutorials/preview.md starts them: ``roadbev node`` (its defaults: the fused map
 on), ``roadbev_preview_controller`` and ``roadbev record``. From the recording: every preview's
 frame, reference, contact-plane source, vehicle speed and times of arrival (the contract's one
 stream: all in ``base_link`` against the contact plane, each with a finite speed and times of

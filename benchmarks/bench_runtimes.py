@@ -152,7 +152,7 @@ def run(frames: int, kinds: list[str], runtimes: list[str], threads: int | None,
 
 
 def markdown(record: dict[str, Any]) -> str:
-    """The rows as the README's table."""
+    """The rows as a markdown table (the one the docs quote, :mod:`benchmarks.doc_tables`)."""
     lines = [
         "| model | runtime | abs. err. (cm) | RMSE (cm) | >0.5 cm (%) | FPS | estimate mean / median (ms) "
         "| mean / max abs. diff. to torch (cm) |",

@@ -1,12 +1,16 @@
 """Tables of the docs, generated from the committed benchmark results.
 
 A page quotes a table between two markers, ``<!-- table: NAME -->`` and ``<!-- /table -->``;
-:func:`render` makes the table NAME from its result file and :func:`check_page` says which marked
-tables on a page differ from what the results give now (the tests run it on the README, so a
-figure there cannot drift from the JSON it came from).
+:func:`render` makes the table NAME from its result files (each table ends with the command that
+made them, the machine and the commit, as far as the files record them) and :func:`check_page`
+says which marked tables on a page differ from what the results give now. The tests run it on
+the README and on every page under ``docs/``, so a figure there cannot drift from the JSON it came
+from, and check that every result file under ``benchmarks/results/`` is quoted somewhere.
 
-Run: ``.venv/bin/python -m benchmarks.doc_tables [--write README.md] [NAME ...]`` prints the tables
-(or rewrites the marked blocks of a page in place).
+Run: ``.venv/bin/python -m benchmarks.doc_tables [NAME ...]`` prints the tables;
+``--write [PAGE ...]`` rewrites the marked blocks of the pages in place and ``--check [PAGE ...]``
+names the pages with a stale table and exits 1 when there is one (default pages: the README and
+every page under ``docs/``).
 """
 
 from __future__ import annotations
@@ -18,15 +22,23 @@ import math
 import re
 import sys
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from benchmarks.bench_runtimes import markdown as runtimes_markdown
 from benchmarks.common import RESULTS
 from benchmarks.preview_budget import STAGE_SEPARATOR, STAGES
+from benchmarks.run_all import common_cell_markdown
+from benchmarks.run_all import markdown_table as table1_markdown
 from roadbev_core.config import DEFAULT_BACKEND
 
-__all__ = ["TABLES", "check_page", "marked_tables", "render", "rewrite_page"]
+__all__ = ["ROOT", "TABLES", "Table", "check_page", "doc_pages", "marked_tables", "provenance", "render",
+           "rewrite_page", "sources"]
 
+ROOT = RESULTS.parents[1]  # the repository
 _BLOCK = re.compile(r"(<!-- table: (?P<name>[a-z0-9_]+) -->\n)(?P<body>.*?)(<!-- /table -->)", re.S)
 _STAGE_TITLES = {
     "shipped": "as shipped",
@@ -37,15 +49,56 @@ _STAGE_TITLES = {
     "true_plane": "true contact plane",
     "no_latency": "no latency (every frame, at its stamp)",
 }
+# The backends of the sample drive's committed evaluations (benchmarks/results/sample_drive_<name>.json).
+SAMPLE_DRIVE_BACKENDS = ("bev_sweep", "bm", "sgbm", "stereo", "mono", "ensemble")
 
 
 def _load(name: str) -> dict[str, Any]:
-    return dict(json.loads((RESULTS / name).read_text()))
+    """A result file: a path under ``benchmarks/results/``, or from the repository root when it
+    names a folder outside it (``roadbev_core/data/...``)."""
+    path = ROOT / name if name.startswith("roadbev_core/") else RESULTS / name
+    return dict(json.loads(path.read_text()))
 
 
 def _fmt(value: float | None, digits: int = 2) -> str:
     return "–" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
 
+
+def _row(cells: Sequence[str]) -> str:
+    return "| " + " | ".join(cells) + " |"
+
+
+def _head(*titles: str) -> list[str]:
+    return [_row(titles), "|" + "---|" * len(titles)]
+
+
+def provenance(data: Mapping[str, Any], command: str | None = None) -> str:
+    """One line: the command that made a result file (its own record, else ``command``), the
+    machine and the commit it ran at, as far as the file records them."""
+    parts: list[str] = []
+    cmd = data.get("command") or command
+    if cmd:
+        parts.append(f"Command: `{str(cmd).strip()}`.")
+    machine = data.get("machine")
+    if isinstance(machine, Mapping):
+        name = machine.get("cpu") or machine.get("processor")
+        cores = machine.get("cores") or machine.get("threads")
+        where = ", ".join(p for p in (str(name) if name else "", f"{cores} cores" if cores else "") if p)
+        if machine.get("torch"):
+            where += f", torch {machine['torch']}"
+            if machine.get("torch_threads") not in (None, cores):
+                where += f" (torch threads: {machine['torch_threads']})"
+        if where:
+            parts.append(f"Machine: {where}.")
+        if machine.get("git_commit"):
+            when = f", {str(machine['time_utc'])[:10]}" if machine.get("time_utc") else ""
+            parts.append(f"Commit `{machine['git_commit']}`{when}.")
+    elif machine:
+        parts.append(f"Machine: {machine}.")
+    return " ".join(parts)
+
+
+# --- the preview: ride and arrival benchmarks ----------------------------------------------------
 
 def _arrival(a: Mapping[str, Any] | None, error: str = "abs_err_cm") -> str:
     """All / feature points (cm) and coverage (%) of one preview-at-arrival summary."""
@@ -59,8 +112,7 @@ def _cells(table: Sequence[Mapping[str, Any]], rendered: bool) -> list[Mapping[s
 
 
 def _header(cells: Sequence[Mapping[str, Any]], first: str) -> list[str]:
-    head = [first] + [f"{c['speed_mps']:g} m/s, {c['rate_hz']:g} Hz" for c in cells]
-    return ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    return _head(first, *(f"{c['speed_mps']:g} m/s, {c['rate_hz']:g} Hz" for c in cells))
 
 
 def ride_shares(data: Mapping[str, Any]) -> str:
@@ -75,7 +127,7 @@ def ride_shares(data: Mapping[str, Any]) -> str:
             r = cell["rows"].get(name, {})
             row.append(f"{_fmt(r.get('share_mean'))} ± {_fmt(r.get('share_std'))} ({_fmt(r.get('share_min'))})"
                        if "share_mean" in r else "–")
-        lines.append("| " + " | ".join(row) + " |")
+        lines.append(_row(row))
     drives = {c["drives"] for c in cells}
     lines.append("")
     streams = _streams(data)
@@ -123,7 +175,7 @@ def ride_truth(data: Mapping[str, Any]) -> str:
     for name in ("window", "map_plane", "map_plane_attitude"):
         rows.append((f"share `{name}`", functools.partial(_share_cell, name)))
     for title, value in rows:
-        lines.append("| " + " | ".join([title] + [value(c) for c in cells]) + " |")
+        lines.append(_row([title] + [value(c) for c in cells]))
     return "\n".join(lines)
 
 
@@ -148,11 +200,11 @@ def ride_budget(data: Mapping[str, Any], candidate: str | None = None) -> str:
         for cell in cells:
             r = cell["rows"].get(row_name, {})
             row.append(_fmt(r.get("share_mean")))
-        lines.append("| " + " | ".join(row) + " |")
+        lines.append(_row(row))
     row = ["a perfect fused map (`map_plane_attitude`)"]
     for cell in cells:
         row.append(_fmt(cell["rows"].get("map_plane_attitude", {}).get("share_mean")))
-    lines.append("| " + " | ".join(row) + " |")
+    lines.append(_row(row))
     return "\n".join(lines)
 
 
@@ -165,7 +217,7 @@ def ride_arrival(data: Mapping[str, Any]) -> str:
         row = [f"`{c['name']}`"]
         for cell in cells:
             row.append(_arrival(cell["rows"].get(c["name"], {}).get("arrival"), "contact_plane_abs_err_cm"))
-        lines.append("| " + " | ".join(row) + " |")
+        lines.append(_row(row))
     return "\n".join(lines)
 
 
@@ -181,7 +233,7 @@ def arrival_rows(data: Mapping[str, Any], rows: Sequence[str] | None = None) -> 
         row = [f"`{name}`"]
         for cell in cells:
             row.append(_arrival(cell["rows"].get(name)))
-        lines.append("| " + " | ".join(row) + " |")
+        lines.append(_row(row))
     return "\n".join(lines)
 
 
@@ -191,41 +243,633 @@ def arrival_budget(data: Mapping[str, Any]) -> str:
     return arrival_rows(data, [name if s == "shipped" else f"{name}{STAGE_SEPARATOR}{s}" for s in STAGES])
 
 
+def arrival_backends(data: Mapping[str, Any]) -> str:
+    """bench_arrival with ``--backends``: per camera rate and backend, the per-frame and the fused
+    map's previews at arrival (all / features, coverage), the fused previews against the true
+    contact plane, and the fused map itself against the true road."""
+    lines = _head("speed, rate", "backend", "per frame: all / features (cov. %)", "map on: all / features (cov. %)",
+                  "map on, vs contact plane (cm)", "fused map: abs. err. (cm) / coverage (%)")
+    for run in sorted(data["results"], key=lambda r: (r["speed_mps"], r["rate_hz"])):
+        for name, b in run["backends"].items():
+            on = b["map_on"]
+            lines.append(_row([
+                f"{run['speed_mps']:g} m/s, {run['rate_hz']:g} Hz", f"`{name}`", _arrival(b["preview_at_arrival"]),
+                _arrival(on["preview_at_arrival"]), _fmt(on["preview_at_arrival"]["contact_plane_abs_err_cm"], 3),
+                f"{_fmt(on['map']['abs_err_cm'], 3)} / {_fmt(on['map']['coverage_pct'], 1)}",
+            ]))
+    frames = ", ".join(f"{r['frames']} frames at {r['rate_hz']:g} Hz (seed {r['seed']})" for r in data["results"])
+    return "\n".join(lines) + f"\n\nDrives: {frames}."
+
+
+# --- the node -----------------------------------------------------------------------------------
+
 def node_candidates(data: Mapping[str, Any]) -> str:
     """bench_node --drive: each configuration in the node with the map on, fed a camera's timing:
     frames fused, latency, inference and the node's own time per frame."""
-    lines = ["| configuration | frames fused | latency p50 / p95 (ms) | inference p50 (ms) | node overhead mean (ms) |",
-             "|---|---|---|---|---|"]
+    lines = _head("configuration", "frames fused", "latency p50 / p95 (ms)", "inference p50 (ms)",
+                  "node overhead mean (ms)")
     for r in data["rows"]:
         lines.append(f"| `{r['backend']}` | {r['outputs']}/{r['frames']} | {_fmt(r['latency_ms']['p50'], 0)} / "
                      f"{_fmt(r['latency_ms']['p95'], 0)} | {_fmt(r['inference_p50_ms'], 0)} | "
                      f"{_fmt(r['overhead_mean_ms'], 1)} |")
     bag = data["bag"]
     lines.append("")
-    lines.append(f"A {bag['frames']}-frame drive at {bag['frame_rate_hz']:g} Hz, the map on; "
-                 f"`{data['machine'].get('cpu', 'this machine')}`, commit {data['machine'].get('git_commit', '?')}.")
+    lines.append(f"A {bag['frames']}-frame drive at {bag['frame_rate_hz']:g} Hz with odometry (the map on), "
+                 "replayed with the bag's timing.")
     return "\n".join(lines)
 
 
-TABLES: dict[str, tuple[str, Callable[[Mapping[str, Any]], str]]] = {
-    "node_candidates": ("node_candidates.json", node_candidates),
-    "arrival": ("arrival.json", arrival_rows),
-    "arrival_budget": ("arrival.json", arrival_budget),
-    "ride_shares": ("ride.json", ride_shares),
-    "ride_truth": ("ride.json", ride_truth),
-    "ride_budget": ("ride.json", ride_budget),
-    "ride_arrival": ("ride.json", ride_arrival),
+def node_rows(data: Mapping[str, Any]) -> str:
+    """bench_node: per backend and replay mode, frames answered, throughput, latency, inference and
+    the node's own time per frame."""
+    rate = data["bag"]["frame_rate_hz"]
+    modes = {"5hz": f"bag's timing ({rate:g} Hz)", "max": "as fast as possible"}
+    lines = _head("backend", "replay", "frames answered", "throughput (Hz)", "latency p50 / p95 (ms)",
+                  "p95 after the first frame (ms)", "inference p50 (ms)", "node overhead mean / p95 (ms)")
+    for r in data["rows"]:
+        lines.append(_row([
+            f"`{r['backend']}`", modes.get(r["mode"], r["mode"]), f"{r['outputs']}/{r['frames']}",
+            _fmt(r["throughput_hz"]), f"{_fmt(r['latency_ms']['p50'], 0)} / {_fmt(r['latency_ms']['p95'], 0)}",
+            _fmt(r["latency_after_first_ms"]["p95"], 0), _fmt(r["inference_p50_ms"], 0),
+            f"{_fmt(r['overhead_mean_ms'], 1)} / {_fmt(r['overhead_p95_ms'], 1)}",
+        ]))
+    bag = data["bag"]
+    params = ", ".join(f"`{k}` = {v}" for k, v in data.get("node_params", {}).items())
+    lines.append("")
+    lines.append(f"A {bag['frames']}-frame bag at {rate:g} Hz, "
+                 + ("a drive with odometry (the map on)" if bag.get("drive_with_odometry") else "no odometry (map off)")
+                 + (f"; node parameters {params}" if params else "")
+                 + f"; the node's own work measured apart, single-threaded: "
+                 f"{_fmt(data['pipeline_overhead_ms']['total_ms'])} ms a frame.")
+    return "\n".join(lines)
+
+
+def map_stage(data: Mapping[str, Any]) -> str:
+    """bench_map: the map stage and the fusion alone per frame (best of the passes)."""
+    lines = _head("per frame (ms)", "p50", "p95", "mean", "first pass p50")
+    for key, title in (("map_stage_ms", "map stage (fusion, contact plane, preview, window)"),
+                       ("fusion_ms", "fusion")):
+        lines.append(_row([title, _fmt(data[key]["p50"]), _fmt(data[key]["p95"]), _fmt(data[key]["mean"]),
+                           _fmt(data["first_pass"][key]["p50"])]))
+    lines.append("")
+    lines.append(f"{data['frames']} frames of a drive at {data['speed_mps']:g} m/s and {data['rate_hz']:g} Hz, "
+                 f"best of {data['repeats']} passes per frame; fusion target {data['target_fusion_ms']:g} ms "
+                 f"({'met' if data['fusion_target_met'] else 'not met'}).")
+    return "\n".join(lines)
+
+
+def dds_sizes(data: Mapping[str, Any]) -> str:
+    """bench_dds_sizes: images delivered between two processes through the shipped profile, per
+    size and QoS."""
+    sizes = list(data["reliable"]["delivered_by_mib"])
+    lines = _head("QoS \\ image size (MiB)", *sizes)
+    for key, title in (("reliable", "reliable"), ("best_effort", "best effort (the node's sensor QoS)")):
+        got = data[key]
+        lines.append(_row([title] + [f"{got['delivered_by_mib'][s]} of {got['delivered_of']}" for s in sizes]))
+    lines.append("")
+    lines.append(f"Profile `{data['profile']}`, one square rgb8 image per size, {data['gap_s']:g} s apart.")
+    return "\n".join(lines)
+
+
+def msg_bridge(data: Mapping[str, Any]) -> str:
+    """bench_msg_bridge: median time per conversion."""
+    lines = _head("conversion", "median")
+    for key, value in data.items():
+        if key.endswith("_ms"):
+            lines.append(_row([f"`{key[:-3]}`", f"{value:.3f} ms"]))
+        elif key.endswith("_per_s"):
+            lines.append(_row([f"`{key[:-6]}`", f"{value:.1f} per s"]))
+        elif key.endswith("_s"):
+            lines.append(_row([f"`{key[:-2]}`", f"{value:.3f} s"]))
+    lines.append("")
+    lines.append(f"Zero-copy image read: {'yes' if data['zero_copy_image_read'] else 'no'}.")
+    return "\n".join(lines)
+
+
+def preview_stream(data: Mapping[str, Any]) -> str:
+    """bench_preview_stream: what a subscriber received on a replayed drive (node defaults, map on),
+    the reference controller's last diagnostics and the fused map's sigma."""
+    c = data["controller"]
+    medians, p95s = data["map_sigma_median_cm"], data["map_sigma_p95_cm"]
+    rows = [
+        ("previews received", f"{data['previews']}"),
+        ("in `base_link` against the contact plane, with a speed and times of arrival",
+         f"{data['in_one_stream_pct']:.1f} %"),
+        ("contact plane from", ", ".join(f"{k} {v}" for k, v in data["contact_plane_sources"].items())),
+        ("controller: messages received / refused", f"{c['received']} / {c['refused']}"),
+        ("controller: force commands published", f"{data['force_commands']}"),
+        ("controller: preview gain applied", c["preview_gain"]),
+        ("fused maps received", f"{data['map_messages']}"),
+        ("map `uncertainty` layer: median / p95 over a map (cm)",
+         f"{min(medians):.2f}–{max(medians):.2f} / up to {max(p95s):.2f}"),
+    ]
+    lines = _head("on the recording", "value") + [_row(r) for r in rows]
+    lines.append("")
+    lines.append(f"Backend `{data['backend']}`, bag `{data['bag']}`.")
+    return "\n".join(lines)
+
+
+# --- backends: accuracy, uncertainty, robustness -------------------------------------------------
+
+def table1(data: Mapping[str, Any]) -> str:
+    """The paper's Table I protocol on the synthetic test frames, and bev_sweep against each
+    image-view backend on the cells both estimated (the benchmark's own markdown)."""
+    common = common_cell_markdown(data["targets"].get("common_cells", {}))
+    text = table1_markdown(data["results"]) + (f"\n\n{common}" if common else "")
+    return (text + f"\n\n{data['frames']} frames, seeds {data['seeds'][0]}–{data['seeds'][1]}, "
+            f"appearance `{data['appearance']}`.")
+
+
+def uncertainty_targets(table: Mapping[str, Any], *drives: Mapping[str, Any]) -> str:
+    """Each backend's sigma against the targets: confidently wrong on Table I and on the sample
+    drive, within 2 sigma and mean sigma / RMSE on Table I."""
+    by_drive = {d["backend"]: d for d in drives}
+    lines = _head("backend", "confidently wrong, Table I / sample drive (%) (≤ 0.5)",
+                  "within 2σ, Table I (%) (90–98)", "mean σ / RMSE, Table I (≤ 1.5)")
+    for m in table["results"]:
+        drive = by_drive.get(m["backend"], {})
+        lines.append(_row([
+            m["backend"], f"{_fmt(m['confident_wrong_pct'])} / {_fmt(drive.get('confident_wrong_pct'))}",
+            _fmt(m["within_2sigma_pct"], 1), _fmt(m["mean_sigma_cm"] / m["rmse_cm"]),
+        ]))
+    return "\n".join(lines)
+
+
+def sample_drive(*drives: Mapping[str, Any]) -> str:
+    """`roadbev eval bags/sample_drive.mcap --backend B` for every backend."""
+    lines = _head("backend", "abs. err. (cm)", "RMSE (cm)", "coverage (%)", "median / p95 abs. err. (cm)",
+                  "within 2σ (%)", "confidently wrong (%)", "mean σ (cm)", "FPS")
+    for d in drives:
+        lines.append(_row([
+            d["backend"], _fmt(d["abs_err_cm"], 3), _fmt(d["rmse_cm"], 3), _fmt(d["coverage_pct"], 1),
+            f"{_fmt(d['median_abs_err_cm'], 3)} / {_fmt(d['p95_abs_err_cm'], 2)}", _fmt(d["within_2sigma_pct"], 1),
+            _fmt(d["confident_wrong_pct"]), _fmt(d["mean_sigma_cm"], 3), _fmt(d["fps"], 1),
+        ]))
+    lines.append("")
+    lines.append(f"{drives[0]['frames']} frames of `bags/sample_drive.mcap`.")
+    return "\n".join(lines)
+
+
+def sigma_calibration(data: Mapping[str, Any]) -> str:
+    """calibrate_sigma: the common factor per backend and the calibrated sigma's scores on the
+    pooled tuning set and on each of its two sets."""
+    lines = _head("backend", "factor", "within 1σ / 2σ / 3σ, pooled (%)", "confidently wrong, pooled (%)",
+                  "mean σ / RMSE, pooled", "within 2σ, scenes / drives (%)", "confidently wrong, scenes / drives (%)")
+    for name, d in data["details"].items():
+        s, per = d["tuning_scores"], d["tuning_scores_per_set"]
+        lines.append(_row([
+            name, _fmt(d["factor"]),
+            " / ".join(_fmt(s[f"within_{k}sigma_pct"], 1) for k in (1, 2, 3)), _fmt(s["confident_wrong_pct"]),
+            _fmt(s["mean_sigma_cm"] / s["rmse_cm"]),
+            f"{_fmt(per['scenes']['within_2sigma_pct'], 1)} / {_fmt(per['drives']['within_2sigma_pct'], 1)}",
+            f"{_fmt(per['scenes']['confident_wrong_pct'])} / {_fmt(per['drives']['confident_wrong_pct'])}",
+        ]))
+    lines.append("")
+    drives = ", ".join(f"`{d}`" for d in data["drives"])
+    lines.append(f"Tuning set: {data['frames']['scenes']} scenes (seeds {data['seeds'][0]}–{data['seeds'][1]}) and "
+                 f"{data['frames']['drives']} frames of the drives {drives} (speed:rate:seed), "
+                 "`roadbev_core/data/sigma_calibration.json`.")
+    return "\n".join(lines)
+
+
+def datum_calibration(data: Mapping[str, Any]) -> str:
+    """calibrate_datum: each backend's datum sigma and drift, and how the fit scores the drives."""
+    lines = _head("backend", "datum σ (mm)", "drift (mm per m driven)", "steepest drive (mm/m)", "frames",
+                  "RMS datum error (cm)", "within 3σ (%)")
+    for name, d in data["backends"].items():
+        lines.append(_row([
+            name, _fmt(1e3 * d["datum_sigma_m"], 1), _fmt(1e3 * d["datum_drift"], 2),
+            _fmt(1e3 * d["steepest_drift"], 2), str(d["frames"]), _fmt(d["rms_error_cm"], 2),
+            _fmt(d["within_3sigma_pct"], 1),
+        ]))
+    lines.append("")
+    drives = ", ".join(f"{d['speed_mps']:g} m/s {d['rate_hz']:g} Hz" for d in data["drives"][:2])
+    lines.append(f"{len(data['drives'])} tuning drives of {data['duration_s']:g} s (seeds "
+                 f"{data['drives'][0]['seed']}–{data['drives'][-1]['seed']}; {drives}, ...).")
+    return "\n".join(lines)
+
+
+def preview_sigma(data: Mapping[str, Any]) -> str:
+    """bench_preview_sigma: preview samples off by more than 2 cm while their sigma is below 1 cm,
+    behind the demo drive's speed bumps and over the whole drive, map off and on."""
+    lines = _head("backend", "map", "behind the bumps: off > 2 cm at σ < 1 cm", "largest error at σ < 1 cm (cm)",
+                  "beyond 3σ (%)", "whole drive: off > 2 cm at σ < 1 cm")
+    for name, b in data["backends"].items():
+        for mode, title in (("map_off", "off (per frame)"), ("map_on", "on (fused, contact plane)")):
+            behind, whole = b[mode]["behind_bumps"], b[mode]["all"]
+            lines.append(_row([
+                name, title, f"{behind['confident_wrong']} of {behind['samples']}",
+                _fmt(behind["max_err_cm_sigma_below_1cm"]), _fmt(behind["outside_3sigma_pct"], 1),
+                f"{whole['confident_wrong']} of {whole['samples']}",
+            ]))
+    lines.append("")
+    lines.append(f"The demo drive (seed {data['seed']}, {data['frames']} frames, {data['bumps']} speed bumps scored), "
+                 f"the latest message stamped {data['lead_time_s']:g} s before each front wheel's arrival.")
+    return "\n".join(lines)
+
+
+def robustness(data: Mapping[str, Any]) -> str:
+    """robustness: abs. error at coverage per backend, one perturbation at a time."""
+    sweep = data["sweep"]
+    first = next(iter(sweep.values()))
+    backends = [k for k in first if k not in ("levels", "unit")]
+    lines = _head("perturbation", *backends)
+    zero = first["levels"].index(0.0)
+    lines.append(_row(["none"] + [f"{_fmt(first[b]['abs_err_cm'][zero], 3)} at "
+                                  f"{_fmt(first[b]['coverage_pct'][zero], 1)} %" for b in backends]))
+    for s in sweep.values():
+        for i, level in enumerate(s["levels"]):
+            if level == 0.0:
+                continue
+            lines.append(_row([f"{s['unit']}: {level:g}"] + [
+                f"{_fmt(s[b]['abs_err_cm'][i], 3)} at {_fmt(s[b]['coverage_pct'][i], 1)} %" for b in backends]))
+    lines.append("")
+    lines.append(f"{data['frames']} frames, seeds {data['seeds'][0]}–{data['seeds'][1]}, appearance "
+                 f"`{data['appearance']}`; abs. err. (cm) at coverage.")
+    return "\n".join(lines)
+
+
+def bev_sweep_tuning(data: Mapping[str, Any]) -> str:
+    """tune_bev_sweep: each variant of bev_sweep (and the image-view backends) on the tuning frames."""
+    lines = _head("configuration", "abs. err. (cm)", "RMSE (cm)", ">0.5 cm (%)", "coverage (%)", "pipeline (ms)")
+    for r in data["results"]:
+        lines.append(_row([r["config"], _fmt(r["abs_err_cm"], 3), _fmt(r["rmse_cm"], 3), _fmt(r["gt_0p5cm_pct"], 1),
+                           _fmt(r["coverage_pct"], 1), _fmt(r["pipeline_ms"], 0)]))
+    lines.append("")
+    lines.append(f"{data['frames']} tuning frames, seeds {data['seeds'][0]}–{data['seeds'][1]}.")
+    return "\n".join(lines)
+
+
+def bev_sweep_limits(data: Mapping[str, Any]) -> str:
+    """bev_sweep_limits: bev_sweep and bm per band of local relief, and where bev_sweep's error lies."""
+    lines = _head("relief within 5 × 5 cells (cm)", "bev_sweep: coverage (%) / abs. err. (cm) / share of its error (%)",
+                  "bm: coverage (%) / abs. err. (cm) / share of its error (%)")
+    for r in data["relief"]:
+        lo, hi = r["relief_cm"]
+        band = f"≥ {lo:g}" if hi is None else f"{lo:g}–{hi:g}"
+        lines.append(_row([band] + [
+            f"{_fmt(r[b]['coverage_pct'], 1)} / {_fmt(r[b]['abs_err_cm'], 3)} / {_fmt(r[b]['share_of_error_pct'], 1)}"
+            for b in ("bev_sweep", "bm")]))
+    lines.append("")
+    lines.extend(_head("error", "bev_sweep", "bm"))
+    tails = data["tail"]
+    for key, title, digits in (("median_cm", "median (cm)", 3), ("p95_cm", "p95 (cm)", 2),
+                               ("worst_5pct_share_of_error_pct", "share of the error in the worst 5 % of cells (%)", 1),
+                               ("tail_cells_pct", "cells off by more than 1.5 cm (%)", 1),
+                               ("tail_in_far_third_pct", "of those, in the far third (%)", 1),
+                               ("tail_in_patches_pct", "of those, in patches of ≥ 20 cells (%)", 1)):
+        lines.append(_row([title] + [_fmt(tails[b][key], digits) for b in ("bev_sweep", "bm")]))
+    lines.append("")
+    lines.append(f"Seeds {data['seeds'][0]}–{data['seeds'][1]}. The ground truth averaged over bev_sweep's "
+                 f"aggregation windows leaves {_fmt(data['smoothing_floor_cm'], 3)} cm on the cells it answers "
+                 f"(its own error there: {_fmt(data['bev_sweep_abs_err_cm'], 3)} cm).")
+    return "\n".join(lines)
+
+
+# --- real frames and texture ---------------------------------------------------------------------
+
+def kitti(data: Mapping[str, Any]) -> str:
+    """bench_kitti: every backend on each real KITTI frame, against the flat prior."""
+    frames = data["frames"]
+    lines = _head("backend", *(f"{f['frame']} ({f['labelled_cells']} cells)" for f in frames))
+    lines.append(_row(["flat prior (0 everywhere)"] + [f"{_fmt(f['flat_prior_abs_err_cm'])} cm" for f in frames]))
+    for i, first in enumerate(frames[0]["backends"]):
+        row = [first["backend"]]
+        for f in frames:
+            b = f["backends"][i]
+            if "refused" in b:  # the reason's first clause, after "<Error>: <backend>: " (all of it in the JSON)
+                row.append("refused: " + b["refused"].split(": ", 2)[-1].split(":")[0])
+            else:
+                row.append(f"{_fmt(b['abs_err_cm'])} cm at {_fmt(b['coverage_pct'], 0)} % (prior there "
+                           f"{_fmt(b['flat_prior_on_covered_cells_cm'])}), bias {b['bias_cm']:+.2f}, "
+                           f"c.w. {_fmt(b['confident_wrong_pct'], 0)} %")
+        lines.append(_row(row))
+    lines.append("")
+    fits = "; ".join(f"{f['frame']}: {f['gt_source']}, `base_height` {f['fitted_base_height_m']:.3f} m, "
+                     f"pitch {f['fitted_pitch_deg']:.2f}°" for f in frames)
+    lines.append(f"Fitted on each frame's ground-truth points: {fits}. {data['caveat']}")
+    return "\n".join(lines)
+
+
+def kitti_row_offsets(data: Mapping[str, Any]) -> str:
+    """bench_kitti --row-offsets: coverage, abs. error and confidently wrong share as the right image
+    moves by a sub-pixel amount."""
+    frames = data["frames"]
+    first = next(iter(frames[0]["row_offset_sensitivity"].values()))
+    offsets = [r["row_offset_px"] for r in first]
+    lines = _head("frame", "backend", *(f"{o:+g} px" if o else "as recorded" for o in offsets))
+    for f in frames:
+        for name, rows in f["row_offset_sensitivity"].items():
+            lines.append(_row([f["frame"], name] + [
+                f"{_fmt(r['coverage_pct'], 1)}, {_fmt(r['abs_err_cm'])}, {_fmt(r['confident_wrong_pct'], 0)}"
+                for r in rows]))
+    lines.append("")
+    lines.append("Each cell: coverage (%), abs. err. (cm), confidently wrong (%); positive = the right image "
+                 "moved down.")
+    return "\n".join(lines)
+
+
+def _medians(stats: Sequence[Mapping[str, Any]], digits: int) -> str:
+    return " / ".join(_fmt(s["median"], digits) for s in stats)
+
+
+def texture(data: Mapping[str, Any]) -> str:
+    """bench_texture: texture statistics of the real frames and of every synthetic setting, per
+    distance band, and the matchers' coverage (synthetic at the real frames' label mix)."""
+    bands = " / ".join(f"{lo:g}–{hi:g}" for lo, hi in data["bands_m"])
+    lines = _head("", f"gradient energy (DN²/px²), bands {bands} m", "inter-view ZNCC, fine band",
+                  "inter-view ZNCC, mid band", "coverage bm / sgbm / bev_sweep (%)")
+    for f in data["real"]["per_frame"]:
+        cov = " / ".join(_fmt(f["coverage_pct"][b][0], 1) for b in ("bm", "sgbm", "bev_sweep"))
+        lines.append(_row([f"real: {f['frame']}", _medians(f["gradient_energy"], 1), _medians(f["view_zncc_fine"], 2),
+                           _medians(f["view_zncc_mid"], 2), cov]))
+    for s in data["synthetic"]:
+        mix = s["check"]["coverage_synth_at_real_mix_pct"]
+        cov = " / ".join(_fmt(mix[b], 1) for b in ("bm", "sgbm", "bev_sweep"))
+        lines.append(_row([f"synthetic: {s['name']}", _medians(s["gradient_energy"], 1),
+                           _medians(s["view_zncc_fine"], 2), _medians(s["view_zncc_mid"], 2), cov]))
+    pooled = data["real"]["coverage_pct"]
+    lines.append("")
+    lines.append("Medians per band. The three real frames pooled: coverage " + " / ".join(
+        f"{b} {_fmt(sum(v) / len(v), 1)} %" for b, v in pooled.items()) + " (mean of the frames).")
+    return "\n".join(lines)
+
+
+def texture_closest(data: Mapping[str, Any]) -> str:
+    """bench_texture: the synthetic setting closest to each real frame against the tolerances."""
+    tol = data["tolerances"]
+    lines = _head("real frame", "closest setting", "gradient energy, synthetic / real per band",
+                  "coverage factor bm / sgbm / bev_sweep", "tolerances met")
+    for frame, c in data["closest_per_real_frame"].items():
+        factor = " / ".join(_fmt(c["coverage_factor"][b]) for b in ("bm", "sgbm", "bev_sweep"))
+        lines.append(_row([frame, c["closest_setting"], " / ".join(_fmt(r) for r in c["energy_median_ratio_per_band"]),
+                           factor, "yes" if c["tolerances_met"] else "no"]))
+    lines.append("")
+    lines.append(f"Tolerances: gradient energy per band {tol['energy_median_ratio']} of real; "
+                 f"StereoBM coverage within a factor {tol['bm_coverage_factor']:g}.")
+    return "\n".join(lines)
+
+
+# --- learned models ------------------------------------------------------------------------------
+
+def models(*runs: Mapping[str, Any]) -> str:
+    """bench_models: the shipped checkpoints on the test scenes, per appearance; the error left once
+    each frame's offset or plane is removed."""
+    lines = _head("model", "test scenes", "abs. err. (cm)", "RMSE (cm)", "coverage (%)",
+                  "without each frame's offset (cm)", "without each frame's plane (cm)", "FPS")
+    for run in runs:
+        t = run["test_set"]
+        scenes = f"{t['frames']}, seeds {t['seeds'][0]}–{t['seeds'][1]}, `{t['appearance']}`"
+        for r in run["results"]:
+            lines.append(_row([r["backend"], scenes, _fmt(r["abs_err_cm"], 3), _fmt(r["rmse_cm"], 3),
+                               _fmt(r["coverage_pct"], 1), _fmt(r["offset_removed_abs_err_cm"], 3),
+                               _fmt(r["plane_removed_abs_err_cm"], 3), _fmt(r["fps"], 1)]))
+    return "\n".join(lines)
+
+
+def drive_frames(data: Mapping[str, Any]) -> str:
+    """bench_drive_frames: stereo checkpoints on held-out drive frames and on Table I."""
+    drives = data["rows"][0]["drives"]
+    lines = _head("checkpoint", *(f"{d['seed']} ({d['speed_mps']:g} m/s)" for d in drives), "all drive frames",
+                  "Table I")
+    for r in data["rows"]:
+        lines.append(_row([f"`{r['checkpoint']}`"] + [_fmt(d["abs_err_cm"], 3) for d in r["drives"]]
+                          + [_fmt(r["all_drive_frames"]["abs_err_cm"], 3), _fmt(r["table1"]["abs_err_cm"], 3)]))
+    lines.append("")
+    lines.append(f"Abs. err. (cm); {data['drives']['frames_each']} frames per drive.")
+    return "\n".join(lines)
+
+
+def runtimes(data: Mapping[str, Any]) -> str:
+    """bench_runtimes: the learned models per inference runtime (the benchmark's own markdown)."""
+    return (runtimes_markdown(dict(data))
+            + f"\n\n{data['frames']} Table I frames, {data['threads']} thread(s) per runtime.")
+
+
+# --- hazards -------------------------------------------------------------------------------------
+
+def hazards(data: Mapping[str, Any]) -> str:
+    """bench_hazards: the detector on true road maps, per drive and in all."""
+    lines = _head("road", "seed", "length (km)", "features", "detected", "false alarms")
+    for d in data["drives"]:
+        lines.append(_row([d["road"], str(d["seed"]), _fmt(d["length_km"], 3), str(d["features"]), str(d["detected"]),
+                           str(d["false_alarms"])]))
+    s = data["summary"]
+    lines.append("")
+    lines.append(f"In all: {s['features']} features, {100 * s['detection_rate']:.0f} % detected; height error mean "
+                 f"{100 * s['height_rel_err_mean']:.1f} %, max {100 * s['height_rel_err_max']:.1f} %, "
+                 f"{100 * s['height_within_15pct']:.1f} % within 15 %; false alarms "
+                 f"{s['false_alarms_per_km_smooth']:g} per km over {s['smooth_km']:.2f} km of smooth road, "
+                 f"{s['false_alarms_per_km_feature_roads']:g} per km on the feature roads.")
+    return "\n".join(lines)
+
+
+def hazards_map(data: Mapping[str, Any]) -> str:
+    """bench_hazards --map: the tracker on the fused map of rendered drives, per speed."""
+    lines = _head("speed (m/s)", "features", "reported", "reported ≥ 1 s before the front axle",
+                  "window allows (s)", "lead median / min (s)", "first report ahead of the front axle, median (m)",
+                  "height error mean, within 15 %", "false alarms per km: feature roads / smooth road")
+    for s in data["summary"]:
+        smooth = "–" if s["false_alarms_smooth"] is None else (
+            f"{s['false_alarms_smooth']} over {1e3 * s['smooth_km']:.0f} m")
+        lines.append(_row([
+            f"{s['speed_mps']:g}", str(s["features"]), f"{s['reported']} ({s['reported_pct']:.0f} %)",
+            f"{s['reported_1s_ahead_pct']:.0f} %", _fmt(s["window_lead_s"]),
+            f"{_fmt(s['lead_s_median'])} / {_fmt(s['lead_s_min'])}", _fmt(s["first_reported_distance_m_median"], 1),
+            f"{100 * s['height_rel_err_mean']:.0f} %, {100 * s['height_within_15pct']:.0f} %",
+            f"{s['false_alarms_per_km_feature_roads']:.0f} / {smooth}",
+        ]))
+    lines.append("")
+    lines.append(f"Backend `{data['backend']}`, the map on with each drive's own odometry.")
+    return "\n".join(lines)
+
+
+# --- tools: labels, the renderer -----------------------------------------------------------------
+
+def labels(data: Mapping[str, Any]) -> str:
+    """bench_labels: the vectorised label code against a per-point loop."""
+    lines = _head("points", "per-point loop (s)", "vectorised (s)", "speed-up", "largest difference (m)", "same mask")
+    lines.append(_row([f"{data['points']:,}", _fmt(data["loop_s"]), _fmt(data["vectorized_s"], 3),
+                       f"{data['speedup']:.0f}×", f"{data['max_abs_diff_m']:.0e}",
+                       "yes" if data["same_mask"] else "no"]))
+    return "\n".join(lines)
+
+
+def synth(data: Mapping[str, Any]) -> str:
+    """bench_synth: rendering time per stereo frame and per drive frame."""
+    lines = _head("per frame", "wall median (min–max) (s)", "CPU median (s)")
+    for key, title in (("stereo_render", "stereo frame"), ("drive_frame", "drive frame"),
+                       ("make_sample", "independent sample (`make_sample`: scene, render, labels)")):
+        wall, cpu = data[f"{key}_wall_s"], data[f"{key}_cpu_s"]
+        lines.append(_row([title, f"{_fmt(wall['median'])} ({_fmt(wall['min'])}–{_fmt(wall['max'])})",
+                           _fmt(cpu["median"])]))
+    lines.append("")
+    lines.append(f"Images {data['image']} on the RSRD half-resolution rig; budget "
+                 f"{data['budget_s_per_stereo_frame']:g} s per stereo frame. Drive frame: {data['drive_frame_note']}.")
+    return "\n".join(lines)
+
+
+# --- the demo ------------------------------------------------------------------------------------
+
+def demo(data: Mapping[str, Any]) -> str:
+    """``make demo``: the node over ROS 2 against the offline evaluation of the same bag."""
+    report = data["report"]
+    lines = _head("run", "abs. err. (cm)", "RMSE (cm)", "coverage (%)", "within 2σ (%)", "confidently wrong (%)",
+                  "mean σ (cm)", "latency median (ms)")
+    for r in report["runs"]:
+        m = r["metrics"]
+        lines.append(_row([r["label"], _fmt(m["abs_err_cm"], 3), _fmt(m["rmse_cm"], 3), _fmt(m["coverage_pct"], 1),
+                           _fmt(m["within_2sigma_pct"], 1), _fmt(m["confident_wrong_pct"]), _fmt(m["mean_sigma_cm"], 3),
+                           _fmt(m.get("latency_ms_median"), 0)]))
+    after_first = np.asarray(report["timing"]["latency_ms"][1:])  # as the demo's summary: after the first frame
+    agree = max(abs(v) for k, v in report["agreement"].items() if k.endswith("cm"))
+    ci = data["ci_before_it"]
+    lines.append("")
+    lines.append(f"{report['settings']['frames']} frames, backend `{report['settings']['backend']}`, grid "
+                 f"{report['settings']['grid']}; the two rows agree to within {agree:g} cm; latency after the first "
+                 f"frame median {np.percentile(after_first, 50):.0f} ms, p95 {np.percentile(after_first, 95):.0f} ms. "
+                 f"`make demo` took {data['wall_s']:.0f} s on a fresh clone, after a CI run had set it up "
+                 f"({ci['tests_passed']} tests passed in {ci['wall_s']:.0f} s).")
+    return "\n".join(lines)
+
+
+def demo_stages(data: Mapping[str, Any]) -> str:
+    """``make demo``: the wall time of each stage."""
+    stages = data["report"]["stage_seconds"]
+    lines = _head("stage of `make demo`", "s")
+    lines.extend(_row([name, _fmt(s, 1)]) for name, s in stages.items())
+    lines.append(_row(["all (from an empty cache)", _fmt(data["wall_s"], 1)]))
+    return "\n".join(lines)
+
+
+def demo_drive(data: Mapping[str, Any]) -> str:
+    """``make demo``, the drive section: previews at arrival with the map on and off, the fused map,
+    hazards against the features placed, and the ride."""
+    drive = data["report"]["drive"]
+    on, off = drive["map_on"], drive["map_off"]
+    a_on = on["preview_at_arrival"]
+    lines = _head(f"preview at arrival, lead {a_on['lead_time_s']:g} s ({a_on['points']} points)", "abs. error (cm)",
+                  "features (cm)", "smooth (cm)", "vs contact plane (cm)", "coverage (%)")
+    for title, run in (("map on (fused map)", on), ("map off (per frame)", off)):
+        a = run["preview_at_arrival"]
+        lines.append(_row([title, _fmt(a["abs_err_cm"], 3), _fmt(a["features_abs_err_cm"], 3),
+                           _fmt(a["smooth_abs_err_cm"], 3), _fmt(a["contact_plane_abs_err_cm"], 3),
+                           _fmt(a["coverage_pct"], 1)]))
+    fused = on["map"]
+    hz = drive["hazards"]
+    found = sum(f.get("detection") is not None for f in hz["features"])
+    lines.append("")
+    lines.append(f"The fused map: {_fmt(fused['abs_err_cm'], 3)} cm over {_fmt(fused['coverage_pct'], 1)} % of its "
+                 f"window. Hazards: {found} of {len(hz['features'])} features (reference: {hz['reference']}) found, "
+                 f"{len(hz['false_alarms'])} false alarm(s).")
+    lines.append("")
+    ride = drive["ride"]
+    lines.extend(_head("ride, both front wheels", "Wk RMS (m/s²)", "peak travel (cm)", "tyre load RMS ratio",
+                       "share of the true road's gain"))
+    for name, row in ride["rows"].items():
+        m = row["mean"]
+        share = ride["share"].get(name)
+        lines.append(_row([name, _fmt(m["wk_rms_mps2"]), _fmt(100 * m["peak_travel_m"], 1),
+                           _fmt(m["tyre_load_rms_ratio"]), _fmt(share)]))
+    lines.append("")
+    lines.append(f"Drive seed {drive['seed']}, {on['frames']} frames, backend `{on['backend']}`; the ride scored "
+                 f"over {drive['ride_scored_s']:g} s after {drive['ride_warmup_s']:g} s of warm-up.")
+    return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class Table:
+    """A generated table: the result files it reads (under ``benchmarks/results/``, or from the
+    repository root for ``roadbev_core/data/...``), the function that renders them (one argument
+    per file, in order), the command that made them where the first file does not record it, and
+    whether the table ends with that provenance line (not for a table that follows another of
+    the same run on its page)."""
+
+    sources: tuple[str, ...]
+    make: Callable[..., str]
+    command: str | None = None
+    with_provenance: bool = True
+
+    def render(self) -> str:
+        loaded = [_load(s) for s in self.sources]
+        text = self.make(*loaded)
+        line = provenance(loaded[0], self.command) if self.with_provenance else ""
+        return f"{text}\n\n{line}" if line else text
+
+
+_NODE = ".venv/bin/python -m benchmarks.bench_node"
+TABLES: dict[str, Table] = {
+    "demo": Table(("demo.json",), demo),
+    "demo_stages": Table(("demo.json",), demo_stages, with_provenance=False),
+    "demo_drive": Table(("demo.json",), demo_drive),
+    "table1": Table(("table1.json",), table1),
+    "uncertainty_targets": Table(("table1.json", *(f"sample_drive_{b}.json" for b in SAMPLE_DRIVE_BACKENDS)),
+                                 uncertainty_targets, with_provenance=False),
+    "sample_drive": Table(tuple(f"sample_drive_{b}.json" for b in SAMPLE_DRIVE_BACKENDS), sample_drive,
+                          ".venv/bin/roadbev eval bags/sample_drive.mcap --backend B "
+                          "--json benchmarks/results/sample_drive_B.json"),
+    "sigma_calibration": Table(("roadbev_core/data/sigma_calibration.json",), sigma_calibration),
+    "datum_calibration": Table(("datum_calibration.json",), datum_calibration),
+    "preview_sigma": Table(("preview_sigma.json",), preview_sigma),
+    "robustness": Table(("robustness.json",), robustness),
+    "bev_sweep_tuning": Table(("bev_sweep_tuning.json",), bev_sweep_tuning),
+    "bev_sweep_limits": Table(("bev_sweep_limits.json",), bev_sweep_limits),
+    "bev_sweep_limits_tuning": Table(("bev_sweep_limits_tuning.json",), bev_sweep_limits),
+    "kitti": Table(("kitti.json",), kitti),
+    "kitti_row_offsets": Table(("kitti.json",), kitti_row_offsets, with_provenance=False),
+    "texture": Table(("texture.json",), texture),
+    "texture_closest": Table(("texture.json",), texture_closest, with_provenance=False),
+    "models": Table(("models.json", "clean/models.json"), models,
+                    ".venv/bin/python -m benchmarks.bench_models --frames 20 --cache .cache/scenes "
+                    "(and with --appearance clean --out benchmarks/results/clean/models.json)"),
+    "drive_frames": Table(("drive_frames.json",), drive_frames),
+    "runtimes": Table(("runtimes.json",), runtimes),
+    "node": Table(("node.json",), node_rows, f"{_NODE} --frames 40"),
+    "node_map": Table(("node_map.json",), node_rows, f"{_NODE} --drive --rate 10 --frames 40 --backends bev_sweep "
+                                                     "--out benchmarks/results/node_map.json"),
+    "node_candidates": Table(("node_candidates.json",), node_candidates,
+                             f"{_NODE} --drive --rate 10 --frames 60 --modes 5hz --backends ensemble bm sgbm stereo "
+                             "ensemble:members=stereo+sgbm ensemble:members=stereo+bm bev_sweep "
+                             "bev_sweep:min_score=0.7 --out benchmarks/results/node_candidates.json"),
+    "node_stereo": Table(("node_stereo.json",), node_rows, f"{_NODE} --backends stereo stereo:runtime=openvino "
+                                                           "--frames 40 --out benchmarks/results/node_stereo.json"),
+    "node_stereo_threads2": Table(("node_stereo_threads2.json",), node_rows,
+                                  f"{_NODE} --backends stereo:runtime=openvino --modes 5hz --node-param "
+                                  "inference_threads=2 --out benchmarks/results/node_stereo_threads2.json"),
+    "node_stereo_int8": Table(("node_stereo_int8.json",), node_rows,
+                              f"{_NODE} --backends stereo stereo:runtime=openvino "
+                              "stereo:runtime=openvino,checkpoint=checkpoints/roadbev_stereo_lite_int8.onnx "
+                              "--frames 40 --out benchmarks/results/node_stereo_int8.json"),
+    "map_stage": Table(("map_stage.json",), map_stage),
+    "dds_sizes": Table(("dds_sizes.json",), dds_sizes, ".venv/bin/python -m benchmarks.bench_dds_sizes"),
+    "msg_bridge": Table(("msg_bridge.json",), msg_bridge, ".venv/bin/python -m benchmarks.bench_msg_bridge"),
+    "preview_stream": Table(("preview_stream.json",), preview_stream),
+    "arrival": Table(("arrival.json",), arrival_rows),
+    "arrival_budget": Table(("arrival.json",), arrival_budget, with_provenance=False),
+    "arrival_30mps": Table(("arrival_30mps.json",), arrival_backends),
+    "ride_shares": Table(("ride.json",), ride_shares),
+    "ride_truth": Table(("ride.json",), ride_truth, with_provenance=False),
+    "ride_budget": Table(("ride.json",), ride_budget, with_provenance=False),
+    "ride_arrival": Table(("ride.json",), ride_arrival, with_provenance=False),
+    "hazards": Table(("hazards.json",), hazards),
+    "hazards_map": Table(("hazards_map.json",), hazards_map),
+    "labels": Table(("labels.json",), labels, ".venv/bin/python -m benchmarks.bench_labels"),
+    "synth": Table(("synth.json",), synth, ".venv/bin/python -m benchmarks.bench_synth"),
 }
 
 
 def render(name: str) -> str:
-    """The table ``name`` from its committed result file.
+    """The table ``name`` from its committed result files.
 
     Raises:
         KeyError: an unknown table.
     """
-    source, make = TABLES[name]
-    return make(_load(source))
+    return TABLES[name].render()
+
+
+def sources(names: Sequence[str]) -> set[str]:
+    """The result files the tables ``names`` read."""
+    return {s for name in names for s in TABLES[name].sources}
 
 
 def _replace(page: str, fix: bool) -> tuple[str, list[str]]:
@@ -246,6 +890,11 @@ def marked_tables(page: str) -> list[str]:
     return [m.group("name") for m in _BLOCK.finditer(page)]
 
 
+def doc_pages(root: Path = ROOT) -> list[Path]:
+    """The pages that may quote generated tables: the README and every Markdown page under ``docs/``."""
+    return [root / "README.md", *sorted((root / "docs").rglob("*.md"))]
+
+
 def check_page(path: Path) -> list[str]:
     """The names of the marked tables on the page at ``path`` that differ from their results."""
     return _replace(path.read_text(), fix=False)[1]
@@ -259,14 +908,28 @@ def rewrite_page(path: Path) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.doc_tables", description=__doc__.split("\n")[0])
     parser.add_argument("names", nargs="*", help=f"tables to print (default all: {', '.join(TABLES)})")
-    parser.add_argument("--write", type=Path, metavar="PAGE", help="rewrite the marked tables of PAGE in place")
+    parser.add_argument("--write", nargs="*", type=Path, metavar="PAGE",
+                        help="rewrite the marked tables of these pages in place (default: the README and docs/)")
+    parser.add_argument("--check", nargs="*", type=Path, metavar="PAGE",
+                        help="name the pages with a stale table (default: the README and docs/); exit 1 if any")
     args = parser.parse_args(argv)
-    if args.write:
-        changed = rewrite_page(args.write)
-        print(f"{args.write}: {len(changed)} table(s) rewritten {changed}", file=sys.stderr)
+    if args.write is not None:
+        for page in args.write or doc_pages():
+            changed = rewrite_page(page)
+            if changed:
+                print(f"{page}: {len(changed)} table(s) rewritten {changed}", file=sys.stderr)
         return 0
+    if args.check is not None:
+        stale_pages = 0
+        for page in args.check or doc_pages():
+            stale = check_page(page)
+            if stale:
+                stale_pages += 1
+                print(f"{page}: {len(stale)} stale table(s) {stale}; run: python -m benchmarks.doc_tables --write",
+                      file=sys.stderr)
+        return 1 if stale_pages else 0
     for name in args.names or TABLES:
         if name not in TABLES:
             parser.error(f"unknown table {name!r} (one of {', '.join(TABLES)})")

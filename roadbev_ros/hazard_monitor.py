@@ -1,7 +1,7 @@
 """A reference road-hazard monitor: the fused map in, tracked hazards and a planner's cost out.
 
-The worked example of consuming ``/roadbev/map`` for planning (README, "Road hazards for
-planning"), in the manner of ros2/examples: a small node around the ROS-free
+The worked example of consuming ``/roadbev/map`` for planning (docs/tutorials/hazards.md, "Plan
+with hazards"), in the manner of ros2/examples: a small node around the ROS-free
 :class:`roadbev_core.hazard_tracking.HazardTracker`.
 
 * **In**: the fused map (``grid_map_msgs/GridMap`` on ``map_topic``, layers ``elevation`` and

@@ -1,7 +1,7 @@
 """A reference preview suspension controller: ``/roadbev/preview`` in, actuator forces out.
 
-The worked example of consuming RoadBEV's preview (README, "Consuming the preview: a preview
-suspension controller"), in the manner of ros2/examples: a small node around the ROS-free
+The worked example of consuming RoadBEV's preview (docs/tutorials/preview.md, "Consume
+the preview"), in the manner of ros2/examples: a small node around the ROS-free
 :class:`roadbev_core.ride.OnlinePreviewController` (the preview LQR of Bender 1968 / Tomizuka
 1976 on a quarter car per front wheel, :mod:`roadbev_core.ride`).
 

@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     params = sum(p.numel() for p in model.parameters())
     if args.format == "onnx":
 
-        print("TensorRT (README, Deployment), batch 1 of 960x528 frames (grey's H x W follow the frames): "
+        print("TensorRT (docs/tutorials/deploy.md), batch 1 of 960x528 frames (grey's H x W follow the frames): "
               f"trtexec --onnx={path} --shapes={trtexec_shapes(model.config, model.grid, 960, 528)}")
     print(f"exported RoadBEV-{model.config.kind} ({model.config.backbone}, C={model.config.channels}, "
           f"{params / 1e6:.2f} M parameters) for a {model.grid.n_rows}x{model.grid.n_cols} grid to {path} "

@@ -11,7 +11,7 @@ other transport: ``/compressed`` versus raw) and starts anyway: a viewer alone s
 
 A truncated, unfinished or partly damaged bag is published as far as it is readable; what was
 left out is printed, and the exit is 0. Only a bag of which nothing could be published exits 2
-(the rule of every command that reads a bag: README, "Damaged and truncated bags").
+(the rule of every command that reads a bag: docs/tutorials/faults.md, "Crashes, damaged and truncated bags").
 """
 
 from __future__ import annotations

@@ -76,7 +76,7 @@ def checkpoint_dir() -> Path:
 
 
 # The engine each kind runs without a ``runtime`` option: stereo's int8 graph on OpenVINO is the
-# fastest CPU inference of it at the same accuracy (README, "Inference runtimes"), which is what
+# fastest CPU inference of it at the same accuracy (docs/results/learned_models.md, "Inference runtimes"), which is what
 # lets it fuse every frame of a 10 Hz camera; mono has no int8 graph.
 DEFAULT_RUNTIMES = {"stereo": "openvino", "mono": "torch"}
 

@@ -70,7 +70,7 @@ MAX_IMAGE_PIXELS = 4096 * 4096
 MAX_CAMERA_HZ = 60.0
 MAX_SYNC_SETS = 1_000_000
 # The backend of the node, `roadbev eval` and the demo when none is named: the configuration whose
-# preview the ride benchmark found worth the most (README, "What the preview is worth").
+# preview the ride benchmark found worth the most (docs/results/preview.md, the ride benchmark).
 DEFAULT_BACKEND = "ensemble"
 # The vehicle body frame (REP-105; Autoware's convention, contract): the frame of contact-plane
 # previews and the parent the camera mount is looked up from.

@@ -101,7 +101,7 @@ class AppearanceRange:
 
 
 # Ends measured against the KITTI frames with their rig and window (benchmarks.bench_texture,
-# README "Real against synthetic road texture"): the weak end against the dark asphalt of
+# docs/results/robustness.md, "Real against synthetic road texture"): the weak end against the dark asphalt of
 # KITTI 2012 000070, the strong end against the grainy asphalt of KITTI 2015 000046 and the
 # object frame (gradient energy, inter-view ZNCC, StereoBM's coverage); the rectification
 # residuals are where bench_kitti's row-offset sweep puts each real frame's best coverage

@@ -1,5 +1,6 @@
-"""The docs' tables come from the committed results: every marked table on the README is what its
-result file gives now, and the renderers read the results' structure."""
+"""The docs' tables come from the committed results: every marked table on the README and on the
+pages under docs/ is what its result files give now, every result file is quoted somewhere, and
+the renderers read the results' structure."""
 
 from __future__ import annotations
 
@@ -8,14 +9,50 @@ from pathlib import Path
 import pytest
 
 from benchmarks import doc_tables
+from benchmarks.common import RESULTS
 
-README = Path(__file__).resolve().parents[2] / "README.md"
+ROOT = Path(__file__).resolve().parents[2]
+README = ROOT / "README.md"
+PAGES = doc_tables.doc_pages(ROOT)
 
 
-def test_every_marked_table_of_the_readme_equals_its_results() -> None:
-    marked = set(doc_tables.marked_tables(README.read_text()))
-    assert {"ride_shares", "ride_budget", "arrival"} <= marked  # the preview's tables are generated
-    assert doc_tables.check_page(README) == [], "run: python -m benchmarks.doc_tables --write README.md"
+def _marked() -> dict[Path, list[str]]:
+    return {page: doc_tables.marked_tables(page.read_text()) for page in PAGES}
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_marked_table_of_a_page_equals_its_results(page: Path) -> None:
+    assert doc_tables.check_page(page) == [], "run: python -m benchmarks.doc_tables --write"
+
+
+def test_the_results_pages_quote_every_table_and_every_result_file() -> None:
+    marked = _marked()
+    results = {n for page, names in marked.items() if "results" in page.parts for n in names}
+    assert set(doc_tables.TABLES) <= results, "tables no results page quotes"
+    committed = {str(p.relative_to(RESULTS)) for p in RESULTS.rglob("*.json")}
+    assert committed <= doc_tables.sources(sorted(results)), "result files no table quotes"
+
+
+def test_the_readme_quotes_the_demo_from_its_result_file() -> None:
+    assert "demo" in doc_tables.marked_tables(README.read_text())
+
+
+def test_a_table_ends_with_the_command_machine_and_commit_its_file_records() -> None:
+    text = doc_tables.render("table1")
+    assert text.splitlines()[-1].startswith("Command: `python -m benchmarks.run_all")
+    assert "Machine: AMD EPYC" in text and "Commit `" in text
+    # a file without a command of its own gets the table's documented one
+    assert "Command: `.venv/bin/python -m benchmarks.bench_labels`." in doc_tables.render("labels")
+
+
+def test_provenance_says_only_what_the_file_records() -> None:
+    full = {"command": "python -m x --y", "machine": {"cpu": "CPU", "cores": 4, "torch": "2.0", "torch_threads": 1,
+                                                      "git_commit": "abc1234", "time_utc": "2026-01-02T03:04:05Z"}}
+    assert doc_tables.provenance(full) == ("Command: `python -m x --y`. Machine: CPU, 4 cores, torch 2.0 "
+                                           "(torch threads: 1). Commit `abc1234`, 2026-01-02.")
+    assert doc_tables.provenance({"machine": "x86_64, 2 cores"}, "make demo") == (
+        "Command: `make demo`. Machine: x86_64, 2 cores.")
+    assert doc_tables.provenance({}) == ""
 
 
 def test_a_stale_table_is_found_and_rewritten(tmp_path: Path) -> None:
@@ -28,3 +65,13 @@ def test_a_stale_table_is_found_and_rewritten(tmp_path: Path) -> None:
     assert text.startswith("intro\n<!-- table: ride_budget -->\n|") and text.endswith("<!-- /table -->\nend\n")
     with pytest.raises(KeyError):
         doc_tables.render("no_such_table")
+
+
+def test_the_command_checks_and_rewrites_pages(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    page = tmp_path / "page.md"
+    page.write_text("<!-- table: labels -->\nstale\n<!-- /table -->\n")
+    assert doc_tables.main(["--check", str(page)]) == 1
+    assert f"{page}: 1 stale table(s) ['labels']" in capsys.readouterr().err
+    assert "stale" in page.read_text()  # a check writes nothing
+    assert doc_tables.main(["--write", str(page)]) == 0
+    assert doc_tables.main(["--check", str(page)]) == 0

@@ -1,8 +1,10 @@
-"""The README's recipes, run as a user pastes them: the shell block is taken from README.md itself.
+"""The recipes of the README and the tutorials, checked as a user pastes them.
 
-The block runs in bash with job control (as in a terminal: ``&`` jobs, ``%1``), in a scratch
-folder holding ``.venv/bin/roadbev`` (this interpreter with this checkout) and ``bags/`` (the
-repository's), so every line is executed unchanged.
+The replay-and-record block is taken from ``docs/tutorials/replay_and_evaluate.md`` itself and runs
+in bash with job control (as in a terminal: ``&`` jobs, ``%1``), in a scratch folder holding
+``.venv/bin/roadbev`` (this interpreter with this checkout) and ``bags/`` (the repository's), so
+every line is executed unchanged. Every params YAML block on those pages is a params file the node
+accepts, and every topic a ``roadbev node`` block remaps is one the node subscribes by default.
 """
 
 from __future__ import annotations
@@ -18,11 +20,16 @@ from pathlib import Path
 import pytest
 
 from msg_bridge import bag, stamp_from_header
+from roadbev_core.config import RoadbevConfig, load_params_file
 from roadbev_ros.dds import child_env
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE = ROOT / "bags" / "sample_drive.mcap"
 SAMPLE_FRAMES = 20
+REPLAY_PAGE = ROOT / "docs" / "tutorials" / "replay_and_evaluate.md"
+REPLAY_LEAD = "Replay a bag into the node and record"
+# The pages whose recipes a user pastes: the README and the tutorials.
+RECIPE_PAGES = [ROOT / "README.md", *sorted((ROOT / "docs" / "tutorials").glob("*.md"))]
 
 
 def shell_block_after(text: str, lead: str) -> str:
@@ -33,8 +40,33 @@ def shell_block_after(text: str, lead: str) -> str:
     return found.group(1)
 
 
+def fenced_blocks(text: str, language: str) -> list[str]:
+    """Every fenced block of ``language`` on a page."""
+    return re.findall(rf"```{language}\n(.*?)```", text, re.DOTALL)
+
+
+def _page_id(page: Path) -> str:
+    return str(page.relative_to(ROOT))
+
+
+@pytest.mark.parametrize("page", RECIPE_PAGES, ids=_page_id)
+def test_every_params_block_is_a_params_file_the_node_accepts(page: Path, tmp_path: Path) -> None:
+    for i, block in enumerate(b for b in fenced_blocks(page.read_text(), "yaml") if "ros__parameters" in b):
+        path = tmp_path / f"block{i}.yaml"
+        path.write_text(block)
+        RoadbevConfig.from_params(load_params_file(path).values)  # raises, naming the parameter
+
+
+@pytest.mark.parametrize("page", RECIPE_PAGES, ids=_page_id)
+def test_every_remapped_topic_is_one_the_node_subscribes(page: Path) -> None:
+    defaults = {v for k, v in RoadbevConfig().to_params().items() if k.endswith("_topic") and v}
+    node_blocks = [b for b in fenced_blocks(page.read_text(), "sh") if "roadbev node" in b]
+    remapped = [m for b in node_blocks for m in re.findall(r"-r (\S+):=", b)]
+    assert set(remapped) <= defaults, set(remapped) - defaults
+
+
 def test_the_recipe_block_is_found_and_starts_the_recorder_before_the_blocking_replay() -> None:
-    block = shell_block_after((ROOT / "README.md").read_text(), "Replay a bag into the node and record")
+    block = shell_block_after(REPLAY_PAGE.read_text(), REPLAY_LEAD)
     lines = [line for line in block.splitlines() if line.strip()]
     record = next(i for i, line in enumerate(lines) if " record " in line)
     replay = next(i for i, line in enumerate(lines) if " replay " in line)
@@ -73,7 +105,7 @@ def diagnostics_values(msg: object) -> dict[str, str]:
 
 @pytest.mark.skipif(not SAMPLE.exists(), reason="bags/sample_drive.mcap is not in this checkout")
 def test_replay_into_the_node_and_record(user_folder: Path, shell: list[subprocess.Popen[bytes]]) -> None:
-    block = shell_block_after((ROOT / "README.md").read_text(), "Replay a bag into the node and record")
+    block = shell_block_after(REPLAY_PAGE.read_text(), REPLAY_LEAD)
     log = user_folder / "shell.log"
     with log.open("wb") as out:
         # set -m: job control as in a terminal (background jobs keep SIGINT; %1 names a job)
