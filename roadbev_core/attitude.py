@@ -25,6 +25,7 @@ from typing import NamedTuple, cast
 
 import numpy as np
 
+from roadbev_core.config import ImuConfig
 from roadbev_core.errors import RoadbevError
 from roadbev_core.geometry import Attitude, GeometryError, attitude_from_quaternion
 
@@ -34,6 +35,7 @@ __all__ = [
     "ImuError",
     "ImuSample",
     "ImuStale",
+    "imu_buffer",
     "quaternion_from_rotation",
     "slerp",
     "unit_quaternion",
@@ -149,6 +151,19 @@ class ImuBuffer:
         self._stamps.clear()
         self._quats.clear()
 
+    def configure(self, config: ImuConfig, *, whole_history: bool = False) -> None:
+        """Take ``config``'s rules, keeping the samples (also a parameter change at run time).
+
+        Args:
+            config: the IMU settings (``imu_max_age_s`` bounds both the age of the nearest sample
+                and the gap between two samples).
+            whole_history: keep every sample (a reader holding a whole recording) instead of the
+                last ``imu_buffer_s``.
+        """
+        self.max_age_s = self.max_gap_s = config.max_age_s
+        self.horizon_s = math.inf if whole_history else config.buffer_s
+        self.imu_to_camera_rpy_deg = config.imu_to_camera_rpy_deg
+
     def add(self, stamp_ns: int, orientation_xyzw: Iterable[float]) -> None:
         """Add one sample (any order within ``jump_back_s``; a repeated stamp replaces the
         earlier sample).
@@ -218,3 +233,11 @@ class ImuBuffer:
     def age_s(self, now_ns: int) -> float | None:
         """Seconds from the newest sample to ``now_ns`` (None when empty)."""
         return None if not self._stamps else (now_ns - self._stamps[-1]) * 1e-9
+
+
+def imu_buffer(config: ImuConfig, *, whole_history: bool = False) -> ImuBuffer:
+    """An empty buffer with ``config``'s rules (:meth:`ImuBuffer.configure`): how the pipeline,
+    the bag readers and the labeller all build theirs."""
+    buffer = ImuBuffer()
+    buffer.configure(config, whole_history=whole_history)
+    return buffer

@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from roadbev_core.attitude import ImuBuffer, ImuSample, ImuStale
+from roadbev_core.attitude import ImuSample, ImuStale, imu_buffer
 from roadbev_core.backends import Backend, BackendError, create
 from roadbev_core.config import ParamError, RoadbevConfig, StereoCamera, check_image_size
 from roadbev_core.ego_motion import EgoMotion, EgoMotionStale, PlanarPose
@@ -198,7 +198,7 @@ class Pipeline:
         self._lock = threading.Lock()
         self.config = config
         self.backend = build_backend(config, backend_factory)
-        self.imu = self._imu_buffer(config)
+        self.imu = imu_buffer(config.imu)
         self._speed: tuple[int, float] | None = None  # (stamp ns, m/s)
         self._with_preview = self._tracks_fit(config)
         self.ego = EgoMotion(**self._ego_settings(config))
@@ -214,15 +214,6 @@ class Pipeline:
             configure_threads(config.backend.inference_threads)
 
     # --- configuration -------------------------------------------------------------------------
-    @staticmethod
-    def _imu_buffer(config: RoadbevConfig) -> ImuBuffer:
-        return ImuBuffer(
-            max_age_s=config.imu.max_age_s,
-            max_gap_s=config.imu.max_age_s,
-            horizon_s=config.imu.buffer_s,
-            imu_to_camera_rpy_deg=config.imu.imu_to_camera_rpy_deg,
-        )
-
     @staticmethod
     def _tracks_fit(config: RoadbevConfig) -> bool:
         p = config.preview
@@ -252,9 +243,7 @@ class Pipeline:
             self.backend = backend
             self._with_preview = self._tracks_fit(config)
             if config.imu != old.imu:
-                self.imu.max_age_s = self.imu.max_gap_s = config.imu.max_age_s
-                self.imu.horizon_s = config.imu.buffer_s
-                self.imu.imu_to_camera_rpy_deg = config.imu.imu_to_camera_rpy_deg
+                self.imu.configure(config.imu)
             for name, value in self._ego_settings(config).items():
                 setattr(self.ego, name, value)
             if not self._mount_from_tf:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import sys
-from typing import Any
+from typing import NoReturn
 
 from tqdm import tqdm
 
@@ -11,7 +11,7 @@ __all__ = ["progress_bar"]
 
 
 def progress_bar(*, unit: str, desc: str, total: int | None = None, disable: bool = False,
-                 leave: bool = True) -> Any:
+                 leave: bool = True) -> tqdm[NoReturn]:
     """A tqdm bar on stderr counting ``unit`` (one unit per bar), drawn only when stderr is a
     terminal (never ``\r`` lines in a CI log); a disabled bar accepts ``update`` all the same."""
     return tqdm(total=total, unit=unit, desc=desc, file=sys.stderr, leave=leave,

@@ -24,8 +24,15 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from msg_bridge.outputs import OutputBag
 from roadbev_cli.cli import CommandError, add_output_flags, progress_bar, seconds, shows_progress, warn
-from roadbev_core.config import DEFAULT_BACKEND
+from roadbev_core.backends import takes_checkpoint
+from roadbev_core.config import DEFAULT_BACKEND, GridSpec, RoadbevConfig, load_params_file
+from roadbev_core.pipeline import PipelineOutput, check_config
+from roadbev_core.selfcheck import MIN_COVERAGE_PCT, self_check
+from roadbev_lab.evaluation.evalbag import grid_fields
+from roadbev_lab.evaluation.frames import format_table, to_json
+from roadbev_lab.evaluation.offline import OfflineEvalError, prepare_bag, run_prepared
 
 HELP = "run a backend over every frame of a bag (no DDS) and report the metrics"
 
@@ -53,7 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     fused.add_argument("--no-map", dest="map", action="store_false", help="the per-frame pipeline only")
 
 
-def _check_bag_path(path: Path) -> None:
+def check_bag_path(path: Path) -> None:
     """A bag is a directory with metadata.yaml or an .mcap file (contract, "Command line")."""
     if not path.exists():
         raise CommandError(f"bag not found: {path}")
@@ -64,12 +71,9 @@ def _check_bag_path(path: Path) -> None:
         raise CommandError(f"{path} is neither a rosbag2 directory nor an .mcap file")
 
 
-def _explicit_params(args: argparse.Namespace) -> dict[str, Any]:
-    """The parameters the user gave (params file, --backend, --checkpoint), checked by name and type."""
-    from roadbev_core.backends import takes_checkpoint
-    from roadbev_core.config import RoadbevConfig, load_params_file
-    from roadbev_core.pipeline import check_config
-
+def _settings(args: argparse.Namespace) -> tuple[RoadbevConfig, dict[str, float]]:
+    """The settings the user gave (params file, --backend, --checkpoint) as the one config, checked
+    by name, type and range, and the grid fields among them (they win over the bag's own)."""
     explicit: dict[str, Any] = {}
     if args.params is not None:
         loaded = load_params_file(args.params)
@@ -84,8 +88,8 @@ def _explicit_params(args: argparse.Namespace) -> dict[str, Any]:
         if not takes_checkpoint(str(name)):
             raise CommandError(f"--checkpoint applies to the learned backends (stereo, mono), not {name!r}")
         explicit["checkpoint"] = args.checkpoint
-    check_config(RoadbevConfig.from_params(explicit))  # unknown names, wrong types, ranges, the whole: refused here
-    return explicit
+    config = check_config(RoadbevConfig.from_params(explicit))  # unknown names, wrong types, ranges, the whole
+    return config, grid_fields(explicit)
 
 
 def _print_drive_keys(metrics: dict[str, Any]) -> None:
@@ -109,41 +113,29 @@ def _cm(value: Any, digits: int = 3) -> str:
     return "nan" if value is None else f"{float(value):.{digits}f}"
 
 
-def coverage_hint(pipeline: Any, path: Path, coverage_pct: float | None) -> str | None:
-    """The self-check's one-line hint (:func:`roadbev_core.selfcheck.self_check` on the first
-    frame, through the same pipeline) when the evaluation's coverage fell below the threshold;
-    None otherwise."""
-    from roadbev_core.selfcheck import MIN_COVERAGE_PCT, self_check
-    from roadbev_lab.evaluation.evalbag import bag_frames
-
-    if coverage_pct is None or coverage_pct >= MIN_COVERAGE_PCT:
+def coverage_hint(first: PipelineOutput | None, grid: GridSpec, coverage_pct: float | None) -> str | None:
+    """The self-check's one-line hint (:func:`roadbev_core.selfcheck.self_check` on the
+    evaluation's first frame and its estimate) when the evaluation's coverage fell below the
+    threshold; None otherwise."""
+    if coverage_pct is None or coverage_pct >= MIN_COVERAGE_PCT or first is None:
         return None
-    frames = bag_frames(path, pipeline.config.to_params())[1][:1]
-    if not frames:
-        return None
-    frame = frames[0].frame
-    return self_check(pipeline.process_frame(frame).estimate, frame, pipeline.config.grid).message
+    return self_check(first.estimate, first.frame, grid).message
 
 
 def run(args: argparse.Namespace) -> int:
     """Evaluate, print the table, write the JSON; non-zero exit (via CommandError) on bad input."""
-    from roadbev_lab.evaluation.frames import format_table, to_json
-    from roadbev_lab.evaluation.offline import OfflineEvalError, prepare_bag, run_prepared
-
     path = Path(args.bag)
-    _check_bag_path(path)
+    check_bag_path(path)
     if args.frames is not None and args.frames < 1:
         raise CommandError(f"--frames must be >= 1, got {args.frames}")
-    explicit = _explicit_params(args)
+    settings, grid_overrides = _settings(args)
     try:
-        prepared = prepare_bag(path, explicit, map_enabled=args.map)
+        prepared = prepare_bag(path, settings, grid_overrides=grid_overrides, map_enabled=args.map)
     except OfflineEvalError as exc:
         raise CommandError(str(exc)) from exc
-    bag, config, pipeline = prepared.bag, prepared.config, prepared.pipeline
+    bag, config = prepared.bag, prepared.config
     outputs = None
     if args.out:
-        from msg_bridge.outputs import OutputBag
-
         outputs = OutputBag(args.out, config, camera_frame=bag.camera_frame)
 
     total = len(bag) if args.frames is None else min(len(bag), args.frames)
@@ -171,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
     for reason, count in sorted(result.refused.items()):
         print(f"{count} frame(s) refused: {reason}", file=sys.stderr)
     if metrics.get("frames_with_truth", 0) == 0:
-        print(f"nothing to score: {path} has no ground truth ({bag.topics['ground_truth_topic']}); "
+        print(f"nothing to score: {path} has no ground truth ({bag.topics.ground_truth}); "
               f"{metrics['frames']} frame(s) ran" + (f", outputs in {args.out}" if args.out else
                                                       "; --out OUT.mcap saves the outputs"))
     else:
@@ -188,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
             + ("-" if metrics.get("mean_sigma_cm") is None else f"{metrics['mean_sigma_cm']:.3f}")
             + " cm"
         )
-        hint = coverage_hint(pipeline, path, metrics.get("coverage_pct"))
+        hint = coverage_hint(result.first, config.grid, metrics.get("coverage_pct"))
         if hint:
             print(f"self-check: {hint}")
             metrics["self_check"] = hint

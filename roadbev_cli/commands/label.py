@@ -24,7 +24,16 @@ import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from msg_bridge.bag import BagError, bag_topics
 from roadbev_cli.cli import CommandError, add_output_flags, output_path, progress_bar, shows_progress
+from roadbev_cli.commands.eval import check_bag_path
+from roadbev_core.config import RoadbevConfig, load_params_file
+from roadbev_core.geometry import rotation_from_rpy
+from roadbev_core.pipeline import check_config
+from roadbev_lab.data.labelbag import Extrinsic, label_bag
+from roadbev_lab.data.lidar_labels import LabelConfig, LabelError
 
 HELP = "label a recorded drive from its LiDAR: an evaluation/training bag with /ground_truth/elevation"
 EXTRINSIC = "label.lidar_extrinsic_xyz_rpy_deg"
@@ -56,17 +65,7 @@ def _numbers(name: str, value: Any, n: int) -> list[float]:
 
 def run(args: argparse.Namespace) -> int:
     """Label the bag, write OUT, print a summary; non-zero exit (CommandError) on bad input."""
-    import numpy as np
-
-    from msg_bridge.bag import BagError, bag_topics
-    from roadbev_cli.commands.eval import _check_bag_path
-    from roadbev_core.config import RoadbevConfig, load_params_file
-    from roadbev_core.geometry import rotation_from_rpy
-    from roadbev_core.pipeline import check_config
-    from roadbev_lab.data.labelbag import Extrinsic, label_bag
-    from roadbev_lab.data.lidar_labels import LabelConfig, LabelError
-
-    _check_bag_path(args.bag)
+    check_bag_path(args.bag)
     if args.out.exists():
         raise CommandError(f"{args.out} exists already; remove it first")
     raw = load_params_file(args.params).values if args.params else {}
@@ -79,7 +78,6 @@ def run(args: argparse.Namespace) -> int:
         x, y, z, r, p, w = _numbers(EXTRINSIC, raw[EXTRINSIC], 6)
         extrinsic = Extrinsic(rotation_from_rpy(*np.radians([r, p, w])), np.array([x, y, z]))
     camera_position = list(node.vehicle.camera_position_m)
-    params = node.to_params()
     try:
         lidar = args.lidar_topic
         topics = bag_topics(args.bag)
@@ -94,7 +92,8 @@ def run(args: argparse.Namespace) -> int:
                 args.out,
                 grid=grid,
                 config=config,
-                params=params,
+                topics=node.topics,
+                imu=node.imu,
                 lidar_topic=lidar,
                 extrinsic=extrinsic,
                 camera_position_m=camera_position,

@@ -29,7 +29,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from msg_bridge._common import MessageError, TypestoreFactory, as_str, field, stamp_from_header
-from msg_bridge.bag import BagError, BagWriter, bag_topics, read_messages, typestore
+from msg_bridge.bag import BagError, BagWriter, TopicInfo, bag_topics, read_messages, typestore
 from msg_bridge.camera_info import camera_info_from_stereo
 from msg_bridge.grid_map import ROAD_FRAME, grid_map_message
 from msg_bridge.image import array_to_image
@@ -44,15 +44,14 @@ from msg_bridge.tf import (
     tf_message,
     transforms_from_tf,
 )
-from roadbev_core.attitude import ImuBuffer, ImuError, ImuStale
-from roadbev_core.config import BASE_FRAME, GridSpec, StereoCamera, VehicleConfig
+from roadbev_core.attitude import ImuError, ImuStale, imu_buffer
+from roadbev_core.config import BASE_FRAME, GridSpec, ImuConfig, StereoCamera, TopicsConfig, VehicleConfig
 from roadbev_core.geometry import R_BODY_FROM_OPTICAL
 from roadbev_lab.data.lidar_labels import LabelConfig, LabelError, accumulate_label, planar_transform, scan_to_road
-from roadbev_lab.evaluation.evalbag import DEFAULT_TOPICS, IMU_FRAME, LEFT_FRAME, RIGHT_FRAME, read_eval_bag
+from roadbev_lab.evaluation.evalbag import IMU_FRAME, LEFT_FRAME, RIGHT_FRAME, TF_STATIC_TOPIC, BagTopics, read_eval_bag
 
 __all__ = [
     "DEFAULT_LIDAR_TOPIC",
-    "DEFAULT_ODOM_TOPIC",
     "Extrinsic",
     "LabelReport",
     "RecordedFrame",
@@ -61,8 +60,6 @@ __all__ = [
 ]
 
 DEFAULT_LIDAR_TOPIC = "/lidar/points"
-DEFAULT_ODOM_TOPIC = "/odom"
-TF_STATIC = "/tf_static"
 POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
 DEFAULT_CAMERA_POSITION_M = VehicleConfig().camera_position_m  # contract: vehicle.camera_position_m
 
@@ -140,7 +137,7 @@ def _road_pose(
     return (x + c * cx - s * cy, y + s * cx + c * cy, yaw + cyaw)
 
 
-def _pick_lidar_topic(path: Path, topics: Mapping[str, Any], requested: str | None) -> tuple[str, list[str]]:
+def _pick_lidar_topic(path: Path, topics: Mapping[str, TopicInfo], requested: str | None) -> tuple[str, list[str]]:
     clouds = sorted(t for t, info in topics.items() if info.msgtype == POINT_CLOUD)
     if requested:
         if requested not in topics:
@@ -163,11 +160,12 @@ def label_bag(
     *,
     grid: GridSpec,
     config: LabelConfig,
-    params: Mapping[str, Any] | None = None,
+    topics: TopicsConfig | None = None,
+    imu: ImuConfig | None = None,
     lidar_topic: str | None = None,
     extrinsic: Extrinsic | None = None,
     camera_position_m: Sequence[float] = DEFAULT_CAMERA_POSITION_M,
-    progress: Callable[[int], Any] | None = None,
+    progress: Callable[[int], object] | None = None,
 ) -> LabelReport:
     """Label every left image of a recorded drive from its LiDAR scans; write the result.
 
@@ -176,8 +174,10 @@ def label_bag(
         dst: the evaluation bag to write (must not exist).
         grid: the label grid (window, cells, ``base_height``, vertical range).
         config: the labeller's settings.
-        params: node parameters for the topics (``left_image_topic``..., ``imu_topic``,
-            ``odom_topic``), ``imu_to_camera_rpy_deg`` and ``imu_max_age_s``.
+        topics: the node's topics (``left_image_topic``..., ``imu_topic``, ``odom_topic``,
+            ``image_transport``; the defaults when None).
+        imu: the IMU settings (``imu_to_camera_rpy_deg``, ``imu_max_age_s``: also how far the
+            odometry may lie from a stamp; the defaults when None).
         lidar_topic: the PointCloud2 topic (default ``/lidar/points``, else the only one).
         extrinsic: LiDAR -> left optical frame, used when ``/tf_static`` does not join them.
         camera_position_m: the left camera in ``base_link`` when ``/tf_static`` does not say.
@@ -188,22 +188,17 @@ def label_bag(
         LabelError: no extrinsic, accumulation without odometry, or no frame that got a label.
     """
     src, dst = Path(src), Path(dst)
-    params = dict(params or {})
+    node_topics, imu = topics or TopicsConfig(), imu or ImuConfig()
     if dst.exists():
         raise BagError(f"{dst} exists already; not overwriting it")
     present = bag_topics(src)
     lidar, notes = _pick_lidar_topic(src, present, lidar_topic)
-    topics = {k: str(params.get(k, v)) for k, v in DEFAULT_TOPICS.items()}
-    odom_topic = str(params.get("odom_topic", DEFAULT_ODOM_TOPIC))
-    rpy = tuple(float(v) for v in params.get("imu_to_camera_rpy_deg", (0.0, 0.0, 0.0)))
-    max_age_s = float(params.get("imu_max_age_s", 0.1))
-    max_age_ns = int(max_age_s * 1e9)  # odometry may lie this far from a stamp too
+    topic_names = BagTopics.of(node_topics)
+    odom_topic = topic_names.odom
+    max_age_ns = int(imu.max_age_s * 1e9)  # odometry may lie this far from a stamp too
     # the one attitude rule set (roadbev_core.attitude), over the whole recording
-    attitudes = ImuBuffer(max_age_s=max_age_s, max_gap_s=max_age_s, horizon_s=math.inf,
-                          imu_to_camera_rpy_deg=(rpy[0], rpy[1], rpy[2]))
-    eval_params = {k: v for k, v in params.items() if k in DEFAULT_TOPICS or k == "image_transport"}
-    eval_params.update(grid.to_dict())
-    frames = read_eval_bag(src, eval_params)
+    attitudes = imu_buffer(imu, whole_history=True)
+    frames = read_eval_bag(src, node_topics, grid_overrides=grid.to_dict())
     frame_stamps = frames.stamps
     skipped: Counter[str] = Counter(frames.skipped)
 
@@ -211,13 +206,13 @@ def label_bag(
     tree = TransformTree()
     odom: list[tuple[int, float, float, float]] = []
     left_frame = ""
-    wanted = [TF_STATIC, topics["imu_topic"], odom_topic, topics["left_info_topic"]]
+    wanted = [TF_STATIC_TOPIC, topic_names.imu, odom_topic, topic_names.left_info]
     for item in read_messages(src, [t for t in wanted if t in present]):
         try:
-            if item.topic == TF_STATIC:
+            if item.topic == TF_STATIC_TOPIC:
                 for tf in transforms_from_tf(item.msg):
                     tree.add(tf)
-            elif item.topic == topics["imu_topic"]:
+            elif item.topic == topic_names.imu:
                 attitudes.add(stamp_from_header(item.msg), imu_orientation(item.msg))
             elif item.topic == odom_topic:
                 pose = odometry_pose(item.msg)
@@ -245,7 +240,7 @@ def label_bag(
             R, t = tree.lookup(BASE_FRAME, left_frame)
             forward = R @ R_BODY_FROM_OPTICAL.T[:, 0]  # camera body x in base_link
             camera_xy_yaw = (float(t[0]), float(t[1]), math.atan2(float(forward[1]), float(forward[0])))
-            notes.append(f"camera in {BASE_FRAME} from {TF_STATIC}: x {t[0]:.2f} m, y {t[1]:.2f} m")
+            notes.append(f"camera in {BASE_FRAME} from {TF_STATIC_TOPIC}: x {t[0]:.2f} m, y {t[1]:.2f} m")
         except TransformError:
             pass
 
@@ -256,11 +251,11 @@ def label_bag(
             try:
                 R, t = tree.lookup(left_frame, frame_id)
                 extrinsics[frame_id] = Extrinsic(R, t)
-                notes.append(f"LiDAR extrinsic {frame_id} -> {left_frame} from {TF_STATIC}")
+                notes.append(f"LiDAR extrinsic {frame_id} -> {left_frame} from {TF_STATIC_TOPIC}")
             except TransformError as exc:
                 if extrinsic is None:
                     raise LabelError(
-                        f"no extrinsic for the LiDAR frame {frame_id!r}: {exc}; publish it on {TF_STATIC} "
+                        f"no extrinsic for the LiDAR frame {frame_id!r}: {exc}; publish it on {TF_STATIC_TOPIC} "
                         "or set label.lidar_extrinsic_xyz_rpy_deg"
                     ) from None
                 extrinsics[frame_id] = extrinsic
@@ -361,7 +356,7 @@ def label_bag(
         raise LabelError(f"no frame got a label from {n_scans} scan(s) on {lidar} ({reasons})")
 
     # Pass 3: copy the drive (without the LiDAR) and add the labels.
-    counts = _write(src, dst, present, lidar, topics, grid, config, frames.camera.to_dict(), labels, notes)
+    counts = _write(src, dst, present, lidar, topic_names, grid, config, frames.camera.to_dict(), labels, notes)
     labelled_pct = [100.0 * float(np.isfinite(v).mean()) for v in labels.values()]
     return LabelReport(
         frames=len(frame_stamps),
@@ -380,9 +375,9 @@ def label_bag(
 def _write(
     src: Path,
     dst: Path,
-    present: Mapping[str, Any],
+    present: Mapping[str, TopicInfo],
     lidar: str,
-    topics: Mapping[str, str],
+    topics: BagTopics,
     grid: GridSpec,
     config: LabelConfig,
     camera: dict[str, Any],
@@ -390,14 +385,14 @@ def _write(
     notes: list[str],
 ) -> dict[str, int]:
     factory = TypestoreFactory(typestore())
-    gt_topic, config_topic = topics["ground_truth_topic"], topics["grid_config_topic"]
+    gt_topic, config_topic = topics.ground_truth, topics.grid_config
     copied = [t for t in present if t not in (lidar, gt_topic, config_topic)]
     pending = sorted(labels)
     with BagWriter(dst) as bag:
         bag.add_topic(config_topic, "std_msgs/msg/String", latched=True)
         bag.add_topic(gt_topic, "grid_map_msgs/msg/GridMap")
         for topic in copied:
-            bag.add_topic(topic, present[topic].msgtype, latched=topic == TF_STATIC)
+            bag.add_topic(topic, present[topic].msgtype, latched=topic == TF_STATIC_TOPIC)
         text = json.dumps(
             {"grid": grid.to_dict(), "camera": camera, "label": config.to_dict(), "label_notes": notes},
             sort_keys=True,
@@ -468,30 +463,30 @@ def write_recording(
         Messages written per topic.
     """
     factory = TypestoreFactory(typestore())
-    t = DEFAULT_TOPICS
-    records: list[tuple[int, int, str, Any]] = []  # (stamp, order, topic, message)
+    t = BagTopics.of(TopicsConfig())  # the node's default topics
+    records: list[tuple[int, int, str, object]] = []  # (stamp, order, topic, message)
     for frame in frames:
         s = int(frame.stamp_ns)
         records.append(
-            (s, 1, t["left_image_topic"], array_to_image(frame.left, factory, stamp_ns=s, frame_id=LEFT_FRAME))
+            (s, 1, t.left_image, array_to_image(frame.left, factory, stamp_ns=s, frame_id=LEFT_FRAME))
         )
         records.append(
-            (s, 2, t["left_info_topic"], camera_info_from_stereo(camera, factory, stamp_ns=s, frame_id=LEFT_FRAME))
+            (s, 2, t.left_info, camera_info_from_stereo(camera, factory, stamp_ns=s, frame_id=LEFT_FRAME))
         )
         if frame.right is not None:
             records.append(
-                (s, 1, t["right_image_topic"], array_to_image(frame.right, factory, stamp_ns=s, frame_id=RIGHT_FRAME))
+                (s, 1, t.right_image, array_to_image(frame.right, factory, stamp_ns=s, frame_id=RIGHT_FRAME))
             )
             info = camera_info_from_stereo(camera, factory, right=True, stamp_ns=s, frame_id=RIGHT_FRAME)
-            records.append((s, 2, t["right_info_topic"], info))
+            records.append((s, 2, t.right_info, info))
         if frame.truth is not None:
             if grid is None:
                 raise BagError("frames with truth need the grid")
             gt = grid_map_message({"elevation": frame.truth}, grid, factory, stamp_ns=s, frame_id=ROAD_FRAME)
-            records.append((s, 3, t["ground_truth_topic"], gt))
+            records.append((s, 3, t.ground_truth, gt))
     for s, q in imu:
         records.append(
-            (int(s), 0, t["imu_topic"], imu_message(factory, stamp_ns=int(s), orientation_xyzw=q, frame_id=IMU_FRAME))
+            (int(s), 0, t.imu, imu_message(factory, stamp_ns=int(s), orientation_xyzw=q, frame_id=IMU_FRAME))
         )
     for s, frame_id, points in scans:
         pts = np.asarray(points, dtype=np.float32)
@@ -501,29 +496,29 @@ def write_recording(
         )
     for s, x, y, z, yaw in odometry:
         records.append(
-            (int(s), 0, DEFAULT_ODOM_TOPIC, odometry_message(factory, stamp_ns=int(s), position=(x, y, z),
+            (int(s), 0, t.odom, odometry_message(factory, stamp_ns=int(s), position=(x, y, z),
                                                                 orientation_xyzw=_yaw_quaternion(yaw)))
         )
     records.sort(key=lambda r: (r[0], r[1]))
     types = {
-        t["left_image_topic"]: "sensor_msgs/msg/Image",
-        t["right_image_topic"]: "sensor_msgs/msg/Image",
-        t["left_info_topic"]: "sensor_msgs/msg/CameraInfo",
-        t["right_info_topic"]: "sensor_msgs/msg/CameraInfo",
-        t["ground_truth_topic"]: "grid_map_msgs/msg/GridMap",
-        t["imu_topic"]: "sensor_msgs/msg/Imu",
+        t.left_image: "sensor_msgs/msg/Image",
+        t.right_image: "sensor_msgs/msg/Image",
+        t.left_info: "sensor_msgs/msg/CameraInfo",
+        t.right_info: "sensor_msgs/msg/CameraInfo",
+        t.ground_truth: "grid_map_msgs/msg/GridMap",
+        t.imu: "sensor_msgs/msg/Imu",
         lidar_topic: POINT_CLOUD,
-        DEFAULT_ODOM_TOPIC: "nav_msgs/msg/Odometry",
+        t.odom: "nav_msgs/msg/Odometry",
     }
     first = records[0][0] if records else 0
     with BagWriter(path) as bag:
         if grid is not None:
-            bag.add_topic(t["grid_config_topic"], "std_msgs/msg/String", latched=True)
+            bag.add_topic(t.grid_config, "std_msgs/msg/String", latched=True)
             text = json.dumps({"grid": grid.to_dict(), "camera": camera.to_dict()}, sort_keys=True)
-            bag.write(t["grid_config_topic"], factory.new("std_msgs/msg/String", data=text), first)
+            bag.write(t.grid_config, factory.new("std_msgs/msg/String", data=text), first)
         if static_transforms:
-            bag.add_topic(TF_STATIC, "tf2_msgs/msg/TFMessage", latched=True)
-            bag.write(TF_STATIC, tf_message(static_transforms, factory, stamp_ns=first), first)
+            bag.add_topic(TF_STATIC_TOPIC, "tf2_msgs/msg/TFMessage", latched=True)
+            bag.write(TF_STATIC_TOPIC, tf_message(static_transforms, factory, stamp_ns=first), first)
         for topic in sorted({r[2] for r in records}):
             bag.add_topic(topic, types[topic])
         for s, _order, topic, msg in records:

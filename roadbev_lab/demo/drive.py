@@ -27,22 +27,34 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, NoReturn
 
 import numpy as np
+from tqdm import tqdm
 
-from roadbev_core.config import DEFAULT_BACKEND
+from roadbev_core.config import DEFAULT_BACKEND, RoadbevConfig
 from roadbev_core.errors import RoadbevError
-from roadbev_core.hazards import HazardError, detect_hazards
+from roadbev_core.fusion import MapWindow
+from roadbev_core.hazards import Hazard, HazardError, detect_hazards
+from roadbev_core.pipeline import check_config
 from roadbev_core.ride import RideError
-from roadbev_lab.evaluation.arrival import ArrivalError, arrival_points, per_frame_previews
+from roadbev_lab.evaluation.arrival import (
+    ArrivalError,
+    ArrivalPoints,
+    RoadMap,
+    TimedPreview,
+    arrival_points,
+    per_frame_previews,
+)
 from roadbev_lab.evaluation.drivebag import arrival_settings, read_drive_truth
 from roadbev_lab.evaluation.frames import to_json
-from roadbev_lab.evaluation.offline import OfflineEvalError, prepare_bag, run_prepared
+from roadbev_lab.evaluation.offline import BagEvaluation, OfflineEvalError, prepare_bag, run_prepared
 from roadbev_lab.ride import RideSettings, gain_share, ride
+from roadbev_lab.ride.simulate import Source
 from roadbev_lab.synth import REAL_ROAD_MIDDLE, DriveConfig, RidingConfig, RoadConfig
 
 __all__ = [
@@ -78,11 +90,11 @@ class DriveDemoError(RoadbevError, RuntimeError):
     """The drive section cannot run (a bag that is not a drive, a drive too short to ride...)."""
 
 
-def drive_config(frames: int = DEFAULT_DRIVE_FRAMES, seed: int = DRIVE_SEED, image_scale: float = 1.0) -> Any:
-    """The demo's drive (a :class:`roadbev_lab.synth.RidingConfig`): ``frames`` camera frames at
-    10 Hz and 10 m/s over an ISO 8608 class C road with a speed bump and a pothole every ~5 m,
-    the motion continuing 1.5 s after the last frame (the ride's ceiling needs the road ahead)."""
-
+def drive_config(frames: int = DEFAULT_DRIVE_FRAMES, seed: int = DRIVE_SEED, image_scale: float = 1.0
+                 ) -> RidingConfig:
+    """The demo's drive: ``frames`` camera frames at 10 Hz and 10 m/s over an ISO 8608 class C
+    road with a speed bump and a pothole every ~5 m, the motion continuing 1.5 s after the last
+    frame (the ride's ceiling needs the road ahead)."""
     road = REAL_ROAD_MIDDLE.apply(
         RoadConfig(road_class="C", features=DRIVE_FEATURES, feature_spacing_m=DRIVE_FEATURE_SPACING_M))
     drive = DriveConfig(frames=frames, speed_mps=DRIVE_SPEED_MPS, frame_rate_hz=DRIVE_RATE_HZ, seed=seed, road=road)
@@ -134,8 +146,8 @@ class MapMosaic(NamedTuple):
                 self.centre[1] + 0.5 * n_cols * r - (np.arange(n_cols) + 0.5) * r)
 
 
-def mosaic(windows: Sequence[Any]) -> MapMosaic:
-    """Paste fused-map windows (:class:`roadbev_core.fusion.MapWindow`, in stamp order) into one
+def mosaic(windows: Sequence[MapWindow]) -> MapMosaic:
+    """Paste fused-map windows (in stamp order) into one
     map of the drive; a later window's known cell replaces an earlier one's.
 
     Raises:
@@ -187,7 +199,7 @@ class FeatureMatch(NamedTuple):
     """A true feature and the detection that found it (None: missed)."""
 
     feature: TrueFeature
-    detection: Any | None
+    detection: Hazard | None
 
 
 def _mapped(feature: TrueFeature, m: MapMosaic) -> bool:
@@ -204,8 +216,8 @@ def _mapped(feature: TrueFeature, m: MapMosaic) -> bool:
     return bool(np.isfinite(m.elevation[np.ix_(near_r, near_c)]).any())
 
 
-def match_hazards(hazards: Sequence[Any], features: Sequence[TrueFeature],
-                  m: MapMosaic) -> tuple[list[FeatureMatch], list[Any]]:
+def match_hazards(hazards: Sequence[Hazard], features: Sequence[TrueFeature],
+                  m: MapMosaic) -> tuple[list[FeatureMatch], list[Hazard]]:
     """The true features of >= 3 cm that the map held, each with the nearest detection of its kind
     within 0.5 m along x (potholes also across y), and the detections that match no feature.
 
@@ -233,7 +245,7 @@ def match_hazards(hazards: Sequence[Any], features: Sequence[TrueFeature],
 # --------------------------------------------------------------------------------------------
 # the ride
 # --------------------------------------------------------------------------------------------
-def message_plane_slopes(msg: Any) -> tuple[float, float] | None:
+def message_plane_slopes(msg: TimedPreview) -> tuple[float, float] | None:
     """(dz/dx, dz/dy) of a contact-plane message's own plane (``RoadPreview``'s contact plane:
     ``z = height - x tan(pitch) + y tan(roll) / cos(pitch)``), what a controller undoes; None for
     messages without one."""
@@ -264,10 +276,9 @@ class DriveSection:
         reused: whether it came from the cache.
         seed: the synthetic drive's seed (None for ``--bag``).
         map_on, map_off: the ``roadbev eval --map`` / ``--no-map`` JSON keys.
-        points_on, points_off: the previews at arrival per front wheel
-            (:class:`roadbev_lab.evaluation.arrival.ArrivalPoints`).
+        points_on, points_off: the previews at arrival per front wheel.
         fused: the fused map over the drive.
-        truth: the true road (:class:`roadbev_lab.evaluation.arrival.RoadMap`).
+        truth: the true road.
         path_xy: [K, 2] the true path of ``base_link`` in ``odom``.
         hazards: detections on the fused map; reference: the features compared with (true,
             or detected on the true road map: ``reference_kind``).
@@ -285,16 +296,16 @@ class DriveSection:
     seed: int | None
     map_on: dict[str, Any]
     map_off: dict[str, Any]
-    points_on: list[Any]
-    points_off: list[Any]
+    points_on: list[ArrivalPoints]
+    points_off: list[ArrivalPoints]
     fused: MapMosaic
-    truth: Any
+    truth: RoadMap
     path_xy: np.ndarray
-    hazards: list[Any]
+    hazards: list[Hazard]
     reference: list[TrueFeature]
     reference_kind: str
     matches: list[FeatureMatch]
-    false_alarms: list[Any]
+    false_alarms: list[Hazard]
     ride: dict[str, Any]
     ride_span_s: tuple[float, float]
     notes: list[str] = field(default_factory=list)
@@ -303,7 +314,7 @@ class DriveSection:
 
     def to_json(self) -> dict[str, Any]:
         """The numbers of the section (report.json)."""
-        def hazard(h: Any) -> dict[str, Any] | None:
+        def hazard(h: Hazard | None) -> dict[str, Any] | None:
             return None if h is None else dict(h._asdict())
 
         return {
@@ -332,10 +343,9 @@ def _read_features(bag: Path) -> list[TrueFeature] | None:
     return [TrueFeature(str(f[0]), float(f[1]), float(f[2]), float(f[3])) for f in json.loads(path.read_text())]
 
 
-def _truth_hazards(truth: Any, m: MapMosaic) -> list[TrueFeature]:
+def _truth_hazards(truth: RoadMap, m: MapMosaic) -> list[TrueFeature]:
     """Hazards of the true road map over the cells the fused map held: the reference when the
     bag's true features are unknown."""
-
     xs, ys = m.cell_centres()
     gx, gy = np.meshgrid(xs, ys, indexing="ij")
     z = truth.height(gx, gy).astype(np.float32)
@@ -351,7 +361,7 @@ def run_drive_section(
     reused: bool = False,
     seed: int | None = None,
     lead_time_s: float = 0.1,
-    bar: Callable[[int, str], Any] | None = None,
+    bar: Callable[[int, str], tqdm[NoReturn]] | None = None,
 ) -> DriveSection:
     """Evaluate a drive bag with the map on and off and derive everything the report shows.
 
@@ -365,16 +375,14 @@ def run_drive_section(
     Raises:
         DriveDemoError: the bag is not a drive bag with odometry, or a stage fails.
     """
-    import time
-
-
     seconds: dict[str, float] = {}
-    runs: dict[bool, Any] = {}
+    runs: dict[bool, BagEvaluation] = {}
+    settings = check_config(RoadbevConfig.from_params({"backend": backend}))
     for enabled in (True, False):
         t0 = time.monotonic()
         label = "map on" if enabled else "map off"
         try:
-            prepared = prepare_bag(bag_path, {"backend": backend}, map_enabled=enabled)
+            prepared = prepare_bag(bag_path, settings, map_enabled=enabled)
             if not prepared.drive:
                 raise DriveDemoError(f"{bag_path} is not a drive bag (no /ground_truth/odom and road map)")
             if bar is None:
@@ -390,16 +398,14 @@ def run_drive_section(
     t0 = time.monotonic()
     on, off = runs[True], runs[False]
     config = on.pipeline.config
-    params = config.to_params()
-    truth = read_drive_truth(bag_path, params)
-    settings = arrival_settings(params, base_height=config.grid.base_height, lead_time_s=lead_time_s,
-                                camera_in_base=truth.camera_in_base)
+    truth = read_drive_truth(bag_path, base_frame=config.topics.base_frame)
+    arrival = arrival_settings(config, lead_time_s=lead_time_s, camera_in_base=truth.camera_in_base)
     stamps = [int(r["stamp_ns"]) for r in on.result.per_frame]
     previews_on = per_frame_previews(on.result.outputs or [])
     previews_off = per_frame_previews(off.result.outputs or [])
     try:
-        points_on = arrival_points(previews_on, truth.trajectory, truth.road_map, settings, frame_stamps_ns=stamps)
-        points_off = arrival_points(previews_off, truth.trajectory, truth.road_map, settings, frame_stamps_ns=stamps)
+        points_on = arrival_points(previews_on, truth.trajectory, truth.road_map, arrival, frame_stamps_ns=stamps)
+        points_off = arrival_points(previews_off, truth.trajectory, truth.road_map, arrival, frame_stamps_ns=stamps)
     except ArrivalError as exc:
         raise DriveDemoError(f"drive: preview at arrival: {exc}") from exc
     windows = [o.map for o in on.result.outputs or [] if o.map is not None]
@@ -424,8 +430,8 @@ def run_drive_section(
     score_end = min(stamps[-1] + lead_ns, end)
     span = (score_end - start) * 1e-9
     warmup = min(1.0, 0.4 * span)
-    ride_settings = RideSettings(latency_s=lead_time_s, warmup_s=warmup, arrival=settings)
-    sources: dict[str, Any] = {"passive": "passive", "no_preview": "none", "per_frame": previews_off,
+    ride_settings = RideSettings(latency_s=lead_time_s, warmup_s=warmup, arrival=arrival)
+    sources: dict[str, Source] = {"passive": "passive", "no_preview": "none", "per_frame": previews_off,
                                "fused": previews_on, "true_road": "true"}
     try:
         rows = ride(truth.trajectory, truth.road_map, sources, ride_settings, start, end, score_end,
@@ -448,5 +454,4 @@ def run_drive_section(
 
 def _json(metrics: Mapping[str, Any]) -> dict[str, Any]:
     """The metrics as ``roadbev eval --json`` writes them (NaN as null)."""
-
     return dict(json.loads(to_json(dict(metrics))))

@@ -25,15 +25,17 @@ import math
 import os
 import random
 import shutil
+import signal
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
+from tqdm import tqdm
 
 import roadbev_lab.evaluation.drivebag
 import roadbev_lab.evaluation.evalbag
@@ -41,10 +43,10 @@ import roadbev_lab.synth
 from msg_bridge import bag
 from msg_bridge.grid_map import grid_map_to_arrays
 from msg_bridge.preview import preview_from_message
-from roadbev_core.config import DEFAULT_BACKEND, RoadbevConfig
+from roadbev_core.config import DEFAULT_BACKEND, GridSpec, RoadbevConfig
 from roadbev_core.errors import RoadbevError
 from roadbev_core.pipeline import Pipeline, check_config
-from roadbev_core.preview import wheel_track_profiles
+from roadbev_core.preview import PreviewProfiles, wheel_track_profiles
 from roadbev_core.uncertainty import camera_positions
 from roadbev_core.visibility import hidden_cells
 from roadbev_lab.demo.drive import (
@@ -58,10 +60,9 @@ from roadbev_lab.demo.drive import (
     run_drive_section,
 )
 from roadbev_lab.evaluation.drivebag import is_drive_bag, write_drive_bag
-from roadbev_lab.evaluation.evalbag import read_eval_bag, write_eval_bag
+from roadbev_lab.evaluation.evalbag import EvalSample, read_eval_bag, write_eval_bag
 from roadbev_lab.evaluation.frames import evaluate, to_json
 from roadbev_lab.evaluation.metrics import differences
-from roadbev_lab.evaluation.online import OnlineEvalError, evaluate_online
 from roadbev_lab.progress import progress_bar
 from roadbev_lab.reports.report import FrameView, ReportData, RunSummary, TimingTrace, TrackProfile, write_report
 from roadbev_lab.synth import REAL_ROAD_MIDDLE, DriveConfig, RidingConfig, RidingDrive, RoadConfig, SyntheticDrive
@@ -155,10 +156,9 @@ class DemoResult:
 # --------------------------------------------------------------------------------------------
 # stage 1: the bag
 # --------------------------------------------------------------------------------------------
-def demo_drive_config(frames: int, seed: int = 0, image_scale: float = 1.0) -> Any:
+def demo_drive_config(frames: int, seed: int = 0, image_scale: float = 1.0) -> DriveConfig:
     """The demo's synthetic drive: ISO 8608 class C roughness plus a pothole, a speed bump and a
     rut repeated every 4 m, 5 m/s, 5 Hz stereo, 100 Hz IMU."""
-
     road = REAL_ROAD_MIDDLE.apply(RoadConfig(road_class="C", features=DEMO_ROAD_FEATURES, feature_spacing_m=4.0))
     config = DriveConfig(frames=frames, seed=seed, road=road)
     if image_scale != 1.0:
@@ -169,7 +169,6 @@ def demo_drive_config(frames: int, seed: int = 0, image_scale: float = 1.0) -> A
 def _source_digest() -> str:
     """Hash of the code that makes a bag (synth + evalbag + drivebag), so a changed renderer
     refreshes the cache."""
-
     digest = hashlib.sha256()
     synth_dir = Path(roadbev_lab.synth.__file__).parent
     for path in sorted([*synth_dir.glob("*.py"), Path(roadbev_lab.evaluation.evalbag.__file__),
@@ -179,13 +178,13 @@ def _source_digest() -> str:
     return digest.hexdigest()
 
 
-def _cache_key(config: Any) -> str:
+def _cache_key(config: DriveConfig | RidingConfig) -> str:
     text = f"{_RECIPE_VERSION}|{config!r}|{_source_digest()}"
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 def ensure_demo_bag(
-    config: Any, cache_dir: Path, *, progress: Callable[[int], Any] | None = None
+    config: DriveConfig | RidingConfig, cache_dir: Path, *, progress: Callable[[int], object] | None = None
 ) -> tuple[Path, bool]:
     """The cached bag for ``config``, written first when missing.
 
@@ -198,17 +197,17 @@ def ensure_demo_bag(
     Returns:
         (path of the ``.mcap`` bag, whether it was reused).
     """
-
     cache_dir.mkdir(parents=True, exist_ok=True)
     riding = isinstance(config, RidingConfig)
-    frames, seed = (config.drive.frames, config.drive.seed) if riding else (config.frames, config.seed)
+    drive_of = config.drive if isinstance(config, RidingConfig) else config
+    frames, seed = drive_of.frames, drive_of.seed
     path = cache_dir / f"{'drive' if riding else 'demo'}_{frames}f_seed{seed}_{_cache_key(config)}.mcap"
     if path.is_file() and (not riding or features_path(path).is_file()):
         return path, True
     # write_eval_bag writes a single file only for a name ending in .mcap
     partial = cache_dir / f".partial-{os.getpid()}-{path.name}"
     try:
-        if riding:
+        if isinstance(config, RidingConfig):
             drive = RidingDrive(config)
             write_drive_bag(partial, drive, progress=progress)
             features_path(path).write_text(json.dumps([[f[0], float(f[1]), float(f[2]), float(f[3])]
@@ -241,10 +240,8 @@ def _interruptible_ros() -> Iterator[None]:
     main thread, the evaluation's ``finally`` stops the node process and closes the recording,
     and the CLI exits 130. rclpy is shut down at the end only when it was initialised here.
     """
-    import signal
-
+    # rclpy only after _private_domain() chose the DDS domain (run_demo calls it first)
     import rclpy
-
 
     owned = not rclpy.ok()
     init_ros(handle_signals=False)
@@ -277,11 +274,10 @@ class _Recorded:
     elevation: dict[int, np.ndarray]
     sigma: dict[int, np.ndarray]  # the maps' uncertainty layer, where they have one
     receive_ns: dict[int, int]
-    previews: dict[int, Any]  # stamp -> roadbev_core.preview.PreviewProfiles
+    previews: dict[int, PreviewProfiles]  # by stamp
 
 
-def _read_recorded(path: Path, grid: Any) -> _Recorded:
-
+def _read_recorded(path: Path, grid: GridSpec) -> _Recorded:
     out = _Recorded({}, {}, {}, {})
     for item in bag.read_messages(path, [ELEVATION_TOPIC, PREVIEW_TOPIC], on_damage="skip"):
         if item.topic == ELEVATION_TOPIC:
@@ -296,7 +292,7 @@ def _read_recorded(path: Path, grid: Any) -> _Recorded:
     return out
 
 
-def _profiles_to_report(profiles: Any) -> tuple[TrackProfile, ...]:
+def _profiles_to_report(profiles: PreviewProfiles) -> tuple[TrackProfile, ...]:
     distance = profiles.distances()
     return tuple(
         TrackProfile(t.name, float(t.lateral_offset), distance, np.asarray(t.elevation, np.float64),
@@ -305,12 +301,11 @@ def _profiles_to_report(profiles: Any) -> tuple[TrackProfile, ...]:
     )
 
 
-def _truth_profiles(truth: np.ndarray, grid: Any, like: Any, hidden: np.ndarray | None = None
+def _truth_profiles(truth: np.ndarray, grid: GridSpec, like: PreviewProfiles, hidden: np.ndarray | None = None
                     ) -> tuple[TrackProfile, ...]:
     """Ground-truth wheel-track profiles with the recorded preview's tracks, width and spacing;
     with ``hidden`` [R, C] (cells the truth hides from the cameras) each sample also says whether
     any cell of its tyre footprint is hidden."""
-
     def profiles(layer: np.ndarray) -> tuple[TrackProfile, ...]:
         return _profiles_to_report(wheel_track_profiles(
             layer, None, grid,
@@ -357,11 +352,12 @@ def pick_frames(truths: Sequence[np.ndarray | None], count: int) -> list[int]:
 # --------------------------------------------------------------------------------------------
 # the whole demo
 # --------------------------------------------------------------------------------------------
-def _bar(total: int | None, desc: str, enabled: bool, unit: str = "frame") -> Any:
+def _bar(total: int | None, desc: str, enabled: bool, unit: str = "frame") -> tqdm[NoReturn]:
     return progress_bar(total=total, desc=f"{desc:<8}", unit=unit, disable=not enabled)
 
 
-def _cached_bag(config: Any, frames: int, label: str, options: DemoOptions) -> tuple[Path, bool]:
+def _cached_bag(config: DriveConfig | RidingConfig, frames: int, label: str, options: DemoOptions
+                ) -> tuple[Path, bool]:
     """:func:`ensure_demo_bag` in the options' cache folder behind a progress bar labelled ``label``."""
     cache = Path(options.cache_dir) if options.cache_dir else Path(".cache") / "roadbev"
     with _bar(frames, label, options.progress) as bar:
@@ -415,7 +411,6 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
         bag_path, reused = _cached_bag(config, options.frames, "bag", options)
     stage_s["bag"] = time.monotonic() - t0
 
-
     try:
         eval_bag = read_eval_bag(bag_path)
     except Exception as exc:  # a damaged or foreign bag: one line
@@ -428,7 +423,8 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
     if n_frames == 0:
         raise DemoError(f"bag {bag_path} has no complete frames")
 
-    # 2. online over ROS 2
+    # 2. online over ROS 2 (rclpy, which the online evaluation loads, only after _private_domain())
+    from roadbev_lab.evaluation.online import OnlineEvalError, evaluate_online
 
     t0 = time.monotonic()
     sent_ns: dict[int, int] = {}
@@ -449,12 +445,11 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
     stage_s["ROS 2 (node, replay, record)"] = time.monotonic() - t0
 
     # 3. offline, exactly as `roadbev eval`
-
     t0 = time.monotonic()
     truths: list[np.ndarray | None] = []
     stamps: list[int] = []
 
-    def keep(samples: Any) -> Iterator[Any]:
+    def keep(samples: Iterable[EvalSample]) -> Iterator[EvalSample]:
         for sample in samples:
             truths.append(sample.truth)
             stamps.append(sample.inputs.stamp_ns)
@@ -539,7 +534,12 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
                       settings, stage_s, drive)
     with _bar(None, "report", options.progress, unit="file") as bar:
         bar.unit = "figure"
-        files = write_report(data, out_dir, progress=lambda name: (bar.update(1), bar.set_postfix_str(name)))
+
+        def figure_written(name: str) -> None:
+            bar.update(1)
+            bar.set_postfix_str(name)
+
+        files = write_report(data, out_dir, progress=figure_written)
     stage_s["report"] = time.monotonic() - t0
     # the stage times in the JSON include the report's own
     report_json = files["report.json"]
@@ -555,7 +555,6 @@ def run_demo(options: DemoOptions, *, log: Callable[[str], Any] = print) -> Demo
 
 def _drive_stage(options: DemoOptions, bag_path: Path, stage_s: dict[str, float]) -> tuple[DriveSection | None, str]:
     """The drive section (or None and the reason it was left out)."""
-
     if not options.drive:
         return None, ""
     t0 = time.monotonic()
@@ -571,7 +570,7 @@ def _drive_stage(options: DemoOptions, bag_path: Path, stage_s: dict[str, float]
         path, reused = _cached_bag(config, options.drive_frames, "drive", options)
     stage_s["drive bag"] = time.monotonic() - t0
 
-    def bar_for(total: int, label: str) -> Any:
+    def bar_for(total: int, label: str) -> tqdm[NoReturn]:
         return _bar(total, label, options.progress)
 
     try:

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -32,31 +32,29 @@ from msg_bridge._common import MessageError, TypestoreFactory, field, stamp_from
 from msg_bridge.bag import BagError, BagWriter, ReadStats, bag_topics, read_messages
 from msg_bridge.grid_map import decode_grid_map, grid_map_message_at
 from msg_bridge.tf import StaticTransform, camera_mount, odometry_message, tf_message, transforms_from_tf
-from roadbev_core.config import BASE_FRAME, RoadbevConfig
+from roadbev_core.config import BASE_FRAME, RoadbevConfig, TopicsConfig
 from roadbev_core.geometry import GeometryError, quaternion_to_rotation
-from roadbev_core.pipeline import check_config
 from roadbev_lab.evaluation.arrival import ArrivalSettings, RoadMap, TimedPreview, Trajectory, preview_at_arrival
-from roadbev_lab.evaluation.evalbag import LEFT_FRAME, write_eval_bag
+from roadbev_lab.evaluation.evalbag import LEFT_FRAME, TF_STATIC_TOPIC, write_eval_bag
 
 __all__ = [
-    "DRIVE_TOPICS",
+    "GROUND_TRUTH_ODOM_TOPIC",
     "ODOM_FRAME",
+    "ROAD_MAP_TOPIC",
     "DriveTruth",
     "arrival_settings",
     "evaluate_drive_previews",
     "is_drive_bag",
     "read_drive_truth",
+    "score_previews",
     "write_drive_bag",
 ]
 
 ODOM_FRAME = "odom"
-# Parameter-style name -> default topic.
-DRIVE_TOPICS: dict[str, str] = {
-    "odom_topic": "/odom",
-    "ground_truth_odom_topic": "/ground_truth/odom",
-    "tf_static_topic": "/tf_static",
-    "road_map_topic": "/ground_truth/road_map",
-}
+# The drive bag's truth (contract); its odometry is on the node's odom_topic and its mount on
+# /tf_static (roadbev_lab.evaluation.evalbag.TF_STATIC_TOPIC).
+GROUND_TRUTH_ODOM_TOPIC = "/ground_truth/odom"
+ROAD_MAP_TOPIC = "/ground_truth/road_map"
 # 1-sigma of the vehicle odometry's pose and twist as the covariance advertises them.
 _POSE_SIGMA = (0.05, 0.05, 1e3, 1e3, 1e3, 0.01)  # z, roll, pitch unknown: planar odometry
 _TWIST_SIGMA = (0.05, 0.05, 1e3, 1e3, 1e3, 0.003)
@@ -73,6 +71,7 @@ class _DriveTopics:
 
     def __init__(self, drive: Any) -> None:
         self.drive = drive
+        self.odom_topic = TopicsConfig().odom  # the node's default
         self.odom = drive.odometry()
         self.truth = drive.ground_truth_poses()
         self.next_odom = 0
@@ -80,17 +79,16 @@ class _DriveTopics:
         self.static_written = False
 
     def add_topics(self, bag: BagWriter) -> None:
-        t = DRIVE_TOPICS
-        bag.add_topic(t["tf_static_topic"], "tf2_msgs/msg/TFMessage", latched=True)
-        bag.add_topic(t["road_map_topic"], "grid_map_msgs/msg/GridMap", latched=True)
-        bag.add_topic(t["odom_topic"], "nav_msgs/msg/Odometry")
-        bag.add_topic(t["ground_truth_odom_topic"], "nav_msgs/msg/Odometry")
+        bag.add_topic(TF_STATIC_TOPIC, "tf2_msgs/msg/TFMessage", latched=True)
+        bag.add_topic(ROAD_MAP_TOPIC, "grid_map_msgs/msg/GridMap", latched=True)
+        bag.add_topic(self.odom_topic, "nav_msgs/msg/Odometry")
+        bag.add_topic(GROUND_TRUTH_ODOM_TOPIC, "nav_msgs/msg/Odometry")
 
     def _write_static(self, bag: BagWriter, factory: TypestoreFactory) -> None:
         stamp = int(self.truth.stamp_ns[0])
         pos, R = self.drive.base_to_camera
         transform = StaticTransform(BASE_FRAME, LEFT_FRAME, np.asarray(R, np.float64), np.asarray(pos, np.float64))
-        bag.write(DRIVE_TOPICS["tf_static_topic"], tf_message([transform], factory, stamp_ns=stamp), stamp)
+        bag.write(TF_STATIC_TOPIC, tf_message([transform], factory, stamp_ns=stamp), stamp)
         road = self.drive.road_map()
         n_rows, n_cols = road.elevation.shape
         msg = grid_map_message_at(
@@ -98,15 +96,15 @@ class _DriveTopics:
             length=(n_rows * road.resolution, n_cols * road.resolution), centre=road.centre, stamp_ns=stamp,
             frame_id=ODOM_FRAME,
         )
-        bag.write(DRIVE_TOPICS["road_map_topic"], msg, stamp)
+        bag.write(ROAD_MAP_TOPIC, msg, stamp)
 
     def write_until(self, bag: BagWriter, factory: TypestoreFactory, stamp_ns: int) -> None:
         if not self.static_written:
             self._write_static(bag, factory)
             self.static_written = True
         for series, attr, topic, covs in (
-            (self.truth, "next_truth", DRIVE_TOPICS["ground_truth_odom_topic"], (None, None)),
-            (self.odom, "next_odom", DRIVE_TOPICS["odom_topic"], (_diag(_POSE_SIGMA), _diag(_TWIST_SIGMA))),
+            (self.truth, "next_truth", GROUND_TRUTH_ODOM_TOPIC, (None, None)),
+            (self.odom, "next_odom", self.odom_topic, (_diag(_POSE_SIGMA), _diag(_TWIST_SIGMA))),
         ):
             k = getattr(self, attr)
             while k < series.stamp_ns.size and series.stamp_ns[k] <= stamp_ns:
@@ -156,47 +154,43 @@ class DriveTruth(NamedTuple):
     notes: list[str]
 
 
-def is_drive_bag(path: str | os.PathLike[str], params: Mapping[str, Any] | None = None) -> bool:
+def is_drive_bag(path: str | os.PathLike[str]) -> bool:
     """Whether a bag has the ground-truth odometry and road map a preview-at-arrival needs."""
-    topics = {k: str((params or {}).get(k, v)) for k, v in DRIVE_TOPICS.items()}
     present = bag_topics(Path(path))
-    return topics["ground_truth_odom_topic"] in present and topics["road_map_topic"] in present
+    return GROUND_TRUTH_ODOM_TOPIC in present and ROAD_MAP_TOPIC in present
 
 
 def read_drive_truth(
-    path: str | os.PathLike[str], params: Mapping[str, Any] | None = None, *, camera_frame: str = LEFT_FRAME
+    path: str | os.PathLike[str], *, base_frame: str = BASE_FRAME, camera_frame: str = LEFT_FRAME
 ) -> DriveTruth:
     """Read the true poses, the road map and the camera's mounting from a drive bag.
 
     Args:
-        params: topic names (``ground_truth_odom_topic``, ``road_map_topic``,
-            ``tf_static_topic``) where they differ from the defaults.
+        base_frame: the vehicle body frame (``TopicsConfig.base_frame``): the TF parent looked for.
         camera_frame: the left image's ``header.frame_id`` (the TF child looked for).
 
     Raises:
         BagError: no ground-truth poses (or fewer than two), no road map, or malformed ones.
     """
     path = Path(path)
-    topics = {k: str((params or {}).get(k, v)) for k, v in DRIVE_TOPICS.items()}
     notes: list[str] = []
     poses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     road: RoadMap | None = None
     static: list[StaticTransform] = []
-    base = str((params or {}).get("base_frame", BASE_FRAME))
-    wanted = [topics["ground_truth_odom_topic"], topics["road_map_topic"], topics["tf_static_topic"]]
+    wanted = [GROUND_TRUTH_ODOM_TOPIC, ROAD_MAP_TOPIC, TF_STATIC_TOPIC]
     bad = 0
     read = ReadStats()
     # a damaged or cut bag: the truth as far as it is readable scores the frames it covers
     for item in read_messages(path, wanted, on_damage="skip", stats=read):
         msg = item.msg
         try:
-            if item.topic == topics["ground_truth_odom_topic"]:
+            if item.topic == GROUND_TRUTH_ODOM_TOPIC:
                 p = field(field(field(msg, "pose"), "pose"), "position")
                 o = field(field(field(msg, "pose"), "pose"), "orientation")
                 q = np.array([float(field(o, k)) for k in "xyzw"])
                 quaternion_to_rotation(*q)  # checks it is a rotation
                 poses[stamp_from_header(msg)] = (np.array([float(field(p, k)) for k in "xyz"]), q / np.linalg.norm(q))
-            elif item.topic == topics["road_map_topic"]:
+            elif item.topic == ROAD_MAP_TOPIC:
                 raw = decode_grid_map(msg)
                 if "elevation" not in raw.layers:
                     raise BagError(f"{path}: {item.topic} has no 'elevation' layer")
@@ -215,12 +209,12 @@ def read_drive_truth(
     if not read.complete:
         notes.append(f"ground truth read as far as the bag is readable: {read.summary()}")
     if len(poses) < 2:
-        raise BagError(f"{path}: {topics['ground_truth_odom_topic']} has {len(poses)} usable pose(s); need >= 2")
+        raise BagError(f"{path}: {GROUND_TRUTH_ODOM_TOPIC} has {len(poses)} usable pose(s); need >= 2")
     if road is None:
-        raise BagError(f"{path}: no road map on {topics['road_map_topic']}")
-    camera = camera_mount(static, base, camera_frame)
+        raise BagError(f"{path}: no road map on {ROAD_MAP_TOPIC}")
+    camera = camera_mount(static, base_frame, camera_frame)
     if camera is None:
-        notes.append(f"no {base} -> {camera_frame} on {topics['tf_static_topic']}: "
+        notes.append(f"no {base_frame} -> {camera_frame} on {TF_STATIC_TOPIC}: "
                      "the camera position comes from vehicle.camera_position_m")
     stamps = np.array(sorted(poses), np.int64)
     position = np.array([poses[s][0] for s in stamps])
@@ -234,49 +228,56 @@ def read_drive_truth(
 
 
 def arrival_settings(
-    params: Mapping[str, Any] | None,
+    config: RoadbevConfig,
     *,
-    base_height: float,
     lead_time_s: float = 0.1,
     camera_in_base: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> ArrivalSettings:
-    """Metric settings from node parameters (``preview.tyre_width_m``, ``preview.spacing_m``,
-    ``vehicle.wheelbase_m``, ``vehicle.track_width_m``, ``vehicle.camera_position_m``)."""
-    names = ("preview.spacing_m", "preview.tyre_width_m", "vehicle.wheelbase_m", "vehicle.track_width_m",
-             "vehicle.camera_position_m")
-    config = check_config(RoadbevConfig.from_params({k: v for k, v in (params or {}).items() if k in names}))
+    """Metric settings from the config (``preview.tyre_width_m``, ``preview.spacing_m``, the
+    vehicle, the grid's ``base_height``)."""
     return ArrivalSettings(
         lead_time_s=float(lead_time_s),
         spacing_m=config.preview.spacing_m,
         tyre_width_m=config.preview.tyre_width_m,
-        base_height=float(base_height),
+        base_height=float(config.grid.base_height),
         vehicle=config.vehicle,
         camera_in_base=camera_in_base,
     )
+
+
+def score_previews(
+    truth: DriveTruth,
+    previews: Sequence[TimedPreview],
+    frame_stamps_ns: Sequence[int],
+    config: RoadbevConfig,
+    *,
+    lead_time_s: float = 0.1,
+) -> dict[str, Any]:
+    """``preview_at_arrival`` of previews made from a drive's frames, against its truth.
+
+    Returns:
+        The contract's keys (see :func:`roadbev_lab.evaluation.arrival.preview_at_arrival`) plus
+        ``notes`` on how the truth was read.
+    """
+    settings = arrival_settings(config, lead_time_s=lead_time_s, camera_in_base=truth.camera_in_base)
+    out = preview_at_arrival(previews, truth.trajectory, truth.road_map, settings, frame_stamps_ns=frame_stamps_ns)
+    if truth.notes:
+        out["notes"] = list(truth.notes)
+    return out
 
 
 def evaluate_drive_previews(
     path: str | os.PathLike[str],
     previews: Sequence[TimedPreview],
     frame_stamps_ns: Sequence[int],
-    params: Mapping[str, Any] | None = None,
+    config: RoadbevConfig,
     *,
-    base_height: float,
     lead_time_s: float = 0.1,
 ) -> dict[str, Any]:
-    """``preview_at_arrival`` of previews made from a drive bag's frames, against its truth.
-
-    Returns:
-        The contract's keys (see :func:`roadbev_lab.evaluation.arrival.preview_at_arrival`) plus
-        ``notes`` on how the truth was read.
+    """:func:`score_previews` against the truth of the drive bag at ``path``.
 
     Raises:
         BagError: the bag has no usable ground-truth poses or road map.
     """
-    truth = read_drive_truth(path, params)
-    settings = arrival_settings(params, base_height=base_height, lead_time_s=lead_time_s,
-                                camera_in_base=truth.camera_in_base)
-    out = preview_at_arrival(previews, truth.trajectory, truth.road_map, settings, frame_stamps_ns=frame_stamps_ns)
-    if truth.notes:
-        out["notes"] = list(truth.notes)
-    return out
+    truth = read_drive_truth(path, base_frame=config.topics.base_frame)
+    return score_previews(truth, previews, frame_stamps_ns, config, lead_time_s=lead_time_s)

@@ -15,6 +15,10 @@ topic                                  type                            per
 /roadbev/grid_config                   std_msgs/String (JSON)          once, latched
 =====================================  ==============================  ==========================
 
+The sensor topics are the node's (:class:`roadbev_core.config.TopicsConfig`, its defaults when
+writing); ``/ground_truth/elevation``, ``/roadbev/grid_config`` and ``/tf_static`` are the bag's
+own (:class:`BagTopics`).
+
 ``/roadbev/grid_config`` is a transient-local ("latched") message written first: JSON with the
 ``grid`` (every :class:`GridSpec` field), the ``camera`` (:class:`StereoCamera`) and the
 ``drive`` settings that made the bag. Every message's log time is its header stamp, so a bag is
@@ -24,8 +28,8 @@ a pure function of the drive (byte-identical when regenerated).
 CameraInfos by exact stamp, collects the IMU orientations (the attitude at an image stamp is
 :class:`roadbev_core.attitude.ImuBuffer`'s, as in the node: :func:`roadbev_core.pipeline.replay`
 feeds them to the pipeline in time order), and takes the horizontal grid from the ground-truth
-GridMap's ``info``. ``base_height`` and the vertical
-fields come from the parameters, else from ``/roadbev/grid_config``, else the contract defaults.
+GridMap's ``info``. ``base_height`` and the vertical fields come from the grid parameters the
+user gave (:func:`grid_fields`), else from ``/roadbev/grid_config``, else the contract defaults.
 
 A truncated, unfinished or partly damaged bag gives every frame that is readable: damaged chunks
 are skipped (:func:`msg_bridge.bag.read_messages` with ``on_damage="skip"``), an image that does
@@ -52,35 +56,31 @@ from msg_bridge.image import array_to_compressed, array_to_image, compressed_to_
 from msg_bridge.imu import imu_message, imu_orientation
 from msg_bridge.pipeline_io import odometry_sample
 from msg_bridge.tf import StaticTransform, camera_mount, transforms_from_tf
-from roadbev_core.attitude import ImuBuffer, ImuSample, ImuStale
-from roadbev_core.config import BASE_FRAME, ConfigError, GridSpec, StereoCamera
+from roadbev_core.attitude import ImuBuffer, ImuSample, ImuStale, imu_buffer
+from roadbev_core.config import GRID_PARAMS, ConfigError, GridSpec, ImuConfig, StereoCamera, TopicsConfig
 from roadbev_core.ego_motion import PlanarPose
 from roadbev_core.frame import Frame
-from roadbev_core.pipeline import CameraInput, check_config
+from roadbev_core.pipeline import CameraInput
 
 __all__ = [
-    "DEFAULT_TOPICS",
+    "GRID_CONFIG_TOPIC",
+    "GROUND_TRUTH_TOPIC",
+    "TF_STATIC_TOPIC",
+    "BagTopics",
     "EvalBag",
     "EvalSample",
     "ExtraTopics",
     "LabelledFrame",
     "bag_frames",
+    "grid_fields",
     "read_eval_bag",
     "write_eval_bag",
 ]
 
-# Parameter name (roadbev node's) -> default topic.
-DEFAULT_TOPICS: dict[str, str] = {
-    "left_image_topic": "/stereo/left/image_rect",
-    "right_image_topic": "/stereo/right/image_rect",
-    "left_info_topic": "/stereo/left/camera_info",
-    "right_info_topic": "/stereo/right/camera_info",
-    "imu_topic": "/imu/data",
-    "ground_truth_topic": "/ground_truth/elevation",
-    "grid_config_topic": "/roadbev/grid_config",
-    "odom_topic": "/odom",
-    "tf_static_topic": "/tf_static",
-}
+# The evaluation bag's own topics (contract, "Evaluation bags"); the sensor topics are the node's.
+GROUND_TRUTH_TOPIC = "/ground_truth/elevation"
+GRID_CONFIG_TOPIC = "/roadbev/grid_config"
+TF_STATIC_TOPIC = "/tf_static"
 COMPRESSED = "/compressed"
 LEFT_FRAME = "stereo_left_optical_frame"
 RIGHT_FRAME = "stereo_right_optical_frame"
@@ -90,7 +90,36 @@ _VERTICAL_FIELDS = ("base_height", "z_min", "z_max", "z_resolution", "class_reso
 _HORIZONTAL_FIELDS = ("x_min", "x_max", "y_min", "y_max", "resolution")
 
 
-def _jsonable(value: Any) -> Any:
+@dataclasses.dataclass(frozen=True)
+class BagTopics:
+    """The topics an evaluation bag is read from (or written to): the node's sensor topics
+    (:class:`roadbev_core.config.TopicsConfig`; the images' with ``/compressed`` when the bag
+    carries them so) and the bag's own."""
+
+    left_image: str
+    right_image: str
+    left_info: str
+    right_info: str
+    imu: str
+    odom: str
+    ground_truth: str = GROUND_TRUTH_TOPIC
+    grid_config: str = GRID_CONFIG_TOPIC
+    tf_static: str = TF_STATIC_TOPIC
+
+    @classmethod
+    def of(cls, topics: TopicsConfig, *, compressed: bool = False) -> BagTopics:
+        """The bag topics of the node's ``topics`` (image topics with ``/compressed`` when
+        ``compressed``)."""
+        suffix = COMPRESSED if compressed else ""
+        return cls(topics.left_image + suffix, topics.right_image + suffix, topics.left_info, topics.right_info,
+                   topics.imu, topics.odom)
+
+    def names(self) -> list[str]:
+        """Every topic, in field order."""
+        return [str(value) for value in dataclasses.astuple(self)]
+
+
+def _jsonable(value: object) -> object:
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         return {f.name: _jsonable(getattr(value, f.name)) for f in dataclasses.fields(value) if f.compare}
     if isinstance(value, Mapping):
@@ -134,11 +163,10 @@ def write_eval_bag(
     grid: GridSpec = getattr(config, "grid", None) or GridSpec()
     factory = TypestoreFactory(typestore())
     imu = sorted(drive.imu_samples(), key=lambda s: s.stamp_ns)
-    t = DEFAULT_TOPICS
-    suffix = COMPRESSED if compressed else ""
+    t = BagTopics.of(TopicsConfig(), compressed=compressed)
     image_type = "sensor_msgs/msg/CompressedImage" if compressed else "sensor_msgs/msg/Image"
 
-    def to_image(pixels: np.ndarray, stamp_ns: int, frame_id: str) -> Any:
+    def to_image(pixels: np.ndarray, stamp_ns: int, frame_id: str) -> object:
         if compressed:
             return array_to_compressed(
                 pixels, factory, stamp_ns=stamp_ns, frame_id=frame_id, jpeg_quality=jpeg_quality
@@ -146,13 +174,13 @@ def write_eval_bag(
         return array_to_image(pixels, factory, stamp_ns=stamp_ns, frame_id=frame_id)
 
     with BagWriter(path, compression=compression) as bag:
-        bag.add_topic(t["grid_config_topic"], "std_msgs/msg/String", latched=True)
-        bag.add_topic(t["left_image_topic"] + suffix, image_type)
-        bag.add_topic(t["right_image_topic"] + suffix, image_type)
-        bag.add_topic(t["left_info_topic"], "sensor_msgs/msg/CameraInfo")
-        bag.add_topic(t["right_info_topic"], "sensor_msgs/msg/CameraInfo")
-        bag.add_topic(t["imu_topic"], "sensor_msgs/msg/Imu")
-        bag.add_topic(t["ground_truth_topic"], "grid_map_msgs/msg/GridMap")
+        bag.add_topic(t.grid_config, "std_msgs/msg/String", latched=True)
+        bag.add_topic(t.left_image, image_type)
+        bag.add_topic(t.right_image, image_type)
+        bag.add_topic(t.left_info, "sensor_msgs/msg/CameraInfo")
+        bag.add_topic(t.right_info, "sensor_msgs/msg/CameraInfo")
+        bag.add_topic(t.imu, "sensor_msgs/msg/Imu")
+        bag.add_topic(t.ground_truth, "grid_map_msgs/msg/GridMap")
         if extra is not None:
             extra.add_topics(bag)
         next_imu = 0
@@ -171,7 +199,7 @@ def write_eval_bag(
                     linear_acceleration=s.linear_acceleration,
                     frame_id=IMU_FRAME,
                 )
-                bag.write(t["imu_topic"], msg, s.stamp_ns)
+                bag.write(t.imu, msg, s.stamp_ns)
                 next_imu += 1
 
         config_written = False
@@ -189,14 +217,14 @@ def write_eval_bag(
                     },
                     sort_keys=True,
                 )
-                bag.write(t["grid_config_topic"], factory.new("std_msgs/msg/String", data=text), first)
+                bag.write(t.grid_config, factory.new("std_msgs/msg/String", data=text), first)
                 config_written = True
             write_imu_until(stamp)
-            bag.write(t["left_image_topic"] + suffix, to_image(frame.left, stamp, LEFT_FRAME), stamp)
+            bag.write(t.left_image, to_image(frame.left, stamp, LEFT_FRAME), stamp)
             if frame.right is not None:
-                bag.write(t["right_image_topic"] + suffix, to_image(frame.right, stamp, RIGHT_FRAME), stamp)
+                bag.write(t.right_image, to_image(frame.right, stamp, RIGHT_FRAME), stamp)
             bag.write(
-                t["left_info_topic"],
+                t.left_info,
                 camera_info_from_stereo(frame.camera, factory, stamp_ns=stamp, frame_id=LEFT_FRAME),
                 stamp,
             )
@@ -204,10 +232,10 @@ def write_eval_bag(
                 info = camera_info_from_stereo(
                     frame.camera, factory, right=True, stamp_ns=stamp, frame_id=RIGHT_FRAME
                 )
-                bag.write(t["right_info_topic"], info, stamp)
+                bag.write(t.right_info, info, stamp)
             truth = sample.truth.elevation if hasattr(sample.truth, "elevation") else sample.truth
             gt = grid_map_message({"elevation": truth}, grid, factory, stamp_ns=stamp, frame_id=ROAD_FRAME)
-            bag.write(t["ground_truth_topic"], gt, stamp)
+            bag.write(t.ground_truth, gt, stamp)
             if progress is not None:
                 progress(1)
         write_imu_until(2**63 - 1)
@@ -258,7 +286,7 @@ class EvalBag:
         camera_frame: the left images' ``header.frame_id``.
         camera_mount: ``base_link`` -> that frame from ``/tf_static`` (position [3], R [3, 3]
             optical -> base_link), or None.
-        topics: parameter name -> topic actually read (image topics with ``/compressed``).
+        topics: the topics actually read (image topics with ``/compressed``).
         skipped: reason -> number of left images that could not become camera sets (while
             iterating, also images that do not decode or do not fit the camera).
         notes: remarks on how the bag was interpreted.
@@ -272,7 +300,7 @@ class EvalBag:
         frames: list[_FrameIndex],
         truths: dict[int, np.ndarray],
         imu: list[ImuSample],
-        topics: dict[str, str],
+        topics: BagTopics,
         compressed: bool,
         stereo: bool,
         skipped: dict[str, int],
@@ -297,12 +325,12 @@ class EvalBag:
     def lost_frames(self) -> int:
         """Frames of the bag that cannot be evaluated: incomplete or undecodable ones, and left
         images lost in damaged chunks (frames after a cut are not known, so not counted)."""
-        return sum(self.skipped.values()) + self.read_stats.lost.get(self.topics["left_image_topic"], 0)
+        return sum(self.skipped.values()) + self.read_stats.lost.get(self.topics.left_image, 0)
 
     def losses(self) -> list[str]:
         """Lines saying how many frames were lost and why (empty for a whole, sound bag)."""
         lines = [f"{n} frame(s) lost: {reason}" for reason, n in sorted(self.skipped.items())]
-        left = self.read_stats.lost.get(self.topics["left_image_topic"], 0)
+        left = self.read_stats.lost.get(self.topics.left_image, 0)
         if left:
             lines.append(f"{left} frame(s) lost: their left image is in a damaged part of the bag")
         lines += [f"bag: {line}" for line in self.read_stats.damage]
@@ -330,7 +358,7 @@ class EvalBag:
 
     def __iter__(self) -> Iterator[EvalSample]:
         by_stamp = {f.stamp_ns: f for f in self._frames}
-        left_topic, right_topic = self.topics["left_image_topic"], self.topics["right_image_topic"]
+        left_topic, right_topic = self.topics.left_image, self.topics.right_image
         decode = compressed_to_rgb if self.compressed else image_to_rgb
         wanted = [left_topic, right_topic] if self.stereo else [left_topic]
         pending: dict[int, dict[str, np.ndarray]] = {}
@@ -359,8 +387,9 @@ class EvalBag:
 
     def labelled_frames(self, buffer: ImuBuffer) -> Iterator[LabelledFrame]:
         """Frames with their attitude from ``buffer``'s rules (filled with every IMU sample of the
-        bag; its horizon should be ``math.inf``), for readers that need whole frames (training).
-        Frames without a trustworthy attitude are left out and counted in ``skipped``."""
+        bag: :func:`roadbev_core.attitude.imu_buffer` with ``whole_history``), for readers that
+        need whole frames (training). Frames without a trustworthy attitude are left out and
+        counted in ``skipped``."""
         for sample in self.imu:
             buffer.add(sample.stamp_ns, sample.orientation_xyzw)
         for inputs, truth in self:
@@ -373,18 +402,19 @@ class EvalBag:
             yield LabelledFrame(Frame(inputs.left, inputs.right, inputs.camera, attitude, inputs.stamp_ns), truth)
 
 
-def _grid_params(params: Mapping[str, Any]) -> dict[str, float]:
-    fields = _VERTICAL_FIELDS + _HORIZONTAL_FIELDS
-    return {k: float(params[k]) for k in fields if k in params}
+def grid_fields(params: Mapping[str, Any]) -> dict[str, float]:
+    """The grid fields among the parameters the user gave (:data:`roadbev_core.config.GRID_PARAMS`
+    names: ``base_height``, ``x_min``...): they win over a bag's ``/roadbev/grid_config``."""
+    return {spec.name: float(params[spec.name]) for spec in GRID_PARAMS if spec.name in params}
 
 
 class _Collected(NamedTuple):
     left: dict[int, int]  # stamp -> count (duplicates detected)
     right: set[int]
-    left_info: dict[int, Any]
-    right_info: dict[int, Any]
+    left_info: dict[int, object]  # stamp -> CameraInfo message
+    right_info: dict[int, object]
     imu: list[ImuSample]
-    truths: dict[int, Any]
+    truths: dict[int, object]  # stamp -> GridMap message
     grid_config: dict[str, Any] | None
     bad_imu: int
     read: ReadStats
@@ -394,28 +424,28 @@ class _Collected(NamedTuple):
     left_frame: str
 
 
-def _collect(path: Path, topics: dict[str, str]) -> _Collected:
+def _collect(path: Path, topics: BagTopics) -> _Collected:
     left: dict[int, int] = {}
     right: set[int] = set()
-    left_info: dict[int, Any] = {}
-    right_info: dict[int, Any] = {}
+    left_info: dict[int, object] = {}
+    right_info: dict[int, object] = {}
     imu: list[tuple[int, np.ndarray]] = []
-    truths: dict[int, Any] = {}
+    truths: dict[int, object] = {}
     grid_config = None
     bad_imu = bad_odometry = 0
     odometry: list[PlanarPose] = []
     static: list[StaticTransform] = []
     left_frame = ""
     read = ReadStats()
-    for item in read_messages(path, list(topics.values()), on_damage="skip", stats=read):
+    for item in read_messages(path, topics.names(), on_damage="skip", stats=read):
         topic, msg = item.topic, item.msg
-        if topic == topics["grid_config_topic"]:
+        if topic == topics.grid_config:
             try:
                 grid_config = json.loads(msg.data)
             except (TypeError, ValueError) as exc:
                 raise BagError(f"{path}: {topic} is not JSON: {exc}") from None
             continue
-        if topic == topics["tf_static_topic"]:
+        if topic == topics.tf_static:
             with contextlib.suppress(MessageError):  # malformed: the mount comes from vehicle.camera_position_m
                 static.extend(transforms_from_tf(msg))
             continue
@@ -423,23 +453,23 @@ def _collect(path: Path, topics: dict[str, str]) -> _Collected:
             stamp = stamp_from_header(msg)
         except MessageError as exc:
             raise BagError(f"{path}: a message on {topic} has a bad stamp: {exc}") from None
-        if topic == topics["left_image_topic"]:
+        if topic == topics.left_image:
             left[stamp] = left.get(stamp, 0) + 1
             left_frame = left_frame or str(getattr(msg.header, "frame_id", ""))
-        elif topic == topics["right_image_topic"]:
+        elif topic == topics.right_image:
             right.add(stamp)
-        elif topic == topics["left_info_topic"]:
+        elif topic == topics.left_info:
             left_info[stamp] = msg
-        elif topic == topics["right_info_topic"]:
+        elif topic == topics.right_info:
             right_info[stamp] = msg
-        elif topic == topics["imu_topic"]:
+        elif topic == topics.imu:
             try:
                 imu.append((stamp, imu_orientation(msg)))
             except MessageError:
                 bad_imu += 1
-        elif topic == topics["ground_truth_topic"]:
+        elif topic == topics.ground_truth:
             truths[stamp] = msg
-        elif topic == topics["odom_topic"]:
+        elif topic == topics.odom:
             try:
                 odometry.append(odometry_sample(msg))
             except MessageError:
@@ -451,7 +481,7 @@ def _collect(path: Path, topics: dict[str, str]) -> _Collected:
                       bad_odometry, static, left_frame)
 
 
-def _info_at(infos: dict[int, Any], stamp: int) -> Any | None:
+def _info_at(infos: dict[int, object], stamp: int) -> object | None:
     """The CameraInfo stamped ``stamp``; else the latest one before it; else the first one."""
     if stamp in infos:
         return infos[stamp]
@@ -461,38 +491,40 @@ def _info_at(infos: dict[int, Any], stamp: int) -> Any | None:
     return infos[max(before)] if before else infos[min(infos)]
 
 
-def read_eval_bag(path: str | os.PathLike[str], params: Mapping[str, Any] | None = None) -> EvalBag:
+def read_eval_bag(
+    path: str | os.PathLike[str],
+    topics: TopicsConfig | None = None,
+    *,
+    grid_overrides: Mapping[str, float] | None = None,
+) -> EvalBag:
     """Index an evaluation bag (images are decoded lazily, while iterating).
 
     Args:
         path: a rosbag2 directory or an ``.mcap`` file.
-        params: the node parameters the user gave (validated, e.g. from
-            :func:`roadbev_core.config.load_params_file`): grid fields (``base_height``,
-            ``z_min``...; horizontal ones only where the bag has no ground truth), topic names
-            (``left_image_topic``...) and ``image_transport`` (preferred when both exist).
+        topics: the node's topics (the defaults when None): the sensor topics, the
+            ``image_transport`` (preferred when the bag has both) and the ``base_frame`` the
+            camera's mount is looked up from.
+        grid_overrides: grid fields the user gave (:func:`grid_fields`: ``base_height``,
+            ``z_min``...; horizontal ones only where the bag has no ground truth).
 
     Raises:
         BagError: unreadable bag, no left images or CameraInfo, ground-truth maps on
             different grids, or a grid the parameters make invalid.
     """
     path = Path(path)
-    params = dict(params or {})
+    node_topics = topics or TopicsConfig()
     present = bag_topics(path)
     notes: list[str] = []
-    topics = {k: str(params.get(k, v)) for k, v in DEFAULT_TOPICS.items()}
-    prefer_compressed = str(params.get("image_transport", "raw")) == "compressed"
-    compressed = False
-    left_raw, left_compressed = topics["left_image_topic"], topics["left_image_topic"] + COMPRESSED
-    if left_compressed in present and (prefer_compressed or left_raw not in present):
-        compressed = True
-        for key in ("left_image_topic", "right_image_topic"):
-            topics[key] += COMPRESSED
-    if topics["left_image_topic"] not in present:
+    raw, packed = BagTopics.of(node_topics), BagTopics.of(node_topics, compressed=True)
+    prefer_compressed = node_topics.image_transport == "compressed"
+    compressed = packed.left_image in present and (prefer_compressed or raw.left_image not in present)
+    topics_read = packed if compressed else raw
+    if topics_read.left_image not in present:
         raise BagError(
-            f"{path}: no left images ({left_raw} or {left_compressed}); topics: {sorted(present)}"
+            f"{path}: no left images ({raw.left_image} or {packed.left_image}); topics: {sorted(present)}"
         )
-    stereo = topics["right_image_topic"] in present
-    collected = _collect(path, topics)
+    stereo = topics_read.right_image in present
+    collected = _collect(path, topics_read)
     if collected.bad_imu:
         notes.append(f"{collected.bad_imu} IMU message(s) without a valid orientation ignored")
     if collected.bad_odometry:
@@ -502,7 +534,7 @@ def read_eval_bag(path: str | os.PathLike[str], params: Mapping[str, Any] | None
     base_fields = dict(GridSpec().to_dict())
     if collected.grid_config and isinstance(collected.grid_config.get("grid"), dict):
         base_fields.update({k: float(v) for k, v in collected.grid_config["grid"].items() if k in base_fields})
-    overrides = _grid_params(params)
+    overrides = dict(grid_overrides or {})
     try:
         base = GridSpec.from_dict(base_fields).with_overrides(
             **{k: v for k, v in overrides.items() if k in _VERTICAL_FIELDS}
@@ -574,32 +606,29 @@ def read_eval_bag(path: str | os.PathLike[str], params: Mapping[str, Any] | None
         raise BagError(f"{path}: no usable frames ({skipped or 'no left images'}){damage}")
     if not collected.imu:
         notes.append("no IMU orientation in the bag: every frame needs require_imu false and a default attitude")
-    bag = EvalBag(path, grid, frames, truths, collected.imu, topics, compressed, stereo, skipped, notes,
-                  collected.read)
+    bag = EvalBag(path, grid, frames, truths, collected.imu, topics_read, compressed, stereo, skipped,
+                  notes, collected.read)
     bag.odometry = collected.odometry
     camera_frame = collected.left_frame or LEFT_FRAME
     bag.camera_frame = camera_frame
-    bag.camera_mount = camera_mount(collected.static, str((params or {}).get("base_frame", BASE_FRAME)), camera_frame)
+    bag.camera_mount = camera_mount(collected.static, node_topics.base_frame, camera_frame)
     return bag
 
 
 def bag_frames(
-    path: str | os.PathLike[str], params: Mapping[str, Any] | None = None
+    path: str | os.PathLike[str],
+    topics: TopicsConfig | None = None,
+    imu: ImuConfig | None = None,
+    *,
+    grid_overrides: Mapping[str, float] | None = None,
 ) -> tuple[GridSpec, list[LabelledFrame]]:
     """The grid and the labelled frames of an evaluation bag, each with its attitude from the IMU
-    under the one attitude rule set (:class:`roadbev_core.attitude.ImuBuffer`, whole history).
+    under the one attitude rule set (:func:`roadbev_core.attitude.imu_buffer`, whole history).
 
     Args:
-        params: as :func:`read_eval_bag`; ``imu_max_age_s`` and ``imu_to_camera_rpy_deg`` as the
-            node reads them.
+        topics, grid_overrides: as :func:`read_eval_bag`.
+        imu: the IMU settings (``imu_max_age_s``, ``imu_to_camera_rpy_deg``; the defaults when None).
     """
-    import math
-
-    from roadbev_core.config import RoadbevConfig
-
-    bag = read_eval_bag(path, params)
-    imu = check_config(RoadbevConfig.from_params({k: v for k, v in (params or {}).items()
-                                                  if k.startswith("imu_")})).imu
-    buffer = ImuBuffer(max_age_s=imu.max_age_s, max_gap_s=imu.max_age_s, horizon_s=math.inf,
-                       imu_to_camera_rpy_deg=imu.imu_to_camera_rpy_deg)
+    bag = read_eval_bag(path, topics, grid_overrides=grid_overrides)
+    buffer = imu_buffer(imu or ImuConfig(), whole_history=True)
     return bag.grid, list(bag.labelled_frames(buffer))

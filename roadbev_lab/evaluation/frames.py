@@ -20,11 +20,13 @@ accuracy but not for the timing.
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
-from typing import Any, cast
+from dataclasses import dataclass, field, replace
+from pathlib import PurePath
+from typing import Any, cast, overload
 
 import numpy as np
 
@@ -105,6 +107,8 @@ class EvalResult:
             without truth), ``decode_ms``, ``estimate_ms``.
         estimates: the backend's estimates, in order (only with ``keep_estimates``).
         outputs: the pipeline's outputs (estimate + preview), in order (only with ``keep_estimates``).
+        first: the first frame's output (always kept: its frame as decoded, with the attitude the
+            pipeline gave it, and its estimate; ``roadbev eval``'s self-check looks at it).
         refused: reason -> frames the pipeline refused (no attitude, a malformed frame); they
             count as missing for the metrics.
     """
@@ -115,6 +119,7 @@ class EvalResult:
     estimates: list[Estimate] | None = None
     outputs: list[PipelineOutput] | None = None
     refused: dict[str, int] = field(default_factory=dict)
+    first: PipelineOutput | None = None
 
     def to_dict(self, *, per_frame: bool = False) -> dict[str, Any]:
         """JSON-able metrics (NaN becomes null), optionally with the per-frame records."""
@@ -124,11 +129,21 @@ class EvalResult:
         return cast("dict[str, Any]", out)
 
 
-def json_safe(value: Any) -> Any:
+@overload
+def json_safe(value: dict[Any, Any]) -> dict[str, Any]: ...
+
+
+@overload
+def json_safe(value: list[Any] | tuple[Any, ...]) -> list[Any]: ...
+
+
+@overload
+def json_safe(value: object) -> object: ...
+
+
+def json_safe(value: object) -> object:
     """NaN/inf -> None, numpy scalars and arrays -> Python, paths -> text, recursively (strict JSON
     has no NaN)."""
-    from pathlib import PurePath
-
     if isinstance(value, dict):
         return {str(k): json_safe(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
@@ -144,11 +159,9 @@ def json_safe(value: Any) -> Any:
     return value
 
 
-def to_json(value: Any) -> str:
+def to_json(value: object) -> str:
     """Strict JSON text of a result (NaN/inf as null, numpy scalars as numbers), indented: the one
     serialiser of every result the project writes."""
-    import json
-
     return json.dumps(json_safe(value), indent=2, default=str) + "\n"
 
 
@@ -211,8 +224,6 @@ def _unpack(sample: Any) -> tuple[CameraInput, Frame | None, np.ndarray | None]:
 def pipeline_for(backend: Backend, config: RoadbevConfig | None = None) -> Pipeline:
     """A pipeline around an already built backend (benchmarks and tests that build their own),
     with ``config``'s other settings (the defaults when None) and the backend's grid."""
-    from dataclasses import replace
-
     base = config or RoadbevConfig()
     config = replace(base, grid=backend.grid, backend=replace(base.backend, name=backend.name))
     return Pipeline(config, backend_factory=lambda *_args, **_options: backend, configure_process=False)
@@ -223,10 +234,10 @@ def evaluate(
     samples: Iterable[Any],
     *,
     imu: Iterable[ImuSample] | None = None,
-    progress: Callable[[int], Any] | None = None,
+    progress: Callable[[int], object] | None = None,
     keep_estimates: bool = False,
     max_frames: int | None = None,
-    on_output: Callable[[PipelineOutput], Any] | None = None,
+    on_output: Callable[[PipelineOutput], object] | None = None,
     odometry: Iterable[PlanarPose] | None = None,
 ) -> EvalResult:
     """Run the pipeline on every sample and measure accuracy and speed.
@@ -260,6 +271,7 @@ def evaluate(
     accumulator = MetricAccumulator(grid)
     per_frame: list[dict[str, float]] = []
     outputs: list[PipelineOutput] = []
+    first: PipelineOutput | None = None
     refused: dict[str, int] = {}
     calibration = SigmaAccumulator()
     stage_timings: list[dict[str, float]] = []
@@ -291,6 +303,8 @@ def evaluate(
         done = time.perf_counter()
         if on_output is not None:
             on_output(output)
+        if first is None:
+            first = output
         estimate = output.estimate
         record = {
             "stamp_ns": int(inputs.stamp_ns),
@@ -335,6 +349,7 @@ def evaluate(
         estimates=[o.estimate for o in outputs] if keep_estimates else None,
         outputs=outputs if keep_estimates else None,
         refused=refused,
+        first=first,
     )
 
 

@@ -1,23 +1,30 @@
 """Offline evaluation of a bag: what ``roadbev eval`` runs, also for the demo (no DDS).
 
-:func:`evaluate_bag` reads a contract bag, builds the :class:`roadbev_core.pipeline.Pipeline` from
-the parameters and the bag's grid (the ground truth's GridMap info), the camera's mounting from
-``/tf_static`` where the bag has it, runs every frame (with the bag's odometry: the fused map when
-it is on) and returns the metrics as ``roadbev eval --json`` writes them; on a drive bag with
-ground truth also the contract's ``preview_at_arrival`` (and, with the map, ``map``) keys
-(:func:`drive_keys`). The command only adds printing, the self-check hint and ``--json``; the demo
-evaluates its drive with the map on and off through the same function, so its numbers are
-``roadbev eval``'s.
+:func:`evaluate_bag` reads a contract bag with the user's settings (one
+:class:`roadbev_core.config.RoadbevConfig`, whose topics read the bag), completes them with the
+bag's grid (the ground truth's GridMap info) into the :class:`roadbev_core.pipeline.Pipeline`'s
+config, mounts the camera from ``/tf_static`` where the bag has it, runs every frame (with the
+bag's odometry: the fused map when it is on) and returns the metrics as ``roadbev eval --json``
+writes them; on a drive bag with ground truth also the contract's ``preview_at_arrival`` (and,
+with the map, ``map``) keys (:func:`drive_keys`). The command only adds printing, the self-check
+hint and ``--json``; the demo evaluates its drive with the map on and off through the same
+function, so its numbers are ``roadbev eval``'s.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from roadbev_core.config import RoadbevConfig
 from roadbev_core.errors import RoadbevError
+from roadbev_core.pipeline import Pipeline, PipelineOutput, check_config
+from roadbev_lab.evaluation.arrival import ArrivalError, map_accuracy, per_frame_previews
+from roadbev_lab.evaluation.drivebag import is_drive_bag, read_drive_truth, score_previews
+from roadbev_lab.evaluation.evalbag import EvalBag, EvalSample, read_eval_bag
+from roadbev_lab.evaluation.frames import EvalResult, evaluate, json_safe
 
 __all__ = [
     "BagEvaluation",
@@ -41,20 +48,21 @@ class BagEvaluation:
     Attributes:
         metrics: the JSON keys of ``roadbev eval`` (without ``bag``, ``grid``,
             ``backend_options`` and ``params_file``, which the command adds).
-        result: the typed evaluation (its ``outputs`` kept on drive bags).
+        result: the typed evaluation (its ``outputs`` kept on drive bags; its ``first`` output
+            for the self-check).
         pipeline: the pipeline that ran (its config, its map's state).
-        bag: the opened bag (:class:`roadbev_lab.evaluation.evalbag.EvalBag`).
+        bag: the opened bag.
         drive: whether the bag is a drive bag (ground-truth poses and road map).
     """
 
     metrics: dict[str, Any]
-    result: Any
-    pipeline: Any
-    bag: Any
+    result: EvalResult
+    pipeline: Pipeline
+    bag: EvalBag
     drive: bool
 
 
-def _read_failures(samples: Any, path: Path) -> Iterator[Any]:
+def _read_failures(samples: Iterable[EvalSample], path: Path) -> Iterator[EvalSample]:
     """Re-raise bag read/decode failures during iteration as a one-line OfflineEvalError."""
     iterator = iter(samples)
     while True:
@@ -67,7 +75,7 @@ def _read_failures(samples: Any, path: Path) -> Iterator[Any]:
         yield sample
 
 
-def drive_keys(path: Path, config: Any, result: Any, lead_time_s: float) -> dict[str, Any]:
+def drive_keys(path: Path, config: RoadbevConfig, result: EvalResult, lead_time_s: float) -> dict[str, Any]:
     """The pipeline's previews at the wheels' arrival (per frame or from the map: each message
     says which) and, when the map ran, the fused map against the true road map: the contract's
     ``preview_at_arrival`` and ``map`` keys.
@@ -75,27 +83,18 @@ def drive_keys(path: Path, config: Any, result: Any, lead_time_s: float) -> dict
     Raises:
         OfflineEvalError: the drive's truth cannot score the previews.
     """
-    from roadbev_lab.evaluation.arrival import ArrivalError, map_accuracy, per_frame_previews
-    from roadbev_lab.evaluation.drivebag import evaluate_drive_previews, read_drive_truth
-    from roadbev_lab.evaluation.frames import json_safe
-
     stamps = [int(r["stamp_ns"]) for r in result.per_frame]
     outputs = result.outputs or []
     try:
-        previews = per_frame_previews(outputs)
-        arrival = evaluate_drive_previews(path, previews, stamps, config.to_params(),
-                                          base_height=config.grid.base_height, lead_time_s=lead_time_s)
+        truth = read_drive_truth(path, base_frame=config.topics.base_frame)
+        arrival = score_previews(truth, per_frame_previews(outputs), stamps, config, lead_time_s=lead_time_s)
         windows = [o.map for o in outputs if o.map is not None]
-        if windows:
-            drive_truth = read_drive_truth(path, config.to_params())
-            fused = map_accuracy(windows, drive_truth.road_map, drive_truth.trajectory, config.vehicle)
-        else:
-            fused = None
+        fused = map_accuracy(windows, truth.road_map, truth.trajectory, config.vehicle) if windows else None
     except (ArrivalError, ValueError) as exc:
         raise OfflineEvalError(f"preview at arrival on {path}: {exc}") from exc
-    keys: dict[str, Any] = {"preview_at_arrival": dict(json_safe(arrival))}
+    keys: dict[str, Any] = {"preview_at_arrival": json_safe(arrival)}
     if fused is not None:
-        keys["map"] = dict(json_safe(fused))
+        keys["map"] = json_safe(fused)
     return keys
 
 
@@ -105,50 +104,55 @@ class PreparedBag:
 
     Attributes:
         path: the bag.
-        bag: the opened bag (:class:`roadbev_lab.evaluation.evalbag.EvalBag`).
-        config: the pipeline's config (the parameters, the map switch, the bag's grid).
+        bag: the opened bag.
+        config: the pipeline's config (the user's settings, the map switch, the bag's grid).
         pipeline: the pipeline (the camera mounted from ``/tf_static`` where the bag has it).
         drive: whether the bag is a drive bag (ground-truth poses and road map).
     """
 
     path: Path
-    bag: Any
-    config: Any
-    pipeline: Any
+    bag: EvalBag
+    config: RoadbevConfig
+    pipeline: Pipeline
     drive: bool
 
 
-def prepare_bag(path: str | Path, explicit: Mapping[str, Any] | None = None, *,
-                map_enabled: bool | None = None) -> PreparedBag:
+def prepare_bag(
+    path: str | Path,
+    settings: RoadbevConfig | None = None,
+    *,
+    grid_overrides: Mapping[str, float] | None = None,
+    map_enabled: bool | None = None,
+) -> PreparedBag:
     """Open a bag and build its pipeline as ``roadbev eval`` does.
 
     Args:
         path: a rosbag2 directory or an ``.mcap`` file.
-        explicit: parameters the user gave (params file, backend, checkpoint), already checked.
+        settings: what the user gave (params file, backend, checkpoint), validated; the defaults
+            when None. Its topics read the bag; the bag's grid and the map switch complete it
+            into the pipeline's config.
+        grid_overrides: the grid fields among what the user gave
+            (:func:`roadbev_lab.evaluation.evalbag.grid_fields`): they win over the bag's own.
         map_enabled: True (``--map``: needs odometry), False (``--no-map``), None (the
-            parameters' default: on when the bag has odometry).
+            settings' own: on when the bag has odometry).
 
     Raises:
         OfflineEvalError: the bag cannot be read, has no frames, or ``--map`` without odometry.
+        ParamError: the settings do not work on the bag's grid.
     """
-    from roadbev_core.config import RoadbevConfig
-    from roadbev_core.pipeline import Pipeline, check_config
-    from roadbev_lab.evaluation.drivebag import is_drive_bag
-    from roadbev_lab.evaluation.evalbag import read_eval_bag
-
     path = Path(path)
-    params = dict(explicit or {})
+    settings = settings or RoadbevConfig()
     try:
-        bag = read_eval_bag(path, params)
+        bag = read_eval_bag(path, settings.topics, grid_overrides=grid_overrides)
     except (RoadbevError, OSError):
         raise
     except Exception as exc:  # a damaged bag: rosbags/mcap raise many types; one line, no traceback
         raise OfflineEvalError(f"cannot read bag {path}: {type(exc).__name__}: {exc}") from exc
     if map_enabled and not bag.odometry:
-        raise OfflineEvalError(f"--map needs odometry: {path} has none on {bag.topics['odom_topic']}")
+        raise OfflineEvalError(f"--map needs odometry: {path} has none on {bag.topics.odom}")
     map_params = {} if map_enabled is None else {"map.enabled": bool(map_enabled)}
     # the horizontal grid comes from the ground truth's GridMap info (contract)
-    config = check_config(RoadbevConfig.from_params({**params, **map_params, **bag.grid.to_dict()}))
+    config = check_config(settings.with_params({**map_params, **bag.grid.to_dict()}))
     pipeline = Pipeline(config)
     if bag.camera_mount is not None:  # /tf_static base_link -> camera wins over vehicle.camera_position_m
         pipeline.set_camera_mount(*bag.camera_mount)
@@ -163,8 +167,8 @@ def run_prepared(
     *,
     lead_time_s: float = 0.1,
     max_frames: int | None = None,
-    progress: Callable[[int], Any] | None = None,
-    on_output: Callable[[Any], Any] | None = None,
+    progress: Callable[[int], object] | None = None,
+    on_output: Callable[[PipelineOutput], object] | None = None,
 ) -> BagEvaluation:
     """Evaluate every frame of a prepared bag (see the module docstring).
 
@@ -177,8 +181,6 @@ def run_prepared(
     Raises:
         OfflineEvalError: a frame cannot be read, or the drive's truth cannot score the previews.
     """
-    from roadbev_lab.evaluation.frames import evaluate
-
     bag, pipeline, path = prepared.bag, prepared.pipeline, prepared.path
     result = evaluate(pipeline, _read_failures(bag, path), imu=bag.imu, odometry=bag.odometry, progress=progress,
                       max_frames=max_frames, keep_estimates=prepared.drive, on_output=on_output)
@@ -196,13 +198,14 @@ def run_prepared(
 
 def evaluate_bag(
     path: str | Path,
-    explicit: Mapping[str, Any] | None = None,
+    settings: RoadbevConfig | None = None,
     *,
+    grid_overrides: Mapping[str, float] | None = None,
     map_enabled: bool | None = None,
     lead_time_s: float = 0.1,
     max_frames: int | None = None,
-    progress: Callable[[int], Any] | None = None,
+    progress: Callable[[int], object] | None = None,
 ) -> BagEvaluation:
     """:func:`prepare_bag` then :func:`run_prepared` (``roadbev eval BAG [--map|--no-map]``)."""
-    return run_prepared(prepare_bag(path, explicit, map_enabled=map_enabled), lead_time_s=lead_time_s,
-                        max_frames=max_frames, progress=progress)
+    prepared = prepare_bag(path, settings, grid_overrides=grid_overrides, map_enabled=map_enabled)
+    return run_prepared(prepared, lead_time_s=lead_time_s, max_frames=max_frames, progress=progress)

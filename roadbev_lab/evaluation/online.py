@@ -31,20 +31,25 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from rclpy.executors import SingleThreadedExecutor
 
 from msg_bridge import bag
-from msg_bridge.grid_map import grid_map_to_arrays
-from roadbev_core.config import DEFAULT_BACKEND, RoadbevConfig
+from msg_bridge.grid_map import grid_map_to_arrays, map_window_from_message
+from msg_bridge.preview import preview_from_message
+from roadbev_core.config import DEFAULT_BACKEND, GridSpec, RoadbevConfig, load_params_file
 from roadbev_core.errors import RoadbevError
 from roadbev_core.pipeline import check_config
-from roadbev_lab.evaluation.evalbag import read_eval_bag
+from roadbev_lab.evaluation.arrival import TimedPreview, map_accuracy
+from roadbev_lab.evaluation.drivebag import is_drive_bag, read_drive_truth, score_previews
+from roadbev_lab.evaluation.evalbag import EvalBag, grid_fields, read_eval_bag
+from roadbev_lab.evaluation.frames import json_safe
 from roadbev_lab.evaluation.metrics import MetricAccumulator, Metrics, SigmaAccumulator
 from roadbev_ros.dds import child_env, init_ros
+from roadbev_ros.record import Recorder
 from roadbev_ros.replay import header_stamp_ns, replay_bag
 
 __all__ = ["OnlineEvalError", "OnlineResult", "evaluate_online", "format_online", "node_command", "stop_process"]
 
-GT_TOPIC = "/ground_truth/elevation"
 ELEVATION_TOPIC = "/roadbev/elevation"
 PREVIEW_TOPIC = "/roadbev/preview"
 MAP_TOPIC = "/roadbev/map"
@@ -137,23 +142,25 @@ class _Watcher:
         return True
 
 
-def _truths(path: Path, grid: Any) -> dict[int, np.ndarray]:
+def _truths(path: Path, eval_bag: EvalBag) -> dict[int, np.ndarray]:
     """The ground truth by stamp (empty for a bag without it: then nothing is scored)."""
     truths = {}
-    for item in bag.read_messages(path, [GT_TOPIC], on_damage="skip"):  # partial bags: what is readable
+    grid = eval_bag.grid
+    # partial bags: what is readable
+    for item in bag.read_messages(path, [eval_bag.topics.ground_truth], on_damage="skip"):
         decoded = grid_map_to_arrays(item.msg, base=grid)
         truths[decoded.stamp_ns] = np.asarray(decoded.layers["elevation"], dtype=np.float32)
     return truths
 
 
-def _whole_frames(path: Path, eval_bag: Any) -> set[int]:
+def _whole_frames(path: Path, eval_bag: EvalBag) -> set[int]:
     """Stamps of the frames the node can answer: every frame of a sound bag; in a damaged or
     cut one, only those with every synchronised input (images, CameraInfos) at their stamp."""
     stamps = set(eval_bag.stamps)
     if eval_bag.read_stats.complete:
         return stamps
-    keys = ("left_image_topic", "right_image_topic", "left_info_topic", "right_info_topic")
-    topics = [eval_bag.topics[k] for k in keys if eval_bag.stereo or k.startswith("left")]
+    names = eval_bag.topics
+    topics = [names.left_image, names.left_info] + ([names.right_image, names.right_info] if eval_bag.stereo else [])
     seen: dict[str, set[int]] = {t: set() for t in topics}
     for item in bag.read_messages(path, topics, raw=True, on_damage="skip"):
         seen[item.topic].add(header_stamp_ns(bytes(item.msg)))
@@ -162,7 +169,7 @@ def _whole_frames(path: Path, eval_bag: Any) -> set[int]:
     return stamps
 
 
-def _estimates(recorded: Path, grid: Any) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+def _estimates(recorded: Path, grid: GridSpec) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Stamp -> (elevation, 1-sigma) [R, C] of every recorded map; the sigma is NaN where the map
     has no ``uncertainty`` layer."""
     out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
@@ -221,23 +228,22 @@ def evaluate_online(
 
     Raises:
         OnlineEvalError: the node did not start or exited, or the bag has no ground truth.
+        ParamError: ``params`` (with ``params_file``) that the node would refuse.
     """
-    from roadbev_core.config import load_params_file
-    from roadbev_ros.record import Recorder
-
     bag_path = Path(bag_path)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     all_params = dict(load_params_file(params_file).values) if params_file else {}
     all_params.update(params or {})
-    eval_bag = read_eval_bag(bag_path, all_params)
+    settings = check_config(RoadbevConfig.from_params(all_params))
+    eval_bag = read_eval_bag(bag_path, settings.topics, grid_overrides=grid_fields(all_params))
     grid = eval_bag.grid
-    truths = _truths(bag_path, grid)
-    left_topic = eval_bag.topics.get("left_image_topic", "/stereo/left/image_rect")
+    truths = _truths(bag_path, eval_bag)
+    left_topic = eval_bag.topics.left_image
     # what a vehicle delivers: no ground truth (a drive's /ground_truth/odom and road map have no
     # subscriber: the replay would wait for one) and no earlier outputs
     input_topics = [t for t in bag.bag_topics(bag_path)
-                    if t != GT_TOPIC and not t.startswith(("/ground_truth/", "/roadbev/"))]
+                    if t != eval_bag.topics.ground_truth and not t.startswith(("/ground_truth/", "/roadbev/"))]
     recorded = out_dir / "online.mcap"
     if recorded.exists():
         recorded.unlink()
@@ -256,8 +262,6 @@ def evaluate_online(
     command = node_command(backend, grid.to_dict(), Path(params_file) if params_file else None, extra)
     log_path = out_dir / "node.log"
     rclpy = init_ros()
-    from rclpy.executors import SingleThreadedExecutor
-
     io_node = rclpy.create_node(f"roadbev_online_eval_{os.getpid()}")
     executor = SingleThreadedExecutor()
     executor.add_node(io_node)
@@ -355,23 +359,19 @@ def evaluate_online(
         "wall_s": elapsed,
         "node": dict(watcher.diagnostics),
     }
-    from roadbev_lab.evaluation.drivebag import is_drive_bag
-
     if is_drive_bag(bag_path) and frames:
-        metrics.update(drive_scores(bag_path, recorded, frames, all_params, grid.base_height))
+        metrics.update(drive_scores(bag_path, recorded, frames, settings.with_params(grid.to_dict())))
     return OnlineResult(metrics, accuracy, recorded, _tail(log_path, 4000), dict(watcher.diagnostics))
 
 
-def drive_scores(bag_path: Path, recorded: Path, frame_stamps: Sequence[int], params: Mapping[str, Any],
-                 base_height: float, lead_time_s: float = 0.1) -> dict[str, Any]:
+def drive_scores(bag_path: Path, recorded: Path, frame_stamps: Sequence[int], config: RoadbevConfig,
+                 lead_time_s: float = 0.1) -> dict[str, Any]:
     """The recorded previews at the wheels' arrival and the recorded fused map against the drive
-    bag's truth: the JSON keys ``roadbev eval`` gives offline (``preview_at_arrival``, ``map``)."""
-    from msg_bridge.grid_map import map_window_from_message
-    from msg_bridge.preview import preview_from_message
-    from roadbev_lab.evaluation.arrival import TimedPreview, map_accuracy
-    from roadbev_lab.evaluation.drivebag import evaluate_drive_previews, read_drive_truth
-    from roadbev_lab.evaluation.frames import json_safe
+    bag's truth: the JSON keys ``roadbev eval`` gives offline (``preview_at_arrival``, ``map``).
 
+    Args:
+        config: the node's settings on the bag's grid (its ``base_height``, preview, vehicle).
+    """
     previews, windows = [], []
     for item in bag.read_messages(recorded, [PREVIEW_TOPIC, MAP_TOPIC]):
         if item.topic == PREVIEW_TOPIC:
@@ -380,15 +380,14 @@ def drive_scores(bag_path: Path, recorded: Path, frame_stamps: Sequence[int], pa
         else:
             windows.append(map_window_from_message(item.msg))
     out: dict[str, Any] = {}
+    if not (previews or windows):
+        return out
+    truth = read_drive_truth(bag_path, base_frame=config.topics.base_frame)
     if previews:
-        arrival = evaluate_drive_previews(bag_path, previews, list(frame_stamps), params, base_height=base_height,
-                                          lead_time_s=lead_time_s)
-        out["preview_at_arrival"] = dict(json_safe(arrival))
+        arrival = score_previews(truth, previews, list(frame_stamps), config, lead_time_s=lead_time_s)
+        out["preview_at_arrival"] = json_safe(arrival)
     if windows:
-        drive_truth = read_drive_truth(bag_path, params)
-        vehicle = check_config(RoadbevConfig.from_params({k: v for k, v in params.items()
-                                                          if k.startswith("vehicle.")})).vehicle
-        out["map"] = dict(json_safe(map_accuracy(windows, drive_truth.road_map, drive_truth.trajectory, vehicle)))
+        out["map"] = json_safe(map_accuracy(windows, truth.road_map, truth.trajectory, config.vehicle))
     return out
 
 

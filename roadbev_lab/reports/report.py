@@ -33,14 +33,17 @@ from typing import Any, cast
 import matplotlib
 import numpy as np
 from matplotlib import colors as mcolors
+from matplotlib.axes import Axes
 from matplotlib.collections import PatchCollection
 from matplotlib.figure import Figure
 from matplotlib.image import AxesImage
 from matplotlib.patches import Patch, Rectangle
+from mpl_toolkits.mplot3d import Axes3D  # registers the 3d projection
 
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.errors import RoadbevError
 from roadbev_core.geometry import Attitude, project_points, road_to_camera
+from roadbev_lab.demo.drive import DriveSection
 from roadbev_lab.evaluation.frames import to_json
 from roadbev_lab.evaluation.metrics import CONFIDENT_WRONG_CM
 from roadbev_lab.reports.drive_report import drive_html, format_cell, write_drive_figures
@@ -175,7 +178,7 @@ class ReportData:
     notes: list[str] = field(default_factory=list)
     settings: dict[str, Any] = field(default_factory=dict)
     stage_seconds: dict[str, float] = field(default_factory=dict)
-    drive: Any = None  # a roadbev_lab.demo.drive.DriveSection: the drive section (roadbev_lab.reports.drive_report)
+    drive: DriveSection | None = None  # the drive section (roadbev_lab.reports.drive_report)
 
 
 # --------------------------------------------------------------------------------------------
@@ -373,7 +376,7 @@ def plot_frames(frames: Sequence[FrameView], grid: GridSpec, path: str | Path) -
     fig_h = 0.6 + row_h * len(frames) + bar_h + bar_label_h
     fig = Figure(figsize=(fig_w, fig_h), dpi=_DPI)
 
-    def axes_at(left_in: float, bottom_in: float, width_in: float, height_in: float) -> Any:
+    def axes_at(left_in: float, bottom_in: float, width_in: float, height_in: float) -> Axes:
         return fig.add_axes((left_in / fig_w, bottom_in / fig_h, width_in / fig_w, height_in / fig_h))
 
     extent = _bev_extent(grid)
@@ -434,8 +437,6 @@ def plot_frames(frames: Sequence[FrameView], grid: GridSpec, path: str | Path) -
 
 def plot_surface(frame: FrameView, grid: GridSpec, path: str | Path) -> Path:
     """3D surface of one estimate (true horizontal aspect, elevation exaggerated and labelled)."""
-    from mpl_toolkits.mplot3d import Axes3D  # registers the 3d projection
-
     est_cm = frame.estimate.astype(np.float64) * 100.0
     if not np.isfinite(est_cm).any():
         raise ReportError(f"frame {frame.index}: the estimate is empty, nothing to render")

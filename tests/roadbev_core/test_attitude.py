@@ -12,9 +12,11 @@ from roadbev_core.attitude import (
     ImuBuffer,
     ImuError,
     ImuStale,
+    imu_buffer,
     quaternion_from_rotation,
     slerp,
 )
+from roadbev_core.config import ImuConfig
 from roadbev_core.geometry import Attitude, quaternion_to_rotation, rotation_from_rpy
 
 MS = 1_000_000
@@ -151,3 +153,16 @@ def test_a_clock_jump_back_restarts_the_history() -> None:
     assert buf.attitude_at(1_005 * MS).pitch == pytest.approx(0.1)
     buf.add(1_005 * MS, quat_from_rpy(0.0, 0.1))  # slightly out of order is not a jump
     assert len(buf) == 3
+
+
+def test_the_buffer_follows_the_imu_config() -> None:
+    config = ImuConfig(max_age_s=0.05, buffer_s=0.5, imu_to_camera_rpy_deg=(0.0, 5.0, 0.0))
+    buf = imu_buffer(config)
+    assert (buf.max_age_s, buf.max_gap_s, buf.horizon_s) == (0.05, 0.05, 0.5)
+    assert buf.imu_to_camera_rpy_deg == (0.0, 5.0, 0.0)
+    assert imu_buffer(config, whole_history=True).horizon_s == math.inf
+    # a parameter change at run time keeps the samples
+    buf.add(1_000 * MS, quat_from_rpy(0.0, 0.0))
+    buf.configure(ImuConfig(max_age_s=0.2))
+    assert len(buf) == 1 and (buf.max_age_s, buf.max_gap_s, buf.horizon_s) == (0.2, 0.2, ImuConfig().buffer_s)
+    assert buf.attitude_at(1_150 * MS).degrees == pytest.approx(Attitude.from_degrees(0.0, 0.0).degrees)

@@ -9,17 +9,18 @@ import numpy as np
 import pytest
 
 from msg_bridge.bag import BagError, BagWriter, bag_topics, read_messages, typestore
-from roadbev_core.config import StereoCamera
+from roadbev_core.config import RoadbevConfig, StereoCamera, TopicsConfig
 from roadbev_core.preview import wheel_track_profiles
 from roadbev_lab.evaluation.arrival import REFERENCE_ROAD, TimedPreview
 from roadbev_lab.evaluation.drivebag import (
-    DRIVE_TOPICS,
+    GROUND_TRUTH_ODOM_TOPIC,
+    ROAD_MAP_TOPIC,
     evaluate_drive_previews,
     is_drive_bag,
     read_drive_truth,
     write_drive_bag,
 )
-from roadbev_lab.evaluation.evalbag import LEFT_FRAME, read_eval_bag
+from roadbev_lab.evaluation.evalbag import LEFT_FRAME, TF_STATIC_TOPIC, read_eval_bag
 from roadbev_lab.synth import DriveConfig, RidingConfig, RidingDrive, RoadConfig
 
 
@@ -39,19 +40,20 @@ def bag(drive: RidingDrive, tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_topics_types_counts_and_time_order(drive: RidingDrive, bag: Path) -> None:
     topics = bag_topics(bag)
-    assert topics[DRIVE_TOPICS["odom_topic"]].msgtype == "nav_msgs/msg/Odometry"
-    assert topics[DRIVE_TOPICS["ground_truth_odom_topic"]].count == len(drive.imu_samples())
-    assert topics[DRIVE_TOPICS["odom_topic"]].count == drive.odometry().stamp_ns.size
-    assert topics[DRIVE_TOPICS["tf_static_topic"]].msgtype == "tf2_msgs/msg/TFMessage"
-    assert topics[DRIVE_TOPICS["tf_static_topic"]].count == 1
-    assert topics[DRIVE_TOPICS["road_map_topic"]].count == 1
+    odom_topic = TopicsConfig().odom  # the node's default
+    assert topics[odom_topic].msgtype == "nav_msgs/msg/Odometry"
+    assert topics[GROUND_TRUTH_ODOM_TOPIC].count == len(drive.imu_samples())
+    assert topics[odom_topic].count == drive.odometry().stamp_ns.size
+    assert topics[TF_STATIC_TOPIC].msgtype == "tf2_msgs/msg/TFMessage"
+    assert topics[TF_STATIC_TOPIC].count == 1
+    assert topics[ROAD_MAP_TOPIC].count == 1
     assert topics["/ground_truth/elevation"].count == 2
     assert is_drive_bag(bag)
-    items = list(read_messages(bag, list(DRIVE_TOPICS.values())))
-    assert items[0].topic in (DRIVE_TOPICS["tf_static_topic"], DRIVE_TOPICS["road_map_topic"])
-    odom = [i.msg for i in items if i.topic == DRIVE_TOPICS["odom_topic"]]
+    items = list(read_messages(bag, [odom_topic, GROUND_TRUTH_ODOM_TOPIC, TF_STATIC_TOPIC, ROAD_MAP_TOPIC]))
+    assert items[0].topic in (TF_STATIC_TOPIC, ROAD_MAP_TOPIC)
+    odom = [i.msg for i in items if i.topic == odom_topic]
     assert odom[0].header.frame_id == "odom" and odom[0].child_frame_id == "base_link"
-    tf = next(i.msg for i in items if i.topic == DRIVE_TOPICS["tf_static_topic"]).transforms[0]
+    tf = next(i.msg for i in items if i.topic == TF_STATIC_TOPIC).transforms[0]
     assert (tf.header.frame_id, tf.child_frame_id) == ("base_link", LEFT_FRAME)
     assert tf.transform.translation.z == pytest.approx(1.10)
 
@@ -86,7 +88,7 @@ def test_evaluate_drive_previews_on_the_bags_own_truth(drive: RidingDrive, bag: 
     previews = [TimedPreview(s.inputs.stamp_ns, REFERENCE_ROAD, wheel_track_profiles(t, None, grid))
                 for s, t in zip(samples, truths, strict=True) if t is not None]
     stamps = [s.inputs.stamp_ns for s in samples]
-    out = evaluate_drive_previews(bag, previews, stamps, base_height=grid.base_height)
+    out = evaluate_drive_previews(bag, previews, stamps, RoadbevConfig.from_params(grid.to_dict()))
     # the labels themselves, read at arrival: millimetres; coverage misses the start (the first window
     # begins 0.96 m ahead of the wheel, arrivals 0.6 m ahead) and the cells hidden from the camera
     assert 60.0 < out["coverage_pct"] < 100.0 and out["abs_err_cm"] < 0.3  # 3 cm cells, S-curves
@@ -95,8 +97,8 @@ def test_evaluate_drive_previews_on_the_bags_own_truth(drive: RidingDrive, bag: 
 def test_bags_without_truth_are_refused(tmp_path: Path) -> None:
     path = tmp_path / "empty.mcap"
     with BagWriter(path) as writer:
-        writer.add_topic(DRIVE_TOPICS["ground_truth_odom_topic"], "nav_msgs/msg/Odometry")
-        writer.write(DRIVE_TOPICS["ground_truth_odom_topic"], _odom(), 1)
+        writer.add_topic(GROUND_TRUTH_ODOM_TOPIC, "nav_msgs/msg/Odometry")
+        writer.write(GROUND_TRUTH_ODOM_TOPIC, _odom(), 1)
     assert not is_drive_bag(path)
     with pytest.raises(BagError, match="usable pose"):
         read_drive_truth(path)

@@ -16,8 +16,8 @@ from msg_bridge.camera_info import camera_info_from_stereo
 from msg_bridge.grid_map import grid_map_message
 from msg_bridge.image import array_to_image
 from msg_bridge.imu import imu_message
-from roadbev_core.config import GridSpec
-from roadbev_lab.evaluation.evalbag import bag_frames, read_eval_bag, write_eval_bag
+from roadbev_core.config import GridSpec, ImuConfig, TopicsConfig
+from roadbev_lab.evaluation.evalbag import BagTopics, bag_frames, grid_fields, read_eval_bag, write_eval_bag
 from tests.msg_bridge._msg_bridge_fakes import FakeConfig, FakeDrive
 
 RAW_TOPICS = {
@@ -96,7 +96,8 @@ def test_compressed_bag_and_grid_config(tmp_path: Path, fake_drive: FakeDrive) -
     assert counts["/stereo/left/image_rect/compressed"] == 4
     assert (path / "metadata.yaml").is_file()
     bag = read_eval_bag(path)
-    assert bag.compressed and bag.topics["left_image_topic"] == "/stereo/left/image_rect/compressed"
+    assert bag.compressed and bag.topics.left_image == "/stereo/left/image_rect/compressed"
+    assert bag.topics == BagTopics.of(TopicsConfig(), compressed=True)
     sample = next(iter(bag))
     assert sample.inputs.left.shape == (48, 64, 3)
     config = json.loads(next(read_messages(path, ["/roadbev/grid_config"])).msg.data)
@@ -114,19 +115,25 @@ def test_the_independent_reader_decodes_an_eval_bag(tmp_path: Path, fake_drive: 
     assert topics[0] == "/roadbev/grid_config"
 
 
+def test_the_grid_fields_among_the_parameters() -> None:
+    params = {"base_height": 1.5, "x_min": 1, "imu_max_age_s": 0.05, "left_image_topic": "/cam/left"}
+    assert grid_fields(params) == {"base_height": 1.5, "x_min": 1.0}
+
+
 def test_params_set_base_height_extrinsic_and_topics(tmp_path: Path, fake_drive: FakeDrive) -> None:
     write_eval_bag(tmp_path / "d.mcap", fake_drive)
-    params = {"base_height": 1.5, "z_min": -0.3, "z_max": 0.3, "imu_to_camera_rpy_deg": [0.0, 2.0, 0.0]}
-    params |= {"x_min": 1.0}  # horizontal: the ground truth's info wins
-    bag = read_eval_bag(tmp_path / "d.mcap", params)
+    grid = {"base_height": 1.5, "z_min": -0.3, "z_max": 0.3}
+    grid |= {"x_min": 1.0}  # horizontal: the ground truth's info wins
+    bag = read_eval_bag(tmp_path / "d.mcap", grid_overrides=grid)
     assert (bag.grid.base_height, bag.grid.z_min, bag.grid.n_rows) == (1.5, -0.3, 164)
     assert any("horizontal grid parameters ignored" in n for n in bag.notes)
-    first = bag_frames(tmp_path / "d.mcap", params)[1][0].frame
+    imu = ImuConfig(imu_to_camera_rpy_deg=(0.0, 2.0, 0.0))
+    first = bag_frames(tmp_path / "d.mcap", imu=imu, grid_overrides=grid)[1][0].frame
     assert first.attitude.degrees[1] == pytest.approx(np.degrees(0.03) + 2.0, abs=1e-6)
     with pytest.raises(BagError, match="no left images"):
-        read_eval_bag(tmp_path / "d.mcap", {"left_image_topic": "/cam/left"})
+        read_eval_bag(tmp_path / "d.mcap", TopicsConfig(left_image="/cam/left"))
     with pytest.raises(BagError, match="grid parameters are invalid"):
-        read_eval_bag(tmp_path / "d.mcap", {"base_height": 0.1})
+        read_eval_bag(tmp_path / "d.mcap", grid_overrides={"base_height": 0.1})
 
 
 def _foreign_bag(path: Path, *, stereo: bool, truth_grid: GridSpec | None, imu_span: tuple[int, int]) -> list[int]:
@@ -175,13 +182,13 @@ def test_a_foreign_stereo_bag_with_another_window(tmp_path: Path) -> None:
     _, frames = bag_frames(tmp_path / "f.mcap")
     assert len(frames) == 4 and frames[1].frame.attitude.pitch == pytest.approx(0.1, abs=1e-6)
     # with a stricter age limit, the frame 100 ms after the last IMU sample has no attitude
-    _, strict = bag_frames(tmp_path / "f.mcap", {"imu_max_age_s": 0.05})
+    _, strict = bag_frames(tmp_path / "f.mcap", imu=ImuConfig(max_age_s=0.05))
     assert [f.frame.stamp_ns for f in strict] == [stamps[0], stamps[1], stamps[3]]
 
 
 def test_a_mono_bag_without_ground_truth(tmp_path: Path) -> None:
     _foreign_bag(tmp_path / "m.mcap", stereo=False, truth_grid=None, imu_span=(9_000_000_000, 11_000_000_000))
-    bag = read_eval_bag(tmp_path / "m.mcap", {"x_min": 3.0, "x_max": 6.0})
+    bag = read_eval_bag(tmp_path / "m.mcap", grid_overrides={"x_min": 3.0, "x_max": 6.0})
     assert not bag.stereo and len(bag) == 5 and bag.camera.baseline == 0.0
     assert (bag.grid.x_min, bag.grid.x_max) == (3.0, 6.0)
     assert all(s.truth is None and s.inputs.right is None for s in bag)
