@@ -17,18 +17,25 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from roadbev_core.attitude import ImuStale
+from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import FrameError, ImplausibleFrame
 from roadbev_core.preview import PreviewError
 
 __all__ = [
     "COMPRESSED_SUFFIX",
     "Check",
+    "ClockWatch",
     "Health",
     "HealthSnapshot",
     "LatencyWindow",
+    "NodeDiagnostics",
+    "OutputTally",
+    "ProblemLog",
     "RateMeter",
     "ThrottledLog",
     "frequency_check",
+    "late_output",
+    "node_values",
     "other_transport",
     "stamp_check",
     "to_diagnostic_array",
@@ -455,6 +462,160 @@ class Health:
         level = max((lv for lv, _ in states), default=OK)
         message = next((m for lv, m in states if lv == level), "ok")
         return HealthSnapshot(level, message, values, (rate, stamps))
+
+
+class ProblemLog:
+    """Reports an input or processing problem: counted by kind in ``health`` and logged through
+    ``warn``, at most once per ``period_s`` per kind (the next report says how many were held back).
+
+    Args:
+        health: the figures the problem is counted in.
+        warn: writes one warning line (the node's logger).
+        period_s: the log throttle per kind (``diagnostics.log_throttle_s``).
+        clock: seconds, monotonic (injectable for tests).
+    """
+
+    def __init__(self, health: Health, warn: Callable[[str], object], period_s: float,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self._health = health
+        self._warn = warn
+        self.throttle = ThrottledLog(period_s, clock)
+
+    def __call__(self, kind: str, reason: str) -> None:
+        self._health.problem(kind, reason)
+        if self.throttle.allow(kind):
+            suppressed = self.throttle.suppressed.pop(kind, 0)
+            more = f" ({suppressed} more since the last report)" if suppressed else ""
+            self._warn(f"{kind}: {reason}{more}")
+
+
+def late_output(stamp_ns: int, late_s: float, bound_s: float) -> str | None:
+    """Why the output of the frame at ``stamp_ns``, ready ``late_s`` after its input arrived, is
+    not published (a preview this late points at road already driven over); None when it is in
+    time or there is no bound (``bound_s``: ``diagnostics.max_latency_s``, 0 = none)."""
+    if not (bound_s and late_s > bound_s):
+        return None
+    return (f"the frame at {stamp_ns * 1e-9:.3f} s was ready {late_s * 1e3:.0f} ms after its input arrived "
+            f"(max_latency_s {bound_s:g}): not published")
+
+
+class ClockWatch:
+    """Whether the node's clock moves (a replay's ``/clock`` stops when the bag ends: the
+    diagnostics after it carry the same stamp, and say so).
+
+    Args:
+        steady: seconds, monotonic (injectable for tests).
+    """
+
+    def __init__(self, steady: Callable[[], float] = time.monotonic) -> None:
+        self._steady = steady
+        self._seen: tuple[int, float] | None = None  # the clock's value (ns) and when it last changed
+
+    def state(self, now_ns: int) -> str:
+        """``running``, or for how long the clock, now at ``now_ns``, has stood still."""
+        steady = self._steady()
+        if self._seen is None or now_ns != self._seen[0]:
+            self._seen = (now_ns, steady)
+            return "running"
+        return f"stopped for {steady - self._seen[1]:.0f} s (use_sim_time and no /clock)"
+
+
+@dataclass
+class OutputTally:
+    """What the diagnostics report of the fused map and the preview of the frames published."""
+
+    fused: int = 0  # frames fused into the map
+    preview_reference: str = ""  # reference (and contact-plane source) of the newest preview
+
+    def note(self, output: Any) -> None:
+        """Take one :class:`roadbev_core.pipeline.PipelineOutput`."""
+        if output.fusion is not None:
+            self.fused += 1
+        if output.preview is not None:
+            plane = output.preview.contact_plane
+            self.preview_reference = output.preview.reference + (f" ({plane.source})" if plane is not None else "")
+
+
+def node_values(*, queued_set: bool, queued_left_images: int, map_state: str, tally: OutputTally,
+                motion_age_s: float | None, clock: str) -> dict[str, str]:
+    """The node's own figures, appended to :meth:`Health.snapshot`'s values (in this order).
+
+    Args:
+        queued_set: a synchronised set waits for the worker.
+        queued_left_images: left images waiting in the synchroniser.
+        map_state: the fused map in a few words (fusing, or why not).
+        tally: the outputs so far.
+        motion_age_s: seconds since the newest odometry or speed sample (None: never).
+        clock: :meth:`ClockWatch.state`.
+    """
+    return {
+        "queued_sets": "1" if queued_set else "0",
+        "queued_left_images": str(queued_left_images),
+        "map": map_state,
+        "map_frames_fused": str(tally.fused),
+        "motion_age_s": "never" if motion_age_s is None else f"{motion_age_s:.2f}",
+        "preview_reference": tally.preview_reference or "none yet",
+        "clock": clock,
+    }
+
+
+class NodeDiagnostics:
+    """What the RoadBEV node reports on ``/diagnostics``: its :class:`Health` figures, the problems
+    (:class:`ProblemLog`), the outputs' :class:`OutputTally` and whether its clock moves.
+
+    Args:
+        backend: the backend's name.
+        config: a :class:`roadbev_core.config.tree.DiagnosticsConfig` (as :meth:`Health.configure`).
+        warn: writes one warning line (the node's logger).
+        steady: seconds, monotonic (injectable for tests).
+    """
+
+    def __init__(self, backend: str, config: Any, warn: Callable[[str], object],
+                 steady: Callable[[], float] = time.monotonic) -> None:
+        self.health = Health(backend=backend)
+        self.health.configure(config)
+        self.report = ProblemLog(self.health, warn, config.log_throttle_s, steady)
+        self.tally = OutputTally()
+        self._clock = ClockWatch(steady)
+
+    def configure(self, backend: str, config: Any) -> None:
+        """A new backend or new settings (a parameter change)."""
+        self.health.backend = backend
+        self.report.throttle.period_s = config.log_throttle_s
+        self.health.configure(config)
+
+    def late(self, stamp_ns: int, late_s: float, bound_s: float) -> bool:
+        """Whether the output of the frame at ``stamp_ns`` is too late to publish
+        (:func:`late_output`); such a frame is counted (``dropped_stale``) and reported."""
+        reason = late_output(stamp_ns, late_s, bound_s)
+        if reason is not None:
+            self.health.drop("stale")
+            self.report("stale output", reason)
+        return reason is not None
+
+    def frame_failed(self, exc: Exception, *, earlier_pass: bool) -> None:
+        """A frame the worker could not finish: refused input (counted invalid, reported under
+        :func:`problem_kind`), quietly dropped (``sync``) when the clock jumped back meanwhile (the
+        IMU history was reset under it), or a backend failure (counted invalid, reported)."""
+        if isinstance(exc, RoadbevError) and earlier_pass:
+            self.health.drop("sync")
+            return
+        self.health.drop("invalid")
+        if isinstance(exc, RoadbevError):
+            self.report(problem_kind(exc), str(exc))
+        else:
+            self.report("backend error", f"{type(exc).__name__}: {exc}")
+
+    def snapshot(self, *, input_hint: str, queued_set: bool, queued_left_images: int, map_state: str,
+                 motion_age_s: float | None, now_ns: int) -> HealthSnapshot:
+        """The figures now, the node's own (:func:`node_values`) after the health's; ``input_hint``:
+        why no input may arrive (:func:`transport_hint`), ``now_ns``: the node's clock."""
+        self.health.input_hint = input_hint
+        snapshot = self.health.snapshot()
+        snapshot.values.update(node_values(queued_set=queued_set, queued_left_images=queued_left_images,
+                                           map_state=map_state, tally=self.tally, motion_age_s=motion_age_s,
+                                           clock=self._clock.state(now_ns)))
+        return snapshot
 
 
 def to_diagnostic_array(snapshot: HealthSnapshot, stamp: Any, name: str = "roadbev: pipeline",

@@ -10,7 +10,7 @@ start; :func:`config_of` builds the validated :class:`RoadbevConfig` from the de
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
@@ -27,8 +27,8 @@ from roadbev_core.pipeline import check_config
 ROS_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service"})
 
 __all__ = [
-    "check_overrides", "check_params_files", "config_of", "declare_parameters", "declare_typed", "descriptor", "plain",
-    "type_mismatch", "value_error",
+    "check_overrides", "check_params_files", "config_of", "declare_parameters", "declare_typed", "descriptor",
+    "param_changes", "plain", "report_bad_values", "type_mismatch", "value_error",
 ]
 
 
@@ -119,6 +119,33 @@ def value_error(name: str, value: Any) -> str | None:
     except ParamError as exc:
         return str(exc)
     return None
+
+
+def report_bad_values(parameters: list[Any], report: Callable[[str, str], None]) -> list[Any]:
+    """For rclpy's pre-set-parameters callback: ``report("parameter", ...)`` every value refused
+    on its own. It runs before rclpy's own range checks, so a value rclpy refuses is reported too.
+
+    Returns:
+        ``parameters``, unchanged.
+    """
+    for p in parameters:
+        error = value_error(p.name, plain(p.value))
+        if error:
+            report("parameter", f"rejected: {error}")
+    return parameters
+
+
+def param_changes(parameters: Iterable[Any]) -> tuple[str | None, dict[str, Any]]:
+    """What a set of ``rclpy.parameter.Parameter`` asks of the config.
+
+    Returns:
+        Why the first value refused on its own is refused (:func:`value_error`; None when none
+        is), and the config's changes as plain values by name (the parameters every rclpy node
+        has, such as ``use_sim_time``, left to rclpy).
+    """
+    parameters = list(parameters)
+    error = next(filter(None, (value_error(p.name, plain(p.value)) for p in parameters)), None)
+    return error, {p.name: plain(p.value) for p in parameters if p.name not in ROS_PARAMETERS}
 
 
 def check_params_files(argv: Sequence[str], node_name: str) -> list[str]:

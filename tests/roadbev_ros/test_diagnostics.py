@@ -3,17 +3,26 @@
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import pytest
 
+from roadbev_core.attitude import ImuStale
+from roadbev_core.config import DiagnosticsConfig
 from roadbev_ros.diagnostics import (
     ERROR,
     OK,
     WARN,
+    ClockWatch,
     Health,
     LatencyWindow,
+    NodeDiagnostics,
+    OutputTally,
+    ProblemLog,
     RateMeter,
     ThrottledLog,
+    late_output,
+    node_values,
     other_transport,
     to_diagnostic_array,
     transport_hint,
@@ -261,3 +270,85 @@ def test_a_stale_stream_shows_no_figures_even_while_its_last_outputs_are_inside_
     assert snap.level == ERROR and snap.message.startswith("stale"), snap.message
     for key in ("latency_p50_ms", "latency_p95_ms", "inference_mean_ms", "overhead_p95_ms"):
         assert snap.values[key] == "nan", (key, snap.values[key])
+
+
+def test_problems_are_counted_and_logged_once_per_period_with_the_count_held_back() -> None:
+    clock = FakeClock()
+    health = Health(clock=clock)
+    lines: list[str] = []
+    report = ProblemLog(health, lines.append, period_s=5.0, clock=clock)
+    for _ in range(3):
+        report("bad imu", "non-unit quaternion")
+    report("bad tf", "no frame")
+    clock.t += 5.0
+    report("bad imu", "stale")
+    assert lines == ["bad imu: non-unit quaternion", "bad tf: no frame",
+                     "bad imu: stale (2 more since the last report)"]
+    assert health.problems == {"bad imu": 4, "bad tf": 1} and health.last_error == "bad imu: stale"
+
+
+def test_an_output_later_than_max_latency_is_named_and_without_a_bound_never() -> None:
+    stamp_ns = 1_700_000_000_250_000_000
+    assert late_output(stamp_ns, 0.1234, 0.1) == ("the frame at 1700000000.250 s was ready 123 ms after its input "
+                                                  "arrived (max_latency_s 0.1): not published")
+    assert late_output(stamp_ns, 0.1, 0.1) is None  # at the bound: in time
+    assert late_output(stamp_ns, 9.0, 0.0) is None  # 0: no bound
+
+
+def test_the_clock_watch_says_how_long_the_node_clock_stood_still() -> None:
+    steady = FakeClock()
+    watch = ClockWatch(steady)
+    assert watch.state(10) == "running"
+    steady.t += 3.0
+    assert watch.state(20) == "running"
+    steady.t += 7.4
+    assert watch.state(20) == "stopped for 7 s (use_sim_time and no /clock)"
+    assert watch.state(30) == "running"
+
+
+def output(fused: bool, reference: str | None, plane_source: str | None = None) -> SimpleNamespace:
+    plane = None if plane_source is None else SimpleNamespace(source=plane_source)
+    preview = None if reference is None else SimpleNamespace(reference=reference, contact_plane=plane)
+    return SimpleNamespace(fusion=object() if fused else None, preview=preview)
+
+
+def test_the_tally_and_the_node_values_in_their_order() -> None:
+    tally = OutputTally()
+    values = node_values(queued_set=False, queued_left_images=0, map_state="off (map.enabled false)", tally=tally,
+                         motion_age_s=None, clock="running")
+    assert values == {"queued_sets": "0", "queued_left_images": "0", "map": "off (map.enabled false)",
+                      "map_frames_fused": "0", "motion_age_s": "never", "preview_reference": "none yet",
+                      "clock": "running"}
+    tally.note(output(True, "contact plane", "map"))
+    tally.note(output(False, "camera"))
+    tally.note(output(True, None))
+    assert (tally.fused, tally.preview_reference) == (2, "camera")
+    tally.note(output(True, "contact plane", "map"))
+    values = node_values(queued_set=True, queued_left_images=3, map_state="fusing", tally=tally, motion_age_s=0.256,
+                         clock="running")
+    assert list(values.values()) == ["1", "3", "fusing", "3", "0.26", "contact plane (map)", "running"]
+
+
+def test_node_diagnostics_count_late_and_failed_frames_and_append_the_node_values() -> None:
+    lines: list[str] = []
+    status = NodeDiagnostics("bm", DiagnosticsConfig(), lines.append)
+    assert not status.late(1_000_000_000, 0.05, 0.1)
+    assert status.late(1_000_000_000, 0.25, 0.1)
+    assert status.health.dropped_stale == 1 and status.health.problems["stale output"] == 1
+    status.frame_failed(ImuStale("no IMU within 0.1 s"), earlier_pass=False)
+    status.frame_failed(ImuStale("no IMU within 0.1 s"), earlier_pass=True)  # the clock jumped back meanwhile
+    status.frame_failed(RuntimeError("the accelerator went away"), earlier_pass=True)
+    h = status.health
+    assert (h.dropped_invalid, h.dropped_sync) == (2, 1)
+    assert h.problems["imu stale"] == 1 and h.last_error == "backend error: RuntimeError: the accelerator went away"
+    assert len(lines) == 3  # one line per kind
+    snapshot = status.snapshot(input_hint="nothing publishes /left", queued_set=False, queued_left_images=2,
+                               map_state="fusing", motion_age_s=None, now_ns=5)
+    assert list(snapshot.values)[-7:] == ["queued_sets", "queued_left_images", "map", "map_frames_fused",
+                                          "motion_age_s", "preview_reference", "clock"]
+    assert snapshot.values["queued_left_images"] == "2" and snapshot.values["clock"] == "running"
+    assert "nothing publishes /left" in snapshot.checks[0].message
+    status.configure("sgbm", DiagnosticsConfig(log_throttle_s=0.0, window_s=2.0))
+    assert status.health.backend == "sgbm" and status.health.window_s == 2.0
+    status.frame_failed(RuntimeError("again"), earlier_pass=False)
+    assert len(lines) == 4  # no throttle now
