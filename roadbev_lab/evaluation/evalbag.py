@@ -7,13 +7,15 @@ topic                                  type                            per
 =====================================  ==============================  ==========================
 /stereo/left/image_rect                sensor_msgs/Image (rgb8)        frame
 /stereo/right/image_rect               sensor_msgs/Image (rgb8)        frame
-  (``.../image_rect/compressed``, sensor_msgs/CompressedImage jpeg, with ``compressed=True``)
 /stereo/left/camera_info               sensor_msgs/CameraInfo          frame (stamped like it)
 /stereo/right/camera_info              sensor_msgs/CameraInfo          frame
 /imu/data                              sensor_msgs/Imu                 IMU sample (100 Hz)
 /ground_truth/elevation                grid_map_msgs/GridMap           frame (layer elevation)
 /roadbev/grid_config                   std_msgs/String (JSON)          once, latched
 =====================================  ==============================  ==========================
+
+With ``compressed=True`` the images are ``.../image_rect/compressed`` (sensor_msgs/CompressedImage,
+jpeg).
 
 ``/roadbev/grid_config`` is a transient-local ("latched") message written first: JSON with the
 ``grid`` (every :class:`GridSpec` field), the ``camera`` (:class:`StereoCamera`) and the
