@@ -1,9 +1,10 @@
-# The two commands of the README: `make demo` (the main job) and `make test` (`make lint` for CI).
+# The two commands of the README: `make demo` (the main job) and `make test` (`make lint` and
+# `make docs` for CI).
 # Each one sets up ./.venv first (scripts/setup_venv.sh; a no-op when nothing changed).
 PY := .venv/bin/python
 export PYTHONUNBUFFERED := 1
 
-.PHONY: setup demo test lint bench
+.PHONY: setup demo test lint docs bench
 
 setup:
 	@scripts/setup_venv.sh
@@ -21,6 +22,12 @@ lint: setup
 	$(PY) -m mypy
 	cd launch && $(abspath $(PY)) -m mypy --config-file ../mypy.ini --cache-dir ../.mypy_cache \
 		--no-warn-unused-configs roadbev.launch.py
+
+# The Sphinx documentation (docs/, the ROS 2 convention: rosdoc2 builds the same project) into
+# docs/_build/html; every warning is an error (-W), all of them reported (--keep-going); read afresh
+# every time (-E): the API pages depend on the code, which Sphinx does not watch.
+docs: setup
+	$(PY) -m sphinx -E -W --keep-going -q -b html docs docs/_build/html
 
 bench: setup
 	$(PY) -m benchmarks.run_all

@@ -20,7 +20,7 @@ import importlib
 import math
 import string
 import sys
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from pathlib import Path
 from typing import NoReturn
 
@@ -28,8 +28,8 @@ from roadbev_core.errors import RoadbevError
 from roadbev_lab.progress import progress_bar
 
 __all__ = [
-    "COMMANDS", "CommandError", "add_output_flags", "error_line", "list_item", "main", "output_path", "progress_bar",
-    "seconds", "shows_progress", "topic_name", "version", "warn",
+    "COMMANDS", "CommandError", "add_output_flags", "error_line", "full_parser", "list_item", "main", "output_path",
+    "progress_bar", "seconds", "shows_progress", "topic_name", "version", "warn",
 ]
 
 # name -> one-line help (the module docstring says more)
@@ -160,14 +160,15 @@ class _OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def _build_parser(chosen: str | None) -> argparse.ArgumentParser:
+def _build_parser(chosen: Collection[str]) -> argparse.ArgumentParser:
+    """The parser with the arguments of the ``chosen`` commands; the others get only their
+    one-line help."""
     parser = _OneLineParser(prog="roadbev", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"roadbev {version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    # Only the chosen command's module is imported: the others show their one-line help.
     for name, help_text in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
-        if name == chosen:
+        if name in chosen:
             try:
                 module = _load(name)
             except ModuleNotFoundError as exc:
@@ -180,13 +181,20 @@ def _build_parser(chosen: str | None) -> argparse.ArgumentParser:
     return parser
 
 
+def full_parser() -> argparse.ArgumentParser:
+    """The parser of ``roadbev`` with every command's arguments (the documentation's; a command
+    line builds only its own command's, so that ``roadbev --help`` stays fast)."""
+    return _build_parser(COMMANDS)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args_list = list(sys.argv[1:] if argv is None else argv)
     chosen = next((a for a in args_list if not a.startswith("-")), None)
     if chosen is not None and chosen not in COMMANDS:
         print(f"roadbev: error: unknown command {chosen!r} (choose from {', '.join(COMMANDS)})", file=sys.stderr)
         return 2
-    parser = _build_parser(chosen)
+    # Only the chosen command's module is imported: the others show their one-line help.
+    parser = _build_parser(() if chosen is None else (chosen,))
     args = parser.parse_args(args_list)
     if args.command is None:
         parser.print_help()

@@ -7,7 +7,6 @@ topic                                  type                            per
 =====================================  ==============================  ==========================
 /stereo/left/image_rect                sensor_msgs/Image (rgb8)        frame
 /stereo/right/image_rect               sensor_msgs/Image (rgb8)        frame
-  (``.../image_rect/compressed``, sensor_msgs/CompressedImage jpeg, with ``compressed=True``)
 /stereo/left/camera_info               sensor_msgs/CameraInfo          frame (stamped like it)
 /stereo/right/camera_info              sensor_msgs/CameraInfo          frame
 /imu/data                              sensor_msgs/Imu                 IMU sample (100 Hz)
@@ -18,6 +17,9 @@ topic                                  type                            per
 The sensor topics are the node's (:class:`roadbev_core.config.TopicsConfig`, its defaults when
 writing); ``/ground_truth/elevation``, ``/roadbev/grid_config`` and ``/tf_static`` are the bag's
 own (:class:`BagTopics`).
+
+With ``compressed=True`` the images are ``.../image_rect/compressed`` (sensor_msgs/CompressedImage,
+jpeg).
 
 ``/roadbev/grid_config`` is a transient-local ("latched") message written first: JSON with the
 ``grid`` (every :class:`GridSpec` field), the ``camera`` (:class:`StereoCamera`) and the

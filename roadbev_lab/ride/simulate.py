@@ -190,8 +190,8 @@ def preview_feedforward(previews: Sequence[TimedPreview], road: WheelRoad, truth
     """The preview term of the controller at every step of ``road`` fed by ``previews``.
 
     Returns:
-        (feedforward [J] (N), covered [J] bool: a held message gave the road velocity at that
-        step's own point when the wheel got there).
+        (feedforward [J] (N), covered [J] bool, true where a held message gave the road velocity
+        at that step's own point when the wheel got there).
     """
     ctl = settings.controller
     dt = ctl.dt

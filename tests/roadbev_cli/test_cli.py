@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import argparse
 import subprocess
 import sys
 from pathlib import Path
@@ -206,3 +207,24 @@ def test_every_option_has_help_and_the_output_flags_are_spelled_one_way(name: st
     options = {o for group in groups for a in group._actions for o in a.option_strings}
     if "progress_bar(" in source or "progress=shows_progress" in source:  # the command draws a bar
         assert "--no-progress" in options, f"roadbev {name} draws a progress bar without --no-progress"
+
+
+def _options(parser: argparse.ArgumentParser) -> dict[str, list[str]]:
+    """Every command's option strings and destinations, by command (sub-commands too)."""
+    out: dict[str, list[str]] = {}
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                out[name] = sorted(o or a.dest for a in sub._actions for o in a.option_strings or [""])
+                out.update({f"{name} {k}": v for k, v in _options(sub).items()})
+    return out
+
+
+def test_the_full_parser_holds_every_command_as_its_own_command_line_builds_it() -> None:
+    full = _options(cli.full_parser())
+    assert set(cli.COMMANDS) <= set(full)
+    for name in cli.COMMANDS:
+        alone = _options(cli._build_parser((name,)))
+        assert {k: v for k, v in full.items() if k == name or k.startswith(f"{name} ")} == {
+            k: v for k, v in alone.items() if k == name or k.startswith(f"{name} ")}
+        assert len(full[name]) > 1, f"roadbev {name} has no arguments in the full parser"
