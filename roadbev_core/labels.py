@@ -3,7 +3,7 @@
 The paper (section 3): points in the road frame are grouped into the 3 x 3 cm cells of the grid;
 a cell's label is the mean z of its points; the mask marks cells with at least one point.
 Vectorized with ``np.bincount``, far faster than a per-point loop (``benchmarks/bench_labels.py``
-compares the two; figures in ``docs/notes/tuning.md``).
+compares the two; figures in ``docs/results/tuning.md``).
 """
 
 from __future__ import annotations

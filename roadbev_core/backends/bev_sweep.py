@@ -54,7 +54,7 @@ DEFAULT_Z_STEP = 0.02  # m: the sweep step when SweepParams.z_step is None (see 
 @dataclass(frozen=True)
 class SweepParams:
     """Settings of the sweep (defaults chosen with ``benchmarks/tune_bev_sweep.py``; its figures
-    are in ``docs/notes/tuning.md``).
+    are in ``docs/results/tuning.md``).
 
     The defaults were chosen on the tuning frames (seeds 200,000+, never the evaluation frames) of
     scene version 1 (``roadbev_lab.training.datasets.SCENE_VERSION``, the clean appearance) and

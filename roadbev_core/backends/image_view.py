@@ -255,7 +255,7 @@ class ImageViewStereo:
 
 # Defaults per matcher, chosen on tuning frames (seeds 200,000+) of the clean appearance, before
 # scene version 2; benchmarks/tune_bev_sweep.py compares them with other settings
-# (docs/notes/tuning.md). bm: block 11 with a stricter uniqueness was at least as accurate as
+# (docs/results/tuning.md). bm: block 11 with a stricter uniqueness was at least as accurate as
 # block 9, at more coverage; block 15 covered more but was less accurate. sgbm: the 3-way mode
 # with block 7 and a stricter uniqueness was far more accurate than the 5-path mode with block 5,
 # at less coverage.
