@@ -121,7 +121,7 @@ def test_replay_into_the_node_and_record(user_folder: Path, shell: list[subproce
     diagnostics = [m.msg for m in bag.read_messages(recorded, ["/diagnostics"])]
     final = diagnostics_values(diagnostics[-1])
     outputs = int(final["outputs"])
-    drops = sum(int(final[k]) for k in ("dropped_busy", "dropped_sync", "dropped_invalid"))
+    drops = sum(int(final[k]) for k in ("dropped_busy", "dropped_sync", "dropped_invalid", "dropped_stale"))
     # every frame of the bag reached the node, and each is an output or a counted drop
     assert int(final["frames_in"]) == SAMPLE_FRAMES, final
     assert outputs + drops == SAMPLE_FRAMES, final
