@@ -266,8 +266,8 @@ def main(argv: list[str] | None = None) -> int:
     table = summarise(results)
     data = {
         "what": "preview at arrival of node configurations (fused map; per_frame: map off; the error budget's "
-                "stages), each at its latency measured in the node (contract: Drive bags and the evaluation of "
-                "previews); grid = the per-frame elevation metrics of the drive frames; map = the fused map against "
+                "stages), each at its latency measured in the node (docs/interface/evaluation.md: Preview at "
+                "arrival); grid = the per-frame elevation metrics of the drive frames; map = the fused map against "
                 "the true road under the car, time-averaged",
         "command": "python -m benchmarks.bench_arrival " + " ".join(argv if argv is not None else sys.argv[1:]),
         "duration_s": args.duration,

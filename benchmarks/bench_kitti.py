@@ -1,7 +1,7 @@
 """Real-frame benchmark: every backend on bags made from the three KITTI frames.
 
-The frames (``../shared/realdata/kitti``, SOURCES.md there) are a *test set*: nothing is tuned
-on them. For each frame this script does what a user with a LiDAR would do:
+The frames (at ``KITTI``, beside the repository; :func:`roadbev_lab.data.kitti.load_frames`) are
+a *test set*: nothing is tuned on them. For each frame this script does what a user with a LiDAR would do:
 
 1. fit the camera's roll, pitch and height over the road robustly on the ground-truth points
    under the window (``roadbev_lab.data.kitti.fit_road_pose``): ``base_height`` and the attitude the
@@ -14,10 +14,10 @@ on them. For each frame this script does what a user with a LiDAR would do:
 3. run every backend through ``roadbev_lab.evaluation.frames.evaluate`` on the labelled bag, and score
    the flat prior (elevation 0 everywhere: the fitted plane) on the same cells.
 
-Window: x 6.5-18.5 m, y -2..2 m, 0.1 m cells (KITTI cameras look horizontally from ~1.65 m, so
-the nearest road in the images is ~5.9 m away). The GT's own noise is about 1 cm per distance
-band (SOURCES.md): differences below ~1 cm are within it; coverage, bias, gross failures and
-whether sigma is honest are what these frames measure.
+Window: x 6.5-18.5 m, y -2..2 m, 0.1 m cells (KITTI cameras look horizontally from ~1.65 m, so the
+nearest road in the images is ~5.9 m away). The GT's own noise is about 1 cm per distance band (a
+9x9 ZNCC of the right image against the left around each GT road point): differences below ~1 cm are
+within it; coverage, bias, gross failures and whether sigma is honest are what these frames measure.
 
 Run: ``python -m benchmarks.bench_kitti`` -> ``benchmarks/results/kitti.json`` (+ a Markdown
 table on stdout).
@@ -47,7 +47,8 @@ BACKENDS = ("bev_sweep", "bm", "sgbm", "stereo", "mono")
 STAMP_NS = 1_317_000_000_000_000_000
 GT_NOISE_CAVEAT = (
     "The ground truth's own elevation error is about 1 cm per distance band on these frames "
-    "(ZNCC check in ../shared/realdata/kitti/SOURCES.md); differences below ~1 cm are within it. "
+    "(a 9x9 ZNCC of the right image against the left around each ground-truth road point); "
+    "differences below ~1 cm are within it. "
     "Coverage, bias, gross failures and the honesty of sigma are what these frames measure."
 )
 

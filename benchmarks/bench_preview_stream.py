@@ -9,9 +9,9 @@ A drive bag where the car rides on its road (``bench_node``'s: 10 m/s, 10 Hz cam
 with potholes and speed bumps, ``/odom`` and ``/tf_static``) is replayed with ``--clock`` into
 three processes started as docs/tutorials/preview.md starts them: ``roadbev node`` (its defaults: the fused map
 on), ``roadbev_preview_controller`` and ``roadbev record``. From the recording: every preview's
-frame, reference, contact-plane source, vehicle speed and times of arrival (the contract's one
-stream: all in ``base_link`` against the contact plane, each with a finite speed and times of
-arrival), the controller's last diagnostics (messages received and refused) and the median and
+frame, reference, contact-plane source, vehicle speed and times of arrival (one reference per
+drive, docs/concepts/preview.md: all in ``base_link`` against the contact plane, each with a
+finite speed and times of arrival), the controller's last diagnostics (messages received and refused) and the median and
 p95 of the fused map's ``uncertainty`` layer per message (bounded, and inside the shipped viewers'
 0-2 cm colour range). Writes ``benchmarks/results/preview_stream.json``.
 """

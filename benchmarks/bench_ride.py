@@ -12,7 +12,7 @@ the true state and one preview source (rows):
   stamp, held from stamp + ``--latency``): what the window alone allows;
 * ``map_plane``: a perfect fused map's previews (contact-plane reference, from the front tyre
   contact to the window's far edge, one per frame), read without the plane's attitude, and
-  ``map_plane_attitude``: the same with the true plane's slopes undone (what the contract's
+  ``map_plane_attitude``: the same with the true plane's slopes undone (what the
   contact-plane fields in ``RoadPreview`` are for);
 * per **candidate** (``--candidates NAME=BACKEND[:PARAM=VALUE,...]``, a configuration of the
   node, :mod:`benchmarks.preview_budget`): its fused-map previews as the node makes them on the

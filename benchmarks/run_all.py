@@ -194,7 +194,7 @@ def run_table(
     reliability.png."""
     from tqdm import tqdm
 
-    grid = GridSpec()  # the contract's default grid and the RSRD half-resolution rig
+    grid = GridSpec()  # the interface's default grid and the RSRD half-resolution rig
     t0 = time.perf_counter()
     if scene_cache:
         samples = scene_samples(range(EVAL_SEED_BASE, EVAL_SEED_BASE + frames), grid, scene_cache, appearance)

@@ -1,7 +1,7 @@
 """``sensor_msgs/CameraInfo`` <-> :class:`roadbev_core.config.StereoCamera`.
 
 The pipeline works on rectified images, so the projection matrix ``P`` is what counts
-(contract): K is taken from the left ``P``; the baseline from the right ``P`` as
+(docs/interface/topics.md): K is taken from the left ``P``; the baseline from the right ``P`` as
 ``B = -P[3] / P[0]`` (ROS: ``Tx = -fx' * B``). The checks make sure the pair really is a
 rectified stereo pair: equal sizes and equal rectified intrinsics, a left ``P`` without
 translation, a right ``P`` shifted along x only.

@@ -1,6 +1,6 @@
 """Elevation maps <-> ``grid_map_msgs/GridMap`` (grid_map 2.2, ROS 2 Jazzy).
 
-grid_map's conventions, which the contract adopts: cell (0, 0) is the corner at
+grid_map's conventions, which the interface adopts (docs/interface/frames-and-grid.md): cell (0, 0) is the corner at
 (+length_x/2, +length_y/2) from the map centre, rows run toward -x and columns toward -y, so a
 ``[n_rows, n_cols]`` array of :class:`roadbev_core.config.GridSpec` (row 0 farthest, column 0
 leftmost) is sent as it is. Each layer is a ``std_msgs/Float32MultiArray`` stored column-major
@@ -177,7 +177,7 @@ def grid_map_message_at(
 
 
 def fused_map_message(window: MapWindow, factory: MessageFactory, *, frame_id: str) -> Any:
-    """The fused road map (contract ``/roadbev/map``): layers elevation, uncertainty,
+    """The fused road map (``/roadbev/map``, docs/interface/topics.md): layers elevation, uncertainty,
     observations and age of a :class:`roadbev_core.fusion.MapWindow` (and datum_uncertainty, the
     part of uncertainty nearby cells share), in ``frame_id`` (odom)."""
     n_rows, n_cols = window.elevation.shape
@@ -210,7 +210,8 @@ def elevation_grid_map(
     stamp_ns: int,
     frame_id: str = ROAD_FRAME,
 ) -> Any:
-    """The contract's elevation map: layers ``elevation`` (+ ``uncertainty``), basic ``elevation``."""
+    """The per-frame elevation map (docs/interface/topics.md): layers ``elevation`` (+ ``uncertainty``),
+    basic ``elevation``."""
     layers = {"elevation": elevation}
     if uncertainty is not None:
         layers["uncertainty"] = uncertainty
@@ -369,7 +370,7 @@ def grid_map_to_arrays(msg: Any, base: GridSpec | None = None) -> GridMapData:
     Args:
         msg: a ``grid_map_msgs/GridMap`` (rclpy, rosbags or mcap_ros2 object).
         base: where the grid's non-horizontal fields (base_height, z range, class bins) come
-            from; the contract defaults when None.
+            from; the interface's defaults when None.
 
     Raises:
         MessageError: an info that is not a grid, layer names and data that disagree in

@@ -1,8 +1,8 @@
 """``sensor_msgs/Imu`` <-> orientation quaternions (the attitude maths is :mod:`roadbev_core.attitude`).
 
-Contract: ``orientation`` is the IMU body frame (x forward, y left, z up) relative to a gravity
-aligned ENU frame; only roll and pitch are used; ``imu_to_camera_rpy_deg`` is the rotation from
-the IMU body frame to the camera body frame (see
+The interface (docs/interface/frames-and-grid.md): ``orientation`` is the IMU body frame (x forward,
+y left, z up) relative to a gravity aligned ENU frame; only roll and pitch are used;
+``imu_to_camera_rpy_deg`` is the rotation from the IMU body frame to the camera body frame (see
 :func:`roadbev_core.geometry.attitude_from_quaternion`). The attitude at an image stamp is
 interpolated by :class:`roadbev_core.attitude.ImuBuffer`, for the node and the bag readers alike.
 """

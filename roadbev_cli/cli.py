@@ -1,4 +1,4 @@
-"""The ``roadbev`` entry point: one command, sub-commands per job (contract, "Command line").
+"""The ``roadbev`` entry point: one command, sub-commands per job (docs/interface/command-line.md).
 
 Each sub-command lives in ``roadbev_cli/commands/<name>.py`` with ``HELP`` (one line),
 ``add_arguments(parser)`` and ``run(args) -> int``; modules are imported only when their command

@@ -1,8 +1,8 @@
 """Ego-motion: the planar pose of ``base_link`` in ``odom`` at any frame stamp.
 
-Contract, "Vehicle, odometry, TF and the fused road map": the vehicle's own odometry
-(``nav_msgs/Odometry``, ``odom`` -> ``base_link``, planar, drifting) gives x, y and yaw; where
-only a speed is known, the pose is dead reckoned from it and the IMU's yaw. Vertical motion
+The vehicle's own odometry (``nav_msgs/Odometry``, ``odom`` -> ``base_link``, planar, drifting;
+docs/interface/topics.md, "The node's inputs", and docs/concepts/fused_map.md) gives x, y and yaw;
+where only a speed is known, the pose is dead reckoned from it and the IMU's yaw. Vertical motion
 (heave, pitch, roll over bumps) is never taken from here: the fused map estimates it.
 
 :class:`EgoMotion` keeps recent odometry samples and answers the pose at a stamp by linear

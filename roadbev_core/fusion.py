@@ -1,6 +1,6 @@
 """The road map that follows the wheels: per-frame estimates fused over time in ``odom``.
 
-Contract, "Vehicle, odometry, TF and the fused road map". Each frame's estimate (elevation and
+docs/concepts/fused_map.md explains it. Each frame's estimate (elevation and
 1-sigma on the grid, in the road frame ``base_height`` below the camera) is placed in ``odom``
 with the planar pose of ``base_link`` from the odometry and the camera's roll and pitch from the
 IMU, aligned with what the map already holds, and fused cell by cell::
@@ -381,7 +381,7 @@ class MapWindow(NamedTuple):
     datum_uncertainty: np.ndarray | None = None
 
     def layers(self) -> dict[str, np.ndarray]:
-        """The contract's layers by name (and ``datum_uncertainty`` when known)."""
+        """The map's layers (docs/interface/topics.md) by name (and ``datum_uncertainty`` when known)."""
         layers = {"elevation": self.elevation, "uncertainty": self.uncertainty, "observations": self.observations,
                   "age": self.age}
         if self.datum_uncertainty is not None:

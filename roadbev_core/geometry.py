@@ -1,6 +1,6 @@
 """Projection geometry: camera attitude, the road frame, voxel centres and their projection.
 
-Frames (``shared/design/contract.md``):
+Frames (docs/interface/frames-and-grid.md):
 
 * camera optical frame: z forward, x right, y down (OpenCV);
 * camera body frame: x forward, y left, z up (REP-103), same origin;

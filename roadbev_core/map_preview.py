@@ -1,16 +1,16 @@
 """The preview a controller uses: wheel-track profiles read from the fused map.
 
-Contract, "Preview from the fused map". For each wheel track of the front axle (and the rear
-axle with ``preview.rear_axle``), samples every ``preview.spacing_m`` from the tyre's contact
-point forward to the map's far edge, x ahead of ``base_link``'s origin along its heading, each
-the mean height over the tyre's footprint (``tyre_width_m`` across, one spacing along; at least
-half of it known, else NaN), **relative to the contact plane**: the least-squares plane through
-the four tyre contacts on the map at the stamp (heights measured vertically), so body heave,
-pitch and roll never appear as road. The plane itself travels with the profiles
-(:class:`roadbev_core.preview.ContactPlane`).
+As docs/concepts/preview.md ("`contact_plane`: the preview from the fused map") defines it: for each
+wheel track of the front axle (and the rear axle with ``preview.rear_axle``), samples every
+``preview.spacing_m`` from the tyre's contact point forward to the map's far edge, x ahead of
+``base_link``'s origin along its heading, each the mean height over the tyre's footprint
+(``tyre_width_m`` across, one spacing along; at least half of it known, else NaN), **relative to the
+contact plane**: the least-squares plane through the four tyre contacts on the map at the stamp
+(heights measured vertically), so body heave, pitch and roll never appear as road. The plane itself
+travels with the profiles (:class:`roadbev_core.preview.ContactPlane`).
 
 The plane is the plain least-squares plane through the four contacts (each counts the same, as
-the contract defines it); their sigmas set its covariance only. When the map lacks one contact
+the interface defines it); their sigmas set its covariance only. When the map lacks one contact
 (a kerb top above the grid's height range, a cell the backend declined), the fourth is stood in
 from the body's attitude (the IMU's) through the other three, with a sigma of the suspension's
 travel (3 cm). Until the map holds three of the contacts (the first metres of a drive: the rear
@@ -80,7 +80,7 @@ def contact_plane_fit(points: np.ndarray, sigmas: np.ndarray, prior: tuple[np.nd
     """The plane ``z = p0 + p1 x + p2 y`` through points [K, 3] (x, y relative to a nearby
     origin) with 1-sigma heights [K].
 
-    Without a prior it is the contract's contact plane: the least-squares plane in which every
+    Without a prior it is the interface's contact plane: the least-squares plane in which every
     point counts the same, its covariance propagated from the sigmas. Weighting the points by
     their sigmas would move the plane itself, not only its noise, whenever the contacts are not
     coplanar (one wheel on a bump or a kerb), so that it no longer estimates the plane a
@@ -143,7 +143,7 @@ def contact_plane_on_map(fused: FusedMap, placement: FramePlacement, vehicle: Ve
     known = np.isfinite(wz) & np.isfinite(wsig) & (wsig > 0)
     dx, dy = wx - base.x, wy - base.y
     if known.sum() == 3:
-        # The contract's plane runs through four contacts; the map lacks one (a kerb top the
+        # The interface's plane runs through four contacts; the map lacks one (a kerb top the
         # backend declined, a hole). Three points alone would give the plane through them, degrees
         # off whenever the fourth stands on a step. Stand the fourth in from the body's attitude
         # (the IMU's) through the three, with the suspension's travel as its sigma.

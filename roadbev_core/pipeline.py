@@ -476,9 +476,9 @@ class Pipeline:
                    ) -> tuple[PreviewProfiles | None, MapWindow | None, FrameFusion | None, PlanarPose | None] | None:
         """Fuse the estimate and read the preview off the map (None: the map is off).
 
-        With the map on every preview is a contact-plane one in ``base_link`` (one stream, the
-        contract's "One preview stream"): before the map holds three tyre contacts its plane is
-        the road's ahead (``source`` ``"road"``) or the body's (``"body"``), with that plane's
+        With the map on every preview is a contact-plane one in ``base_link`` (one stream:
+        docs/concepts/preview.md, "One reference per drive"): before the map holds three tyre
+        contacts its plane is the road's ahead (``source`` ``"road"``) or the body's (``"body"``), with that plane's
         sigma; a frame without a pose (stale odometry: counted in ``map_skipped``) is not fused
         and its preview comes from this frame alone (:meth:`_frame_only_preview`).
         """

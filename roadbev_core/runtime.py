@@ -4,7 +4,7 @@
   its slowest thread, and a node's executor thread needs a core for the callbacks: on a 2-core
   CPU one torch thread runs bev_sweep faster inside the node than two.
 * denormals: random or lightly trained weights produce denormal floats that make CPU inference
-  several times slower and erratic (``shared/design/cpu-sizing.md``); flushing them to zero is a
+  several times slower and erratic; flushing them to zero is a
   per-thread CPU flag, so it is set in every thread that runs a backend.
 """
 

@@ -1,11 +1,11 @@
 """The vehicle: ``base_link``, its wheels and where the left camera sits on it.
 
-The vehicle's geometry is :class:`roadbev_core.config.VehicleConfig` (the config tree's section,
-the one vehicle type). Contract, "Vehicle, odometry, TF and the fused road map": ``base_link`` is the vehicle body in
-REP-103 axes (x forward, y left, z up) with its origin at the centre of the rear axle on the road
-plane at static ride height. The parameters ``vehicle.wheelbase_m``, ``vehicle.track_width_m`` and
-``vehicle.camera_position_m`` (the left optical centre in ``base_link``) keep their contract names
-here (without the ``vehicle.`` prefix).
+The vehicle's geometry is :class:`roadbev_core.config.VehicleConfig` (the config tree's section, the
+one vehicle type). As docs/interface/frames-and-grid.md ("Frames and signs") defines it,
+``base_link`` is the vehicle body in REP-103 axes (x forward, y left, z up) with its origin at the
+centre of the rear axle on the road plane at static ride height. The parameters
+``vehicle.wheelbase_m``, ``vehicle.track_width_m`` and ``vehicle.camera_position_m`` (the left
+optical centre in ``base_link``) keep their interface names here (without the ``vehicle.`` prefix).
 
 Poses are ``(position [3], R [3, 3])`` pairs taking ``base_link`` coordinates to the parent frame
 (``p_parent = R @ p_base + position``). Pure numpy; shapes in the comments.

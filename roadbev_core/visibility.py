@@ -13,7 +13,7 @@ alone, for any backend:
   (:mod:`roadbev_core.uncertainty`): a plateau at the crest's height cannot be told from a road
   that drops back out of view.
 
-Road frame (contract): x forward, y left, z up; the left camera at (0, 0, ``base_height``), the
+Road frame (docs/interface/frames-and-grid.md): x forward, y left, z up; the left camera at (0, 0, ``base_height``), the
 right one ``baseline`` to its right at y = -baseline (roll ignored: a few mm at the grid's far
 end). Grid order: row 0 farthest, col 0 leftmost.
 """

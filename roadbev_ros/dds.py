@@ -1,7 +1,7 @@
 """The Fast DDS profile that lets large images through, and the environment that selects it.
 
 Fast DDS' default shared-memory transport has 512 KB segments and loses most 960x540 images
-(``shared/design/ros2-on-pypi.md``); ``config/fastdds.xml`` gives it a 64 MB segment plus UDPv4.
+(docs/tutorials/your_car.md, "DDS"); ``config/fastdds.xml`` gives it a 64 MB segment plus UDPv4.
 Fast DDS reads the profile named by ``FASTRTPS_DEFAULT_PROFILES_FILE`` (``FASTDDS_...`` in newer
 releases) when the first participant is created, so :func:`use_profile` must run before
 ``rclpy.init``; node, replay, record and the tests all call it. A profile the user already chose

@@ -5,7 +5,7 @@ with hazards"), in the manner of ros2/examples: a small node around the ROS-free
 :class:`roadbev_core.hazard_tracking.HazardTracker`.
 
 * **In**: the fused map (``grid_map_msgs/GridMap`` on ``map_topic``, layers ``elevation`` and
-  ``uncertainty`` in ``odom``, contract ``/roadbev/map``) and, when ``odom_topic`` is not empty,
+  ``uncertainty`` in ``odom``, ``/roadbev/map`` of docs/interface/topics.md) and, when ``odom_topic`` is not empty,
   the vehicle's ``nav_msgs/Odometry`` (``base_link`` in ``odom``): the pose at each map's stamp
   places the front axle (distances and times to arrival) and the wheel tracks (roughness).
   Without odometry the hazards are still tracked, with NaN distances and no roughness.

@@ -8,7 +8,9 @@
 # VENV must already hold the ROS 2 Jazzy wheels of requirements.txt (rosidl generators, ament).
 # Idempotent: re-running re-uses the build folders under VENV/var/roadbev-interfaces/ and only
 # rebuilds what changed. Any failure stops the script with a non-zero exit and says where.
-# See ../shared/design/ros2-on-pypi.md for the measured facts behind the flags.
+# The flags: the packages install into the venv's own prefix with its python (the wheels carry no
+# setup scripts to source), without tests, and scripts/ros_wheels_fix.cmake drops the include
+# paths of the wheels' build container from their exported targets.
 set -euo pipefail
 
 die() { echo "[build_interfaces] ERROR: $*" >&2; exit 1; }

@@ -50,7 +50,7 @@ KITTI = SHARED / "realdata" / "kitti"
 
 @pytest.fixture(scope="session")
 def kitti_dir() -> Path:
-    """The three real KITTI frames (``../shared/realdata/kitti``, a test set: never tune on it)."""
+    """The three real KITTI frames (at ``KITTI``, beside the repository; a test set: never tune on it)."""
     if not (KITTI / "stereo_rcnn_demo" / "demo" / "lidar.bin").is_file():
         pytest.skip(f"real KITTI frames not found at {KITTI}")
     return KITTI

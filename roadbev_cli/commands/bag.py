@@ -10,7 +10,7 @@ message of every sound chunk, byte for byte, on the original topics, types and Q
 cut chunks are left out and counted. It works on unfinished bags (a crashed ``roadbev record``)
 and on damaged ones; on a sound bag it makes an exact copy of the messages.
 
-Both exit 0 when something was readable and 2 when nothing was (contract, "Command line").
+Both exit 0 when something was readable and 2 when nothing was (docs/interface/command-line.md).
 """
 
 from __future__ import annotations

@@ -32,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--backend", default=DEFAULT_BACKEND, metavar="B",
                         help=f"elevation backend of the node (default {DEFAULT_BACKEND})")
     parser.add_argument("--bag", type=Path, default=None, metavar="BAG",
-                        help="any contract evaluation bag (rosbag2 directory or .mcap) instead of the synthetic drive")
+                        help="any evaluation bag (rosbag2 directory or .mcap) instead of the synthetic drive")
     parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic drive (default 0)")
     parser.add_argument("--cache", type=Path, default=None, metavar="DIR",
                         help="cache of synthetic bags (default ./.cache/roadbev)")

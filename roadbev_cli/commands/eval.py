@@ -61,7 +61,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def check_bag_path(path: Path) -> None:
-    """A bag is a directory with metadata.yaml or an .mcap file (contract, "Command line")."""
+    """A bag is a directory with metadata.yaml or an .mcap file (docs/interface/command-line.md)."""
     if not path.exists():
         raise CommandError(f"bag not found: {path}")
     if path.is_dir():
@@ -167,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
               f"{metrics['frames']} frame(s) ran" + (f", outputs in {args.out}" if args.out else
                                                       "; --out OUT.mcap saves the outputs"))
     else:
-        _print_drive_keys(metrics)  # contract, "Drive bags": the previews at the wheels' arrival (and the map)
+        _print_drive_keys(metrics)  # docs/interface/evaluation.md: the previews at the wheels' arrival (and the map)
         bands = ", ".join("-" if b is None else f"{b:.3f}" for b in metrics["band_abs_err_cm"])
         print(f"abs. error per distance band (cm, near to far): {bands}")
         print(

@@ -3,9 +3,9 @@
 With ``--drive`` the car rides on its road (:class:`roadbev_lab.synth.RidingDrive`: suspension,
 ``base_link``, odometry) and the bag is a drive bag (:mod:`roadbev_lab.evaluation.drivebag`): the
 evaluation-bag topics plus ``/odom``, ``/ground_truth/odom``, ``/tf_static`` and
-``/ground_truth/road_map`` (contract, "Drive bags and the evaluation of previews").
+``/ground_truth/road_map`` (docs/interface/bags.md, "Drive bags").
 
-The bag follows the contract's "Evaluation bags" section (see :mod:`roadbev_lab.evaluation.evalbag`):
+The bag follows docs/interface/bags.md, "Evaluation bags" (see :mod:`roadbev_lab.evaluation.evalbag`):
 stereo images (raw rgb8, or JPEG with ``--compressed``), both CameraInfos per frame, the IMU at
 ``--imu-rate`` Hz, ``/ground_truth/elevation`` per frame and ``/roadbev/grid_config``. ``OUT``
 ending in ``.mcap`` gives a single MCAP file, anything else a rosbag2 directory. The same

@@ -77,7 +77,7 @@ def create(name: str, grid: GridSpec | None = None, *, raw: bool = False, **opti
 
     Args:
         name: a backend's name or ``module:attr`` path (:mod:`roadbev_core.backend_plugins`).
-        grid: its grid (the contract's default when None).
+        grid: its grid (the interface's default, docs/interface/frames-and-grid.md, when None).
         raw: the backend's own estimates, without the visibility step and the sigma
             calibration (:class:`RefinedBackend`).
         options: the backend's options.

@@ -15,7 +15,7 @@ texture-less, outside either image, or hidden (its line of sight grazes nearer s
 behind a speed bump, where the sweep would only find the occluder's edge).
 
 Images are pre-filtered (a light Gaussian blur against the bilinear interpolation's pull toward
-whole-pixel disparities, and a high-pass against shading). Pixel convention (contract): pixel
+whole-pixel disparities, and a high-pass against shading). Pixel convention (docs/interface/frames-and-grid.md): pixel
 column i is centred at u = i, so ``grid_sample`` runs with ``align_corners=True`` (normalised -1
 and +1 are the centres of the first and last pixels).
 

@@ -19,7 +19,7 @@ Options:
         a sigma of the grid's whole height range.
 
 Inference folds BatchNorm into the convolutions and runs channels-last with denormals flushed
-(``shared/design/cpu-sizing.md``: both roughly halve CPU time). Cells whose voxels the camera(s) do
+(both roughly halve the backbone's CPU time). Cells whose voxels the camera(s) do
 not see get NaN elevation and uncertainty.
 """
 

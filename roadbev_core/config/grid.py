@@ -2,9 +2,9 @@
 
 Every part of the project (labels, backends, models, node, evaluation, synthetic data) reads the
 grid from a :class:`GridSpec`; nothing else hard-codes a range or a resolution. Defaults follow
-``shared/design/contract.md`` (the paper's reference code).
+docs/interface/frames-and-grid.md ("The BEV grid": the paper's reference code).
 
-Grid layout (contract, grid_map's own order): ``[row, col]`` with row 0 the farthest row and
+Grid layout (the interface's, grid_map's own order): ``[row, col]`` with row 0 the farthest row and
 col 0 the leftmost column (largest y). Row ``i`` is centred at ``x_max - (i + 0.5) * res``,
 column ``j`` at ``y_max - (j + 0.5) * res``.
 """

@@ -1,6 +1,6 @@
 """The one source of truth for the camera rig (:class:`StereoCamera`, pinhole, rectified).
 
-Pixel convention (contract): the centre of pixel column i, row j is at (u, v) = (i, j).
+Pixel convention (docs/interface/frames-and-grid.md): the centre of pixel column i, row j is at (u, v) = (i, j).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ __all__ = ["RSRD_CROP_TOP", "StereoCamera"]
 class StereoCamera:
     """A rectified stereo pair (left camera is the reference; pinhole, no distortion).
 
-    Pixel convention (contract): the centre of pixel column i, row j is at (u, v) = (i, j).
+    Pixel convention (docs/interface/frames-and-grid.md): the centre of pixel column i, row j is at (u, v) = (i, j).
 
     Attributes:
         fx, fy, cx, cy: intrinsics of the rectified left image (pixels).

@@ -72,7 +72,7 @@ MAX_SYNC_SETS = 1_000_000
 # The backend of the node, `roadbev eval` and the demo when none is named: the configuration whose
 # preview the ride benchmark found worth the most (docs/results/preview.md, the ride benchmark).
 DEFAULT_BACKEND = "ensemble"
-# The vehicle body frame (REP-105; Autoware's convention, contract): the frame of contact-plane
+# The vehicle body frame (REP-105; Autoware's convention, docs/interface/frames-and-grid.md): the frame of contact-plane
 # previews and the parent the camera mount is looked up from.
 BASE_FRAME = "base_link"
 
@@ -293,7 +293,7 @@ class PreviewConfig:
 
 @dataclass(frozen=True)
 class MapConfig:
-    """The fused road map in ``odom`` (contract, "Fused map"; roadbev_core.fusion)."""
+    """The fused road map in ``odom`` (docs/concepts/fused_map.md; roadbev_core.fusion)."""
 
     enabled: bool = param("map.enabled", True, "fuse frames into the road map when odometry (or a speed) "
                           "arrives; the preview then comes from the map, relative to the contact plane")
@@ -342,7 +342,7 @@ class MapConfig:
 
 @dataclass(frozen=True)
 class VehicleConfig:
-    """The vehicle body, ``base_link`` at the rear-axle centre on the road (contract, "Vehicle")."""
+    """The vehicle body, ``base_link`` at the rear-axle centre on the road (docs/interface/frames-and-grid.md)."""
 
     wheelbase_m: float = param("vehicle.wheelbase_m", 2.80, "distance from the rear to the front axle (m)",
                                0.5, 10.0)

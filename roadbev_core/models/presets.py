@@ -42,7 +42,7 @@ class ModelConfig:
             over a ``zncc_window`` x ``zncc_window`` BEV window. On a CPU-sized model (half-size
             input, features at 1/2 of it) 1 cm of elevation moves the right-image match by only
             0.04-0.13 feature pixels; the input-resolution channel gives the head a matching cue
-            from the first step (shared/design/cpu-sizing.md: the most accurate cue of its prototypes).
+            from the first step (the cue the training-free ``bev_sweep`` backend matches on).
         zncc_window: BEV window (cells of the internal grid, odd) of the photometric channel.
         zncc_full_resolution: the photometric channel reads the grey frames at their original
             size (``RoadBEV.forward``'s ``grey``) instead of the resized model input. At 7 m, 1 cm
@@ -131,7 +131,7 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
         "stereo": {"feature_stride": 2, "head_width": 32},
         "mono": {"feature_stride": 4, "head_width": 256},
     },
-    # CPU model (shared/design/cpu-sizing.md): B0 on 480x264, C = 16, bilinear sampling,
+    # CPU model: B0 on 480x264, C = 16, bilinear sampling,
     # 40 x 82 x 32 internal voxels upsampled to the output grid; a 3-D head 8 wide keeps stereo
     # above 5 Hz on 2 cores; stereo adds the photometric ZNCC channel (see ModelConfig), read from
     # the full-resolution frames at 2 x 2 points per internal cell (the output grid's cells).

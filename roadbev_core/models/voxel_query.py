@@ -5,7 +5,7 @@ frames for the whole project). Two ways to read the feature map:
 
 * ``bilinear``: sub-pixel ``grid_sample`` at the continuous projection. At this rig's geometry
   1 cm of elevation moves the right-image match by only 0.15-0.5 px, so centimetre accuracy needs
-  sub-pixel sampling (``shared/design/cpu-sizing.md``).
+  sub-pixel sampling (integer sampling at 1/2 feature resolution resolves elevation only in 4-13 cm steps).
 * ``integer``: the paper's indexing, the feature cell holding the projected pixel (floor).
 
 Voxels that project outside the image (or behind the camera) get zero features and are masked.

@@ -1,8 +1,9 @@
 """KITTI frames as RoadBEV inputs: calibration files, disparity ground truth, the road pose.
 
 Pure functions over numpy arrays (no file formats beyond KITTI's text calibration), used by the
-real-frame benchmark and the tests that build bags from ``../shared/realdata/kitti``. Those
-frames are a *test set*: nothing here or elsewhere is tuned on them.
+real-frame benchmark (``benchmarks/bench_kitti.py``) and the tests that build bags from the three
+KITTI frames (the ``kitti_dir`` fixture; they skip without the frames). Those frames are a *test
+set*: nothing here or elsewhere is tuned on them.
 
 * :func:`read_calib`: a KITTI calibration text file (``P0: ...``, ``R0_rect: ...``) -> arrays.
 * :func:`stereo_camera`: the rectified pair of two projection matrices.
@@ -129,7 +130,7 @@ def fit_road_pose(points_cam: np.ndarray, grid: GridSpec, config: LabelConfig | 
 
 
 class KittiFrame(NamedTuple):
-    """One real KITTI stereo frame of ``../shared/realdata/kitti`` with its ground truth.
+    """One real KITTI stereo frame of :func:`load_frames` with its ground truth.
 
     Attributes:
         name: short name of the frame.
@@ -165,10 +166,12 @@ def _disparity(path: Path) -> np.ndarray:
 
 
 def load_frames(root: str | Path) -> list[KittiFrame]:
-    """The three KITTI frames of ``root`` (``../shared/realdata/kitti``; see its SOURCES.md).
+    """The three KITTI frames under ``root``, each in the folder and with the file names of its public
+    source (``sttr_kitti2015``, ``rob501_kitti2012``, ``stereo_rcnn_demo/demo``).
 
     * ``kitti2015_000046``: colour pair, GT from ``disp_occ_0``; the calibration is the 2011_09_26
-      one that ``stereo_rcnn_demo/demo/calib.txt`` carries (SOURCES.md).
+      one that ``stereo_rcnn_demo/demo/calib.txt`` carries (no calibration ships with the frame;
+      1242 x 375 rectified is that raw date's size only).
     * ``kitti2012_000070``: the grey pair (the GT disparity belongs to cameras 0/1), P0/P1.
     * ``kitti_object_lidar``: colour pair and one raw Velodyne scan, ``Tr_velo_to_cam``.
     """

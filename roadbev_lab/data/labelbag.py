@@ -2,7 +2,7 @@
 
 :func:`label_bag` reads a bag with stereo images, CameraInfos, the IMU, a LiDAR
 (``sensor_msgs/PointCloud2``), optionally ``/tf_static`` and odometry (``nav_msgs/Odometry``), and
-writes an evaluation/training bag (contract, "Evaluation bags"): every message of the input except
+writes an evaluation/training bag (docs/interface/bags.md, "Evaluation bags"): every message of the input except
 the LiDAR, plus ``/ground_truth/elevation`` per left image (stamped exactly like it) and
 ``/roadbev/grid_config`` (the grid with its ``base_height``, the rig, the labeller's settings).
 The geometry and the road-surface test are :mod:`roadbev_lab.data.lidar_labels`; the per-cell mean is
@@ -61,7 +61,7 @@ __all__ = [
 
 DEFAULT_LIDAR_TOPIC = "/lidar/points"
 POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
-DEFAULT_CAMERA_POSITION_M = VehicleConfig().camera_position_m  # contract: vehicle.camera_position_m
+DEFAULT_CAMERA_POSITION_M = VehicleConfig().camera_position_m  # the interface's vehicle.camera_position_m
 
 
 class Extrinsic(NamedTuple):

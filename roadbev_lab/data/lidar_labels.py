@@ -7,7 +7,7 @@ The pipeline for one camera frame (all arrays float64 unless said otherwise):
    stamp and ``base_height`` (the road frame: gravity-aligned, ``base_height`` below the camera).
 2. With odometry, scans within ``window_s`` of the frame are moved into the frame's road frame by
    the planar motion of the road frame between the two stamps (:func:`planar_transform`). The
-   odometry is planar (contract: heave, pitch and roll of the body are never given), so every
+   odometry is planar (docs/interface/topics.md: heave, pitch and roll of the body are never given), so every
    moved scan is then aligned vertically to the frame's own scan: the median height difference
    over the cells both hold is taken out (:func:`vertical_offset`).
 3. :func:`road_points` keeps the points of the road surface only (the *road-surface test*):

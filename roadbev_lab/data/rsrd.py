@@ -12,7 +12,7 @@ baseline in millimetres, ``R``/``T`` LiDAR -> left camera, ``Width``, ``Height``
 
 Pickle runs code while it loads, so this module opens only the calibration and sample-info files
 the caller names explicitly (never a path found by searching); pass only files you trust, such
-as the copies pinned in this project's ``shared/rsrd``.
+as the authors' own release.
 
 Each sample becomes a :class:`Frame` cropped to the paper's 960 x 528 (rows 0..527, see
 :meth:`StereoCamera.rsrd_half`), the camera attitude from the LiDAR attitude and extrinsics

@@ -8,7 +8,7 @@ fused map on and off, through :mod:`roadbev_lab.evaluation.offline` (what ``road
 ``--no-map`` run, so the numbers are theirs). From the two runs' outputs it derives:
 
 * the preview at arrival of both front wheels, point by point
-  (:func:`roadbev_lab.evaluation.arrival.arrival_points`, the points behind the contract's keys);
+  (:func:`roadbev_lab.evaluation.arrival.arrival_points`, the points behind the ``preview_at_arrival`` keys);
 * the fused map over the drive (:func:`mosaic`: every cell as the map last held it) with the car's
   path, and the hazards :func:`roadbev_core.hazards.detect_hazards` finds on it against the road's
   true features (:func:`match_hazards`);

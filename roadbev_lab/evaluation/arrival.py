@@ -1,6 +1,6 @@
 """Preview at arrival: a road preview judged when the wheel gets there.
 
-Contract, "Drive bags and the evaluation of previews". For every 3 cm of each front wheel's
+docs/interface/evaluation.md, "Preview at arrival". For every 3 cm of each front wheel's
 actual path (arrivals from the first camera frame + ``lead_time_s`` to the last camera frame +
 ``lead_time_s``), the latest preview message stamped at least ``lead_time_s`` before the wheel
 reaches that point *that has a value there* (an earlier message still counts when a later one
@@ -486,7 +486,7 @@ def preview_at_arrival(
     *,
     frame_stamps_ns: Sequence[int] | None = None,
 ) -> dict[str, Any]:
-    """Score preview messages at the moment each front wheel arrives (contract keys).
+    """Score preview messages at the moment each front wheel arrives (docs/interface/evaluation.md).
 
     Args:
         previews: the messages, any order.
@@ -497,7 +497,7 @@ def preview_at_arrival(
             run from the first + lead to the last + lead.
 
     Returns:
-        The contract's ``preview_at_arrival`` keys (:data:`ARRIVAL_KEYS`; errors in cm, NaN
+        The ``preview_at_arrival`` keys of docs/interface/evaluation.md (:data:`ARRIVAL_KEYS`; errors in cm, NaN
         without a covered point) plus ``covered_points``, ``features_points``,
         ``smooth_points``, ``features_coverage_pct`` and ``per_wheel`` (the same per front wheel).
 
@@ -510,7 +510,7 @@ def preview_at_arrival(
 
 
 def summarise_points(points: Sequence[ArrivalPoints], lead_time_s: float) -> dict[str, Any]:
-    """The contract's keys over :func:`arrival_points` (pooled over the wheels, and ``per_wheel``)."""
+    """The ``preview_at_arrival`` keys over :func:`arrival_points` (pooled over the wheels, and ``per_wheel``)."""
     per_wheel = {p.path.name: _summary(p.error, p.error_contact_plane, p.path.feature, p.known, p.covered, lead_time_s)
                  for p in points}
     cat = {k: np.concatenate([getattr(p, k) for p in points]) for k in ("error", "error_contact_plane", "known",
@@ -547,7 +547,8 @@ def _summary(err: np.ndarray, err_cp: np.ndarray, feature: np.ndarray, known: np
 
 def map_accuracy(windows: Sequence[MapWindow], road_map: RoadMap, truth: Trajectory | None = None,
                  vehicle: VehicleConfig | None = None) -> dict[str, Any]:
-    """The fused map against the true road (contract ``"map"`` keys), time-averaged over frames.
+    """The fused map against the true road, time-averaged over frames (the ``"map"`` keys of
+    docs/interface/evaluation.md).
 
     Per published window: ``abs_err_cm`` over the cells it holds (where the truth is known),
     ``coverage_pct`` the share of the window's cells (with truth) it holds; plus the sigma

@@ -1,4 +1,4 @@
-"""Drive bags (contract, "Drive bags and the evaluation of previews"): writing and reading the truth.
+"""Drive bags (docs/interface/bags.md, "Drive bags"): writing and reading the truth.
 
 A drive bag is an evaluation bag (:mod:`roadbev_lab.evaluation.evalbag`) plus:
 
@@ -51,7 +51,7 @@ __all__ = [
 ]
 
 ODOM_FRAME = "odom"
-# The drive bag's truth (contract); its odometry is on the node's odom_topic and its mount on
+# The drive bag's truth (docs/interface/bags.md); its odometry is on the node's odom_topic and its mount on
 # /tf_static (roadbev_lab.evaluation.evalbag.TF_STATIC_TOPIC).
 GROUND_TRUTH_ODOM_TOPIC = "/ground_truth/odom"
 ROAD_MAP_TOPIC = "/ground_truth/road_map"
@@ -256,7 +256,7 @@ def score_previews(
     """``preview_at_arrival`` of previews made from a drive's frames, against its truth.
 
     Returns:
-        The contract's keys (see :func:`roadbev_lab.evaluation.arrival.preview_at_arrival`) plus
+        The ``preview_at_arrival`` keys (see :func:`roadbev_lab.evaluation.arrival.preview_at_arrival`) plus
         ``notes`` on how the truth was read.
     """
     settings = arrival_settings(config, lead_time_s=lead_time_s, camera_in_base=truth.camera_in_base)

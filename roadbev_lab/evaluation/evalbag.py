@@ -1,6 +1,6 @@
-"""Evaluation bags (contract, "Evaluation bags"): a drive with ground truth, as rosbag2 MCAP.
+"""Evaluation bags (docs/interface/bags.md, "Evaluation bags"): a drive with ground truth, as rosbag2 MCAP.
 
-Topics written by :func:`write_eval_bag` (the contract's defaults):
+Topics written by :func:`write_eval_bag` (the interface's defaults):
 
 =====================================  ==============================  ==========================
 topic                                  type                            per
@@ -31,7 +31,7 @@ CameraInfos by exact stamp, collects the IMU orientations (the attitude at an im
 :class:`roadbev_core.attitude.ImuBuffer`'s, as in the node: :func:`roadbev_core.pipeline.replay`
 feeds them to the pipeline in time order), and takes the horizontal grid from the ground-truth
 GridMap's ``info``. ``base_height`` and the vertical fields come from the grid parameters the
-user gave (:func:`grid_fields`), else from ``/roadbev/grid_config``, else the contract defaults.
+user gave (:func:`grid_fields`), else from ``/roadbev/grid_config``, else the interface's defaults.
 
 A truncated, unfinished or partly damaged bag gives every frame that is readable: damaged chunks
 are skipped (:func:`msg_bridge.bag.read_messages` with ``on_damage="skip"``), an image that does
@@ -79,7 +79,7 @@ __all__ = [
     "write_eval_bag",
 ]
 
-# The evaluation bag's own topics (contract, "Evaluation bags"); the sensor topics are the node's.
+# The evaluation bag's own topics (docs/interface/bags.md, "Evaluation bags"); the sensor topics are the node's.
 GROUND_TRUTH_TOPIC = "/ground_truth/elevation"
 GRID_CONFIG_TOPIC = "/roadbev/grid_config"
 TF_STATIC_TOPIC = "/tf_static"

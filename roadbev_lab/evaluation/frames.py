@@ -56,7 +56,7 @@ __all__ = [
     "to_json",
 ]
 
-# Keys every metrics dict carries (contract, "Command line": roadbev eval --json).
+# Keys every metrics dict carries (docs/interface/evaluation.md: roadbev eval --json).
 CONTRACT_KEYS: tuple[str, ...] = (
     "backend",
     "frames",
@@ -96,7 +96,7 @@ class EvalResult:
 
     Attributes:
         accuracy: the accuracy metrics, typed (the same type the online evaluation reports).
-        metrics: contract keys (:data:`CONTRACT_KEYS`) plus ``labelled_cells``,
+        metrics: the interface's keys (:data:`CONTRACT_KEYS`) plus ``labelled_cells``,
             ``frames_with_truth``, ``timed_frames``, ``pipeline_ms`` (mean per timed frame),
             the calibration of the uncertainty (``sigma_cells`` with a finite uncertainty,
             ``within_1sigma_pct`` / ``within_2sigma_pct`` of them with the error inside 1 / 2

@@ -6,8 +6,8 @@ percentile of the absolute error (a mean can be carried by a few per cent of cel
 percentiles say whether an estimator is broadly better or has a heavier tail). A labelled cell
 without an estimate is *missing*: it lowers ``coverage_pct`` and never counts as zero error.
 
-The reported 1-sigma uncertainty is scored too (contract, "Uncertainty keys in roadbev eval
-JSON"): the share of cells with the error inside 1, 2 and 3 sigma, the share that is *confidently
+The reported 1-sigma uncertainty is scored too (docs/interface/evaluation.md,
+"Uncertainty keys"): the share of cells with the error inside 1, 2 and 3 sigma, the share that is *confidently
 wrong* (error beyond both 3 sigma and 1 cm: a controller trusting sigma would act on them), the
 mean sigma, and a reliability curve (the observed error quantile in bins of predicted sigma: an
 honest sigma puts the 68.3 % quantile of the error on the diagonal).
@@ -40,7 +40,7 @@ N_BANDS = 15
 # Error histogram for the percentiles: 0.001 cm bins up to 100 cm (larger errors share the top bin).
 _HIST_STEP_CM = 0.001
 _HIST_BINS = 100_000
-# An error must exceed 3 sigma *and* this (cm) to count as confidently wrong (contract).
+# An error must exceed 3 sigma *and* this (cm) to count as confidently wrong (docs/interface/evaluation.md).
 CONFIDENT_WRONG_CM = 1.0
 # Predicted-sigma bins of the reliability curve (cm); the last bin is open.
 RELIABILITY_EDGES_CM: tuple[float, ...] = (0.0, 0.1, 0.2, 0.3, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 5.0, math.inf)
@@ -51,7 +51,7 @@ _REL_BINS = 4000
 
 @dataclass
 class Metrics:
-    """Aggregated metrics (JSON keys per the contract)."""
+    """Aggregated metrics (JSON keys per docs/interface/evaluation.md)."""
 
     frames: int
     cells: int
@@ -208,7 +208,7 @@ def _counts(error: np.ndarray, s: np.ndarray) -> np.ndarray:
 
 
 def sigma_metrics(counts: np.ndarray) -> dict[str, float | int]:
-    """The contract's uncertainty keys from summed :func:`sigma_counts` (NaN without any sigma)."""
+    """The uncertainty keys (docs/interface/evaluation.md) from summed :func:`sigma_counts` (NaN without any sigma)."""
     n = int(counts[0])
 
     def pct(value: float) -> float:
@@ -257,7 +257,7 @@ class SigmaAccumulator:
         self._counts += _counts(error, s)
 
     def result(self) -> dict[str, object]:
-        """The contract's uncertainty keys (:func:`sigma_metrics`) and ``reliability``
+        """The uncertainty keys (:func:`sigma_metrics`) and ``reliability``
         (:func:`reliability_curve`, an empty list before any cell with a sigma)."""
         return {**sigma_metrics(self._counts), "reliability": reliability_curve(self._histogram, self._sigma_sum,
                                                                                  self.edges)}

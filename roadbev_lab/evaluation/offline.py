@@ -1,11 +1,11 @@
 """Offline evaluation of a bag: what ``roadbev eval`` runs, also for the demo (no DDS).
 
-:func:`evaluate_bag` reads a contract bag with the user's settings (one
+:func:`evaluate_bag` reads an evaluation bag (docs/interface/bags.md) with the user's settings (one
 :class:`roadbev_core.config.RoadbevConfig`, whose topics read the bag), completes them with the
 bag's grid (the ground truth's GridMap info) into the :class:`roadbev_core.pipeline.Pipeline`'s
 config, mounts the camera from ``/tf_static`` where the bag has it, runs every frame (with the
 bag's odometry: the fused map when it is on) and returns the metrics as ``roadbev eval --json``
-writes them; on a drive bag with ground truth also the contract's ``preview_at_arrival`` (and,
+writes them; on a drive bag with ground truth also the ``preview_at_arrival`` (and,
 with the map, ``map``) keys (:func:`drive_keys`). The command only adds printing, the self-check
 hint and ``--json``; the demo evaluates its drive with the map on and off through the same
 function, so its numbers are ``roadbev eval``'s.
@@ -77,8 +77,8 @@ def _read_failures(samples: Iterable[EvalSample], path: Path) -> Iterator[EvalSa
 
 def drive_keys(path: Path, config: RoadbevConfig, result: EvalResult, lead_time_s: float) -> dict[str, Any]:
     """The pipeline's previews at the wheels' arrival (per frame or from the map: each message
-    says which) and, when the map ran, the fused map against the true road map: the contract's
-    ``preview_at_arrival`` and ``map`` keys.
+    says which) and, when the map ran, the fused map against the true road map: the
+    ``preview_at_arrival`` and ``map`` keys of docs/interface/evaluation.md.
 
     Raises:
         OfflineEvalError: the drive's truth cannot score the previews.
@@ -151,7 +151,7 @@ def prepare_bag(
     if map_enabled and not bag.odometry:
         raise OfflineEvalError(f"--map needs odometry: {path} has none on {bag.topics.odom}")
     map_params = {} if map_enabled is None else {"map.enabled": bool(map_enabled)}
-    # the horizontal grid comes from the ground truth's GridMap info (contract)
+    # the horizontal grid comes from the ground truth's GridMap info (docs/interface/bags.md)
     config = check_config(settings.with_params({**map_params, **bag.grid.to_dict()}))
     pipeline = Pipeline(config)
     if bag.camera_mount is not None:  # /tf_static base_link -> camera wins over vehicle.camera_position_m
@@ -191,7 +191,7 @@ def run_prepared(
             metrics["map_skipped"] = dict(pipeline.map_skipped)
     metrics["lost_frames"] = bag.lost_frames()
     metrics["losses"] = bag.losses()
-    if prepared.drive and metrics.get("frames_with_truth", 0) > 0:  # contract, "Drive bags"
+    if prepared.drive and metrics.get("frames_with_truth", 0) > 0:  # docs/interface/bags.md, "Drive bags"
         metrics.update(drive_keys(path, prepared.config, result, lead_time_s))
     return BagEvaluation(metrics, result, pipeline, bag, prepared.drive)
 

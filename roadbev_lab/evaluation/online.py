@@ -1,8 +1,8 @@
 """Online evaluation: replay -> node (its own process) -> record -> compare with the ground truth.
 
 The same metrics as ``roadbev eval`` (:class:`roadbev_lab.evaluation.metrics.MetricAccumulator` and
-:class:`~roadbev_lab.evaluation.metrics.SigmaAccumulator` over the recorded ``uncertainty`` layer, contract
-keys), but every estimate has travelled over DDS: the bag's input topics are replayed as raw
+:class:`~roadbev_lab.evaluation.metrics.SigmaAccumulator` over the recorded ``uncertainty`` layer, the keys
+of docs/interface/evaluation.md), but every estimate has travelled over DDS: the bag's input topics are replayed as raw
 bytes, the node runs as a separate process (``roadbev node``), its outputs are recorded to an
 MCAP bag, and the recorded elevation maps are matched to ``/ground_truth/elevation`` by stamp.
 
@@ -68,7 +68,7 @@ class OnlineResult:
 
     Attributes:
         accuracy: the accuracy metrics, typed (as the offline :class:`roadbev_lab.evaluation.frames.EvalResult`'s).
-        metrics: the contract keys (as ``roadbev eval``) plus ``mode`` and ``online`` details:
+        metrics: the interface's keys (as ``roadbev eval``) plus ``mode`` and ``online`` details:
             outputs, frames without output, ``latency_ms`` (left image published -> elevation
             map received, over DDS both ways) and the node's last diagnostics.
         recorded: path of the recorded outputs (MCAP).

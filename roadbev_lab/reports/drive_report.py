@@ -192,7 +192,8 @@ def plot_drive_arrival(section: DriveSection, path: str | Path) -> Path:
         ax_e.set_ylabel("error (cm)", fontsize=8)
         ax_h.legend(fontsize=7, loc="upper left", ncol=3)
         ax_e.legend(fontsize=7, loc="upper left", ncol=2)
-    axes[-1].set_xlabel("distance along the wheel's true path (m); shaded: feature points (contract)", fontsize=8)
+    axes[-1].set_xlabel("distance along the wheel's true path (m); shaded: feature points "
+                        "(docs/interface/evaluation.md)", fontsize=8)
     fig.tight_layout()
     out = Path(path)
     fig.savefig(out)
@@ -266,10 +267,10 @@ DRIVE_CAPTIONS: dict[str, str] = {
     "drive_hazards.png": "Hazards: the road's height above its own level (roadbev_core.hazards) on the fused map "
     "and on the true road over the same cells; boxes: detections (red bumps, blue potholes, height in cm); "
     "triangles: the reference features.",
-    "drive_arrival.png": "Preview at arrival (contract): at every 3 cm of each front wheel's true path, the road "
-    "height the latest preview message stamped at least the lead time earlier promised there (its profile plus the "
-    "true height of the reference it declares), map on and off, against the true road; below, the errors the "
-    "metric averages.",
+    "drive_arrival.png": "Preview at arrival (docs/interface/evaluation.md): at every 3 cm of each front wheel's "
+    "true path, the road height the latest preview message stamped at least the lead time earlier promised there "
+    "(its profile plus the true height of the reference it declares), map on and off, against the true road; below, "
+    "the errors the metric averages.",
     "drive_ride.png": "What the preview is worth: the quarter car with the preview LQR (roadbev_core.ride) over the "
     "drive's true road, fed with nothing (passive, no preview), the per-frame previews, the fused map's previews "
     "(their contact plane's attitude undone, as RoadPreview carries it) and the true road (the ceiling).",

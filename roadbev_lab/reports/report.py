@@ -143,7 +143,7 @@ class FrameView:
 
 @dataclass(frozen=True)
 class RunSummary:
-    """Metrics of one backend run (contract JSON keys), labelled for the table."""
+    """Metrics of one backend run (the JSON keys of docs/interface/evaluation.md), labelled for the table."""
 
     label: str
     backend: str
@@ -327,7 +327,7 @@ def _hatch(ax: Any, boxes: list[Rectangle]) -> None:
 
 
 def _confidently_wrong(frame: FrameView) -> np.ndarray | None:
-    """[R, C] bool: cells whose residual exceeds both 3 sigma and the contract's 1 cm."""
+    """[R, C] bool: cells whose residual exceeds both 3 sigma and the interface's 1 cm."""
     if frame.truth is None or frame.sigma is None:
         return None
     with np.errstate(invalid="ignore"):

@@ -1,7 +1,7 @@
 """Ray-casting renderer for synthetic stereo road images.
 
-Each pixel (u, v) shoots a ray through its centre (contract: the centre of column i is at
-u = i), rotated into the road frame with :func:`roadbev_core.geometry.optical_from_road_rotation`
+Each pixel (u, v) shoots a ray through its centre (docs/interface/frames-and-grid.md:
+column i is centred at u = i), rotated into the road frame with :func:`roadbev_core.geometry.optical_from_road_rotation`
 (the same rotation the projection code uses, so rendering and projection agree by
 construction), and is intersected with the height field: the ray is sampled between the heights
 of the highest and lowest displacement (a thin slab around the road plane), the first sample
@@ -103,7 +103,7 @@ class RenderedView(NamedTuple):
 
 def ray_directions(camera: StereoCamera, pose: CameraPose) -> np.ndarray:
     """[H*W, 3] float32 world-frame ray directions, scaled to unit optical z, row-major pixels."""
-    u = (np.arange(camera.width) - camera.cx) / camera.fx  # pixel centres at integers (contract)
+    u = (np.arange(camera.width) - camera.cx) / camera.fx  # pixel centres at integers (the interface's)
     v = (np.arange(camera.height) - camera.cy) / camera.fy
     # road = R^T optical (camera_to_road), then road axes -> world axes by yaw.
     M = optical_from_road_rotation(pose.attitude) @ pose.yaw_matrix().T  # optical row -> world row

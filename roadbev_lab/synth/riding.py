@@ -1,6 +1,6 @@
 """Drives where the car rides on its road: suspension, ``base_link``, odometry, the road map.
 
-Contract, "Drive bags and the evaluation of previews". A :class:`RidingDrive` is a car going
+The drive bags of docs/interface/bags.md ("Drive bags"). A :class:`RidingDrive` is a car going
 along a synthetic road (:func:`roadbev_lab.synth.scene.build_scene`, the same scenes, renderer
 and labels as :class:`roadbev_lab.synth.drive.SyntheticDrive`):
 
@@ -20,7 +20,7 @@ and labels as :class:`roadbev_lab.synth.drive.SyntheticDrive`):
   and cross slope enter through the contacts, so the body leans with the road. It is
   integrated exactly (matrix exponential, zero-order hold) at a time step where the car moves
   at most 1 cm, from static equilibrium.
-* **base_link** (contract): the body frame with its origin at the rear-axle centre at static
+* **base_link** (docs/interface/frames-and-grid.md): the body frame with its origin at the rear-axle centre at static
   ride height: at rest on a flat road it lies on the road. It heaves, pitches and rolls with the
   body; the left camera is fixed to it at ``vehicle.camera_position_m``, turned down by a mount
   pitch (and roll) drawn per drive from the real RSRD rigs; the IMU sits on the camera, aligned

@@ -160,7 +160,7 @@ def _rsrd_samples(rsrd: Path) -> list[dict[str, Any]]:
     out = []
     for f in sorted((rsrd / "sample_info").glob("*/*.pkl")):
         with f.open("rb") as fh:
-            out.extend(pickle.load(fh))  # trusted: pinned files in shared/rsrd
+            out.extend(pickle.load(fh))  # trusted: the pinned copies of the rsrd_dir fixture
     return out
 
 

@@ -20,7 +20,7 @@ def _contacts(front_left_height: float) -> np.ndarray:
 
 def test_the_contact_plane_is_the_contracts_whatever_the_sigmas() -> None:
     # One wheel on a 12 cm kerb, its cell far less certain than the others': a sigma-weighted fit
-    # would all but drop it and tilt the plane by degrees; the contract's plane counts every contact.
+    # would all but drop it and tilt the plane by degrees; the interface's plane counts every contact.
     points = _contacts(0.12)
     sigmas = np.array([0.05, 0.004, 0.004, 0.004])
     coeffs, _ = contact_plane_fit(points, sigmas)

@@ -107,7 +107,7 @@ def test_every_rviz_display_shows_a_topic_and_type_of_the_node(node_graph: dict[
     shown_topics = {d["Topic"]["Value"] for d in rviz_displays() if "Topic" in d}
     assert {config.topics.left_image, config.topics.elevation} <= shown_topics
     manager = yaml.safe_load(RVIZ.read_text())["Visualization Manager"]
-    assert manager["Global Options"]["Fixed Frame"] == "odom"  # contract: the fused map's frame
+    assert manager["Global Options"]["Fixed Frame"] == "odom"  # docs/interface/topics.md: the fused map's frame
     assert manager["Views"]["Current"]["Target Frame"] == "base_link"
 
 
@@ -165,7 +165,7 @@ def test_every_foxglove_panel_shows_a_topic_field_and_layer_of_the_node(node_gra
     # the fused map is coloured by elevation in one view and by uncertainty in the other
     colour = {p: layout["configById"][p]["topics"][NOT_YET]["colorField"] for p in ("3D!elevation", "3D!uncertainty")}
     assert colour == {"3D!elevation": "elevation", "3D!uncertainty": "uncertainty"}
-    for layer in colour.values():  # layers the per-frame grid has too (contract: the map adds more)
+    for layer in colour.values():  # layers the per-frame grid has too (docs/interface/topics.md: the map adds more)
         assert layer in node_graph["layers"][node_graph["config"].topics.elevation]
 
 

@@ -14,7 +14,7 @@ from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.geometry import Attitude, road_to_camera, rsrd_camera_attitude
 from roadbev_lab.data.rsrd import RsrdError, RsrdSet, load_calibration, read_pcd
 
-# The real RSRD half-resolution calibration of 2023-03-17 (shared/rsrd/calib_20230317_half.pkl).
+# The real RSRD half-resolution calibration of 2023-03-17 (the authors' calib_20230317_half.pkl).
 K = np.array([[1004.77867, 0.0, 498.22071], [0.0, 1004.77867, 259.51755], [0.0, 0.0, 1.0]])
 R = np.array([[-0.99998663, -0.00415487, 0.00307773], [-0.00322037, 0.0347713, -0.99939011],
               [0.00404532, -0.99938666, -0.03478422]])

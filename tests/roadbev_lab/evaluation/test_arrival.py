@@ -176,7 +176,7 @@ def test_feature_mask_finds_short_features_and_dilates() -> None:
     idx = np.flatnonzero(feature_mask(h, 0.03))
     assert idx.min() == 200 - 10 and idx.max() == 219 + 10  # dilated by 0.3 m = 10 points
     assert not feature_mask(np.linspace(0.0, 0.2, 400), 0.03).any()  # a grade is no feature
-    # a long step follows the running median (the contract's definition): only its edge zone
+    # a long step follows the running median (docs/interface/evaluation.md's definition): only its edge zone
     # within a window could count, and there the median jumps with it
     step = np.where(np.arange(400) >= 200, 0.03, 0.0)
     assert not feature_mask(step, 0.03).any()

@@ -245,7 +245,7 @@ def test_embedded_attitude_statistics_match_the_real_rsrd_poses(rsrd_dir: Path) 
     per_seq: dict[str, list[tuple[float, float]]] = {}
     for f in sorted((rsrd_dir / "sample_info").glob("*/*.pkl")):
         with f.open("rb") as fh:
-            samples = pickle.load(fh)  # trusted: pinned files in shared/rsrd
+            samples = pickle.load(fh)  # trusted: the pinned copies of the rsrd_dir fixture
         for s in samples:
             day = s["time"][:8]
             if day not in calibs:
