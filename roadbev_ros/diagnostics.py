@@ -23,6 +23,7 @@ from roadbev_core.preview import PreviewError
 
 __all__ = [
     "COMPRESSED_SUFFIX",
+    "DROP_KINDS",
     "Check",
     "ClockWatch",
     "Health",
@@ -43,6 +44,8 @@ __all__ = [
 ]
 
 OK, WARN, ERROR = 0, 1, 2  # diagnostic_msgs/DiagnosticStatus levels
+# The counters of left images that became no output: with ``outputs`` they account for every one.
+DROP_KINDS: tuple[str, ...] = ("dropped_busy", "dropped_sync", "dropped_invalid", "dropped_stale")
 _LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR"}
 
 

@@ -45,6 +45,7 @@ from roadbev_lab.evaluation.evalbag import EvalBag, grid_fields, read_eval_bag
 from roadbev_lab.evaluation.frames import json_safe
 from roadbev_lab.evaluation.metrics import MetricAccumulator, Metrics, SigmaAccumulator
 from roadbev_ros.dds import child_env, init_ros
+from roadbev_ros.diagnostics import DROP_KINDS
 from roadbev_ros.record import Recorder
 from roadbev_ros.replay import header_stamp_ns, replay_bag
 
@@ -126,7 +127,7 @@ class _Watcher:
         """Left images the node has answered or counted as dropped (from its diagnostics)."""
         d = self.diagnostics
         try:
-            return sum(int(d[k]) for k in ("outputs", "dropped_busy", "dropped_sync", "dropped_invalid"))
+            return sum(int(d[k]) for k in ("outputs", *DROP_KINDS))
         except (KeyError, ValueError):
             return 0
 

@@ -23,6 +23,7 @@ from roadbev_lab.evaluation.frames import evaluate
 from roadbev_lab.evaluation.online import evaluate_online, format_online
 from roadbev_lab.synth import DriveConfig, SyntheticDrive
 from roadbev_ros.dds import child_env
+from roadbev_ros.diagnostics import DROP_KINDS
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -88,7 +89,7 @@ def test_timed_replay_every_frame_is_an_output_or_a_counted_drop(ros: object, dr
                       "    diagnostics_period_s: 0.5\n")
     result = evaluate_online(drive_bag, tmp_path / "out", backend="bm", rate=2.0, params_file=params)
     node = result.diagnostics
-    drops = sum(int(node[k]) for k in ("dropped_busy", "dropped_sync", "dropped_invalid"))
+    drops = sum(int(node[k]) for k in DROP_KINDS)
     assert int(node["frames_in"]) == FRAMES
     assert int(node["outputs"]) + drops == FRAMES
     assert result.metrics["online"]["outputs_matched"] == int(node["outputs"])

@@ -8,6 +8,8 @@ from typing import Any
 
 import pytest
 
+from roadbev_ros.diagnostics import DROP_KINDS
+
 from ._ros_harness import MS, START_NS, Harness, wait_for
 
 FRAMES = 1000
@@ -42,7 +44,7 @@ def test_thousand_frames_with_flat_memory(ros: Any) -> None:
                 baseline = rss_bytes()
         elapsed = time.monotonic() - start
         assert wait_for(lambda: h.node.counts()["frames_in"] == h.node.counts()["outputs"]
-                        + sum(h.node.counts()[k] for k in ("dropped_busy", "dropped_sync", "dropped_invalid")), 5.0)
+                        + sum(h.node.counts()[k] for k in DROP_KINDS), 5.0)
         final = rss_bytes()
         counts = h.node.counts()
         growth = (final - baseline) / baseline

@@ -22,6 +22,7 @@ import pytest
 from msg_bridge import bag, stamp_from_header
 from roadbev_core.config import RoadbevConfig, load_params_file
 from roadbev_ros.dds import child_env
+from roadbev_ros.diagnostics import DROP_KINDS
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE = ROOT / "bags" / "sample_drive.mcap"
@@ -121,7 +122,7 @@ def test_replay_into_the_node_and_record(user_folder: Path, shell: list[subproce
     diagnostics = [m.msg for m in bag.read_messages(recorded, ["/diagnostics"])]
     final = diagnostics_values(diagnostics[-1])
     outputs = int(final["outputs"])
-    drops = sum(int(final[k]) for k in ("dropped_busy", "dropped_sync", "dropped_invalid", "dropped_stale"))
+    drops = sum(int(final[k]) for k in DROP_KINDS)
     # every frame of the bag reached the node, and each is an output or a counted drop
     assert int(final["frames_in"]) == SAMPLE_FRAMES, final
     assert outputs + drops == SAMPLE_FRAMES, final
