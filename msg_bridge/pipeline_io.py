@@ -71,9 +71,11 @@ def camera_input(msgs: Sequence[Any], image_transport: str) -> CameraInput:
 def speed_message_type(kind: str) -> type:
     """The rclpy message class of a speed topic (``odometry`` or ``twist_stamped``)."""
     if kind == "odometry":
+        # lazy: msg_bridge loads no ROS message package at import (bags use the typestore)
         from nav_msgs.msg import Odometry
 
         return cast("type", Odometry)
+    # lazy: msg_bridge loads no ROS message package at import (bags use the typestore)
     from geometry_msgs.msg import TwistStamped
 
     return cast("type", TwistStamped)

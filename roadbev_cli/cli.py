@@ -21,6 +21,8 @@ import math
 import string
 import sys
 from collections.abc import Collection, Sequence
+from importlib.metadata import PackageNotFoundError
+from importlib.metadata import version as dist_version
 from pathlib import Path
 from typing import NoReturn
 
@@ -139,8 +141,6 @@ def output_path(text: str) -> Path:
 
 def version() -> str:
     """The installed version of ``roadbev_ros`` (package.xml's, through setup.py)."""
-    from importlib.metadata import PackageNotFoundError
-    from importlib.metadata import version as dist_version
 
     try:
         return dist_version("roadbev_ros")

@@ -200,6 +200,7 @@ def export_onnx(
     Returns:
         The serialised model.
     """
+    # lazy: an optional extra (pip install .[onnx] / .[openvino]), loaded only to export or run that runtime
     import onnx
 
     if opset < 16:
@@ -284,6 +285,7 @@ def quantize_int8(data: bytes, calibration: Sequence[dict[str, np.ndarray]]) -> 
     Raises:
         DeployError: not a RoadBEV fp32 graph, no calibration frames, or the quantiser failed.
     """
+    # lazy: an optional extra (pip install .[onnx] / .[openvino]), loaded only to export or run that runtime
     import onnx
     from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
     from onnxruntime.quantization.calibrate import CalibrationMethod
@@ -352,6 +354,7 @@ def read_onnx(path: str | Path) -> OnnxModel:
     Raises:
         DeployError: missing, unreadable or not a RoadBEV export.
     """
+    # lazy: an optional extra (pip install .[onnx] / .[openvino]), loaded only to export or run that runtime
     import onnx
 
     path = Path(path)
@@ -411,6 +414,7 @@ class OnnxRunner:
     @staticmethod
     def _onnxruntime(data: bytes, threads: int | None, provider: str) -> Any:
         try:
+            # lazy: an optional extra (pip install .[onnx] / .[openvino]), loaded only to export or run that runtime
             import onnxruntime as ort
         except ImportError as exc:
             raise DeployError("runtime onnxruntime needs the onnxruntime package (pip install onnxruntime)") from exc
@@ -459,6 +463,7 @@ class _OpenVinoEngine:
     for its compilation (seconds, once; the node drops the frames that arrive meanwhile)."""
 
     def __init__(self, data: bytes, threads: int | None) -> None:
+        # lazy: an optional extra (pip install .[onnx] / .[openvino]), loaded only to export or run that runtime
         import openvino as ov
 
         self._core = ov.Core()

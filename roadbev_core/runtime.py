@@ -13,6 +13,8 @@ from __future__ import annotations
 import os
 import sys
 
+import cv2
+
 __all__ = ["configure_threads", "flush_denormals", "resolve_threads"]
 
 
@@ -29,7 +31,6 @@ def configure_threads(threads: int) -> int:
     Returns:
         The number of threads set.
     """
-    import cv2
 
     n = resolve_threads(threads)
     cv2.setNumThreads(n)

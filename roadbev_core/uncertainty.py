@@ -192,6 +192,7 @@ def fit_sigma_model(features: Sequence[SigmaFeatures], errors: Sequence[np.ndarr
     Raises:
         ValueError: no cell with an error.
     """
+    # lazy: torch loads only where a learned backend's uncertainty needs it (the classical backends run without it)
     import torch
 
     names = list(SigmaModel.__dataclass_fields__)

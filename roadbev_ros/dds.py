@@ -118,6 +118,7 @@ def init_ros(args: list[str] | None = None, *, handle_signals: bool = True) -> A
             their own shutdown, like the recorder closing its file).
     """
     use_profile()
+    # lazy: rclpy loads after ROS_DOMAIN_ID and the DDS profile are set (child_env, the demo's private domain)
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
@@ -136,6 +137,7 @@ def raise_interrupt(signum: int, _frame: object) -> None:
 def spin_until_shutdown(rclpy: Any, node: Any, on_exit: Callable[[], None] | None = None) -> None:
     """Spin ``node`` on a single-threaded executor until Ctrl-C, SIGTERM or a shutdown; then run
     ``on_exit`` (e.g. stop a worker thread), destroy the node and shut rclpy down."""
+    # lazy: as rclpy above
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
     executor = SingleThreadedExecutor()

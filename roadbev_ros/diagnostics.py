@@ -630,6 +630,7 @@ def to_diagnostic_array(snapshot: HealthSnapshot, stamp: Any, name: str = "roadb
         snapshot: the figures.
         stamp: a ``builtin_interfaces/Time`` for the header.
     """
+    # lazy: the figures and rules here run without ROS (the lab, the tests); only the message needs it
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
     def status(name: str, level: int, message: str, values: dict[str, str]) -> Any:

@@ -33,6 +33,7 @@ from nav_msgs.msg import OccupancyGrid, Odometry
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from roadbev_msgs.msg import RoadHazardArray
 
 from msg_bridge import MessageError, RclpyFactory
 from msg_bridge.grid_map import map_window_from_message
@@ -95,7 +96,6 @@ class HazardMonitorNode(Node):
         self._last_stamp: int | None = None
         self._last_report: Any = None
         self._factory = RclpyFactory()
-        from roadbev_msgs.msg import RoadHazardArray
 
         self.create_subscription(GridMap, str(p["map_topic"]), self._on_map, QOS)
         self._use_odometry = bool(str(p["odom_topic"]))

@@ -47,6 +47,7 @@ from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from roadbev_msgs.msg import RoadPreview
 
 from msg_bridge import MessageError
 from msg_bridge.grid_map import ROAD_FRAME
@@ -116,7 +117,6 @@ class PreviewControllerNode(Node):
         self.last_refusal = ""
         self._period = {"steps": 0, "covered": 0, "force_sq": 0.0, "reach": 0.0, "gain": 0.0}
         self._last_now: int | None = None
-        from roadbev_msgs.msg import RoadPreview
 
         self.create_subscription(RoadPreview, str(p["preview_topic"]), self._on_preview, QOS)
         self._force_pub = self.create_publisher(WrenchStamped, str(p["force_topic"]), QOS)

@@ -4,6 +4,11 @@ from __future__ import annotations
 
 from typing import Any
 
+from grid_map_msgs.msg import GridMap
+from roadbev_msgs.msg import RoadPreview
+from sensor_msgs.msg import PointCloud2
+from tf2_msgs.msg import TFMessage
+
 from msg_bridge.pipeline_io import OutputMessages
 from roadbev_core.config import MapConfig, TopicsConfig
 
@@ -14,10 +19,6 @@ class OutputPublishers:
     """The output publishers, fed from the worker thread."""
 
     def __init__(self, node: Any, qos: Any, topics: TopicsConfig, road_map: MapConfig) -> None:
-        from grid_map_msgs.msg import GridMap
-        from roadbev_msgs.msg import RoadPreview
-        from sensor_msgs.msg import PointCloud2
-        from tf2_msgs.msg import TFMessage
 
         self._elevation = node.create_publisher(GridMap, topics.elevation, qos)
         self._preview = node.create_publisher(RoadPreview, topics.preview, qos)

@@ -87,6 +87,7 @@ class Recorder:
     def _qos_for(self, infos: Sequence[Any]) -> tuple[Any, bool]:
         """The subscription QoS matching a topic's publishers (their ``TopicEndpointInfo``), and
         whether they are all latched."""
+        # lazy: rclpy loads after the caller chose its DDS domain (roadbev_ros.dds.init_ros)
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
         reliable = bool(infos) and all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)

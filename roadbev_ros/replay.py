@@ -209,6 +209,7 @@ def replay_bag(
     Raises:
         ReplayError: unreadable bag, or none of the asked topics can be published.
     """
+    # lazy: rclpy loads after the caller chose its DDS domain (roadbev_ros.dds.init_ros)
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
     path = Path(path)
@@ -245,6 +246,7 @@ def replay_bag(
     clock_pub = None
     clock_msg = None
     if publish_clock:
+        # lazy: rclpy loads after the caller chose its DDS domain (roadbev_ros.dds.init_ros)
         from rosgraph_msgs.msg import Clock
 
         clock_pub = node.create_publisher(Clock, "/clock", qos)
@@ -323,6 +325,7 @@ def replay_bag(
             if not loop or bag_start is None:
                 break
     finally:
+        # lazy: rclpy loads after the caller chose its DDS domain (roadbev_ros.dds.init_ros)
         from rclpy.duration import Duration
 
         for publisher in publishers.values():

@@ -469,6 +469,7 @@ def _decompress(compression: str, data: bytes, size: int) -> bytes:
     if compression == "":
         return data
     if compression == "zstd":
+        # lazy: only a zstd-compressed chunk needs it
         import zstandard
 
         return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)

@@ -15,6 +15,8 @@ import sys
 import threading
 import time
 
+from rclpy.executors import SingleThreadedExecutor
+
 from roadbev_cli.cli import CommandError, add_output_flags, output_path, topic_name, warn
 from roadbev_ros.dds import init_ros
 from roadbev_ros.record import Recorder
@@ -40,7 +42,6 @@ def run(args: argparse.Namespace) -> int:
     if args.duration < 0 or args.max_messages < 0:
         raise CommandError("--duration and --max-messages must be >= 0")
     rclpy = init_ros(handle_signals=False)
-    from rclpy.executors import SingleThreadedExecutor
 
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):

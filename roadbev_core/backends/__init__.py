@@ -21,6 +21,7 @@ from typing import Any, Protocol, runtime_checkable
 from roadbev_core.backend_plugins import BackendError, available, find, takes_checkpoint
 from roadbev_core.config import GridSpec
 from roadbev_core.frame import Estimate, Frame
+from roadbev_core.uncertainty import calibration_for, refine
 
 __all__ = ["Backend", "BackendError", "RefinedBackend", "available", "create", "takes_checkpoint"]
 
@@ -46,7 +47,6 @@ class RefinedBackend:
     """
 
     def __init__(self, inner: Backend) -> None:
-        from roadbev_core.uncertainty import calibration_for
 
         self.inner = inner
         self.name = inner.name
@@ -56,7 +56,6 @@ class RefinedBackend:
 
     def estimate(self, frame: Frame) -> Estimate:
         """The wrapped backend's estimate, hidden cells NaN and sigma calibrated."""
-        from roadbev_core.uncertainty import refine
 
         raw = self.inner.estimate(frame)
         start = time.perf_counter()

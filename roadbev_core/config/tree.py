@@ -24,6 +24,8 @@ backend itself checks their names and values when it is built.
 
 from __future__ import annotations
 
+import difflib
+import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
@@ -539,7 +541,6 @@ def check_name(name: str) -> None:
     Raises:
         ParamError: naming it, with the closest known name.
     """
-    import difflib
 
     known = [spec.name for spec in parameter_specs()]
     if name in known or is_backend_option(name):
@@ -577,7 +578,6 @@ def params_yaml() -> str:
     """The text of ``config/roadbev.params.yaml``: every parameter at its default, with its
     description and range (regenerate it with ``python -m roadbev_core.config`` after adding a
     parameter; a test checks the shipped file equals this)."""
-    import json
 
     lines = [
         "# RoadBEV node parameters (a standard ROS 2 params YAML), generated from the config tree",

@@ -21,6 +21,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, cast
 
+import matplotlib
 import numpy as np
 from matplotlib import patches
 
@@ -66,7 +67,6 @@ def _top_down(layer: np.ndarray) -> np.ndarray:
 
 def _map_axes(ax: Any, m: MapMosaic, layer: np.ndarray, title: str, cmap: str, unit: str,
               vmin: float | None = None, vmax: float | None = None) -> Any:
-    import matplotlib
 
     x0, x1, y0, y1 = m.extent()
     cm = matplotlib.colormaps[cmap].with_extremes(bad=_NO_DATA)

@@ -28,6 +28,8 @@ from torch.utils.data import Dataset
 if TYPE_CHECKING:
     from roadbev_lab.synth.appearance import AppearanceRange
 
+from tqdm import tqdm
+
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Frame
@@ -252,7 +254,6 @@ def collate(items: Sequence[dict[str, Any]]) -> dict[str, Any]:
 def _progress(items: Sequence[Any], desc: str, enabled: bool) -> Iterable[Any]:
     if not enabled:
         return items
-    from tqdm import tqdm
 
     return tqdm(items, desc=desc, unit="frame", disable=None)  # None: only on a terminal
 

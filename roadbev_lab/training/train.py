@@ -22,6 +22,7 @@ import torch
 import torch.distributed as dist
 import torch.distributed.nn.functional as dist_fn
 from torch import nn
+from tqdm import tqdm
 
 from roadbev_core.checkpoint import read_checkpoint, save_checkpoint
 from roadbev_core.config import GridSpec
@@ -288,7 +289,6 @@ def train(
     stopped = False
     bar = None
     if progress and env.main:
-        from tqdm import tqdm
 
         bar = tqdm(total=total_steps, initial=step, desc=f"train {model_config.kind}", unit="step",
                    disable=None)  # None: only on a terminal
