@@ -276,8 +276,8 @@ def main(args: Sequence[str] | None = None) -> int:
     try:
         notes = check_params_files(argv, "roadbev")
         # Our own SIGINT / SIGTERM (KeyboardInterrupt in the spin): rclpy's handlers shut the
-        # context down at once, while the inference thread may be inside a publish, which crashed
-        # the node (exit -11) now and then under load; this way the worker is joined first.
+        # context down at once, while the inference thread may be inside a publish, which can crash
+        # the process (a publish on a destroyed context); this way the worker is joined first.
         rclpy = init_ros(argv, handle_signals=False)
         for sig in (signal.SIGINT, signal.SIGTERM):  # SIGINT too: a shell's background job ignores it
             signal.signal(sig, raise_interrupt)
