@@ -4,7 +4,8 @@
 A damaged part (a :class:`~msg_bridge.bag.mcap_file.Damage`) is described in one line naming the
 file, the chunk, its byte offset, the reason and the messages lost per topic (by the chunk's
 message index); :func:`count_damage` adds it to a :class:`ReadStats`, and :func:`salvage` says
-what of a damaged bag can still be read.
+what of a damaged bag can still be read. The files of a split bag that are missing or unreadable
+are one line each (:func:`lost_file_lines`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ __all__ = [
     "count_damage",
     "count_undefined_channel",
     "describe_damage",
+    "lost_file_lines",
     "note_damage",
     "salvage",
 ]
@@ -112,6 +114,11 @@ def count_damage(bag: Bag, damage: Damage, stats: ReadStats, wanted: set[str] | 
         stats.lost_unknown = stats.lost_unknown or damage.lost_unknown
     note_damage(stats, line)
     return line
+
+
+def lost_file_lines(bag: Bag) -> list[str]:
+    """One line per file of a split bag that is missing or cannot be read."""
+    return [f"{file.name}: {why}" for file, why in bag.lost_files.items()]
 
 
 def count_undefined_channel(stats: ReadStats, file: Path, channel_id: int) -> None:

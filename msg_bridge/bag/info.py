@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from msg_bridge.bag.damage import ReadStats, count_damage
+from msg_bridge.bag.damage import ReadStats, count_damage, lost_file_lines, note_damage
 from msg_bridge.bag.files import open_bag
 from msg_bridge.bag.reader import TopicInfo, bag_topics, read_messages
 
@@ -102,7 +102,7 @@ def bag_info(path: str | os.PathLike[str], *, verify: bool = True) -> BagInfo:
             indexes and only damage the file structure shows is found.
     """
     path = Path(path)
-    bag = open_bag(path)
+    bag = open_bag(path, check_data_crc=False)  # a verified read checks it again, with the chunks
     stats = ReadStats()
     types: dict[str, str] = {t: i.msgtype for t, i in bag_topics(path).items()}
     start = end = 0
@@ -118,6 +118,8 @@ def bag_info(path: str | os.PathLike[str], *, verify: bool = True) -> BagInfo:
         topics = {t: TopicInfo(types[t], counts[t]) for t in sorted(types)}
     else:
         topics = bag_topics(path)
+        for line in lost_file_lines(bag):
+            note_damage(stats, line)
         for damage in (d for s in bag.scans for d in s.damage):
             count_damage(bag, damage, stats, None)
         times = [(c.start_ns, c.end_ns) for s in bag.scans for c in s.chunks if not c.cut]

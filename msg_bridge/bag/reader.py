@@ -6,7 +6,10 @@ Reading goes through :mod:`msg_bridge.bag.mcap_file`, which checks every chunk b
 the file and the chunk; ``on_damage="skip"`` skips the damaged chunk, and the
 :class:`~msg_bridge.bag.damage.ReadStats` passed in counts what was lost, per topic and why. A
 truncated or unfinished bag is read up to its last complete chunk with ``"skip"``; with
-``"raise"`` it is refused at once, saying what is readable. Types a bag brings along that the
+``"raise"`` it is refused at once, saying what is readable. So is a split bag with a file missing
+(``"skip"`` reads the other files). Damage that costs no message (a summary whose CRC fails, read
+around from the chunks; a damaged message index; a data section CRC mismatch no chunk explains)
+is reported in the ``ReadStats`` in both modes. Types a bag brings along that the
 typestore does not know are registered from the bag's schemas.
 """
 
@@ -23,6 +26,7 @@ from msg_bridge.bag.damage import (
     count_damage,
     count_undefined_channel,
     describe_damage,
+    lost_file_lines,
     note_damage,
     salvage,
 )
@@ -57,7 +61,7 @@ def bag_topics(path: str | os.PathLike[str]) -> dict[str, TopicInfo]:
 
     An unfinished or damaged bag gives the topics and counts of its complete chunks.
     """
-    bag = open_bag(Path(path))
+    bag = open_bag(Path(path), check_data_crc=False)
     bag.ensure_channels()
     counts: Counter[str] = Counter()
     types: dict[str, str] = {}
@@ -137,14 +141,16 @@ def read_messages(
     bag = open_bag(path)
     stats.unfinished = stats.unfinished or not bag.closed
     scan_damage = [d for s in bag.scans for d in s.damage]
-    if on_damage == "raise" and any(not d.kept for d in scan_damage):
-        lines = [describe_damage(bag, d)[0] for d in scan_damage if not d.kept]
+    if on_damage == "raise" and (bag.lost_files or any(not d.kept for d in scan_damage)):
+        lines = lost_file_lines(bag) + [describe_damage(bag, d)[0] for d in scan_damage if not d.kept]
         raise DamagedBagError(f"{path}: truncated or corrupt bag ({lines[0]}); {salvage(bag)}; "
                               "`roadbev bag recover` copies what is readable", lines)
     if on_damage == "raise" and not bag.closed:
         why = "a .recording marker is left" if bag.marker else "it has no summary/footer"
         line = f"{path}: the bag was not closed cleanly ({why}): its end may be missing"
         raise DamagedBagError(f"{line}; {salvage(bag)}; `roadbev bag recover` makes a complete copy", [line])
+    for line in lost_file_lines(bag):
+        note_damage(stats, line)
     for damage in scan_damage:
         count_damage(bag, damage, stats, wanted)
     stats.unverified_chunks += sum(1 for s in bag.scans for c in s.chunks if c.crc == 0 and not c.cut)

@@ -8,7 +8,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from msg_bridge.bag.damage import ReadStats, count_damage, count_undefined_channel
+from msg_bridge.bag.damage import ReadStats, count_damage, count_undefined_channel, lost_file_lines, note_damage
 from msg_bridge.bag.errors import BagError
 from msg_bridge.bag.files import open_bag
 from msg_bridge.bag.mcap_file import Damage, iter_messages
@@ -29,7 +29,8 @@ def recover_bag(
 
     Every message of every sound chunk is copied byte for byte with its log and publish time and
     sequence, on channels with the original topics, schemas and metadata (QoS); damaged chunks
-    are left out and counted. ``out`` (``.mcap`` or a directory) must not exist.
+    are left out and counted, and so are the files of a split bag that are missing or unreadable.
+    ``out`` (``.mcap`` or a directory) must not exist.
 
     Args:
         progress: called with 1 per message copied (e.g. ``tqdm.update``).
@@ -45,6 +46,8 @@ def recover_bag(
         raise BagError(f"{out}: the copy must not replace the bag it is made from")
     bag = open_bag(path)
     stats = ReadStats()
+    for line in lost_file_lines(bag):
+        note_damage(stats, line)
     for damage in (d for s in bag.scans for d in s.damage):
         count_damage(bag, damage, stats, None)
     stats.unverified_chunks = sum(1 for s in bag.scans for c in s.chunks if c.crc == 0 and not c.cut)

@@ -1,7 +1,8 @@
 """Writing rosbag2 MCAP bags: :class:`BagWriter`.
 
 The writer writes rosbag2 MCAP (version 9 metadata) through the ``mcap`` writer, with zstd *chunk*
-compression or none, a CRC-32 on every chunk and on the summary. A path ending in ``.mcap``
+compression or none, a CRC-32 on every chunk, on the data section (which covers what no chunk CRC
+does: the message indexes and the metadata record) and on the summary. A path ending in ``.mcap``
 becomes a single MCAP file (no ``metadata.yaml``; ``ros2 bag`` and rosbags read it directly); any
 other path becomes a rosbag2 directory. The file is written in place from the start: every
 finished chunk is in the file (and, with ``flush(fsync=True)``, on the disk), so a writer killed
@@ -82,7 +83,7 @@ class _Topic(NamedTuple):
 
 
 class BagWriter:
-    """Writes a rosbag2 MCAP bag with real chunk CRCs; use as a context manager.
+    """Writes a rosbag2 MCAP bag with real chunk, data section and summary CRCs; use as a context manager.
 
     Args:
         path: ``*.mcap`` for a single MCAP file, anything else for a rosbag2 directory. Must
@@ -162,7 +163,8 @@ class BagWriter:
             raise BagError(f"{self.file} exists already; not overwriting it") from None
         compression = CompressionType.ZSTD if self.compression == "zstd" else CompressionType.NONE
         stream: Any = self._stream  # the writer needs write/tell/flush only
-        self._writer = Writer(stream, chunk_size=self.chunk_size, compression=compression, enable_crcs=True)
+        self._writer = Writer(stream, chunk_size=self.chunk_size, compression=compression, enable_crcs=True,
+                              enable_data_crcs=True)
         self._writer.start(profile="ros2", library=_library())
 
     def _write_marker(self) -> None:

@@ -1,15 +1,21 @@
-"""Property-based tests: random and truncated messages give a MessageError or a correct result.
+"""Property-based tests: random and truncated messages give a MessageError or a correct result;
+byte flips in a bag's indexes, summary and metadata are each reported.
 
 Every converter is fed messages whose fields are drawn at random (sizes, encodings, NaN and
 infinite floats, wrong types) and valid messages cut short; any exception other than
 :class:`msg_bridge.MessageError` fails the test. Examples are bounded to keep the suite fast.
+A small bag gets single-byte flips (seeded) where no chunk CRC looks: its message indexes, chunk
+indexes, summary, footer and rosbag2 metadata record; any exception other than
+:class:`msg_bridge.BagError` fails the test.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+from collections import Counter
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -18,7 +24,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from msg_bridge import MessageError, bag_factory
-from msg_bridge.bag import deserialize, serialize
+from msg_bridge.bag import BagError, OnDamage, ReadStats, bag_info, deserialize, read_messages, recover_bag, serialize
 from msg_bridge.camera_info import camera_info_from_stereo, stereo_camera_from_camera_info
 from msg_bridge.grid_map import elevation_grid_map, grid_map_to_arrays
 from msg_bridge.image import ENCODINGS, array_to_compressed, compressed_to_rgb, image_to_array, image_to_rgb
@@ -27,6 +33,7 @@ from msg_bridge.point_cloud import elevation_point_cloud, point_cloud_to_array
 from msg_bridge.preview import preview_from_message, road_preview_message
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.preview import wheel_track_profiles
+from tests.msg_bridge.bag._bags import OP_DATA_END, OP_MESSAGE_INDEX, OP_METADATA, records, text_bag
 
 FACTORY = bag_factory()
 FUZZ = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -243,3 +250,82 @@ def test_random_point_clouds(
     out = _converts_or_message_error(point_cloud_to_array, msg)
     if out is not None:
         assert out[1].shape == (height * width, len(offsets))
+
+
+OP_CHUNK_INDEX = 0x08
+BAG_FLIPS = 200
+
+
+def _flip_targets(data: bytes) -> dict[str, list[tuple[int, int]]]:
+    """[start, end) of the records no chunk CRC covers, by kind; "summary" runs from the data end
+    (with the data section's CRC) through the footer and the closing magic."""
+    found = records(data)
+    data_end = next(start for op, start, _end in found if op == OP_DATA_END)
+    return {
+        "message index": [(s, e) for op, s, e in found if op == OP_MESSAGE_INDEX],
+        "chunk index": [(s, e) for op, s, e in found if op == OP_CHUNK_INDEX],
+        "metadata": [(s, e) for op, s, e in found if op == OP_METADATA],
+        "summary": [(data_end, len(data))],
+    }
+
+
+def _read(path: Path, on_damage: OnDamage) -> tuple[list[tuple[str, str, int, bytes]], ReadStats]:
+    stats = ReadStats()
+    messages = read_messages(path, raw=True, on_damage=on_damage, stats=stats)
+    return [(m.topic, m.msgtype, m.log_time_ns, bytes(m.msg)) for m in messages], stats
+
+
+def test_byte_flips_in_a_bags_indexes_summary_and_metadata_are_each_reported(tmp_path: Path) -> None:
+    """Every flip leaves what is read identical and is reported as damage, or is reported with
+    what it cost (only original messages delivered, the missing ones counted); the reader, ``bag
+    info`` and ``recover`` report the same damage; nothing but a BagError is raised."""
+    path = tmp_path / "bag.mcap"
+    text_bag(path)
+    data = path.read_bytes()
+    original, _ = _read(path, "raise")
+    targets = _flip_targets(data)
+    rng = np.random.default_rng(20260)
+    victim = tmp_path / "flipped.mcap"
+    outcomes: Counter[str] = Counter()
+    problems = []
+    for k in range(BAG_FLIPS):
+        kind = sorted(targets)[k % len(targets)]
+        start, end = targets[kind][int(rng.integers(len(targets[kind])))]
+        at, mask = int(rng.integers(start, end)), int(rng.integers(1, 256))
+        flipped = bytearray(data)
+        flipped[at] ^= mask
+        victim.write_bytes(bytes(flipped))
+        where = f"{kind}: byte {at} ^ 0x{mask:02x}"
+        try:
+            got, stats = _read(victim, "skip")
+        except BagError:
+            outcomes["refused"] += 1
+            continue
+        if not stats.damage:
+            problems.append(f"{where}: not reported" + ("" if got == original else " and the messages differ"))
+        elif got == original:
+            outcomes["reported, nothing lost"] += 1
+        else:
+            missing = len(original) - len(got)
+            counted = stats.lost_unknown or missing <= sum((stats.lost + stats.undecodable).values())
+            if Counter(got) - Counter(original) or not counted:
+                problems.append(f"{where}: {missing} message(s) missing, not all counted, or a changed one delivered")
+            outcomes["reported, messages lost"] += 1
+        try:
+            if _read(victim, "raise")[0] != original:
+                problems.append(f"{where}: read without an error, but different")
+        except BagError:
+            pass
+        if bag_info(victim).damage != stats.damage:
+            problems.append(f"{where}: bag info reports other damage than the reader")
+        if k % 4 == 0:
+            copy = tmp_path / f"copy{k}.mcap"
+            try:
+                recovered = recover_bag(victim, copy)
+            except BagError:
+                problems.append(f"{where}: nothing recovered though messages were read")
+                continue
+            if recovered.damage != stats.damage or _read(copy, "raise")[0] != got:
+                problems.append(f"{where}: recover copies or reports something else than the reader")
+    assert problems == []
+    assert sum(outcomes.values()) == BAG_FLIPS and outcomes["reported, nothing lost"] > BAG_FLIPS // 2

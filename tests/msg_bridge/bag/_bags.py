@@ -1,5 +1,6 @@
 """Bags for the msg_bridge.bag tests: every kind of message the project writes, written by our
-writer, and independent looks into the files (the mcap reader, the raw index)."""
+writer, small text bags (one file, or split over several files), and independent looks into the
+files (the mcap reader, the raw index, the top-level records)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from mcap_ros2.decoder import DecoderFactory
 
 from msg_bridge import BagWriter, bag_factory, read_messages
 from msg_bridge.bag.mcap_file import scan_file
+from msg_bridge.bag.metadata import to_yaml
 from msg_bridge.camera_info import camera_info_from_stereo, stereo_camera_from_camera_info
 from msg_bridge.grid_map import elevation_grid_map, grid_map_to_arrays
 from msg_bridge.image import array_to_compressed, array_to_image, compressed_to_rgb, image_to_rgb
@@ -128,3 +130,58 @@ def index_entries(data: bytes, chunk: object) -> list[tuple[int, int]]:
         size = int.from_bytes(body[2:6], "little")
         entries += [(int.from_bytes(body[6 + k : 14 + k], "little"), 0) for k in range(0, size, 16)]
     return entries
+
+
+TEXT_TOPICS = ("/stereo/left/image_rect", "/imu")
+OP_CHANNEL, OP_MESSAGE_INDEX, OP_METADATA, OP_DATA_END, OP_FOOTER = 0x04, 0x07, 0x0C, 0x0F, 0x02
+
+
+def text_bag(path: Path, *, messages: int = 60, first_time: int = 1000, chunk_size: int = 1024) -> None:
+    """A small bag of ``std_msgs/String`` on :data:`TEXT_TOPICS`, in several chunks."""
+    factory = bag_factory()
+    with BagWriter(path, chunk_size=chunk_size) as bag:
+        for topic in TEXT_TOPICS:
+            bag.add_topic(topic, "std_msgs/msg/String")
+        for k in range(messages):
+            msg = factory.new("std_msgs/msg/String", data=f"message {k:03d} " + "x" * 30)
+            bag.write(TEXT_TOPICS[k % 3 == 0], msg, first_time + k)
+
+
+def split_bag(path: Path, *, parts: int = 2, per_part: int = 20) -> list[Path]:
+    """A rosbag2 directory whose metadata.yaml lists ``parts`` files of :func:`text_bag`; the files."""
+    path.mkdir()
+    files = [path / f"{path.name}_{i}.mcap" for i in range(parts)]
+    for i, file in enumerate(files):
+        text_bag(file, messages=per_part, first_time=1000 * (i + 1))
+    info = {
+        "version": 9,
+        "storage_identifier": "mcap",
+        "relative_file_paths": [f.name for f in files],
+        "message_count": parts * per_part,
+        "files": [{"path": f.name, "message_count": per_part} for f in files],
+    }
+    (path / "metadata.yaml").write_text(to_yaml({"rosbag2_bagfile_information": info}))
+    return files
+
+
+def records(data: bytes) -> list[tuple[int, int, int]]:
+    """(opcode, start, end) of every top-level record of an intact MCAP file, read independently."""
+    out = []
+    pos = 8
+    while pos < len(data) - 8:
+        end = pos + 9 + int.from_bytes(data[pos + 1 : pos + 9], "little")
+        out.append((data[pos], pos, end))
+        pos = end
+    return out
+
+
+def summary_start(data: bytes) -> int:
+    """Where the summary of an intact MCAP file starts (just after its data end)."""
+    return next(end for op, _start, end in records(data) if op == OP_DATA_END)
+
+
+def flip(path: Path, at: int, mask: int) -> None:
+    """XOR the byte at ``at`` of the file with ``mask``."""
+    data = bytearray(path.read_bytes())
+    data[at] ^= mask
+    path.write_bytes(bytes(data))

@@ -12,7 +12,7 @@ import pytest
 from mcap.reader import make_reader
 
 from msg_bridge import BagError, DamagedBagError, bag_info, read_messages
-from msg_bridge.bag.damage import ReadStats, count_damage, count_undefined_channel, describe_damage
+from msg_bridge.bag.damage import ReadStats, count_damage, count_undefined_channel, describe_damage, lost_file_lines
 from msg_bridge.bag.files import Bag
 from msg_bridge.bag.mcap_file import Channel, Damage
 from tests.msg_bridge.bag._bags import (
@@ -156,6 +156,13 @@ def test_counted_damage_adds_the_wanted_topics_once(tmp_path: Path) -> None:
     count_undefined_channel(stats, file, 9)
     assert stats.lost["channel 9"] == 2
     assert stats.damage[1:] == ["a.mcap: messages on channel 9, whose definition is lost"]
+
+
+def test_a_lost_file_of_a_split_bag_is_one_line(tmp_path: Path) -> None:
+    bag = _bag_with_imu(tmp_path / "a.mcap")
+    assert lost_file_lines(bag) == []
+    bag.lost_files[tmp_path / "b.mcap"] = "listed in metadata.yaml but missing; its 7 message(s) are lost"
+    assert lost_file_lines(bag) == ["b.mcap: listed in metadata.yaml but missing; its 7 message(s) are lost"]
 
 
 def test_read_stats_summary() -> None:

@@ -1,5 +1,6 @@
 """Opening a BAG path: files that are no MCAP, paths that are no bag, a metadata.yaml that names
-missing files or another storage, and the channels of a bag whose writer is still open."""
+missing files or another storage, a split bag with a file missing or unreadable, and the channels
+of a bag whose writer is still open."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import pytest
 from msg_bridge import BagError, BagWriter, bag_topics, read_messages
 from msg_bridge.bag.files import open_bag
 from msg_bridge.bag.metadata import to_yaml
+from tests.msg_bridge.bag._bags import split_bag
 
 
 @pytest.mark.parametrize("content", [b"", b"not an mcap file at all", b"\x89MCAP0\r\n" + bytes(100)])
@@ -59,3 +61,20 @@ def test_an_open_writers_marker_defines_its_channels(tmp_path: Path) -> None:
     assert channels == [("/s", "std_msgs/msg/String")]
     writer.close()
     assert open_bag(path).closed
+
+
+def test_a_split_bag_with_a_file_missing_or_unreadable_opens_with_the_others(tmp_path: Path) -> None:
+    path = tmp_path / "split"
+    first, second, third = split_bag(path, parts=3)
+    second.unlink()
+    third.write_bytes(b"not an mcap file")
+    bag = open_bag(path)
+    assert [s.path for s in bag.scans] == [first]
+    assert bag.lost_files == {
+        second: "listed in metadata.yaml but missing; its 20 message(s) are lost",
+        third: "cannot be read (no MCAP magic at the start: not an MCAP file); its 20 message(s) are lost",
+    }
+    first.unlink()
+    with pytest.raises(BagError, match=r"no file of the bag can be read: split_0\.mcap: listed in metadata\.yaml "
+                       r"but missing.*; split_1\.mcap: listed.*; split_2\.mcap: cannot be read"):
+        open_bag(path)

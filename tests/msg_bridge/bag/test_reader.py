@@ -1,15 +1,25 @@
-"""The reader: raw bytes, a bag written by mcap-ros2-support, and one by rosbags' writer (chunks
-without CRC)."""
+"""The reader: raw bytes, a bag written by mcap-ros2-support, one by rosbags' writer (chunks
+without CRC), and a split bag with a file missing."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
+import pytest
 from mcap_ros2.writer import Writer as McapRos2Writer
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from msg_bridge import ReadStats, bag_factory, bag_info, bag_topics, read_messages, serialize, typestore
+from msg_bridge import (
+    DamagedBagError,
+    ReadStats,
+    bag_factory,
+    bag_info,
+    bag_topics,
+    read_messages,
+    serialize,
+    typestore,
+)
 from msg_bridge.grid_map import grid_map_to_arrays
 from msg_bridge.image import image_to_rgb
 from msg_bridge.imu import imu_message
@@ -17,6 +27,7 @@ from tests.msg_bridge.bag._bags import (
     ELEVATION,
     GRID,
     PIXELS,
+    split_bag,
     write_bag,
 )
 
@@ -105,3 +116,21 @@ def test_a_chunk_without_crc_is_checked_against_its_index_and_reported(tmp_path:
     assert len(list(read_messages(path, on_damage="skip", stats=stats))) == 5
     assert stats.unverified_chunks == 1 and "without CRC" in stats.summary()
     assert bag_info(path).chunks_without_crc == 1
+
+
+def test_a_split_bag_with_a_file_missing_is_read_from_the_files_that_are_there(tmp_path: Path) -> None:
+    path = tmp_path / "split"
+    first, second = split_bag(path)
+    whole = [(m.topic, m.log_time_ns, bytes(m.msg)) for m in read_messages(path, raw=True)]
+    alone = [(m.topic, m.log_time_ns, bytes(m.msg)) for m in read_messages(first, raw=True)]
+    assert len(whole) == 40 and whole[:20] == alone
+    second.unlink()
+    line = "split_1.mcap: listed in metadata.yaml but missing; its 20 message(s) are lost"
+    with pytest.raises(DamagedBagError, match=r"split_1\.mcap: listed in metadata\.yaml but missing") as refused:
+        list(read_messages(path))
+    assert refused.value.damage == [line]
+    stats = ReadStats()
+    got = [(m.topic, m.log_time_ns, bytes(m.msg)) for m in read_messages(path, raw=True, on_damage="skip",
+                                                                           stats=stats)]
+    assert got == alone and stats.damage == [line] and not stats.complete
+    assert sum(i.count for i in bag_topics(path).values()) == 20

@@ -1,4 +1,5 @@
-"""Recovery: an unfinished bag (a killed writer) and a damaged one copied to complete, indexed bags."""
+"""Recovery: an unfinished bag (a killed writer), a damaged one, one with a damaged summary and a
+split bag with a file missing, copied to complete, indexed bags."""
 
 from __future__ import annotations
 
@@ -10,13 +11,18 @@ from rosbags.highlevel import AnyReader
 from msg_bridge import BagError, BagWriter, ReadStats, bag_info, marker_path, read_messages, recover_bag
 from tests.msg_bridge.bag._bags import (
     SMALL_CHUNKS,
+    TEXT_TOPICS,
     TOPICS,
     check_content,
     chunk_indexes,
     data_range,
+    flip,
     independent_read,
     messages,
     raw_by_key,
+    split_bag,
+    summary_start,
+    text_bag,
     write_bag,
 )
 
@@ -75,3 +81,26 @@ def test_recovering_a_damaged_bag_keeps_every_sound_chunk(tmp_path: Path) -> Non
     assert (out / "metadata.yaml").is_file() and bag_info(out).closed
     with pytest.raises(BagError, match="exists already"):
         recover_bag(path, out)
+
+
+def test_recovering_a_split_bag_with_a_file_missing_copies_the_others(tmp_path: Path) -> None:
+    path = tmp_path / "split"
+    first, second = split_bag(path)
+    second.unlink()
+    out = tmp_path / "copy.mcap"
+    stats = recover_bag(path, out)
+    assert raw_by_key(out) == raw_by_key(first) and sum(stats.read.values()) == 20
+    assert stats.damage == ["split_1.mcap: listed in metadata.yaml but missing; its 20 message(s) are lost"]
+    assert bag_info(out).closed and not bag_info(out).damage
+
+
+def test_recovering_a_bag_with_a_damaged_summary_keeps_its_topics(tmp_path: Path) -> None:
+    path = tmp_path / "bag.mcap"
+    text_bag(path)
+    data = path.read_bytes()
+    flip(path, data.index(b"/stereo/left/image_rect", summary_start(data)) + 5, 0x20)
+    out = tmp_path / "copy.mcap"
+    stats = recover_bag(path, out)
+    assert set(raw_by_key(out)) == set(raw_by_key(path)) and {t for t, _ in raw_by_key(out)} == set(TEXT_TOPICS)
+    assert len(stats.damage) == 1 and "the summary is ignored" in stats.damage[0]
+    assert stats.damage == bag_info(path).damage  # the copy and the report name the same damage

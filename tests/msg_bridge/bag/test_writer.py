@@ -1,5 +1,5 @@
 """The writer: its bags read by the independent mcap + mcap-ros2-support reader (decoded, and
-its chunk CRCs checked), determinism, and misuse refused."""
+its chunk and data section CRCs checked), determinism, and misuse refused."""
 
 from __future__ import annotations
 
@@ -10,6 +10,8 @@ from pathlib import Path
 import pytest
 import zstandard
 from mcap.reader import make_reader
+from mcap.records import DataEnd
+from mcap.stream_reader import StreamReader
 
 from msg_bridge import BagError, BagWriter, bag_topics, read_messages
 from tests.msg_bridge.bag._bags import (
@@ -18,6 +20,7 @@ from tests.msg_bridge.bag._bags import (
     check_content,
     data_range,
     independent_read,
+    text_bag,
     write_bag,
 )
 
@@ -88,3 +91,15 @@ def test_project_bags_carry_chunk_crcs_that_the_independent_reader_checks(tmp_pa
         start, end = data_range(path, chunk)
         uncompressed = zstandard.ZstdDecompressor().decompress(data[start:end], max_output_size=chunk.uncompressed_size)
         assert crc != 0 and crc == zlib.crc32(uncompressed)
+
+
+def test_project_bags_carry_a_data_section_crc_that_the_independent_reader_checks(tmp_path: Path) -> None:
+    """The data section's CRC covers the message indexes and the metadata record, which no chunk CRC does."""
+    path = tmp_path / "crc.mcap"
+    text_bag(path)
+    with path.open("rb") as stream:  # validate_crcs: raises on a data section CRC that does not match
+        ends = [r for r in StreamReader(stream, validate_crcs=True).records if isinstance(r, DataEnd)]
+    assert len(ends) == 1 and ends[0].data_section_crc != 0
+    data = path.read_bytes()
+    end = data.rindex(bytes([0x0F]) + (4).to_bytes(8, "little") + ends[0].data_section_crc.to_bytes(4, "little"))
+    assert ends[0].data_section_crc == zlib.crc32(data[:end])
