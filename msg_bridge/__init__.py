@@ -11,9 +11,10 @@ level.
 
 Modules: ``image`` (Image, CompressedImage), ``camera_info`` (CameraInfo <-> StereoCamera),
 ``imu`` (Imu -> Attitude, slerp), ``grid_map`` (GridMap <-> arrays + GridSpec), ``preview``
-(RoadPreview), ``point_cloud`` (PointCloud2), ``hazards`` (RoadHazards), ``tf`` (TF and the
-camera's mounting), ``pipeline_io`` (pipeline outputs -> messages), ``bag`` (MCAP bags: write,
-read, info, recover, over its own CRC-checked MCAP record reader; one module per concern),
+(RoadPreview), ``point_cloud`` (PointCloud2), ``hazards`` (RoadHazards), ``markers`` (the
+preview and the hazards as viewers' MarkerArrays), ``tf`` (TF and the camera's mounting),
+``pipeline_io`` (pipeline outputs -> messages), ``bag`` (MCAP bags: write, read, info, recover,
+over its own CRC-checked MCAP record reader; one module per concern),
 ``outputs`` (the node's output messages, and a bag of them). Evaluation and drive bags, which
 carry ground truth, are the lab's (:mod:`roadbev_lab.evaluation.evalbag`).
 """

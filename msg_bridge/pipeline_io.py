@@ -8,8 +8,8 @@ write what the node would publish (typestore messages), so both publish the same
 * :func:`speed_from_message`: ``nav_msgs/Odometry`` or ``geometry_msgs/TwistStamped`` -> speed;
 * :func:`odometry_sample`: ``nav_msgs/Odometry`` -> :class:`roadbev_core.ego_motion.PlanarPose`;
 * :func:`output_messages`: a :class:`roadbev_core.pipeline.PipelineOutput` -> GridMap,
-  RoadPreview, (optionally) PointCloud2, the fused map (map on) and the TF
-  ``<left camera frame> -> roadbev_road``, stamped with the left image's stamp.
+  RoadPreview, (optionally) PointCloud2 and the preview's MarkerArray, the fused map (map on) and
+  the TF ``<left camera frame> -> roadbev_road``, stamped with the left image's stamp.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from msg_bridge._common import MessageError, MessageFactory, field, stamp_from_h
 from msg_bridge.camera_info import stereo_camera_from_camera_info
 from msg_bridge.grid_map import elevation_grid_map, fused_map_message
 from msg_bridge.image import compressed_to_rgb, image_to_rgb
+from msg_bridge.markers import preview_markers
 from msg_bridge.point_cloud import elevation_point_cloud
 from msg_bridge.preview import road_preview_message
 from msg_bridge.tf import StaticTransform, odometry_pose, tf_message
@@ -119,15 +120,18 @@ class OutputMessages(NamedTuple):
     points: Any | None  # sensor_msgs/PointCloud2 (only when asked for)
     road_map: Any | None = None  # grid_map_msgs/GridMap of the fused map (map on)
     tf: Any | None = None  # tf2_msgs/TFMessage <left camera frame> -> roadbev_road (with a camera frame)
+    preview_markers: Any | None = None  # visualization_msgs/MarkerArray of the preview (only when asked for)
 
 
 def output_messages(
     output: PipelineOutput, config: RoadbevConfig, factory: MessageFactory, *, with_points: bool,
-    camera_frame: str | None = None,
+    with_preview_markers: bool = False, camera_frame: str | None = None,
 ) -> OutputMessages:
-    """The GridMap, RoadPreview, (optionally) PointCloud2, the fused map and the TF of one output.
+    """The GridMap, RoadPreview, (optionally) PointCloud2 and the preview's MarkerArray, the fused
+    map and the TF of one output.
 
     Args:
+        with_points, with_preview_markers: build the viewers' PointCloud2, MarkerArray.
         camera_frame: the left image's ``header.frame_id``: the parent of the TF to
             ``roadbev_road`` (None: no TF).
 
@@ -148,9 +152,13 @@ def output_messages(
         points = elevation_point_cloud(
             estimate.elevation, estimate.uncertainty, grid, factory, stamp_ns=stamp, frame_id=frame_id
         )
+    markers = None
+    if with_preview_markers:
+        markers = preview_markers(output.preview, factory, stamp_ns=stamp, frame_id=preview_frame,
+                                  sigma_max_m=config.preview.markers_sigma_max_m)
     road_map = None if output.map is None else fused_map_message(output.map, factory, frame_id=config.map.frame)
     tf = None
     if camera_frame:
         R, t = road_frame_in_camera(output.frame.attitude, grid.base_height)
         tf = tf_message([StaticTransform(camera_frame, frame_id, R, t)], factory, stamp_ns=stamp)
-    return OutputMessages(elevation, preview, points, road_map, tf)
+    return OutputMessages(elevation, preview, points, road_map, tf, markers)

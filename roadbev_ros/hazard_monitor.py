@@ -13,6 +13,8 @@ with hazards"), in the manner of ros2/examples: a small node around the ROS-free
   first, and the ISO 8608 roughness along each front wheel track) and ``nav_msgs/OccupancyGrid``
   on ``cost_topic`` (severity 0..100 of every map cell: |height above the road's level| /
   ``full_cost_height_m``, -1 unknown), both stamped and framed like the map, one per map;
+  ``visualization_msgs/MarkerArray`` on ``markers_topic`` for viewers (a box and a label per
+  reported hazard, :func:`msg_bridge.markers.hazard_markers`), built only while subscribed;
   ``diagnostic_msgs/DiagnosticArray`` on ``/diagnostics`` (status "roadbev: hazard monitor").
 * Bad input (a GridMap that is not a fused map, a map older than the last) is refused, counted
   and reported, never a crash; a map more than 1 s older than the last (a bag restarted) resets
@@ -34,10 +36,12 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from roadbev_msgs.msg import RoadHazardArray
+from visualization_msgs.msg import MarkerArray
 
 from msg_bridge import MessageError, RclpyFactory
 from msg_bridge.grid_map import map_window_from_message
 from msg_bridge.hazards import occupancy_grid_message, road_hazards_message
+from msg_bridge.markers import hazard_markers
 from msg_bridge.pipeline_io import odometry_sample
 from roadbev_core.config import VehicleConfig
 from roadbev_core.ego_motion import EgoMotion, EgoMotionError, EgoMotionStale
@@ -56,6 +60,7 @@ DEFAULTS: dict[str, Any] = {
     "odom_topic": "/odom",
     "hazards_topic": "/roadbev/hazards",
     "cost_topic": "/roadbev/hazard_cost",
+    "markers_topic": "/roadbev/hazard_markers",
     "min_height_m": 0.025,
     "confirm_hits": 2,
     "max_misses": 2,
@@ -103,6 +108,8 @@ class HazardMonitorNode(Node):
             self.create_subscription(Odometry, str(p["odom_topic"]), self._on_odometry, QOS)
         self._hazards_pub = self.create_publisher(RoadHazardArray, str(p["hazards_topic"]), QOS)
         self._cost_pub = self.create_publisher(OccupancyGrid, str(p["cost_topic"]), QOS)
+        markers_topic = str(p["markers_topic"])
+        self._markers_pub = self.create_publisher(MarkerArray, markers_topic, QOS) if markers_topic else None
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", QOS)
         self.create_timer(float(p["diagnostics_period_s"]), self._publish_diagnostics)
         self.get_logger().info(f"hazard monitor on {p['map_topic']} -> {p['hazards_topic']}, {p['cost_topic']}")
@@ -142,6 +149,8 @@ class HazardMonitorNode(Node):
         self._hazards_pub.publish(road_hazards_message(report, self._factory, frame_id=frame))
         self._cost_pub.publish(occupancy_grid_message(report.cost, report.resolution, report.centre, self._factory,
                                                       stamp_ns=report.stamp_ns, frame_id=frame))
+        if self._markers_pub is not None and self._markers_pub.get_subscription_count() > 0:  # for a viewer only
+            self._markers_pub.publish(hazard_markers(report, self._factory, frame_id=frame))
         self.counts["maps"] += 1
         self.counts["reported"] = len(report.hazards)
         self._last_report = report

@@ -221,6 +221,7 @@ class RoadBevNode(Node):
         output = self.pipeline.process(inputs)
         t2 = time.perf_counter()
         messages = output_messages(output, config, _FACTORY, with_points=self._out.points_wanted(),
+                                   with_preview_markers=self._out.preview_markers_wanted(),
                                    camera_frame=self._mount.camera_frame)
         if not self.context.ok():
             return  # shutting down (SIGINT): publishing on a shut-down context can crash the process

@@ -1,4 +1,5 @@
-"""The node's output publishers: elevation map, preview, fused map, TF and (for viewers) point cloud."""
+"""The node's output publishers: elevation map, preview, fused map, TF and (for viewers) point cloud
+and preview markers."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from grid_map_msgs.msg import GridMap
 from roadbev_msgs.msg import RoadPreview
 from sensor_msgs.msg import PointCloud2
 from tf2_msgs.msg import TFMessage
+from visualization_msgs.msg import MarkerArray
 
 from msg_bridge.pipeline_io import OutputMessages
 from roadbev_core.config import MapConfig, TopicsConfig
@@ -23,6 +25,8 @@ class OutputPublishers:
         self._elevation = node.create_publisher(GridMap, topics.elevation, qos)
         self._preview = node.create_publisher(RoadPreview, topics.preview, qos)
         self._points = node.create_publisher(PointCloud2, topics.points, qos) if topics.points else None
+        self._markers = (node.create_publisher(MarkerArray, topics.preview_markers, qos) if topics.preview_markers
+                         else None)
         self._map = node.create_publisher(GridMap, road_map.topic, qos)
         self._tf = node.create_publisher(TFMessage, "/tf", qos)
 
@@ -33,6 +37,10 @@ class OutputPublishers:
     def points_wanted(self) -> bool:
         """The point cloud is only built for a viewer that listens (it is the largest message)."""
         return self._points is not None and self._points.get_subscription_count() > 0
+
+    def preview_markers_wanted(self) -> bool:
+        """The preview's markers are only built for a viewer that listens."""
+        return self._markers is not None and self._markers.get_subscription_count() > 0
 
     def publish(self, messages: OutputMessages) -> None:
         """Publish (the GridMap first: latency is measured on it; the TF before the messages in
@@ -45,3 +53,5 @@ class OutputPublishers:
             self._map.publish(messages.road_map)
         if messages.points is not None and self._points is not None:
             self._points.publish(messages.points)
+        if messages.preview_markers is not None and self._markers is not None:
+            self._markers.publish(messages.preview_markers)

@@ -226,6 +226,9 @@ class TopicsConfig:
     preview: str = param("preview_topic", "/roadbev/preview", "RoadPreview output", read_only=True)
     points: str = param("points_topic", "/roadbev/points", "PointCloud2 output for viewers ('' = off)",
                         read_only=True)
+    preview_markers: str = param("preview_markers_topic", "/roadbev/preview_markers", "visualization_msgs/"
+                                 "MarkerArray of the preview for viewers (RViz, Foxglove): a line per wheel track "
+                                 "coloured by sigma, built only while subscribed ('' = off)", read_only=True)
     frame_id: str = param("frame_id", "roadbev_road", "frame of the outputs", read_only=True)
     base_frame: str = param("base_frame", BASE_FRAME, "the vehicle body frame (REP-105): the frame of the "
                             "contact-plane previews, and the parent the camera mount is looked up from on "
@@ -291,6 +294,8 @@ class PreviewConfig:
     max_gap_m: float = param("preview.max_gap_m", 1.0, "gaps in a profile up to this long (m) are bridged by a "
                              "straight line with a sigma that grows inside the gap (the far side of a bump, a "
                              "pothole's hidden wall); 0 = gaps stay NaN", 0.0, 10.0)
+    markers_sigma_max_m: float = param("preview.markers_sigma_max_m", 0.02, "the sigma (m) preview_markers_topic "
+                                       "draws red: green at 0, yellow at half of it, red from it up", 0.001, 1.0)
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,5 @@
 """The reference hazard monitor in-process over real DDS: fused maps and odometry in, tracked
-hazards, the severity cost and diagnostics out."""
+hazards, the severity cost, the viewers' markers and diagnostics out."""
 
 from __future__ import annotations
 
@@ -29,12 +29,13 @@ def test_node_reports_a_bump_ahead_with_its_distance_and_cost(ros: Any) -> None:
     from grid_map_msgs.msg import GridMap
     from nav_msgs.msg import OccupancyGrid, Odometry
     from roadbev_msgs.msg import RoadHazardArray
+    from visualization_msgs.msg import MarkerArray
 
     from roadbev_ros.hazard_monitor import HazardMonitorNode
 
     tag = uuid.uuid4().hex[:8]
     topics = {"map_topic": f"/t{tag}/map", "odom_topic": f"/t{tag}/odom", "hazards_topic": f"/t{tag}/hazards",
-              "cost_topic": f"/t{tag}/cost"}
+              "cost_topic": f"/t{tag}/cost", "markers_topic": f"/t{tag}/markers"}
     node = HazardMonitorNode(node_name=f"haz_{tag}", parameter_overrides={**topics, "diagnostics_period_s": 0.2})
     factory = RclpyFactory()
     with Spinning(ros, node) as spun:
@@ -42,9 +43,11 @@ def test_node_reports_a_bump_ahead_with_its_distance_and_cost(ros: Any) -> None:
         odom_pub = spun.publisher(Odometry, topics["odom_topic"])
         hazards = spun.collect(RoadHazardArray, topics["hazards_topic"])
         costs = spun.collect(OccupancyGrid, topics["cost_topic"])
+        markers = spun.collect(MarkerArray, topics["markers_topic"])
         diagnostics = spun.collect(DiagnosticArray, "/diagnostics")
         lock = spun.lock
         assert spun.connected(map_pub, odom_pub)
+        assert wait_for(lambda: node.count_subscribers(topics["markers_topic"]) > 0, 15.0)
         bad = fused_map_message(_window(10.0, 500_000_000), factory, frame_id="odom")
         bad.layers = ["elevation"]  # not a fused map: refused and counted
         bad.data = bad.data[:1]
@@ -60,10 +63,11 @@ def test_node_reports_a_bump_ahead_with_its_distance_and_cost(ros: Any) -> None:
         for k in range(frames):
             stamp = 1_000_000_000 + k * 100_000_000
             map_pub.publish(fused_map_message(_window(12.0 + k, stamp), factory, frame_id="odom"))
-        assert wait_for(lambda: len(hazards) == frames and len(costs) == frames, 10.0)
+        assert wait_for(lambda: len(hazards) == frames and len(costs) == frames and len(markers) == frames, 10.0)
         with lock:
             last = hazards_from_message(hazards[-1])
             cost, res, centre = cost_from_occupancy_grid(costs[-1])
+            shown = list(markers[-1].markers)
         assert last.frame_id == "odom" and last.stamp_ns == 1_000_000_000 + (frames - 1) * 100_000_000
         assert last.vehicle_speed == pytest.approx(SPEED)
         [bump] = [h for h in last.hazards if h.kind == "bump"]
@@ -72,6 +76,12 @@ def test_node_reports_a_bump_ahead_with_its_distance_and_cost(ros: Any) -> None:
         assert bump.distance_ahead_m == pytest.approx(-0.02, abs=0.1)
         assert bump.first_reported_distance_m > 3.0  # reported at the second map, 4 m earlier
         assert math.isfinite(bump.time_to_arrival_s)
+        # the viewers' markers: the bump as a box and a label, in the map's frame
+        [box] = [m for m in shown if m.ns == "hazards" and m.id == bump.id]
+        [label] = [m for m in shown if m.ns == "hazard_labels" and m.id == bump.id]
+        assert box.header.frame_id == "odom" and box.pose.position.x == pytest.approx(bump.x, abs=1e-6)
+        assert box.scale.z == pytest.approx(abs(bump.height_m), rel=1e-5)
+        assert label.text.startswith("bump +") and f"confidence {bump.confidence:.2f}" in label.text
         assert [r.name for r in last.roughness] == ["front_left", "front_right"]
         window = _window(17.0, 0)
         assert cost.shape == window.elevation.shape and res == pytest.approx(0.03)

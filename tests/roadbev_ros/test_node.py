@@ -272,10 +272,11 @@ def test_costly_or_crashing_parameter_changes_are_rejected_and_the_node_keeps_ru
     [{"params": {"speed_topic": "/odom"}}, {"params": {"speed_topic": "/twist", "speed_topic_type": "twist_stamped"}}],
     indirect=True,
 )
-def test_speed_topic_gives_times_of_arrival_and_a_viewer_gets_points(harness: Harness) -> None:
+def test_speed_topic_gives_times_of_arrival_and_a_viewer_gets_points_and_preview_markers(harness: Harness) -> None:
     from geometry_msgs.msg import TwistStamped
     from nav_msgs.msg import Odometry
     from sensor_msgs.msg import PointCloud2
+    from visualization_msgs.msg import MarkerArray
 
     from msg_bridge.point_cloud import point_cloud_to_array
 
@@ -284,7 +285,10 @@ def test_speed_topic_gives_times_of_arrival_and_a_viewer_gets_points(harness: Ha
     pub = harness.feeder.create_publisher(msg_type, harness.params["speed_topic"], 10)
     clouds: list[Any] = []
     harness.feeder.create_subscription(PointCloud2, "/roadbev/points", clouds.append, 10)
-    assert wait_for(lambda: pub.get_subscription_count() > 0 and harness.node.count_subscribers("/roadbev/points") > 0)
+    markers: list[Any] = []
+    harness.feeder.create_subscription(MarkerArray, "/roadbev/preview_markers", markers.append, 10)
+    assert wait_for(lambda: pub.get_subscription_count() > 0 and harness.node.count_subscribers("/roadbev/points") > 0
+                    and harness.node.count_subscribers("/roadbev/preview_markers") > 0)
     speed = msg_type()
     (speed.twist.twist if odometry else speed.twist).linear.x = 5.0
     first = START_NS  # speeds are matched to frames by stamp (SPEED_MAX_AGE_S), as offline
@@ -306,6 +310,17 @@ def test_speed_topic_gives_times_of_arrival_and_a_viewer_gets_points(harness: Ha
     names, points = point_cloud_to_array(clouds[0])
     assert points.shape[0] == 40 * 64 and "z" in names
     np.testing.assert_allclose(points[:, names.index("z")], pitch_ramp(stamp), atol=1e-5)
+    # and on the preview's markers: a line per wheel track in the preview's frame, on its contact plane
+    assert wait_for(lambda: len(markers) == 1)
+    strips = [m for m in markers[0].markers if m.type == 4]  # LINE_STRIP
+    assert {m.ns for m in strips} == {t.name for t in profiles.tracks}
+    assert all(m.header.frame_id == "base_link" for m in markers[0].markers)
+    track = profiles.track(strips[0].ns)
+    xyz = np.array([[p.x, p.y, p.z] for p in strips[0].points])
+    first = int(round((xyz[0, 0] - profiles.start_distance) / profiles.spacing))
+    assert profiles.contact_plane is not None
+    expected = track.elevation[first: first + len(xyz)] + profiles.contact_plane.height_at(xyz[:, 0], xyz[:, 1])
+    np.testing.assert_allclose(xyz[:, 2], expected, atol=1e-5)
 
 
 def test_backend_options_come_from_parameters(ros: Any) -> None:

@@ -1,6 +1,7 @@
 """The shipped viewer configs (config/roadbev.rviz, config/roadbev.foxglove.json) show what the
-node really publishes and subscribes: every topic with its type, every layer, message field and
-diagnostic status they name is read from the running node (no screenshot, no list kept by hand).
+node and the hazard monitor really publish and subscribe: every topic with its type, every layer,
+message field and diagnostic status they name is read from the running nodes (no screenshot, no
+list kept by hand).
 
 The fused map (/roadbev/map, issue 16) is checked as soon as the node publishes it; until then its
 entries are the only ones allowed to name a topic the node does not have.
@@ -27,6 +28,7 @@ RVIZ_TYPES = {
     "rviz_default_plugins/Image": "sensor_msgs/msg/Image",
     "grid_map_rviz_plugin/GridMap": "grid_map_msgs/msg/GridMap",
     "rviz_default_plugins/PointCloud2": "sensor_msgs/msg/PointCloud2",
+    "rviz_default_plugins/MarkerArray": "visualization_msgs/msg/MarkerArray",
 }
 NOT_YET = "/roadbev/map"  # the fused map of issue 16, in the configs before the node has it
 
@@ -37,8 +39,12 @@ def type_name(cls: Any) -> str:
 
 @pytest.fixture(scope="module")
 def node_graph(ros: Any) -> Iterator[dict[str, Any]]:
-    """What the node publishes and subscribes, and one of each of its outputs."""
+    """What the node (and the hazard monitor, at their defaults) publish and subscribe, and one of
+    each of the node's outputs."""
+    from roadbev_ros.hazard_monitor import DEFAULTS, HazardMonitorNode
+
     h = Harness(ros, params={"diagnostics_period_s": 0.2})
+    monitor = HazardMonitorNode(node_name=f"{h.node.get_name()}_hazards")
     try:
         stamp = START_NS
         h.imu_around(stamp + 3 * MS, lambda _t: 0.05)
@@ -48,6 +54,8 @@ def node_graph(ros: Any) -> Iterator[dict[str, Any]]:
         yield {
             "published": {p.topic_name: type_name(p.msg_type) for p in h.node.publishers},
             "subscribed": {s.topic_name: type_name(s.msg_type) for s in h.node.subscriptions},
+            "monitor_published": {p.topic_name: type_name(p.msg_type) for p in monitor.publishers},
+            "hazard_markers": str(DEFAULTS["markers_topic"]),
             "layers": {h.node.config.topics.elevation: list(elevation.layers)},
             "preview": h.previews[-1],
             "statuses": [s.name for s in h.diagnostics[-1].status],
@@ -55,12 +63,15 @@ def node_graph(ros: Any) -> Iterator[dict[str, Any]]:
             "config": h.node.config,
         }
     finally:
+        monitor.destroy_node()
         h.close()
 
 
 def known(graph: dict[str, Any], topic: str) -> str | None:
-    """The type of ``topic`` as the node has it (None: the node neither publishes nor subscribes it)."""
-    return cast("str | None", graph["published"].get(topic) or graph["subscribed"].get(topic))
+    """The type of ``topic`` as the node or the hazard monitor has it (None: neither publishes nor
+    subscribes it)."""
+    return cast("str | None", graph["published"].get(topic) or graph["subscribed"].get(topic)
+                or graph["monitor_published"].get(topic))
 
 
 def check_topic(graph: dict[str, Any], topic: str, msgtype: str | None = None) -> bool:
@@ -106,6 +117,11 @@ def test_every_rviz_display_shows_a_topic_and_type_of_the_node(node_graph: dict[
     assert shown >= 4
     shown_topics = {d["Topic"]["Value"] for d in rviz_displays() if "Topic" in d}
     assert {config.topics.left_image, config.topics.elevation} <= shown_topics
+    # the preview and the hazards as markers, each from its own node
+    hazard_markers = node_graph["hazard_markers"]
+    assert {config.topics.preview_markers, hazard_markers} <= shown_topics
+    assert node_graph["published"][config.topics.preview_markers] == RVIZ_TYPES["rviz_default_plugins/MarkerArray"]
+    assert node_graph["monitor_published"][hazard_markers] == RVIZ_TYPES["rviz_default_plugins/MarkerArray"]
     manager = yaml.safe_load(RVIZ.read_text())["Visualization Manager"]
     assert manager["Global Options"]["Fixed Frame"] == "odom"  # docs/interface/topics.md: the fused map's frame
     assert manager["Views"]["Current"]["Target Frame"] == "base_link"
@@ -157,6 +173,8 @@ def test_every_foxglove_panel_shows_a_topic_field_and_layer_of_the_node(node_gra
         if "colorField" in settings and topic in node_graph["layers"]:
             assert settings["colorField"] in node_graph["layers"][topic], (panel, topic, settings["colorField"])
     assert checked >= 6
+    shown = {topic for _, topic, _ in foxglove_topics(layout)}
+    assert {node_graph["config"].topics.preview_markers, node_graph["hazard_markers"]} <= shown
     status = layout["configById"]["DiagnosticStatusPanel!roadbev"]
     assert status["selectedName"] in node_graph["statuses"]
     assert status["selectedHardwareId"] in node_graph["hardware_ids"]
