@@ -346,6 +346,23 @@ def msg_bridge(data: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def flood(data: Mapping[str, Any]) -> str:
+    """The node under an image and IMU flood (``bench_flood``): per replay speed, what came out,
+    how late, what was dropped for its latency and what the diagnostics said."""
+    lines = _head("replay", "images / IMU (Hz)", "outputs / frames", "outputs per s", "latency p50 / p95 (ms)",
+                  "dropped for latency", "diagnostics ok / warn / error", "naming max_latency_s")
+    for row in data["rows"]:
+        reports = row["diagnostics"]["reports"]
+        lines.append(_row([
+            f"{row['rate_factor']:g}x", f"{row['image_hz']:g} / {row['imu_hz']:g}",
+            f"{row['outputs']} / {row['frames_published']}", _fmt(row["outputs_per_s"], 1),
+            f"{_fmt(row['latency_ms']['p50'], 0)} / {_fmt(row['latency_ms']['p95'], 0)}",
+            str(row["dropped_stale"]), f"{reports['ok']} / {reports['warn']} / {reports['error']}",
+            str(row["diagnostics"]["latency_reports"]),
+        ]))
+    return "\n".join(lines)
+
+
 def preview_stream(data: Mapping[str, Any]) -> str:
     """bench_preview_stream: what a subscriber received on a replayed drive (node defaults, map on),
     the reference controller's last diagnostics and the fused map's sigma."""

@@ -13,10 +13,11 @@ Modules: ``image`` (Image, CompressedImage), ``camera_info`` (CameraInfo <-> Ste
 ``imu`` (Imu -> Attitude, slerp), ``grid_map`` (GridMap <-> arrays + GridSpec), ``preview``
 (RoadPreview), ``point_cloud`` (PointCloud2), ``hazards`` (RoadHazards), ``markers`` (the
 preview and the hazards as viewers' MarkerArrays), ``tf`` (TF and the camera's mounting),
-``pipeline_io`` (pipeline outputs -> messages), ``bag`` (MCAP bags: write, read, info, recover,
-over its own CRC-checked MCAP record reader; one module per concern),
-``outputs`` (the node's output messages, and a bag of them). Evaluation and drive bags, which
-carry ground truth, are the lab's (:mod:`roadbev_lab.evaluation.evalbag`).
+``tf_buffer`` (a tf2 buffer: ``/tf_static`` and ``/tf`` looked up at a stamp), ``pipeline_io``
+(pipeline outputs -> messages), ``bag`` (MCAP bags: write, read, info, recover, over its own
+CRC-checked MCAP record reader; one module per concern), ``outputs`` (the node's output
+messages, and a bag of them). Evaluation and drive bags, which carry ground truth, are the lab's
+(:mod:`roadbev_lab.evaluation.evalbag`).
 """
 
 from __future__ import annotations

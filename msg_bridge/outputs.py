@@ -22,19 +22,21 @@ from roadbev_core.fusion import MapWindow
 from roadbev_core.pipeline import PipelineOutput
 
 
-def save_map_bag(path: str | os.PathLike[str], window: MapWindow, config: RoadbevConfig) -> None:
+def save_map_bag(path: str | os.PathLike[str], window: MapWindow, config: RoadbevConfig, *,
+                 topic: str | None = None) -> None:
     """Write one fused map (``~/save_map``) as an MCAP bag: one ``grid_map_msgs/GridMap`` on
-    ``map_topic`` in ``map_frame``, as the node publishes it.
+    ``topic`` (default ``map_topic``) in ``map_frame``, as the node publishes it.
 
     Raises:
         BagError: the path exists or cannot be written.
     """
+    topic = topic or config.map.topic
     writer = BagWriter(path)
     writer.open()
     try:
-        writer.add_topic(config.map.topic, "grid_map_msgs/msg/GridMap", latched=True)
+        writer.add_topic(topic, "grid_map_msgs/msg/GridMap", latched=True)
         factory = TypestoreFactory(typestore())
-        writer.write(config.map.topic, fused_map_message(window, factory, frame_id=config.map.frame), window.stamp_ns)
+        writer.write(topic, fused_map_message(window, factory, frame_id=config.map.frame), window.stamp_ns)
     except BaseException:
         writer.abort()
         raise

@@ -3,7 +3,9 @@
 A transform ``parent -> child`` (``TransformStamped``: ``header.frame_id`` = parent,
 ``child_frame_id`` = child) is the pose of the child frame in the parent frame: a point given in
 the child frame is ``p_parent = R @ p_child + t``. :class:`TransformTree` chains such transforms
-through their common ancestor, as tf2 does for ``/tf_static``.
+through their common ancestor, as tf2 does for ``/tf_static`` (the offline evaluation's camera
+mount); :class:`msg_bridge.tf_buffer.TransformBuffer` is the node's tf2 buffer, ``/tf`` over time
+included.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ __all__ = [
     "odometry_message",
     "odometry_pose",
     "odometry_tf",
+    "stamped_transforms_from_tf",
     "tf_message",
     "transforms_from_tf",
 ]
@@ -46,29 +49,41 @@ class StaticTransform(NamedTuple):
 
 
 def transforms_from_tf(msg: Any) -> list[StaticTransform]:
-    """The transforms of a ``tf2_msgs/TFMessage``.
+    """The transforms of a ``tf2_msgs/TFMessage`` (their stamps left out: ``/tf_static``).
 
     Raises:
         TransformError: a transform without frame names or with a non-unit rotation.
     """
-    out = []
-    for i, ts in enumerate(field(msg, "transforms")):
-        parent = as_str(field(field(ts, "header"), "frame_id"), f"transform {i} header.frame_id").lstrip("/")
-        child = as_str(field(ts, "child_frame_id"), f"transform {i} child_frame_id").lstrip("/")
-        if not parent or not child:
-            raise TransformError(f"transform {i} lacks a parent or child frame name")
-        tf = field(ts, "transform")
-        t, q = field(tf, "translation"), field(tf, "rotation")
-        translation = np.array([as_float(field(t, k), f"transform {i} translation.{k}") for k in "xyz"])
-        quat = [as_float(field(q, k), f"transform {i} rotation.{k}") for k in "xyzw"]
-        if not np.all(np.isfinite(translation)):
-            raise TransformError(f"transform {parent} -> {child} has a non-finite translation")
-        try:
-            rotation = quaternion_to_rotation(*quat)
-        except GeometryError as exc:
-            raise TransformError(f"transform {parent} -> {child}: {exc}") from None
-        out.append(StaticTransform(parent, child, rotation, translation))
-    return out
+    return [_transform(ts, i) for i, ts in enumerate(field(msg, "transforms"))]
+
+
+def stamped_transforms_from_tf(msg: Any) -> list[tuple[int, StaticTransform]]:
+    """The transforms of a ``tf2_msgs/TFMessage`` with their stamps (ns): ``/tf``.
+
+    Raises:
+        MessageError: a transform without frame names, with a non-unit rotation or a bad stamp
+            (:class:`TransformError` for the first two).
+    """
+    return [(stamp_from_header(ts), _transform(ts, i)) for i, ts in enumerate(field(msg, "transforms"))]
+
+
+def _transform(ts: Any, i: int) -> StaticTransform:
+    """The ``i``-th ``geometry_msgs/TransformStamped`` of a message, without its stamp."""
+    parent = as_str(field(field(ts, "header"), "frame_id"), f"transform {i} header.frame_id").lstrip("/")
+    child = as_str(field(ts, "child_frame_id"), f"transform {i} child_frame_id").lstrip("/")
+    if not parent or not child:
+        raise TransformError(f"transform {i} lacks a parent or child frame name")
+    tf = field(ts, "transform")
+    t, q = field(tf, "translation"), field(tf, "rotation")
+    translation = np.array([as_float(field(t, k), f"transform {i} translation.{k}") for k in "xyz"])
+    quat = [as_float(field(q, k), f"transform {i} rotation.{k}") for k in "xyzw"]
+    if not np.all(np.isfinite(translation)):
+        raise TransformError(f"transform {parent} -> {child} has a non-finite translation")
+    try:
+        rotation = quaternion_to_rotation(*quat)
+    except GeometryError as exc:
+        raise TransformError(f"transform {parent} -> {child}: {exc}") from None
+    return StaticTransform(parent, child, rotation, translation)
 
 
 def tf_message(transforms: Iterable[StaticTransform], factory: MessageFactory, *, stamp_ns: int = 0) -> Any:

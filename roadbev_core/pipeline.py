@@ -207,6 +207,7 @@ class Pipeline:
         self._camera_mount: tuple[np.ndarray, np.ndarray | None] = (
             np.array(config.vehicle.camera_position_m, np.float64), None)
         self._mount_from_tf = False
+        self._corridor_mount = self._camera_mount[0]  # where the camera was when the map's corridor was laid out
         self.fused: FusedMap | None = None
         self.last_map: MapWindow | None = None  # the newest window (``~/save_map``)
         self.map_skipped: dict[str, int] = {}
@@ -273,8 +274,12 @@ class Pipeline:
             self.last_map = None
 
     def set_camera_mount(self, position: Iterable[float], R_base_optical: np.ndarray) -> None:
-        """The left camera on ``base_link`` from ``/tf_static`` (wins over
-        ``vehicle.camera_position_m``): position [3] and R [3, 3] optical -> base_link.
+        """The left camera on ``base_link`` from TF (wins over ``vehicle.camera_position_m``):
+        position [3] and R [3, 3] optical -> base_link. The fused map's corridor is laid out
+        around the camera (:func:`roadbev_core.fusion.map_settings`): the map starts again when the
+        camera has moved more than half a cell from where it was when the map began, so a camera
+        on a moving bracket (a mount from ``/tf`` at every frame) keeps its map, each frame placed
+        where the camera is (the corridor's edges then lie less than half a cell off).
 
         Raises:
             RoadbevError: a non-finite position or a matrix that is not a rotation.
@@ -286,11 +291,12 @@ class Pipeline:
         if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0:
             raise RoadbevError("camera mount rotation is not a rotation")
         with self._lock:
-            changed = not (self._mount_from_tf and np.allclose(pos, self._camera_mount[0]))
+            moved = float(np.max(np.abs(pos - self._corridor_mount))) if self._mount_from_tf else math.inf
             self._camera_mount = (pos, R)
             self._mount_from_tf = True
-            if changed:
+            if moved > 0.5 * self.config.grid.resolution:
                 self.fused = None  # the corridor depends on where the camera sits
+                self._corridor_mount = pos
 
     @property
     def camera_mount(self) -> tuple[np.ndarray, np.ndarray | None]:

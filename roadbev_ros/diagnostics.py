@@ -540,7 +540,7 @@ class OutputTally:
 
 
 def node_values(*, queued_set: bool, queued_left_images: int, map_state: str, tally: OutputTally,
-                motion_age_s: float | None, clock: str) -> dict[str, str]:
+                motion_age_s: float | None, clock: str, camera_mount: str) -> dict[str, str]:
     """The node's own figures, appended to :meth:`Health.snapshot`'s values (in this order).
 
     Args:
@@ -550,6 +550,7 @@ def node_values(*, queued_set: bool, queued_left_images: int, map_state: str, ta
         tally: the outputs so far.
         motion_age_s: seconds since the newest odometry or speed sample (None: never).
         clock: :meth:`ClockWatch.state`.
+        camera_mount: where the camera's mount comes from (:meth:`roadbev_ros.camera_mount.CameraMount.state`).
     """
     return {
         "queued_sets": "1" if queued_set else "0",
@@ -559,6 +560,7 @@ def node_values(*, queued_set: bool, queued_left_images: int, map_state: str, ta
         "motion_age_s": "never" if motion_age_s is None else f"{motion_age_s:.2f}",
         "preview_reference": tally.preview_reference or "none yet",
         "clock": clock,
+        "camera_mount": camera_mount,
     }
 
 
@@ -610,14 +612,14 @@ class NodeDiagnostics:
             self.report("backend error", f"{type(exc).__name__}: {exc}")
 
     def snapshot(self, *, input_hint: str, queued_set: bool, queued_left_images: int, map_state: str,
-                 motion_age_s: float | None, now_ns: int) -> HealthSnapshot:
+                 motion_age_s: float | None, camera_mount: str, now_ns: int) -> HealthSnapshot:
         """The figures now, the node's own (:func:`node_values`) after the health's; ``input_hint``:
         why no input may arrive (:func:`transport_hint`), ``now_ns``: the node's clock."""
         self.health.input_hint = input_hint
         snapshot = self.health.snapshot()
         snapshot.values.update(node_values(queued_set=queued_set, queued_left_images=queued_left_images,
                                            map_state=map_state, tally=self.tally, motion_age_s=motion_age_s,
-                                           clock=self._clock.state(now_ns)))
+                                           clock=self._clock.state(now_ns), camera_mount=camera_mount))
         return snapshot
 
 

@@ -1,13 +1,15 @@
 """The node's fused-map services, without ROS: ``~/clear_map``, ``~/save_map`` and
-``~/get_submap`` (as elevation_mapping's), and why no map can be served.
+``~/get_submap`` (as elevation_mapping's), ``~/save_map_to`` (a path, as grid_map's
+``ProcessFile`` services take one), and why no map can be served.
 
 The handlers take and fill the service's request and response objects by attribute only
-(``std_srvs/Trigger``, ``grid_map_msgs/GetGridMap``), so they run on rclpy messages in the node
-and on plain objects in tests.
+(``std_srvs/Trigger``, ``grid_map_msgs/GetGridMap``, ``grid_map_msgs/ProcessFile``), so they run
+on rclpy messages in the node and on plain objects in tests.
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,7 +22,47 @@ from roadbev_core.config import RoadbevConfig
 from roadbev_core.errors import RoadbevError
 from roadbev_core.fusion import MapWindow
 
-__all__ = ["FusedMapSource", "MapServices"]
+__all__ = ["MAP_SUFFIX", "FusedMapSource", "MapServices", "SavePathRefused", "map_file"]
+
+MAP_SUFFIX = ".mcap"  # a saved map is an MCAP bag
+
+
+class SavePathRefused(RoadbevError):
+    """A path ``~/save_map_to`` does not write to, and why."""
+
+
+def map_file(file_path: str, save_dir: str) -> Path:
+    """Where ``~/save_map_to`` writes the map asked for at ``file_path``: ``~`` expanded, a relative
+    path taken from ``save_dir`` (``map.save_dir``, itself ``~`` expanded and taken from the working
+    directory), ``.mcap`` appended to a name that lacks it. The file must not exist (never
+    overwritten) and its folder must exist and be writable; ``save_dir`` itself is created, as
+    ``~/save_map`` does.
+
+    Raises:
+        SavePathRefused: the cause, naming the path.
+    """
+    if not file_path.strip():
+        raise SavePathRefused("file_path is empty (~/save_map writes into map.save_dir under a name of its own)")
+    folder = Path(save_dir).expanduser().resolve()
+    path = (folder / Path(file_path).expanduser()).resolve()  # an absolute file_path replaces the folder
+    if path.suffix != MAP_SUFFIX:
+        path = path.with_name(path.name + MAP_SUFFIX)
+    if path.is_dir():
+        raise SavePathRefused(f"{path} is a folder: name a file in it")
+    if path.exists() or path.is_symlink():
+        raise SavePathRefused(f"{path} exists: it is not overwritten (remove it, or name another file)")
+    if path.parent == folder:
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise SavePathRefused(f"cannot create map.save_dir {folder}: {exc}") from None
+    if not path.parent.exists():
+        raise SavePathRefused(f"the folder {path.parent} does not exist (only map.save_dir is created)")
+    if not path.parent.is_dir():
+        raise SavePathRefused(f"{path.parent} is not a folder")
+    if not os.access(path.parent, os.W_OK | os.X_OK):
+        raise SavePathRefused(f"the folder {path.parent} is not writable")
+    return path
 
 
 class FusedMapSource(Protocol):
@@ -92,6 +134,35 @@ class MapServices:
         self.info(f"fused map saved to {path}")
         return response
 
+    def save_map_to(self, request: Any, response: Any) -> Any:
+        """``~/save_map_to`` (grid_map_msgs/ProcessFile): the newest fused map to
+        ``request.file_path`` (:func:`map_file`: a relative path from ``map.save_dir``, ``.mcap``
+        appended when missing, never over an existing file) as an MCAP bag, the GridMap on
+        ``request.topic_name`` (``map_topic`` when empty). The response carries ``success`` only:
+        the file written goes to the log, and so does why not (a refusal as a warning; a failure
+        to write, which is the node's, to the diagnostics too)."""
+        response.success = False
+        window = self.pipeline.last_map
+        if window is None:
+            self.warn(f"~/save_map_to: no fused map to save: {self.why_no_map()}")
+            return response
+        config = self.config()
+        try:
+            path = map_file(request.file_path, config.map.save_dir)
+        except SavePathRefused as exc:
+            self.warn(f"~/save_map_to {request.file_path!r} refused: {exc}")
+            return response
+        topic = request.topic_name.strip() or config.map.topic
+        topic = topic if topic.startswith("/") else f"/{topic}"
+        try:
+            save_map_bag(path, window, config, topic=topic)
+        except (RoadbevError, OSError) as exc:
+            self.report("save map", f"cannot save the map to {path}: {exc}")
+            return response
+        response.success = True
+        self.info(f"fused map saved to {path} (~/save_map_to, topic {topic})")
+        return response
+
     def get_submap(self, request: Any, response: Any) -> Any:
         """``~/get_submap`` (grid_map_msgs/GetGridMap, as elevation_mapping's): the cells of the
         newest fused map within ``length_x`` x ``length_y`` around ``position`` in ``frame_id`` (the
@@ -138,8 +209,9 @@ class MapServices:
             return (f"the map was cleared by ~/clear_map at {self.cleared_at:.3f} s and no frame has been fused "
                     "since")
         if self.motion_samples() == 0:
-            sources = [f"odometry on {self.resolve(topics.odom)}" if topics.odom else "",
-                       f"speed on {self.resolve(topics.speed)}" if topics.speed else ""]
+            odometry = (f"odometry on /tf ({config.map.frame} -> {topics.base_frame})" if topics.odom_from_tf
+                        else f"odometry on {self.resolve(topics.odom)}" if topics.odom else "")
+            sources = [odometry, f"speed on {self.resolve(topics.speed)}" if topics.speed else ""]
             named = " or ".join(s for s in sources if s)
             return f"no {named} received yet" if named else "neither odom_topic nor speed_topic is set"
         return "no frame has been fused yet (frames need odometry around their stamps, map.odom_max_age_s)"

@@ -1,4 +1,5 @@
-"""The node's motion inputs, without ROS: IMU, speed and odometry messages into the pipeline.
+"""The node's motion inputs, without ROS: IMU, speed and odometry messages (or odometry samples
+taken from ``/tf``) into the pipeline.
 
 Each message is converted (:mod:`msg_bridge`) and handed to the pipeline; a bad one is reported,
 never raised. When the stamps jump back (a bag looped), the synchroniser believes the jump only a
@@ -28,7 +29,7 @@ __all__ = ["RECENT_MOTION_S", "RESTART_MARGIN_S", "MotionInputs", "MotionTaker"]
 RESTART_MARGIN_S = 0.1  # motion samples this far (+ imu_max_age_s) around the new timeline's frames
 RECENT_MOTION_S = 3.0  # ... that arrived at most this long ago
 
-Handler = Callable[[Any], None]
+Handler = Callable[[Any], object]
 
 
 class MotionTaker(Protocol):
@@ -76,6 +77,11 @@ class MotionInputs:
     def on_odometry(self, msg: Any) -> None:
         self._remember(self._odometry, msg)
 
+    def on_pose(self, pose: PlanarPose) -> None:
+        """An odometry sample taken from ``/tf`` (``odom_from_tf``: :class:`roadbev_ros.transforms.TfOdometry`)."""
+        self._recent.append((self._clock(), pose.stamp_ns, self._pose, pose))
+        self._pose(pose)
+
     def _remember(self, handler: Handler, msg: Any) -> None:
         with contextlib.suppress(MessageError):  # the handler names a bad stamp
             self._recent.append((self._clock(), stamp_from_header(msg), handler, msg))
@@ -96,14 +102,27 @@ class MotionInputs:
 
     def _odometry(self, msg: Any) -> None:
         try:
-            if self._pipeline.add_odometry(odometry_sample(msg)):
-                self._report("odometry jump", "the odometry jumped and is followed from its new frame; the fused "
-                             "map starts again")
-            self._took()
-            if self._publish_tf is not None:
-                self._publish_tf(odometry_tf(msg, self._factory))
+            sample = odometry_sample(msg)
         except RoadbevError as exc:
             self._report("bad odometry", str(exc))
+            return
+        if self._pose(sample) and self._publish_tf is not None:
+            try:
+                self._publish_tf(odometry_tf(msg, self._factory))
+            except RoadbevError as exc:
+                self._report("bad odometry", str(exc))
+
+    def _pose(self, pose: PlanarPose) -> bool:
+        """One odometry sample into the pipeline; whether it was taken."""
+        try:
+            if self._pipeline.add_odometry(pose):
+                self._report("odometry jump", "the odometry jumped and is followed from its new frame; the fused "
+                             "map starts again")
+        except RoadbevError as exc:
+            self._report("bad odometry", str(exc))
+            return False
+        self._took()
+        return True
 
     def _took(self) -> None:
         self.samples += 1

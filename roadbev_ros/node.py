@@ -8,17 +8,15 @@ feed the ROS-free :class:`roadbev_core.pipeline.Pipeline`, which does the work::
     IMU, speed ─► pipeline.add_imu / add_speed                    output_messages ◄──────┘
                                                                   GridMap, RoadPreview, PointCloud2
 
-Callbacks only queue messages. The mailbox holds the newest set: when inference is slower than
-the camera a waiting set is replaced and counted (``dropped_busy``). Every left image ends as an
-output or a counted drop (``dropped_sync``: unpaired, out of order, duplicate; ``dropped_invalid``:
-malformed or oversized image, bad calibration, stale IMU, backend error). Bad input never stops
-the node: it is logged (throttled per kind), counted and shown in ``/diagnostics``. Parameters
-come from the typed config tree (:mod:`roadbev_ros.node_params`); a change is validated as a
-whole and a new backend is built before it is accepted, otherwise it is rejected with the reason
-and the running backend stays.
+Image callbacks only queue; IMU, speed and odometry feed the pipeline. The mailbox holds the
+newest set (a replaced one counts as ``dropped_busy``). Every left image ends as an output or a
+counted drop (``roadbev_ros.diagnostics.DROP_KINDS``). Bad input never stops the node: it is
+logged (throttled per kind), counted and shown in ``/diagnostics``. Parameters come from the
+typed config tree (:mod:`roadbev_ros.node_params`); a change is validated as a whole and a new
+backend is built before it is accepted, otherwise it is rejected with the reason.
 
 The rules are ROS-free, each in its module: ``camera_inputs`` (checks, synchroniser, drops),
-``motion``, ``camera_mount`` (``/tf_static``), ``map_services``, ``diagnostics``, ``node_params``.
+``motion``, ``transforms`` (``/tf_static``, ``/tf``), ``map_services``, ``diagnostics``, ``node_params``.
 """
 
 from __future__ import annotations
@@ -32,7 +30,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
-from grid_map_msgs.srv import GetGridMap
+from grid_map_msgs.srv import GetGridMap, ProcessFile
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
@@ -51,7 +49,6 @@ from roadbev_core.errors import RoadbevError
 from roadbev_core.pipeline import BackendFactory, Pipeline, check_config
 from roadbev_core.selfcheck import self_check
 from roadbev_ros.camera_inputs import LEFT_IMAGE, LEFT_INFO, RIGHT_IMAGE, RIGHT_INFO, CameraInputs
-from roadbev_ros.camera_mount import CameraMount
 from roadbev_ros.dds import asks_for_help, init_ros, raise_interrupt, spin_until_shutdown
 from roadbev_ros.diagnostics import COMPRESSED_SUFFIX, NodeDiagnostics, to_diagnostic_array, transport_hint
 from roadbev_ros.mailbox import Mailbox
@@ -61,6 +58,7 @@ from roadbev_ros.node_args import parser as node_parser
 from roadbev_ros.node_params import check_params_files, config_of, declare_parameters, param_changes, report_bad_values
 from roadbev_ros.publishers import OutputPublishers
 from roadbev_ros.sync import ApproximateTimeSync
+from roadbev_ros.transforms import NodeTransforms
 
 __all__ = ["RoadBevNode", "main"]
 
@@ -68,9 +66,9 @@ SENSOR_QOS = qos_profile_sensor_data
 # the IMU comes in bursts of many small messages per image: a deeper best-effort queue
 IMU_QOS = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
 OUTPUT_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-# /tf_static is latched: transient local, as tf2's static broadcaster publishes it
-TF_STATIC_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# /tf_static is latched: transient local, as tf2's static broadcaster publishes it; /tf as tf2_ros listens
+TF_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+TF_STATIC_QOS = QoSProfile(depth=100, reliability=TF_QOS.reliability, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 _FACTORY = RclpyFactory()
 
 
@@ -127,13 +125,15 @@ class RoadBevNode(Node):
                                      SENSOR_QOS)
         if topics.odom:
             self.create_subscription(Odometry, topics.odom, self._motion.on_odometry, IMU_QOS)
-        self._mount = CameraMount(self.pipeline, topics.base_frame, log.info, self._problem)
-        self.create_subscription(TFMessage, "/tf_static", self._mount.add_static, TF_STATIC_QOS)
+        self._tf = NodeTransforms(self.pipeline, lambda: self.config, log.info, self._problem, self._motion.on_pose)
+        self.create_subscription(TFMessage, "/tf_static", self._tf.on_static, TF_STATIC_QOS)
+        self.create_subscription(TFMessage, "/tf", self._tf.on_tf, TF_QOS)
         self._map = MapServices(self.pipeline, lambda: self.config, lambda: self._motion.samples,
                                 self.resolve_topic_name, lambda: self.get_clock().now().nanoseconds * 1e-9, _FACTORY,
                                 log.info, log.warning, self._problem)
         self.create_service(Trigger, "~/clear_map", self._map.clear_map)
         self.create_service(Trigger, "~/save_map", self._map.save_map)
+        self.create_service(ProcessFile, "~/save_map_to", self._map.save_map_to)
         self.create_service(GetGridMap, "~/get_submap", self._map.get_submap)
         self._diag_timer = self._diagnostics_timer(self.config.diagnostics.period_s)
         self.add_pre_set_parameters_callback(functools.partial(report_bad_values, report=self._problem))
@@ -175,6 +175,7 @@ class RoadBevNode(Node):
         """The stamps jumped back (a looped bag): the pipeline starts afresh, with the motion
         samples of the new timeline that arrived before the jump was believed."""
         self.pipeline.reset()
+        self._tf.time_jumped()
         self._motion.replay(restart_span, self.config.imu.max_age_s)
 
     def _on_set_parameters(self, parameters: Sequence[Any]) -> SetParametersResult:
@@ -213,7 +214,7 @@ class RoadBevNode(Node):
         config = self.config
         t0 = time.perf_counter()
         inputs = camera_input(msgs, config.topics.image_transport)
-        self._mount.see_frame(str(msgs[0].header.frame_id))
+        self._tf.see_frame(str(msgs[0].header.frame_id), inputs.stamp_ns)
         # IMU messages may arrive after the images: wait for a sample at or after the stamp
         imu_wait = self.pipeline.wait_for_attitude(inputs.stamp_ns, config.imu.wait_s, lambda: self._mailbox.closed)
         self.health.imu_age_s = self.pipeline.imu_age_s(inputs.stamp_ns)
@@ -222,7 +223,7 @@ class RoadBevNode(Node):
         t2 = time.perf_counter()
         messages = output_messages(output, config, _FACTORY, with_points=self._out.points_wanted(),
                                    with_preview_markers=self._out.preview_markers_wanted(),
-                                   camera_frame=self._mount.camera_frame)
+                                   camera_frame=self._tf.mount.camera_frame)
         if not self.context.ok():
             return  # shutting down (SIGINT): publishing on a shut-down context can crash the process
         if self._status.late(inputs.stamp_ns, time.monotonic() - arrival, config.diagnostics.max_latency_s):
@@ -247,7 +248,7 @@ class RoadBevNode(Node):
         snapshot = self._status.snapshot(
             input_hint=transport_hint(self, left) if quiet else "", queued_set=self._mailbox.waiting,
             queued_left_images=self.sync.queued()[0], map_state=self._map.state(), motion_age_s=self._motion.age_s(),
-            now_ns=now.nanoseconds)
+            camera_mount=self._tf.mount.state(), now_ns=now.nanoseconds)
         self._diag_pub.publish(to_diagnostic_array(snapshot, now.to_msg()))
 
     def counts(self) -> dict[str, int]:

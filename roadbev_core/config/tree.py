@@ -232,7 +232,21 @@ class TopicsConfig:
     frame_id: str = param("frame_id", "roadbev_road", "frame of the outputs", read_only=True)
     base_frame: str = param("base_frame", BASE_FRAME, "the vehicle body frame (REP-105): the frame of the "
                             "contact-plane previews, and the parent the camera mount is looked up from on "
-                            "/tf_static", read_only=True)
+                            "/tf_static and /tf", read_only=True)
+    odom_from_tf: bool = param("odom_from_tf", False, "take the odometry from /tf instead of a topic: map_frame -> "
+                               "base_frame, looked up at the stamp of each /tf transform on the way (speed and yaw "
+                               "rate from sample to sample); needs odom_topic ''", read_only=True)
+    tf_cache_time_s: float = param("tf_cache_time_s", 10.0, "how far back each /tf link's history reaches from its "
+                                   "newest transform (s; tf2's default 10); older /tf data is refused",
+                                   0.5, 600.0, read_only=True)
+    tf_tolerance_s: float = param("tf_tolerance_s", 0.05, "a TF lookup (the camera mount at a frame's stamp) this "
+                                  "close beyond a /tf link's first or last transform takes that transform as it is "
+                                  "(s); further is refused as an extrapolation, as in tf2", 0.0, 1.0, read_only=True)
+
+    def __post_init__(self) -> None:
+        if self.odom_from_tf and self.odom:
+            raise ParamError(f"odom_from_tf takes the odometry from /tf instead of odom_topic ({self.odom!r}): set "
+                             "odom_topic to '' with it")
 
 
 @dataclass(frozen=True)
@@ -305,8 +319,8 @@ class MapConfig:
     enabled: bool = param("map.enabled", True, "fuse frames into the road map when odometry (or a speed) "
                           "arrives; the preview then comes from the map, relative to the contact plane")
     topic: str = param("map_topic", "/roadbev/map", "fused map output (grid_map_msgs/GridMap)", read_only=True)
-    frame: str = param("map_frame", "odom", "frame of the fused map (the odometry's header.frame_id)",
-                       read_only=True)
+    frame: str = param("map_frame", "odom", "frame of the fused map: the odometry's frame (odom_topic's "
+                       "header.frame_id; with odom_from_tf, the frame base_frame is looked up in)", read_only=True)
     behind_m: float = param("map.behind_m", 1.0, "the map reaches this far behind the rear axle (m)", 0.0, 20.0)
     error_correlation: float = param("map.error_correlation", 1.0, "correlation of one cell's errors from "
                                      "frame to frame (0 = independent: the fused sigma shrinks as 1/sqrt(N))",
@@ -334,7 +348,8 @@ class MapConfig:
                                "backend's calibrated value (0 without one)", -1.0, 1.0)
     save_dir: str = param("map.save_dir", "~/.ros/roadbev", "folder where ~/save_map writes the current map "
                           "(roadbev_map_<stamp>.mcap; ~ expanded, a relative folder taken from the node's "
-                          "working directory; the reply gives the absolute path)")
+                          "working directory; the reply gives the absolute path), and which a relative path "
+                          "given to ~/save_map_to is taken from")
     odom_max_age_s: float = param("map.odom_max_age_s", 0.2, "largest distance from a frame's stamp to the "
                                   "odometry around it (s); beyond it the frame is not fused", 0.001, 10.0)
     odom_max_speed_mps: float = param("map.odom_max_speed_mps", 70.0, "odometry gate: a sample reporting a faster "
@@ -357,7 +372,7 @@ class VehicleConfig:
                                  "contacts (m)", 0.5, 4.0)
     camera_position_m: tuple[float, float, float] = param(
         "vehicle.camera_position_m", (1.60, 0.0, 1.10), "x, y, z of the left camera's optical centre in "
-        "base_link (m); /tf_static base_link -> camera frame wins when present")
+        "base_link (m); TF base_link -> the images' frame (/tf_static, /tf) wins when present")
 
     def __post_init__(self) -> None:
         for attr, spec in _specs_of(VehicleConfig):  # built directly (drives, tests) too: same ranges

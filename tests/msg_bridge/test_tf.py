@@ -19,6 +19,7 @@ from msg_bridge.tf import (
     odometry_message,
     odometry_pose,
     odometry_tf,
+    stamped_transforms_from_tf,
     tf_message,
     transforms_from_tf,
 )
@@ -56,6 +57,20 @@ def test_tf_and_odometry_messages_round_trip_through_cdr() -> None:
     pose = odometry_pose(deserialize(serialize(odom), "nav_msgs/msg/Odometry"))
     assert (pose.stamp_ns, pose.x, pose.y, pose.frame_id, pose.child_frame_id) == (7, 3.0, -1.0, "odom", "base_link")
     assert pose.yaw == pytest.approx(2.5)
+
+
+def test_tf_transforms_come_with_their_stamps_for_the_buffer() -> None:
+    factory = bag_factory()
+    tfs = [StaticTransform("odom", "base_link", rotation_from_rpy(0.0, 0.0, 0.3), np.array([1.0, 2.0, 0.0])),
+           StaticTransform("/base_link", "bracket", np.eye(3), np.zeros(3))]
+    msg = deserialize(serialize(tf_message(tfs, factory, stamp_ns=1_500_000_007)), "tf2_msgs/msg/TFMessage")
+    (s0, first), (s1, second) = stamped_transforms_from_tf(msg)
+    assert s0 == s1 == 1_500_000_007 and (second.parent, second.child) == ("base_link", "bracket")
+    np.testing.assert_allclose(first.rotation, tfs[0].rotation, atol=1e-9)
+    msg.transforms[1].header.stamp.nanosec = 2_000_000_000
+    with pytest.raises(MessageError, match="nanosec"):
+        stamped_transforms_from_tf(msg)
+    assert len(transforms_from_tf(msg)) == 2  # /tf_static's transforms are read without their stamps
 
 
 def test_point_cloud_xyz_reads_clouds_with_other_fields() -> None:

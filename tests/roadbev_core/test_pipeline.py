@@ -145,6 +145,21 @@ def test_a_camera_mount_that_is_not_a_rotation_is_refused() -> None:
         pipeline.set_camera_mount([np.nan, 0.0, 1.1], np.eye(3))
 
 
+def test_a_camera_moving_on_its_bracket_keeps_the_map_and_a_larger_move_restarts_it() -> None:
+    pipeline = _pipeline()
+    pipeline.set_camera_mount([1.6, 0.0, 1.1], R_BODY_FROM_OPTICAL)
+    _drive(pipeline, 3)
+    fused = pipeline.fused
+    assert fused is not None and not fused.empty
+    half = 0.5 * pipeline.config.grid.resolution
+    for step in (0.3, 0.6, 0.9):  # the bracket moves, within half a cell of where the map began
+        pipeline.set_camera_mount([1.6 - step * half, 0.0, 1.1 + step * half], R_BODY_FROM_OPTICAL)
+        assert pipeline.fused is fused
+    np.testing.assert_allclose(pipeline.camera_mount[0], [1.6 - 0.9 * half, 0.0, 1.1 + 0.9 * half])  # in use
+    pipeline.set_camera_mount([1.6 + 1.1 * half, 0.0, 1.1], R_BODY_FROM_OPTICAL)
+    assert pipeline.fused is None  # the corridor is laid out again at the next frame
+
+
 def test_without_odometry_a_speed_and_the_imu_yaw_are_dead_reckoned() -> None:
     pipeline = _pipeline()
     for k in range(60):  # 100 Hz IMU, level, heading constant

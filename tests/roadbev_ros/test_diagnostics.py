@@ -315,18 +315,19 @@ def output(fused: bool, reference: str | None, plane_source: str | None = None) 
 def test_the_tally_and_the_node_values_in_their_order() -> None:
     tally = OutputTally()
     values = node_values(queued_set=False, queued_left_images=0, map_state="off (map.enabled false)", tally=tally,
-                         motion_age_s=None, clock="running")
+                         motion_age_s=None, clock="running", camera_mount="vehicle.camera_position_m [1.6, 0.0, 1.1]")
     assert values == {"queued_sets": "0", "queued_left_images": "0", "map": "off (map.enabled false)",
                       "map_frames_fused": "0", "motion_age_s": "never", "preview_reference": "none yet",
-                      "clock": "running"}
+                      "clock": "running", "camera_mount": "vehicle.camera_position_m [1.6, 0.0, 1.1]"}
     tally.note(output(True, "contact plane", "map"))
     tally.note(output(False, "camera"))
     tally.note(output(True, None))
     assert (tally.fused, tally.preview_reference) == (2, "camera")
     tally.note(output(True, "contact plane", "map"))
     values = node_values(queued_set=True, queued_left_images=3, map_state="fusing", tally=tally, motion_age_s=0.256,
-                         clock="running")
-    assert list(values.values()) == ["1", "3", "fusing", "3", "0.26", "contact plane (map)", "running"]
+                         clock="running", camera_mount="/tf base_link -> left at [1.6, 0.0, 1.1] m")
+    assert list(values.values()) == ["1", "3", "fusing", "3", "0.26", "contact plane (map)", "running",
+                                     "/tf base_link -> left at [1.6, 0.0, 1.1] m"]
 
 
 def test_node_diagnostics_count_late_and_failed_frames_and_append_the_node_values() -> None:
@@ -343,9 +344,9 @@ def test_node_diagnostics_count_late_and_failed_frames_and_append_the_node_value
     assert h.problems["imu stale"] == 1 and h.last_error == "backend error: RuntimeError: the accelerator went away"
     assert len(lines) == 3  # one line per kind
     snapshot = status.snapshot(input_hint="nothing publishes /left", queued_set=False, queued_left_images=2,
-                               map_state="fusing", motion_age_s=None, now_ns=5)
-    assert list(snapshot.values)[-7:] == ["queued_sets", "queued_left_images", "map", "map_frames_fused",
-                                          "motion_age_s", "preview_reference", "clock"]
+                               map_state="fusing", motion_age_s=None, camera_mount="", now_ns=5)
+    assert list(snapshot.values)[-8:] == ["queued_sets", "queued_left_images", "map", "map_frames_fused",
+                                          "motion_age_s", "preview_reference", "clock", "camera_mount"]
     assert snapshot.values["queued_left_images"] == "2" and snapshot.values["clock"] == "running"
     assert "nothing publishes /left" in snapshot.checks[0].message
     status.configure("sgbm", DiagnosticsConfig(log_throttle_s=0.0, window_s=2.0))

@@ -14,6 +14,7 @@ from msg_bridge.bag import read_messages
 from msg_bridge.grid_map import decode_grid_map
 from roadbev_core.config import RoadbevConfig
 from roadbev_core.fusion import MapWindow
+from roadbev_ros import map_services
 from roadbev_ros.map_services import MapServices
 
 STAMP_NS = 1_700_000_000 * 1_000_000_000
@@ -68,6 +69,8 @@ def submap_response() -> SimpleNamespace:
     ({}, 0, "no odometry on /car/odom received yet"),
     ({"speed_topic": "/speed"}, 0, "no odometry on /car/odom or speed on /car/speed received yet"),
     ({"odom_topic": ""}, 0, "neither odom_topic nor speed_topic is set"),
+    ({"odom_topic": "", "odom_from_tf": True, "map_frame": "world"}, 0,
+     "no odometry on /tf (world -> base_link) received yet"),
     ({}, 3, "no frame has been fused yet (frames need odometry around their stamps, map.odom_max_age_s)"),
 ])
 def test_why_there_is_no_map_names_the_first_cause(params: dict[str, Any], samples: int, why: str) -> None:
@@ -112,6 +115,61 @@ def test_save_map_writes_one_grid_map_to_an_absolute_path(tmp_path: Path, monkey
     again = s.services.save_map(None, trigger())  # the file exists: refused, reported
     assert not again.success and again.message.startswith(f"cannot save the map to {path}: ")
     assert s.problems == [("save map", again.message)]
+
+
+def process_file(file_path: str, topic_name: str = "") -> SimpleNamespace:
+    return SimpleNamespace(file_path=file_path, topic_name=topic_name)
+
+
+def test_save_map_to_writes_where_asked_relative_paths_in_save_dir(tmp_path: Path,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    s = Services({"map.save_dir": "maps"}, last_map=window())
+    response = s.services.save_map_to(process_file("drive_1"), SimpleNamespace(success=None))
+    assert response.success is True
+    path = tmp_path / "maps" / "drive_1.mcap"  # relative: in map.save_dir (created), .mcap added
+    assert s.info == [f"fused map saved to {path} (~/save_map_to, topic /roadbev/map)"]
+    (item,) = read_messages(path, ["/roadbev/map"])
+    np.testing.assert_array_equal(decode_grid_map(item.msg).layers["elevation"], window().elevation)
+    other = tmp_path / "elsewhere" / "road.mcap"
+    other.parent.mkdir()
+    response = s.services.save_map_to(process_file(str(other), "surface"), SimpleNamespace(success=None))
+    assert response.success is True and [i.topic for i in read_messages(other)] == ["/surface"]
+    assert s.problems == [] and s.warnings == []
+
+
+@pytest.mark.parametrize(("file_path", "cause"), [
+    ("", "file_path is empty (~/save_map writes into map.save_dir under a name of its own)"),
+    ("taken.mcap", "{dir}/taken.mcap exists: it is not overwritten (remove it, or name another file)"),
+    ("taken", "{dir}/taken.mcap exists: it is not overwritten (remove it, or name another file)"),
+    ("sub", "{dir}/sub.mcap is a folder: name a file in it"),
+    ("missing/map.mcap", "the folder {dir}/missing does not exist (only map.save_dir is created)"),
+    ("taken.mcap/map.mcap", "{dir}/taken.mcap is not a folder"),
+])
+def test_save_map_to_refuses_with_the_true_cause_and_never_overwrites(tmp_path: Path, file_path: str,
+                                                                       cause: str) -> None:
+    s = Services({"map.save_dir": str(tmp_path)}, last_map=window())
+    (tmp_path / "taken.mcap").write_bytes(b"keep me")
+    (tmp_path / "sub.mcap").mkdir()
+    response = s.services.save_map_to(process_file(file_path), SimpleNamespace(success=None))
+    assert response.success is False
+    assert s.warnings == [f"~/save_map_to {file_path!r} refused: {cause.format(dir=tmp_path)}"]
+    assert (tmp_path / "taken.mcap").read_bytes() == b"keep me" and s.problems == []
+
+
+def test_save_map_to_without_a_map_or_a_writable_folder_says_why(tmp_path: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    s = Services({"map.save_dir": str(tmp_path), "map.enabled": False})
+    assert s.services.save_map_to(process_file("a"), SimpleNamespace(success=None)).success is False
+    assert s.warnings == ["~/save_map_to: no fused map to save: map.enabled is false"]
+    s = Services({"map.save_dir": str(tmp_path)}, last_map=window())
+    s.services.clear_map(None, trigger())
+    s.services.save_map_to(process_file("a"), SimpleNamespace(success=None))
+    assert s.warnings[-1].startswith("~/save_map_to: no fused map to save: the map was cleared by ~/clear_map")
+    s.pipeline.last_map = window()
+    monkeypatch.setattr(map_services.os, "access", lambda path, mode: False)  # root may write anywhere
+    assert s.services.save_map_to(process_file("a"), SimpleNamespace(success=None)).success is False
+    assert s.warnings[-1] == f"~/save_map_to 'a' refused: the folder {tmp_path} is not writable"
 
 
 def test_get_submap_serves_the_cells_and_layers_asked_for() -> None:

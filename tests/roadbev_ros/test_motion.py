@@ -126,3 +126,17 @@ def test_replay_gives_again_the_recent_samples_of_the_new_timeline() -> None:
     taker.imu.clear()
     inputs.replay(None, imu_max_age_s=0.1)  # no span: nothing
     assert taker.imu == []
+
+
+def test_odometry_samples_from_tf_are_taken_counted_and_replayed() -> None:
+    inputs, taker, problems, _ = motion()
+    pose = PlanarPose(START_NS, 1.0, 2.0, 0.1, 8.0, 0.0)
+    inputs.on_pose(pose)
+    assert taker.poses == [pose] and inputs.samples == 1 and problems == []
+    taker.jumped = True
+    inputs.on_pose(PlanarPose(START_NS + 150 * MS, 50.0, 2.0, 0.1, 8.0, 0.0))
+    assert [kind for kind, _ in problems] == ["odometry jump"]
+    taker.poses.clear()
+    taker.jumped = False
+    inputs.replay((START_NS, START_NS), imu_max_age_s=0.0)  # the margin (0.1 s) takes the first only
+    assert taker.poses == [pose] and inputs.samples == 3

@@ -477,6 +477,15 @@ def test_with_odometry_the_node_publishes_the_fused_map_its_tf_and_clears_it_on_
     assert sub.layers["elevation"].shape[1] * window.resolution <= 0.3 + window.resolution + 1e-6
     wrong = submap.call_async(GetGridMap.Request(frame_id="base_link", length_x=1.0, length_y=1.0))
     assert wait_for(wrong.done) and list(wrong.result().map.layers) == []  # only the map's frame is served
+    from grid_map_msgs.srv import ProcessFile
+
+    save_to = harness.feeder.create_client(ProcessFile, f"/{harness.node.get_name()}/save_map_to")
+    assert save_to.wait_for_service(timeout_sec=10.0)
+    named = save_to.call_async(ProcessFile.Request(file_path="drive_7", topic_name="/road/map"))
+    assert wait_for(named.done) and named.result().success  # relative: in map.save_dir, .mcap added
+    assert [item.topic for item in read_messages(tmp_path / "drive_7.mcap")] == ["/road/map"]
+    twice = save_to.call_async(ProcessFile.Request(file_path=str(tmp_path / "drive_7.mcap")))
+    assert wait_for(twice.done) and not twice.result().success  # never over an existing file
     client = harness.feeder.create_client(Trigger, f"/{harness.node.get_name()}/clear_map")
     assert client.wait_for_service(timeout_sec=10.0)
     future = client.call_async(Trigger.Request())
@@ -785,3 +794,80 @@ def test_the_body_frame_is_a_parameter(harness: Harness) -> None:
     harness.wait_output(feed(harness, 0))
     assert wait_for(lambda: harness.node.pipeline.camera_mount[1] is not None, 5.0)
     np.testing.assert_allclose(harness.node.pipeline.camera_mount[0], mount)
+
+
+def _publish_tf(harness: Harness, publisher: Any, transforms: list[Any], stamp_ns: int) -> None:
+    """``transforms`` on /tf at ``stamp_ns``, and wait until the node holds them."""
+    from msg_bridge import RclpyFactory
+    from msg_bridge.tf import tf_message
+
+    publisher.publish(tf_message(transforms, RclpyFactory(), stamp_ns=stamp_ns))
+    buffer = harness.node._tf.buffer
+
+    def held() -> bool:
+        try:
+            return all(np.array_equal(buffer.lookup(t.parent, t.child, stamp_ns)[1], t.translation) for t in transforms)
+        except Exception:
+            return False
+
+    assert wait_for(held, 5.0), "the node did not receive the /tf"
+
+
+def test_the_camera_mount_comes_through_a_moving_bracket_on_tf_at_each_frames_stamp(harness: Harness) -> None:
+    """base_link -> bracket (/tf_static) -> camera_link (/tf, moving) -> left (/tf_static), over DDS;
+    when the bracket's /tf stops, the frame goes on with the last mount and the gap is named."""
+    from tf2_msgs.msg import TFMessage
+
+    from msg_bridge import RclpyFactory
+    from msg_bridge.tf import StaticTransform, tf_message
+    from roadbev_core.geometry import rotation_from_rpy
+    from roadbev_ros.node import TF_QOS, TF_STATIC_QOS
+
+    optical = rotation_from_rpy(-np.pi / 2, 0.0, -np.pi / 2)
+    static = harness.feeder.create_publisher(TFMessage, "/tf_static", TF_STATIC_QOS)
+    dynamic = harness.feeder.create_publisher(TFMessage, "/tf", TF_QOS)
+    assert wait_for(lambda: dynamic.get_subscription_count() > 0)
+    static.publish(tf_message([StaticTransform("base_link", "bracket", np.eye(3), np.array([1.6, 0.0, 1.0])),
+                               StaticTransform("camera_link", "left", optical, np.zeros(3))], RclpyFactory()))
+
+    def bracket_z(t_ns: int) -> float:
+        return 0.1 + 0.2 * (t_ns - START_NS) * 1e-9  # the bracket rises 2 cm per frame
+
+    for k in range(3):
+        stamp = START_NS + k * FRAME_NS
+        for t in (stamp - 30 * MS, stamp + 30 * MS):  # samples around the frame, none at its stamp
+            lift = StaticTransform("bracket", "camera_link", np.eye(3), np.array([0.0, 0.0, bracket_z(t)]))
+            _publish_tf(harness, dynamic, [lift], t)
+        harness.wait_output(feed(harness, k))
+        position, rotation = harness.node.pipeline.camera_mount
+        np.testing.assert_allclose(position, [1.6, 0.0, 1.0 + bracket_z(stamp)], atol=1e-9)  # interpolated
+        assert rotation is not None
+        np.testing.assert_allclose(rotation, optical, atol=1e-9)
+    assert harness.node.health.problems["tf missing"] == 0
+    harness.wait_output(feed(harness, 5))  # 170 ms after the bracket's last /tf: beyond tf_tolerance_s
+    assert harness.node.health.problems["tf missing"] == 1
+    error = harness.node.health.last_error
+    assert error.startswith("tf missing: no transform base_link -> left for the camera mount: Lookup would require "
+                            "extrapolation into the future."), error
+    assert error.endswith("the frame goes on with the mount last taken from /tf ([1.6, 0.0, 1.14] m)")
+    assert wait_for(lambda: "problem.tf missing" in harness.latest_diagnostics(), 3.0)
+    assert harness.latest_diagnostics()["camera_mount"] == "/tf base_link -> left at [1.6, 0.0, 1.14] m"
+
+
+@pytest.mark.parametrize("harness", [{"params": {"odom_topic": "", "odom_from_tf": True}}], indirect=True)
+def test_odom_from_tf_builds_the_fused_map_from_the_tf_odometry(harness: Harness) -> None:
+    from tf2_msgs.msg import TFMessage
+
+    from msg_bridge.tf import StaticTransform
+    from roadbev_ros.node import TF_QOS
+
+    dynamic = harness.feeder.create_publisher(TFMessage, "/tf", TF_QOS)
+    assert wait_for(lambda: dynamic.get_subscription_count() > 0)
+    for k in range(5):
+        for j in (k, k + 1):  # the sample after the frame's stamp too: the node waits for it
+            pose = StaticTransform("odom", "base_link", np.eye(3), np.array([1.0 * j, 0.0, 0.0]))  # 10 m/s
+            _publish_tf(harness, dynamic, [pose], START_NS + j * FRAME_NS)
+        harness.wait_output(feed(harness, k))
+    assert harness.node._fused == 5 and harness.node.pipeline.ego.newest is not None
+    assert harness.node.pipeline.ego.newest.speed == pytest.approx(10.0)
+    assert harness.node.health.problems["tf missing"] == 0
