@@ -269,6 +269,7 @@ class Health:
     max_latency_ms: float = 0.0  # 0 = no bound
     input_rate: RateMeter = field(init=False)
     stale_rate: RateMeter = field(init=False)  # outputs dropped for their latency
+    busy_rate: RateMeter = field(init=False)  # sets replaced in the mailbox while the worker was busy
     set_rate: RateMeter = field(init=False)
     output_rate: RateMeter = field(init=False)
     latency_ms: LatencyWindow = field(init=False)
@@ -300,6 +301,7 @@ class Health:
         self.set_rate = RateMeter(self.window_s, self.clock)
         self.output_rate = RateMeter(self.window_s, self.clock)
         self.stale_rate = RateMeter(self.window_s, self.clock)
+        self.busy_rate = RateMeter(self.window_s, self.clock)
         windows = ("latency_ms", "stamp_age_ms", "arrival_age_ms", "inference_ms", "overhead_ms", "imu_wait_ms")
         for name in windows:
             setattr(self, name, LatencyWindow(window_s=self.window_s, clock=self.clock))
@@ -308,7 +310,7 @@ class Health:
         """Take the window and the bounds from a :class:`roadbev_core.config.tree.DiagnosticsConfig`."""
         with self._lock:
             self.window_s = config.window_s
-            for meter in (self.input_rate, self.set_rate, self.output_rate, self.stale_rate):
+            for meter in (self.input_rate, self.set_rate, self.output_rate, self.stale_rate, self.busy_rate):
                 meter.window_s = config.window_s
             for window in (self.latency_ms, self.stamp_age_ms, self.arrival_age_ms, self.inference_ms,
                            self.overhead_ms, self.imu_wait_ms):
@@ -358,6 +360,8 @@ class Health:
         with self._lock:
             if kind == "busy":
                 self.dropped_busy += count
+                for _ in range(count):
+                    self.busy_rate.tick()
             elif kind == "stale":
                 self.dropped_stale += count
                 self.stale_rate.tick()
@@ -447,6 +451,7 @@ class Health:
             for kind, count in sorted(self.problems.items()):
                 values[f"problem.{kind}"] = str(count)
             stale_now = self.stale_rate.in_window()
+            busy_now, answered_now = self.busy_rate.in_window(), self.output_rate.in_window()
             latency_p95 = pct(self.latency_ms, 95)
         # the node's own state, most telling first; the worst level wins, its first message is shown
         states: list[tuple[int, str]] = [(rate.level, rate.message)] if rate.level == ERROR else []
@@ -455,6 +460,12 @@ class Health:
                                   f"({self.max_latency_ms:g} ms): not published"))
         elif self.max_latency_ms and latency_p95 > self.max_latency_ms:
             states.append((WARN, f"latency p95 {latency_p95:.0f} ms over max_latency_s ({self.max_latency_ms:g} ms)"))
+        if busy_now > answered_now:
+            # more sets replaced unprocessed than answered: the input outruns the backend (a
+            # flood, or a camera faster than the backend); outputs stay fresh, most frames go
+            states.append((WARN, f"{busy_now} of {busy_now + answered_now} image sets in the last "
+                                 f"{self.window_s:g} s dropped while the backend was busy "
+                                 f"(input {in_rate:.1f} Hz, output {out_rate:.1f} Hz)"))
         if recent_problem:
             states.append((WARN, self.last_error))
         if in_rate > 0 and self.output_rate.in_window() == 0:

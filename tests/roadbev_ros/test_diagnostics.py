@@ -99,6 +99,42 @@ def test_health_levels_and_values() -> None:
     assert snap.level == OK and snap.values["problem.imu stale"] == "1"
 
 
+def test_an_input_flood_warns_while_most_sets_are_dropped_unprocessed() -> None:
+    clock = FakeClock()
+    health = Health(backend="bm", clock=clock, window_s=2.0)
+    for k in range(100):  # 50 Hz of image sets for 2 s; the backend answers one in ten
+        health.frame_in()
+        health.set_in()
+        if k % 10 == 0:
+            health.output(50.0, 60.0, 40.0, 2.0, 1.0)
+        else:
+            health.drop("busy")
+        clock.t += 0.02
+    snap = health.snapshot()
+    assert snap.level == WARN
+    assert snap.message.startswith("90 of 100 image sets in the last 2 s dropped while the backend was busy")
+    clock.t += 2.5  # the flood is over: the figures stay, the warning goes
+    health.frame_in()
+    health.set_in()
+    health.output(50.0, 60.0, 40.0, 2.0, 1.0)
+    snap = health.snapshot()
+    assert "dropped while the backend was busy" not in snap.message and snap.values["dropped_busy"] == "90"
+
+
+def test_a_camera_the_backend_keeps_up_with_does_not_warn() -> None:
+    clock = FakeClock()
+    health = Health(backend="bm", clock=clock, window_s=2.0)
+    for k in range(20):  # 10 Hz, every second set replaced: half answered is not a flood
+        health.frame_in()
+        health.set_in()
+        if k % 2 == 0:
+            health.output(50.0, 60.0, 40.0, 2.0, 1.0)
+        else:
+            health.drop("busy")
+        clock.t += 0.1
+    assert health.snapshot().level == OK
+
+
 def test_input_without_output_warns() -> None:
     clock = FakeClock()
     health = Health(clock=clock)
