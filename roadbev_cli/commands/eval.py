@@ -51,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``roadbev eval``."""
     parser.add_argument("bag", metavar="BAG", nargs="+",
                         help="rosbag2 directory (with metadata.yaml) or .mcap file; several, a folder of bags or a "
-                             "glob pattern ('archive/**/*.mcap') evaluate many bags")
+                             "glob pattern (quoted: 'archive/day*') evaluate many bags")
     parser.add_argument(
         "--backend", default=None, help=f"elevation backend (default: the params' 'backend', else {DEFAULT_BACKEND})"
     )

@@ -180,27 +180,33 @@ class LocalPool(Executor):
         pool = self._pool()
         try:
             while queue or suspects or inflight:
-                if suspects:
-                    if not inflight:
-                        index = suspects.popleft()
-                        inflight[pool.submit(_call, fn, items[index])] = (index, True)
-                else:
-                    while queue and len(inflight) < self.workers:
-                        index = queue.popleft()
-                        inflight[pool.submit(_call, fn, items[index])] = (index, False)
-                done, _ = wait(inflight, return_when=FIRST_COMPLETED)
                 lost: list[tuple[int, bool]] = []
-                for future in done:
-                    index, alone = inflight.pop(future)
-                    try:
-                        ok, value = future.result()
-                    except BrokenProcessPool:
-                        lost.append((index, alone))
-                        continue
-                    except Exception as exc:  # the result did not come back (unpicklable...): this task's outcome
-                        ok, value = False, _reason(exc)
-                    finish(index, Outcome(value) if ok else Outcome(error=str(value)))
-                if not lost:
+                broken = False
+                try:
+                    if suspects:
+                        if not inflight:
+                            inflight[pool.submit(_call, fn, items[suspects[0]])] = (suspects[0], True)
+                            suspects.popleft()
+                    else:
+                        while queue and len(inflight) < self.workers:
+                            inflight[pool.submit(_call, fn, items[queue[0]])] = (queue[0], False)
+                            queue.popleft()
+                except BrokenProcessPool:  # a worker died since the last wait: this item never ran, it stays queued
+                    broken = True
+                if not broken:
+                    done, _ = wait(inflight, return_when=FIRST_COMPLETED)
+                    for future in done:
+                        index, alone = inflight.pop(future)
+                        try:
+                            ok, value = future.result()
+                        except BrokenProcessPool:
+                            lost.append((index, alone))
+                            broken = True
+                            continue
+                        except Exception as exc:  # the result did not come back (unpicklable...): this task's outcome
+                            ok, value = False, _reason(exc)
+                        finish(index, Outcome(value) if ok else Outcome(error=str(value)))
+                if not broken:
                     continue
                 # a worker died: the pool is broken and every task still in it is lost with it
                 lost += list(inflight.values())
