@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from tqdm import tqdm
 
 from benchmarks.common import (
     EVAL_SEED_BASE,
@@ -193,8 +194,6 @@ def plot_bands(rows: list[dict[str, Any]], grid_x: tuple[float, float], path: Pa
 
 def _backend_row(name: str, *, samples: list[Any], grid: GridSpec, quiet: bool) -> tuple[dict[str, Any], list[Any]]:
     """One backend on the evaluation set: its metrics (with its parameters) and its elevations."""
-    from tqdm import tqdm
-
     backend = create(name, grid)
     with tqdm(total=len(samples), desc=name, unit="frame", disable=quiet, file=sys.stderr) as bar:
         result = evaluate(backend, samples, progress=bar.update, keep_estimates=True)
@@ -210,8 +209,6 @@ def run_table(
 ) -> dict[str, Any]:
     """Render the evaluation set, run every backend on it (one task per backend on ``executor``,
     this process by default), write table1.{json,md}, band_error.png and reliability.png."""
-    from tqdm import tqdm
-
     grid = GridSpec()  # the interface's default grid and the RSRD half-resolution rig
     t0 = time.perf_counter()
     if scene_cache:
