@@ -57,6 +57,8 @@ setup(
     extras_require={
         "onnx": ["onnx>=1.16", "onnxruntime>=1.18"],
         "openvino": ["onnx>=1.16", "openvino>=2024.0"],
+        # many bags on a Ray cluster (`roadbev eval/label --ray ADDRESS`); the car's install has no need of it
+        "fleet": ["ray[default]>=2.9"],
     },
     zip_safe=False,
     entry_points={

@@ -20,8 +20,8 @@ against the true counterpart of the reference each message declares, and against
 plane). The per-frame grid metrics of each candidate's estimates on the drive frames are kept too.
 
 Run: ``.venv/bin/python -m benchmarks.bench_arrival [--duration 10] [--seeds 1] [--speeds 5 10 20 30]
-[--rates 5 10] [--candidates stereo ...] [--budget]``; writes ``benchmarks/results/arrival.json`` and
-``arrival.png``.
+[--rates 5 10] [--candidates stereo ...] [--budget] [--jobs N | --ray ADDRESS]``; writes
+``benchmarks/results/arrival.json`` and ``arrival.png``.
 """
 
 from __future__ import annotations
@@ -29,11 +29,9 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import multiprocessing
 import sys
 import time
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from functools import partial
 from pathlib import Path
@@ -41,7 +39,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from benchmarks.common import CACHE, RESULTS, machine_info, write_json
+from benchmarks.common import CACHE, RESULTS, add_executor_arguments, executor_from, machine_info, write_json
 from benchmarks.preview_budget import (
     STAGE_SEPARATOR,
     STAGES,
@@ -241,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
     add_candidate_arguments(parser, CACHE / "arrival_frames", "configurations of the node (node parameters after "
                             "the colon; each needs a row in --node-results)")
     parser.add_argument("--lead-time", type=float, default=0.1, help="lead time of messages without a receipt time")
-    parser.add_argument("--jobs", type=int, default=1, help="drives run in parallel processes")
+    add_executor_arguments(parser, "drives run")
     parser.add_argument("--out", default=str(RESULTS / "arrival.json"))
     args = parser.parse_args(argv)
     try:
@@ -258,11 +256,9 @@ def main(argv: list[str] | None = None) -> int:
             for s in range(args.seeds)]
     work = partial(_run_job, duration=args.duration, candidates=tuple(candidates), budget=args.budget,
                    lead=args.lead_time, frame_cache=args.frame_cache)
-    if args.jobs > 1:  # drives are independent and deterministic: the same results in any order
-        with ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-            results = list(pool.map(work, jobs))
-    else:
-        results = [work(job) for job in jobs]
+    with executor_from(args, parser) as pool:  # drives are independent and deterministic: the same results anywhere
+        results = pool.map(work, jobs)
+        info["executor"] = pool.describe()
     table = summarise(results)
     data = {
         "what": "preview at arrival of node configurations (fused map; per_frame: map off; the error budget's "

@@ -27,7 +27,8 @@ no feature, per km driven.
 
 Run: ``.venv/bin/python -m benchmarks.bench_hazards [--seeds 3]`` (true maps, writes
 ``benchmarks/results/hazards.json``) or ``.venv/bin/python -m benchmarks.bench_hazards --map
-[--speeds 5 10 20] [--rate 10] [--duration 12] [--smooth-duration S]`` (writes ``benchmarks/results/hazards_map.json``).
+[--speeds 5 10 20] [--rate 10] [--duration 12] [--smooth-duration S]`` (writes
+``benchmarks/results/hazards_map.json``); both take ``--jobs N`` or ``--ray ADDRESS`` (drives in parallel).
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.common import RESULTS, machine_info, write_json
+from benchmarks.common import RESULTS, add_executor_arguments, executor_from, machine_info, write_json
 
 SEED_BASE = 320_000
 ROADS: dict[str, tuple[str, tuple[str, ...]]] = {
@@ -247,23 +248,40 @@ def smooth_duration(args: argparse.Namespace) -> float:
     return float(args.duration if args.smooth_duration is None else args.smooth_duration)
 
 
-def main_map(args: argparse.Namespace, argv: list[str] | None) -> int:
+def _map_job(job: tuple[float, float, float, int, float, str, bool]) -> dict[str, Any]:
+    """:func:`run_map_drive` of one drive, with its lines on stderr."""
+    speed, rate, duration, seed, spacing, backend, features = job
+    print(f"rendered drive {speed:g} m/s {'features' if features else 'smooth'} seed {seed}, "
+          f"{duration:g} s at {rate:g} Hz", file=sys.stderr, flush=True)
+    d = run_map_drive(speed, rate, duration, seed, spacing, backend, features)
+    rep = [f for f in d["features"] if f["reported"]]
+    print(f"  {len(rep)}/{len(d['features'])} features reported, leads "
+          f"{sorted(f['lead_s'] for f in rep)} s (window {d['window_lead_s']} s), "
+          f"{d['false_alarms']} false alarms over {d['km'] * 1000:.0f} m", file=sys.stderr, flush=True)
+    return d
+
+
+def _drive_job(job: tuple[str, int, float, float]) -> dict[str, Any]:
+    """:func:`run_drive` of one drive, with its line on stderr."""
+    d = run_drive(*job)
+    print(f"  {d['road']:9s} seed {d['seed']}: {d['detected']}/{d['features']} features, "
+          f"{d['false_alarms']} false alarms over {d['length_km'] * 1000:.0f} m", file=sys.stderr, flush=True)
+    return d
+
+
+def main_map(args: argparse.Namespace, argv: list[str] | None, parser: argparse.ArgumentParser) -> int:
     """The fused-map benchmark (``--map``)."""
     info = machine_info()
     start = time.perf_counter()
-    drives = []
+    jobs = []
     for i, speed in enumerate(args.speeds):
         for features in (True, False) if speed in args.smooth_speeds else (True,):
             seed = MAP_SEED_BASE + 100 * i + (0 if features else 50)
             duration = args.duration if features else smooth_duration(args)
-            print(f"rendered drive {speed:g} m/s {'features' if features else 'smooth'} seed {seed}, "
-                  f"{duration:g} s at {args.rate:g} Hz", file=sys.stderr, flush=True)
-            d = run_map_drive(speed, args.rate, duration, seed, args.spacing, args.backend, features)
-            rep = [f for f in d["features"] if f["reported"]]
-            print(f"  {len(rep)}/{len(d['features'])} features reported, leads "
-                  f"{sorted(f['lead_s'] for f in rep)} s (window {d['window_lead_s']} s), "
-                  f"{d['false_alarms']} false alarms over {d['km'] * 1000:.0f} m", file=sys.stderr, flush=True)
-            drives.append(d)
+            jobs.append((speed, args.rate, duration, seed, args.spacing, args.backend, features))
+    with executor_from(args, parser) as pool:  # drives are independent and deterministic: the same results anywhere
+        drives = pool.map(_map_job, jobs)
+        info["executor"] = pool.describe()
     data = {"what": "hazards tracked on the fused map of rendered drives (bench_hazards --map; see its docstring)",
             "command": "python -m benchmarks.bench_hazards " + " ".join(argv if argv is not None else sys.argv[1:]),
             "backend": args.backend, "machine": info, "wall_s": round(time.perf_counter() - start, 1),
@@ -290,23 +308,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rate", type=float, default=10.0, help="--map: camera rate (Hz)")
     parser.add_argument("--spacing", type=float, default=6.0, help="--map: feature spacing (m)")
     parser.add_argument("--backend", default=MAP_BACKEND, help=f"--map: the backend (default {MAP_BACKEND})")
+    add_executor_arguments(parser, "drives run")
     args = parser.parse_args(argv)
     if args.smooth_duration is not None and not args.smooth_duration > 0:
         parser.error(f"--smooth-duration must be > 0 s, got {args.smooth_duration}")
     if args.map:
         args.duration = 12.0 if args.duration is None else args.duration
-        return main_map(args, argv)
+        return main_map(args, argv, parser)
     args.duration = 20.0 if args.duration is None else args.duration
     args.out = args.out or str(RESULTS / "hazards.json")
     info = machine_info()
     start = time.perf_counter()
-    drives = []
-    for k, kind in enumerate(ROADS):
-        for s in range(args.seeds):
-            d = run_drive(kind, SEED_BASE + 100 * k + s, args.duration, args.speed)
-            print(f"  {kind:9s} seed {d['seed']}: {d['detected']}/{d['features']} features, "
-                  f"{d['false_alarms']} false alarms over {d['length_km'] * 1000:.0f} m", file=sys.stderr, flush=True)
-            drives.append(d)
+    jobs = [(kind, SEED_BASE + 100 * k + s, args.duration, args.speed) for k, kind in enumerate(ROADS)
+            for s in range(args.seeds)]
+    with executor_from(args, parser) as pool:  # drives are independent and deterministic: the same results anywhere
+        drives = pool.map(_drive_job, jobs)
+        info["executor"] = pool.describe()
     feats = [d for d in drives if d["road"] == "features"]
     smooth = [d for d in drives if d["road"] != "features"]
     errs = [e for d in feats for e in d["height_rel_err"]]

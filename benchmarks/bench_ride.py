@@ -31,7 +31,7 @@ frames, the frame step of the camera rate, the ride settings) returning a list o
 
 Run: ``.venv/bin/python -m benchmarks.bench_ride [--duration 20] [--seeds 3] [--speeds 5 10 20]
 [--rates 5 10] [--render-seeds 1] [--render-duration 6] [--candidates stereo_int8=stereo:...]
-[--budget]``; writes ``benchmarks/results/ride.json`` and ``ride.png``.
+[--budget] [--jobs N | --ray ADDRESS]``; writes ``benchmarks/results/ride.json`` and ``ride.png``.
 """
 
 from __future__ import annotations
@@ -39,18 +39,16 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import multiprocessing
 import sys
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from functools import partial
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from benchmarks.common import CACHE, RESULTS, machine_info, write_json
+from benchmarks.common import CACHE, RESULTS, add_executor_arguments, executor_from, machine_info, write_json
 from benchmarks.preview_budget import (
     STAGE_SEPARATOR,
     STAGES,
@@ -411,7 +409,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed-base", type=int, default=SEED_BASE,
                         help="drive seeds start here (the benchmark's own by default; tuning runs take others)")
     parser.add_argument("--latency", type=float, default=0.1, help="latency of the truth rows (s)")
-    parser.add_argument("--jobs", type=int, default=1, help="drives ridden in parallel processes")
+    add_executor_arguments(parser, "drives ridden")
     parser.add_argument("--no-preview-gain", action="store_true",
                         help="the controller applies all of every preview (no gain measured on the road ridden)")
     parser.add_argument("--out", default=str(RESULTS / "ride.json"))
@@ -455,11 +453,9 @@ def main(argv: list[str] | None = None) -> int:
                          for s in range(args.render_seeds)]
     work = partial(_run_job, rates=tuple(args.rates), latency=args.latency, candidates=tuple(candidates),
                    budget=args.budget, frame_cache=args.frame_cache, preview_gain=not args.no_preview_gain)
-    if args.jobs > 1:  # drives are independent and deterministic: the same cells in any order
-        with ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-            done = list(pool.map(work, jobs))
-    else:
-        done = [work(job) for job in jobs]
+    with executor_from(args, parser) as pool:  # drives are independent and deterministic: the same cells anywhere
+        done = pool.map(work, jobs)
+        info["executor"] = pool.describe()
     computed = {(job.kind, job.speed, job.seed): cell for job, cell in zip(jobs, done, strict=True)}
     cells = [computed.get(key) or reused[key] for key in _cell_order(args, base, bool(candidates), reused)]
     table = summarise(cells)

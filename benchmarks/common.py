@@ -21,14 +21,17 @@ from typing import Any
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.frame import Estimate, Frame
 from roadbev_lab.evaluation.frames import to_json
+from roadbev_lab.fleet.executors import Executor, FleetError, make_executor
 
 __all__ = [
     "CACHE",
     "EVAL_SEED_BASE",
     "RESULTS",
     "add_appearance_argument",
+    "add_executor_arguments",
     "available_backends",
     "eval_samples",
+    "executor_from",
     "machine_info",
     "scene_samples",
     "write_json",
@@ -64,6 +67,24 @@ def add_appearance_argument(parser: argparse.ArgumentParser, frames: str) -> Non
         help=f"draw {frames} from this appearance range (default {DEFAULT_APPEARANCE}; clean: the "
              "generator's own before scene version 2)",
     )
+
+
+def add_executor_arguments(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--jobs N`` (``what`` in N local processes) and ``--ray ADDRESS`` (as tasks on a Ray
+    cluster: ``auto``, ``local`` or its address; :mod:`roadbev_lab.fleet.executors`). The results
+    are the serial run's: every task is independent and deterministic, and comes back in order."""
+    parser.add_argument("--jobs", type=int, default=1, help=f"{what} in parallel processes (default 1: in this one)")
+    parser.add_argument("--ray", default=None, metavar="ADDRESS",
+                        help=f"{what} as tasks on a Ray cluster: its address, 'auto' (this environment's) or "
+                             "'local' (start one with --jobs CPUs)")
+
+
+def executor_from(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Executor:
+    """The executor of :func:`add_executor_arguments`' options (refused through ``parser`` when it cannot start)."""
+    try:
+        return make_executor(args.jobs if args.ray is None or args.jobs > 1 else None, args.ray)
+    except FleetError as exc:
+        parser.error(str(exc))
 
 
 def eval_samples(

@@ -726,6 +726,45 @@ def synth(data: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
+# --- the fleet's paper-scale plan ------------------------------------------------------------------
+
+PLAN_HOURS = 1000  # hours of driving to label and evaluate
+PLAN_RATE_HZ = 10  # stereo frames per second
+PLAN_LIDAR_POINTS = 120_000  # points per LiDAR scan (a 64-beam spinning LiDAR at 10 Hz)
+PLAN_SCANS = (1, 13)  # scans per labelled frame: the nearest (label.window_s 0) and +-0.6 s at 10 Hz
+PLAN_DAY_H = 24.0  # a day's run
+
+
+def fleet_plan(*results: Mapping[str, Any]) -> str:
+    """What labelling and evaluating PLAN_HOURS of PLAN_RATE_HZ stereo costs in core-hours, and the
+    one-core workers a day's run needs: evaluation from each backend's ``roadbev eval`` of the
+    sample drive (one inference thread: the whole command per frame, decoding included), labels
+    from the image decoding of that run and bench_labels' points-to-cells time."""
+    *drives, labels = results
+    frames = PLAN_HOURS * 3600 * PLAN_RATE_HZ
+    lines = _head("job", "per frame (ms, one core)", f"core-hours for {PLAN_HOURS:,} h at {PLAN_RATE_HZ} Hz",
+                  f"one-core workers for a {PLAN_DAY_H:g} h run")
+
+    def row(job: str, ms: float) -> str:
+        core_h = frames * ms / 1000.0 / 3600.0
+        return _row([job, _fmt(ms, 1), f"{core_h:,.0f}", f"{math.ceil(core_h / PLAN_DAY_H):,}"])
+
+    for d in drives:
+        lines.append(row(f"`roadbev eval`, `{d['backend']}`", 1000.0 / d["fps"]))
+    decode_ms = float(next(d for d in drives if d["backend"] == "bm")["stage_ms"]["decode"])
+    per_point_ms = 1000.0 * labels["vectorized_s"] / labels["points"]
+    for scans in PLAN_SCANS:
+        what = "the nearest scan" if scans == 1 else f"{scans} scans accumulated"
+        lines.append(row(f"`roadbev label`, {what}", decode_ms + scans * PLAN_LIDAR_POINTS * per_point_ms))
+    lines.append("")
+    lines.append(f"{frames:,} frames. Evaluation: each backend's whole `roadbev eval` per frame on the sample drive "
+                 "(960 × 528 JPEG pairs, reading and decoding included, the default inference_threads). Labels: "
+                 f"the image decoding of that run ({_fmt(decode_ms, 1)} ms) plus the label computation of bench_labels "
+                 f"({_fmt(per_point_ms * 1e6, 1)} ms per million points) for scans of {PLAN_LIDAR_POINTS:,} points; "
+                 "writing the labelled bag is not in it.")
+    return "\n".join(lines)
+
+
 # --- the demo ------------------------------------------------------------------------------------
 
 def demo(data: Mapping[str, Any]) -> str:
@@ -872,6 +911,9 @@ TABLES: dict[str, Table] = {
     "hazards_map": Table(("hazards_map.json",), hazards_map),
     "labels": Table(("labels.json",), labels, ".venv/bin/python -m benchmarks.bench_labels"),
     "synth": Table(("synth.json",), synth, ".venv/bin/python -m benchmarks.bench_synth"),
+    "fleet_plan": Table((*(f"sample_drive_{b}.json" for b in SAMPLE_DRIVE_BACKENDS), "labels.json"), fleet_plan,
+                        ".venv/bin/roadbev eval bags/sample_drive.mcap --backend B --json "
+                        "benchmarks/results/sample_drive_B.json and .venv/bin/python -m benchmarks.bench_labels"),
 }
 
 

@@ -4,6 +4,7 @@ Run (from the repository root)::
 
     .venv/bin/python -m benchmarks.run_all            # default: 24 frames + robustness sweep
     .venv/bin/python -m benchmarks.run_all --quick    # smoke test: 3 frames, one level each
+    .venv/bin/python -m benchmarks.run_all --ray auto # the backends as tasks on a Ray cluster (or --jobs N)
 
 Writes ``benchmarks/results/table1.json`` and ``table1.md`` (abs. err., RMSE, >0.5 cm, FPS on
 this machine, coverage, per-stage times, the uncertainty keys: error within 1/2/3 sigma,
@@ -22,17 +23,21 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import torch
+from tqdm import tqdm
 
 from benchmarks.common import (
     EVAL_SEED_BASE,
     RESULTS,
     add_appearance_argument,
+    add_executor_arguments,
     available_backends,
     eval_samples,
+    executor_from,
     machine_info,
     scene_samples,
     write_json,
@@ -41,6 +46,7 @@ from roadbev_core.backends import create
 from roadbev_core.config import GridSpec
 from roadbev_lab.evaluation.frames import common_cell_errors, evaluate, format_table
 from roadbev_lab.evaluation.metrics import N_BANDS
+from roadbev_lab.fleet.executors import Executor, SerialPool
 from roadbev_lab.reports.figures import FigureError, reliability_figure
 from roadbev_lab.synth.appearance import DEFAULT_APPEARANCE
 
@@ -186,14 +192,23 @@ def plot_bands(rows: list[dict[str, Any]], grid_x: tuple[float, float], path: Pa
     fig.savefig(path)
 
 
+def _backend_row(name: str, *, samples: list[Any], grid: GridSpec, quiet: bool) -> tuple[dict[str, Any], list[Any]]:
+    """One backend on the evaluation set: its metrics (with its parameters) and its elevations."""
+    backend = create(name, grid)
+    with tqdm(total=len(samples), desc=name, unit="frame", disable=quiet, file=sys.stderr) as bar:
+        result = evaluate(backend, samples, progress=bar.update, keep_estimates=True)
+    metrics = result.to_dict()
+    if hasattr(backend, "describe"):
+        metrics["parameters"] = backend.describe()
+    return metrics, [e.elevation for e in result.estimates or []]
+
+
 def run_table(
     frames: int, names: list[str], *, out_dir: Path, quiet: bool = False, scene_cache: str | None = None,
-    appearance: str | None = None,
+    appearance: str | None = None, executor: Executor | None = None,
 ) -> dict[str, Any]:
-    """Render the evaluation set, run every backend on it, write table1.{json,md}, band_error.png and
-    reliability.png."""
-    from tqdm import tqdm
-
+    """Render the evaluation set, run every backend on it (one task per backend on ``executor``,
+    this process by default), write table1.{json,md}, band_error.png and reliability.png."""
     grid = GridSpec()  # the interface's default grid and the RSRD half-resolution rig
     t0 = time.perf_counter()
     if scene_cache:
@@ -202,17 +217,12 @@ def run_table(
         with tqdm(total=frames, desc="render eval set", unit="frame", disable=quiet, file=sys.stderr) as bar:
             samples = eval_samples(frames, grid=grid, progress=bar.update, appearance=appearance)
     render_s = time.perf_counter() - t0
-    rows = []
-    elevations: dict[str, list[Any]] = {}
-    for name in names:
-        backend = create(name, grid)
-        with tqdm(total=frames, desc=name, unit="frame", disable=quiet, file=sys.stderr) as bar:
-            result = evaluate(backend, samples, progress=bar.update, keep_estimates=True)
-        metrics = result.to_dict()
-        if hasattr(backend, "describe"):
-            metrics["parameters"] = backend.describe()
-        rows.append(metrics)
-        elevations[name] = [e.elevation for e in result.estimates or []]
+    pool = executor or SerialPool()
+    # each backend's accuracy is the serial run's wherever it runs; its timing is that of the
+    # machine it ran on, alongside whatever ran there too (executor in the record)
+    done = pool.map(partial(_backend_row, samples=samples, grid=grid, quiet=quiet or pool.workers > 1), names)
+    rows = [metrics for metrics, _ in done]
+    elevations = {name: elevation for name, (_, elevation) in zip(names, done, strict=True)}
     table = format_table(rows)
     targets = check_targets(rows)
     truths = [s[1] if isinstance(s, tuple) else s.truth.elevation for s in samples]
@@ -225,6 +235,7 @@ def run_table(
         "seeds": [EVAL_SEED_BASE, EVAL_SEED_BASE + frames - 1],
         "appearance": appearance or DEFAULT_APPEARANCE,
         "render_s": render_s,
+        "executor": pool.describe(),
         "results": rows,
         "targets": targets,
     }
@@ -258,6 +269,7 @@ def main(argv: list[str] | None = None) -> int:
         "--torch-threads", type=int, default=None, help="torch intra-op threads (default: torch's, = cores)"
     )
     add_appearance_argument(parser, "the frames' pavement and camera appearance")
+    add_executor_arguments(parser, "backends run")
     args = parser.parse_args(argv)
     if args.torch_threads is not None:
         if args.torch_threads < 1:
@@ -276,9 +288,9 @@ def main(argv: list[str] | None = None) -> int:
         print("no backend available", file=sys.stderr)
         return 2
     out_dir = Path(args.out)
-    record = run_table(
-        frames, names, out_dir=out_dir, quiet=args.quiet, scene_cache=args.scene_cache, appearance=args.appearance
-    )
+    with executor_from(args, parser) as executor:
+        record = run_table(frames, names, out_dir=out_dir, quiet=args.quiet, scene_cache=args.scene_cache,
+                           appearance=args.appearance, executor=executor)
     record["skipped"] = {n: status[n] for n in wanted if status[n]}
     write_json(out_dir / "table1.json", record)
     if not args.no_robustness:

@@ -8,6 +8,7 @@ other. Processes the tests start inherit both.
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import random
 from collections.abc import Iterator
@@ -36,6 +37,27 @@ try:  # torch is optional for the pure-numpy tests
     torch.set_num_threads(2)
 except ImportError:  # pragma: no cover
     pass
+
+
+RAY_MISSING = "Ray is not installed (the fleet extra: pip install .[fleet])"
+
+
+@pytest.fixture(scope="session")
+def ray_cluster() -> Iterator[Any]:
+    """``ray`` joined to a local cluster with 2 CPUs (two task workers) for the session, shut down at
+    the end; the tests that need it skip (with the reason) where Ray is not installed."""
+    if importlib.util.find_spec("ray") is None:
+        pytest.skip(RAY_MISSING)
+    # Ray is the fleet extra: only the tests that ask for a cluster load it
+    import ray
+
+    # the workers import the project as this process does (PYTHONPATH), and report no usage
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        yield ray
+    finally:
+        ray.shutdown()
 
 
 @pytest.fixture(scope="session")

@@ -15,6 +15,13 @@ frames and the reasons are printed (and are in the JSON: ``lost_frames``, ``loss
 non-zero only when no frame at all could be evaluated. ``--out OUT.mcap`` writes the outputs
 (``/roadbev/elevation``, ``/roadbev/preview``, as the node publishes them); on a bag without
 ground truth that is the result, and the command says there is nothing to score.
+
+Many bags at once (several BAGs, a folder of bags, a glob pattern, or ``--workers`` / ``--ray``:
+:mod:`roadbev_cli.fleet`): one task per bag on a local process pool or a Ray cluster, each bag's
+result kept in ``--store`` as it finishes (a run again skips the bags done), and one summary:
+every bag's JSON as above and the metrics of all of them pooled (``--json``), and a report
+(printed; ``--report``). A bag that fails is listed with its reason; the exit is then non-zero,
+after everything else is written.
 """
 
 from __future__ import annotations
@@ -26,20 +33,25 @@ from typing import Any
 
 from msg_bridge.outputs import OutputBag
 from roadbev_cli.cli import CommandError, add_output_flags, progress_bar, seconds, shows_progress, warn
+from roadbev_cli.fleet import add_fleet_arguments, fail_on_failed_bags, run_fleet, wants_fleet
 from roadbev_core.backends import takes_checkpoint
-from roadbev_core.config import DEFAULT_BACKEND, GridSpec, RoadbevConfig, load_params_file
-from roadbev_core.pipeline import PipelineOutput, check_config
-from roadbev_core.selfcheck import MIN_COVERAGE_PCT, self_check
+from roadbev_core.config import DEFAULT_BACKEND, RoadbevConfig, load_params_file
+from roadbev_core.pipeline import check_config
 from roadbev_lab.evaluation.evalbag import grid_fields
 from roadbev_lab.evaluation.frames import format_table, to_json
-from roadbev_lab.evaluation.offline import OfflineEvalError, prepare_bag, run_prepared
+from roadbev_lab.evaluation.offline import OfflineEvalError, eval_record, prepare_bag, run_prepared
+from roadbev_lab.fleet.store import ResultStore, content_digest
+from roadbev_lab.fleet.summary import eval_report, eval_summary
+from roadbev_lab.fleet.tasks import EvalSettings
 
 HELP = "run a backend over every frame of a bag (no DDS) and report the metrics"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``roadbev eval``."""
-    parser.add_argument("bag", metavar="BAG", help="rosbag2 directory (with metadata.yaml) or .mcap file")
+    parser.add_argument("bag", metavar="BAG", nargs="+",
+                        help="rosbag2 directory (with metadata.yaml) or .mcap file; several, a folder of bags or a "
+                             "glob pattern (quoted: 'archive/day*') evaluate many bags")
     parser.add_argument(
         "--backend", default=None, help=f"elevation backend (default: the params' 'backend', else {DEFAULT_BACKEND})"
     )
@@ -58,6 +70,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     fused.add_argument("--map", dest="map", action="store_true", default=None,
                        help="run the fused road map (needs odometry in the bag; default: on when the bag has it)")
     fused.add_argument("--no-map", dest="map", action="store_false", help="the per-frame pipeline only")
+    add_fleet_arguments(parser, store=True)
+    parser.add_argument("--report", default=None, metavar="OUT.md",
+                        help="many bags: also write the printed report (Markdown) here")
 
 
 def check_bag_path(path: Path) -> None:
@@ -71,9 +86,10 @@ def check_bag_path(path: Path) -> None:
         raise CommandError(f"{path} is neither a rosbag2 directory nor an .mcap file")
 
 
-def _settings(args: argparse.Namespace) -> tuple[RoadbevConfig, dict[str, float]]:
+def _settings(args: argparse.Namespace) -> tuple[RoadbevConfig, dict[str, float], set[str]]:
     """The settings the user gave (params file, --backend, --checkpoint) as the one config, checked
-    by name, type and range, and the grid fields among them (they win over the bag's own)."""
+    by name, type and range, the grid fields among them (they win over the bag's own) and the
+    names of the parameters given."""
     explicit: dict[str, Any] = {}
     if args.params is not None:
         loaded = load_params_file(args.params)
@@ -89,7 +105,7 @@ def _settings(args: argparse.Namespace) -> tuple[RoadbevConfig, dict[str, float]
             raise CommandError(f"--checkpoint applies to the learned backends (stereo, mono), not {name!r}")
         explicit["checkpoint"] = args.checkpoint
     config = check_config(RoadbevConfig.from_params(explicit))  # unknown names, wrong types, ranges, the whole
-    return config, grid_fields(explicit)
+    return config, grid_fields(explicit), set(explicit)
 
 
 def _print_drive_keys(metrics: dict[str, Any]) -> None:
@@ -113,22 +129,17 @@ def _cm(value: Any, digits: int = 3) -> str:
     return "nan" if value is None else f"{float(value):.{digits}f}"
 
 
-def coverage_hint(first: PipelineOutput | None, grid: GridSpec, coverage_pct: float | None) -> str | None:
-    """The self-check's one-line hint (:func:`roadbev_core.selfcheck.self_check` on the
-    evaluation's first frame and its estimate) when the evaluation's coverage fell below the
-    threshold; None otherwise."""
-    if coverage_pct is None or coverage_pct >= MIN_COVERAGE_PCT or first is None:
-        return None
-    return self_check(first.estimate, first.frame, grid).message
-
-
 def run(args: argparse.Namespace) -> int:
     """Evaluate, print the table, write the JSON; non-zero exit (via CommandError) on bad input."""
-    path = Path(args.bag)
+    if wants_fleet(args.bag, args):
+        return _run_many(args)
+    if args.report:
+        raise CommandError("--report is for many bags; one bag's report is what is printed")
+    path = Path(args.bag[0])
     check_bag_path(path)
     if args.frames is not None and args.frames < 1:
         raise CommandError(f"--frames must be >= 1, got {args.frames}")
-    settings, grid_overrides = _settings(args)
+    settings, grid_overrides, _given = _settings(args)
     try:
         prepared = prepare_bag(path, settings, grid_overrides=grid_overrides, map_enabled=args.map)
     except OfflineEvalError as exc:
@@ -156,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
         bar.close()
     if outputs is not None:
         outputs.close()
+    record = eval_record(evaluation, path, args.params)
     metrics, result = evaluation.metrics, evaluation.result
     for line in metrics["losses"]:
         print(f"lost: {line}", file=sys.stderr)
@@ -180,18 +192,12 @@ def run(args: argparse.Namespace) -> int:
             + ("-" if metrics.get("mean_sigma_cm") is None else f"{metrics['mean_sigma_cm']:.3f}")
             + " cm"
         )
-        hint = coverage_hint(result.first, config.grid, metrics.get("coverage_pct"))
-        if hint:
-            print(f"self-check: {hint}")
-            metrics["self_check"] = hint
+        if record.get("self_check"):
+            print(f"self-check: {record['self_check']}")
     if outputs is not None:
         counts = ", ".join(f"{t}: {n}" for t, n in sorted(outputs.counts.items()))
         print(f"outputs written to {args.out} ({counts})")
     if args.json:
-        record = {**metrics, "bag": str(path), "grid": bag.grid.to_dict(),
-                  "backend_options": config.backend.options_of()}
-        if args.params:
-            record["params_file"] = str(args.params)
         out = Path(args.json)
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(to_json(record))
@@ -201,5 +207,51 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError(f"every frame was refused: {reasons}")
     if metrics.get("frames_with_truth", 0) > 0 and metrics.get("coverage_pct") == 0:
         raise CommandError("every frame came out empty (coverage 0 %)"
-                           + (f": {metrics['self_check']}" if metrics.get("self_check") else ""))
+                           + (f": {record['self_check']}" if record.get("self_check") else ""))
+    return 0
+
+
+def _checkpoint_digest(config: RoadbevConfig) -> str | None:
+    """The content digest of the checkpoint file the settings name (None: the shipped one)."""
+    checkpoint = config.backend.options_of().get("checkpoint")
+    if not checkpoint or not Path(str(checkpoint)).is_file():
+        return None
+    return content_digest(Path(str(checkpoint)))
+
+
+def _run_many(args: argparse.Namespace) -> int:
+    """Many bags (:mod:`roadbev_cli.fleet`): run them, write the summary and the report."""
+    if args.out:
+        raise CommandError("--out writes one bag's outputs: evaluate that bag alone to keep them")
+    if args.frames is not None and args.frames < 1:
+        raise CommandError(f"--frames must be >= 1, got {args.frames}")
+    config, grid_overrides, given = _settings(args)
+    if "inference_threads" not in given:  # the pool parallelises over bags: one thread per task
+        config = config.with_params({"inference_threads": 1})
+    settings = EvalSettings(config, grid_overrides, args.map, args.lead_time, args.frames,
+                            str(args.params) if args.params else None)
+    params = config.to_params()
+    params["checkpoint"] = _checkpoint_digest(config)  # the checkpoint's content, not its path, makes the result
+    store = ResultStore(args.store)
+    fleet = run_fleet("eval", args, args.bag, settings,
+                      {"params": params, "grid_overrides": grid_overrides, "map": args.map,
+                       "lead_time_s": args.lead_time, "frames": args.frames}, store)
+    run_record = {"command": "roadbev eval", "backend": config.backend.name,
+                  "backend_options": config.backend.options_of(), "params_file": settings.params_file,
+                  "lead_time_s": args.lead_time, "frames": args.frames, "map": args.map, "store": str(args.store),
+                  "executor": fleet.executor, "wall_s": fleet.wall_s}
+    summary = eval_summary(fleet.outcomes, store, run_record)
+    report = eval_report(summary)
+    print(report, end="")
+    if args.report:
+        out = Path(args.report)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(report)
+        print(f"report written to {out}")
+    if args.json:
+        out = Path(args.json)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(to_json(summary))
+        print(f"summary written to {out}")
+    fail_on_failed_bags(fleet)
     return 0

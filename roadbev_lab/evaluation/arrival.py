@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, NamedTuple, cast
 
@@ -59,6 +59,7 @@ if TYPE_CHECKING:  # the pipeline imports nothing from here; typing only
 
 __all__ = [
     "ARRIVAL_KEYS",
+    "MAP_KEYS",
     "REFERENCE_CONTACT_PLANE",
     "REFERENCE_ROAD",
     "ArrivalError",
@@ -67,13 +68,18 @@ __all__ = [
     "RoadMap",
     "TimedPreview",
     "Trajectory",
+    "WheelErrors",
     "WheelPath",
     "arrival_points",
     "feature_mask",
     "map_accuracy",
+    "map_summary",
+    "map_window_rows",
     "per_frame_previews",
     "preview_at_arrival",
+    "summarise_errors",
     "summarise_points",
+    "wheel_errors",
     "wheel_paths",
 ]
 
@@ -88,6 +94,9 @@ ARRIVAL_KEYS: tuple[str, ...] = (
     "smooth_abs_err_cm",
     "contact_plane_abs_err_cm",
 )
+# The fused map's keys (docs/interface/evaluation.md, "map"), each a mean over the published windows.
+MAP_KEYS: tuple[str, ...] = ("abs_err_cm", "coverage_pct", "within_1sigma_pct", "within_2sigma_pct",
+                             "within_3sigma_pct", "confident_wrong_pct", "mean_sigma_cm", "datum_offset_cm")
 # Which preview track a front wheel reads, by the track's name.
 _TRACK_OF_WHEEL = {"front_left": ("front_left", "left"), "front_right": ("front_right", "right")}
 
@@ -509,14 +518,47 @@ def preview_at_arrival(
     return summarise_points(points, settings.lead_time_s)
 
 
+class WheelErrors(NamedTuple):
+    """What the ``preview_at_arrival`` keys of one front wheel are computed from: its path
+    points' errors and masks (:class:`ArrivalPoints` without the path). Points of several drives
+    concatenate, so the keys over many drives are those of all their points at once.
+
+    Attributes:
+        error: [P] preview - true height (m; NaN where missing or the truth is unknown).
+        error_contact_plane: [P] the same against the true contact plane.
+        feature: [P] bool a feature point.
+        known: [P] bool the true height is known.
+        covered: [P] bool known and a message covered the point.
+    """
+
+    error: np.ndarray
+    error_contact_plane: np.ndarray
+    feature: np.ndarray
+    known: np.ndarray
+    covered: np.ndarray
+
+    def concat(self, other: WheelErrors) -> WheelErrors:
+        """These points followed by ``other``'s."""
+        return WheelErrors(*(np.concatenate([a, b]) for a, b in zip(self, other, strict=True)))
+
+
+def wheel_errors(points: Sequence[ArrivalPoints]) -> dict[str, WheelErrors]:
+    """Front wheel name -> its :class:`WheelErrors` of :func:`arrival_points`."""
+    return {p.path.name: WheelErrors(p.error, p.error_contact_plane, p.path.feature, p.known, p.covered)
+            for p in points}
+
+
 def summarise_points(points: Sequence[ArrivalPoints], lead_time_s: float) -> dict[str, Any]:
     """The ``preview_at_arrival`` keys over :func:`arrival_points` (pooled over the wheels, and ``per_wheel``)."""
-    per_wheel = {p.path.name: _summary(p.error, p.error_contact_plane, p.path.feature, p.known, p.covered, lead_time_s)
-                 for p in points}
-    cat = {k: np.concatenate([getattr(p, k) for p in points]) for k in ("error", "error_contact_plane", "known",
-                                                                         "covered")}
-    feature = np.concatenate([p.path.feature for p in points])
-    out = _summary(cat["error"], cat["error_contact_plane"], feature, cat["known"], cat["covered"], lead_time_s)
+    return summarise_errors(wheel_errors(points), lead_time_s)
+
+
+def summarise_errors(wheels: Mapping[str, WheelErrors], lead_time_s: float) -> dict[str, Any]:
+    """The ``preview_at_arrival`` keys over each front wheel's points (pooled over the wheels,
+    in their order, and ``per_wheel``)."""
+    per_wheel = {name: _summary(*w, lead_time_s) for name, w in wheels.items()}
+    pooled = WheelErrors(*(np.concatenate(parts) for parts in zip(*wheels.values(), strict=True)))
+    out = _summary(*pooled, lead_time_s)
     out["per_wheel"] = per_wheel
     return out
 
@@ -567,9 +609,23 @@ def map_accuracy(windows: Sequence[MapWindow], road_map: RoadMap, truth: Traject
     """
     if not windows:
         raise ArrivalError("no map windows to score")
-    keys = ("abs_err_cm", "coverage_pct", "within_1sigma_pct", "within_2sigma_pct", "within_3sigma_pct",
-            "confident_wrong_pct", "mean_sigma_cm", "datum_offset_cm")
-    rows: dict[str, list[float]] = {k: [] for k in keys}
+    return map_summary(map_window_rows(windows, road_map, truth, vehicle), len(windows))
+
+
+def map_summary(rows: Mapping[str, Sequence[float]], windows: int) -> dict[str, Any]:
+    """The ``"map"`` keys from :func:`map_window_rows` (each the mean over the windows that have
+    it; NaN without any) and the number of windows published. Rows of several drives
+    concatenate: the keys over many drives are the means over all their windows."""
+    out: dict[str, Any] = {k: float(np.mean(rows.get(k, ()))) if len(rows.get(k, ())) else math.nan
+                           for k in MAP_KEYS}
+    out["windows"] = int(windows)
+    return out
+
+
+def map_window_rows(windows: Sequence[MapWindow], road_map: RoadMap, truth: Trajectory | None = None,
+                    vehicle: VehicleConfig | None = None) -> dict[str, list[float]]:
+    """Per :data:`MAP_KEYS` key, its value on each window that has one (see :func:`map_accuracy`)."""
+    rows: dict[str, list[float]] = {k: [] for k in MAP_KEYS}
     vehicle = vehicle or VehicleConfig()
     for window in windows:
         x, y = window.cell_centres()
@@ -596,9 +652,7 @@ def map_accuracy(windows: Sequence[MapWindow], road_map: RoadMap, truth: Traject
             rows[f"within_{k}sigma_pct"].append(100.0 * float(np.mean(err <= k * sigma)))
         rows["confident_wrong_pct"].append(100.0 * float(np.mean((err > 3 * sigma) & (err > 0.01))))
         rows["mean_sigma_cm"].append(100.0 * float(sigma.mean()))
-    out: dict[str, Any] = {k: float(np.mean(v)) if v else math.nan for k, v in rows.items()}
-    out["windows"] = len(windows)
-    return out
+    return rows
 
 
 def _offset_under_the_car(error: np.ndarray, held: np.ndarray, gx: np.ndarray, gy: np.ndarray, truth: Trajectory,

@@ -34,7 +34,16 @@ from msg_bridge.grid_map import decode_grid_map, grid_map_message_at
 from msg_bridge.tf import StaticTransform, camera_mount, odometry_message, tf_message, transforms_from_tf
 from roadbev_core.config import BASE_FRAME, RoadbevConfig, TopicsConfig
 from roadbev_core.geometry import GeometryError, quaternion_to_rotation
-from roadbev_lab.evaluation.arrival import ArrivalSettings, RoadMap, TimedPreview, Trajectory, preview_at_arrival
+from roadbev_lab.evaluation.arrival import (
+    ArrivalSettings,
+    RoadMap,
+    TimedPreview,
+    Trajectory,
+    WheelErrors,
+    arrival_points,
+    summarise_errors,
+    wheel_errors,
+)
 from roadbev_lab.evaluation.evalbag import LEFT_FRAME, TF_STATIC_TOPIC, write_eval_bag
 
 __all__ = [
@@ -46,6 +55,7 @@ __all__ = [
     "evaluate_drive_previews",
     "is_drive_bag",
     "read_drive_truth",
+    "score_preview_errors",
     "score_previews",
     "write_drive_bag",
 ]
@@ -259,11 +269,26 @@ def score_previews(
         The ``preview_at_arrival`` keys (see :func:`roadbev_lab.evaluation.arrival.preview_at_arrival`) plus
         ``notes`` on how the truth was read.
     """
+    return score_preview_errors(truth, previews, frame_stamps_ns, config, lead_time_s=lead_time_s)[0]
+
+
+def score_preview_errors(
+    truth: DriveTruth,
+    previews: Sequence[TimedPreview],
+    frame_stamps_ns: Sequence[int],
+    config: RoadbevConfig,
+    *,
+    lead_time_s: float = 0.1,
+) -> tuple[dict[str, Any], dict[str, WheelErrors]]:
+    """:func:`score_previews` and the points it summarised, per front wheel (to pool the keys
+    of several drives: :func:`roadbev_lab.evaluation.arrival.summarise_errors`)."""
     settings = arrival_settings(config, lead_time_s=lead_time_s, camera_in_base=truth.camera_in_base)
-    out = preview_at_arrival(previews, truth.trajectory, truth.road_map, settings, frame_stamps_ns=frame_stamps_ns)
+    wheels = wheel_errors(arrival_points(previews, truth.trajectory, truth.road_map, settings,
+                                         frame_stamps_ns=frame_stamps_ns))
+    out = summarise_errors(wheels, settings.lead_time_s)
     if truth.notes:
         out["notes"] = list(truth.notes)
-    return out
+    return out, wheels
 
 
 def evaluate_drive_previews(

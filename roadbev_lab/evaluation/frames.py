@@ -46,7 +46,9 @@ from roadbev_lab.evaluation.metrics import (
 __all__ = [
     "CONTRACT_KEYS",
     "STAGE_GROUPS",
+    "TIMING_KEYS",
     "EvalResult",
+    "EvalSums",
     "EvaluationError",
     "common_cell_errors",
     "evaluate",
@@ -54,6 +56,7 @@ __all__ = [
     "json_safe",
     "stage_group",
     "to_json",
+    "without_timing",
 ]
 
 # Keys every metrics dict carries (docs/interface/evaluation.md: roadbev eval --json).
@@ -68,6 +71,10 @@ CONTRACT_KEYS: tuple[str, ...] = (
     "fps",
     "coverage_pct",
 )
+
+# Keys of a metrics dict that are wall time on the machine that ran it: everything else is a
+# function of the frames and the settings, the same wherever and alongside whatever it ran.
+TIMING_KEYS: tuple[str, ...] = ("fps", "pipeline_ms", "stage_ms", "backend_stage_ms")
 
 # Backend stage names (Estimate.timings_ms keys) -> the four reported groups.
 STAGE_GROUPS: dict[str, tuple[str, ...]] = {
@@ -90,6 +97,65 @@ def stage_group(stage: str) -> str:
     return "other"
 
 
+def without_timing(metrics: dict[str, Any]) -> dict[str, Any]:
+    """``metrics`` without the :data:`TIMING_KEYS`: what two runs of the same evaluation agree on."""
+    return {k: v for k, v in metrics.items() if k not in TIMING_KEYS}
+
+
+@dataclass
+class EvalSums:
+    """What an evaluation's metrics are computed from, as sums that add up over evaluations: the
+    metrics of several evaluations pooled (:meth:`merge`) are those of all their frames at once,
+    never an average of their means.
+
+    Attributes:
+        backend: the backend's name.
+        accuracy: the accuracy sums and error histogram (:class:`MetricAccumulator`).
+        sigma: the uncertainty sums and reliability histograms (:class:`SigmaAccumulator`).
+        frames: frames evaluated.
+        timed_frames: frames timed (each evaluation's first frame is its warm-up).
+        decode_ms_sum, estimate_ms_sum: milliseconds summed over the timed frames.
+        stage_ms_sum: the backend's stage name -> milliseconds summed over the timed frames.
+    """
+
+    backend: str
+    accuracy: MetricAccumulator
+    sigma: SigmaAccumulator
+    frames: int
+    timed_frames: int
+    decode_ms_sum: float
+    estimate_ms_sum: float
+    stage_ms_sum: dict[str, float] = field(default_factory=dict)
+
+    def merge(self, other: EvalSums) -> EvalSums:
+        """These sums and ``other``'s added, as a new object.
+
+        Raises:
+            ValueError: another backend, or accuracy on another grid.
+        """
+        if other.backend != self.backend:
+            raise ValueError(f"cannot pool backend {other.backend!r} into {self.backend!r}")
+        accuracy = MetricAccumulator.from_state(self.accuracy.grid, self.accuracy.state())
+        accuracy.merge(other.accuracy)
+        sigma = SigmaAccumulator.from_state(self.sigma.state())
+        sigma.merge(other.sigma)
+        stages = dict(self.stage_ms_sum)
+        for stage, ms in other.stage_ms_sum.items():
+            stages[stage] = stages.get(stage, 0.0) + ms
+        return EvalSums(self.backend, accuracy, sigma, self.frames + other.frames,
+                        self.timed_frames + other.timed_frames, self.decode_ms_sum + other.decode_ms_sum,
+                        self.estimate_ms_sum + other.estimate_ms_sum, stages)
+
+    def metrics(self) -> dict[str, Any]:
+        """The metrics dict of :class:`EvalResult` (the interface's keys, timing and uncertainty)."""
+        scored = self.accuracy.result()
+        metrics = _metrics(self.backend, scored, self.frames, self.timed_frames, self.decode_ms_sum,
+                           self.estimate_ms_sum, self.stage_ms_sum)
+        # Calibration of the reported 1-sigma uncertainty: a Gaussian would put 68.3 / 95.4 / 99.7 % inside.
+        metrics.update(self.sigma.result())
+        return metrics
+
+
 @dataclass
 class EvalResult:
     """What :func:`evaluate` measured.
@@ -103,6 +169,7 @@ class EvalResult:
             sigma; NaN without any),
             ``stage_ms`` (the four groups + ``other``) and ``backend_stage_ms`` (the backend's own
             stage names).
+        sums: the sums the metrics were computed from (to pool them with other evaluations').
         per_frame: one dict per frame: ``stamp_ns``, ``abs_err_cm``, ``coverage_pct`` (NaN
             without truth), ``decode_ms``, ``estimate_ms``.
         estimates: the backend's estimates, in order (only with ``keep_estimates``).
@@ -115,6 +182,7 @@ class EvalResult:
 
     metrics: dict[str, Any]
     accuracy: Metrics
+    sums: EvalSums
     per_frame: list[dict[str, float]] = field(default_factory=list)
     estimates: list[Estimate] | None = None
     outputs: list[PipelineOutput] | None = None
@@ -338,32 +406,33 @@ def evaluate(
     for timings in stage_timings[first_timed:]:
         for stage, ms in timings.items():
             stage_sums[stage] = stage_sums.get(stage, 0.0) + ms
-    accuracy = accumulator.result()
-    metrics = _metrics(pipeline.backend.name, accuracy, per_frame, per_frame[first_timed:], stage_sums)
-    # Calibration of the reported 1-sigma uncertainty: a Gaussian would put 68.3 / 95.4 / 99.7 % inside.
-    metrics.update(calibration.result())
+    timed = per_frame[first_timed:]
+    sums = EvalSums(pipeline.backend.name, accumulator, calibration, len(per_frame), len(timed),
+                    sum(r["decode_ms"] for r in timed), sum(r["estimate_ms"] for r in timed), stage_sums)
     return EvalResult(
-        metrics=metrics,
-        accuracy=accuracy,
+        metrics=sums.metrics(),
+        accuracy=accumulator.result(),
         per_frame=per_frame,
         estimates=[o.estimate for o in outputs] if keep_estimates else None,
         outputs=outputs if keep_estimates else None,
         refused=refused,
         first=first,
+        sums=sums,
     )
 
 
 def _metrics(
     name: str,
     scored: Metrics,
-    per_frame: list[dict[str, float]],
-    timed: list[dict[str, float]],
+    frames: int,
+    n_timed: int,
+    decode_ms_sum: float,
+    estimate_ms_sum: float,
     stage_sums: dict[str, float],
 ) -> dict[str, Any]:
-    """The metrics dict of :class:`EvalResult` from the accumulated numbers."""
-    n_timed = len(timed)
-    decode_ms = sum(r["decode_ms"] for r in timed) / n_timed
-    estimate_ms = sum(r["estimate_ms"] for r in timed) / n_timed
+    """The metrics dict of :class:`EvalResult` from the accumulated numbers (sums over the timed frames)."""
+    decode_ms = decode_ms_sum / n_timed
+    estimate_ms = estimate_ms_sum / n_timed
     pipeline_ms = decode_ms + estimate_ms
     backend_stage_ms = {stage: total / n_timed for stage, total in stage_sums.items()}
     groups = {group: 0.0 for group in (*STAGE_GROUPS, "other")}
@@ -374,7 +443,7 @@ def _metrics(
     groups["other"] += max(0.0, estimate_ms - sum(backend_stage_ms.values()))
     return {
         "backend": name,
-        "frames": len(per_frame),
+        "frames": frames,
         "cells": scored.cells,
         "abs_err_cm": scored.abs_err_cm,
         "rmse_cm": scored.rmse_cm,

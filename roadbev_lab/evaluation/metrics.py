@@ -16,6 +16,7 @@ honest sigma puts the 68.3 % quantile of the error on the diagonal).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -145,6 +146,57 @@ class MetricAccumulator:
         bins = np.minimum((err / _HIST_STEP_CM).astype(np.int64), _HIST_BINS - 1)
         self._hist += np.bincount(bins, minlength=_HIST_BINS)
 
+    def merge(self, other: MetricAccumulator) -> None:
+        """Add another accumulator's frames to this one (the pooled metrics of several
+        evaluations: sums and histograms add, so the result is that of all their frames at once).
+
+        Raises:
+            ValueError: ``other`` was made on another grid or band count (its bands mean other distances).
+        """
+        if other.grid != self.grid or other.n_bands != self.n_bands:
+            raise ValueError(f"cannot pool metrics of grid {other.grid} ({other.n_bands} bands) into grid "
+                             f"{self.grid} ({self.n_bands} bands)")
+        self._frames += other._frames
+        self._labelled += other._labelled
+        self._cells += other._cells
+        self._abs_sum += other._abs_sum
+        self._sq_sum += other._sq_sum
+        self._over += other._over
+        self._band_sum += other._band_sum
+        self._band_cnt += other._band_cnt
+        self._hist += other._hist
+
+    def state(self) -> dict[str, np.ndarray]:
+        """The sums and histograms (arrays by name) that :meth:`from_state` rebuilds the
+        accumulator from: what a result store keeps to pool an evaluation later."""
+        return {
+            "counts": np.array([self._frames, self._labelled, self._cells, self._over], np.int64),
+            "sums": np.array([self._abs_sum, self._sq_sum], np.float64),
+            "band_sum": self._band_sum.copy(),  # [n_bands] cm
+            "band_cnt": self._band_cnt.copy(),  # [n_bands]
+            "hist": self._hist.copy(),  # [_HIST_BINS]
+        }
+
+    @classmethod
+    def from_state(cls, grid: GridSpec, state: Mapping[str, np.ndarray]) -> MetricAccumulator:
+        """The accumulator of :meth:`state` on ``grid``.
+
+        Raises:
+            ValueError: arrays of the wrong shape.
+        """
+        band_sum = np.asarray(state["band_sum"], np.float64)
+        out = cls(grid, n_bands=int(band_sum.size))
+        counts, sums = np.asarray(state["counts"], np.int64), np.asarray(state["sums"], np.float64)
+        hist = np.asarray(state["hist"], np.int64)
+        if counts.shape != (4,) or sums.shape != (2,) or hist.shape != out._hist.shape:
+            raise ValueError("not the state of a MetricAccumulator")
+        out._frames, out._labelled, out._cells, out._over = (int(v) for v in counts)
+        out._abs_sum, out._sq_sum = float(sums[0]), float(sums[1])
+        out._band_sum = band_sum.copy()
+        out._band_cnt = np.asarray(state["band_cnt"], np.int64).copy()
+        out._hist = hist.copy()
+        return out
+
     def _percentile(self, share: float) -> float:
         """The absolute error (cm) below which ``share`` of the compared cells lie (bin centre, +-5 um)."""
         if not self._cells:
@@ -255,6 +307,40 @@ class SigmaAccumulator:
         self._histogram += counts
         self._sigma_sum += sigma_sum
         self._counts += _counts(error, s)
+
+    def merge(self, other: SigmaAccumulator) -> None:
+        """Add another accumulator's frames to this one (pooled over several evaluations).
+
+        Raises:
+            ValueError: ``other`` bins sigma with other edges.
+        """
+        if tuple(other.edges) != tuple(self.edges):
+            raise ValueError(f"cannot pool sigma scores binned at {other.edges} into {self.edges}")
+        self._counts += other._counts
+        self._histogram += other._histogram
+        self._sigma_sum += other._sigma_sum
+
+    def state(self) -> dict[str, np.ndarray]:
+        """The sums (arrays by name) that :meth:`from_state` rebuilds the accumulator from."""
+        return {"counts": self._counts.copy(), "histogram": self._histogram.copy(),
+                "sigma_sum": self._sigma_sum.copy(), "edges": np.asarray(self.edges, np.float64)}
+
+    @classmethod
+    def from_state(cls, state: Mapping[str, np.ndarray]) -> SigmaAccumulator:
+        """The accumulator of :meth:`state`.
+
+        Raises:
+            ValueError: arrays of the wrong shape.
+        """
+        out = cls(edges=tuple(float(e) for e in np.asarray(state["edges"], np.float64)))
+        counts = np.asarray(state["counts"], np.float64)
+        histogram = np.asarray(state["histogram"], np.int64)
+        sigma_sum = np.asarray(state["sigma_sum"], np.float64)
+        if counts.shape != out._counts.shape or histogram.shape != out._histogram.shape or \
+                sigma_sum.shape != out._sigma_sum.shape:
+            raise ValueError("not the state of a SigmaAccumulator")
+        out._counts, out._histogram, out._sigma_sum = counts.copy(), histogram.copy(), sigma_sum.copy()
+        return out
 
     def result(self) -> dict[str, object]:
         """The uncertainty keys (:func:`sigma_metrics`) and ``reliability``

@@ -18,19 +18,23 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from roadbev_core.config import RoadbevConfig
+from roadbev_core.config import GridSpec, RoadbevConfig
 from roadbev_core.errors import RoadbevError
 from roadbev_core.pipeline import Pipeline, PipelineOutput, check_config
-from roadbev_lab.evaluation.arrival import ArrivalError, map_accuracy, per_frame_previews
-from roadbev_lab.evaluation.drivebag import is_drive_bag, read_drive_truth, score_previews
+from roadbev_core.selfcheck import MIN_COVERAGE_PCT, self_check
+from roadbev_lab.evaluation.arrival import ArrivalError, map_summary, map_window_rows, per_frame_previews
+from roadbev_lab.evaluation.drivebag import is_drive_bag, read_drive_truth, score_preview_errors
 from roadbev_lab.evaluation.evalbag import EvalBag, EvalSample, read_eval_bag
 from roadbev_lab.evaluation.frames import EvalResult, evaluate, json_safe
+from roadbev_lab.evaluation.pooled import BagSums
 
 __all__ = [
     "BagEvaluation",
     "OfflineEvalError",
     "PreparedBag",
+    "coverage_hint",
     "drive_keys",
+    "eval_record",
     "evaluate_bag",
     "prepare_bag",
     "run_prepared",
@@ -53,6 +57,8 @@ class BagEvaluation:
         pipeline: the pipeline that ran (its config, its map's state).
         bag: the opened bag.
         drive: whether the bag is a drive bag (ground-truth poses and road map).
+        sums: what the metrics were computed from, to pool them with other bags'
+            (:mod:`roadbev_lab.evaluation.pooled`).
     """
 
     metrics: dict[str, Any]
@@ -60,6 +66,7 @@ class BagEvaluation:
     pipeline: Pipeline
     bag: EvalBag
     drive: bool
+    sums: BagSums
 
 
 def _read_failures(samples: Iterable[EvalSample], path: Path) -> Iterator[EvalSample]:
@@ -83,19 +90,27 @@ def drive_keys(path: Path, config: RoadbevConfig, result: EvalResult, lead_time_
     Raises:
         OfflineEvalError: the drive's truth cannot score the previews.
     """
+    return _drive_scores(path, config, result, lead_time_s)[0]
+
+
+def _drive_scores(path: Path, config: RoadbevConfig, result: EvalResult,
+                  lead_time_s: float) -> tuple[dict[str, Any], BagSums]:
+    """:func:`drive_keys` and the drive's part of the bag's sums (wheel points, map window scores)."""
     stamps = [int(r["stamp_ns"]) for r in result.per_frame]
     outputs = result.outputs or []
     try:
         truth = read_drive_truth(path, base_frame=config.topics.base_frame)
-        arrival = score_previews(truth, per_frame_previews(outputs), stamps, config, lead_time_s=lead_time_s)
+        arrival, wheels = score_preview_errors(truth, per_frame_previews(outputs), stamps, config,
+                                               lead_time_s=lead_time_s)
         windows = [o.map for o in outputs if o.map is not None]
-        fused = map_accuracy(windows, truth.road_map, truth.trajectory, config.vehicle) if windows else None
+        rows = map_window_rows(windows, truth.road_map, truth.trajectory, config.vehicle) if windows else None
     except (ArrivalError, ValueError) as exc:
         raise OfflineEvalError(f"preview at arrival on {path}: {exc}") from exc
     keys: dict[str, Any] = {"preview_at_arrival": json_safe(arrival)}
-    if fused is not None:
-        keys["map"] = json_safe(fused)
-    return keys
+    if rows is not None:
+        keys["map"] = json_safe(map_summary(rows, len(windows)))
+    return keys, BagSums(result.sums, lead_time_s=float(lead_time_s), wheels=wheels, map_rows=rows,
+                         map_windows=len(windows))
 
 
 @dataclass
@@ -185,15 +200,46 @@ def run_prepared(
     result = evaluate(pipeline, _read_failures(bag, path), imu=bag.imu, odometry=bag.odometry, progress=progress,
                       max_frames=max_frames, keep_estimates=prepared.drive, on_output=on_output)
     metrics = result.to_dict()
+    sums = BagSums(result.sums)
     if pipeline.map_active or pipeline.fused is not None:
-        metrics["map_enabled"] = True
+        metrics["map_enabled"] = sums.map_enabled = True
         if pipeline.map_skipped:
             metrics["map_skipped"] = dict(pipeline.map_skipped)
-    metrics["lost_frames"] = bag.lost_frames()
+            sums.map_skipped = dict(pipeline.map_skipped)
+    metrics["lost_frames"] = sums.lost_frames = bag.lost_frames()
     metrics["losses"] = bag.losses()
     if prepared.drive and metrics.get("frames_with_truth", 0) > 0:  # docs/interface/bags.md, "Drive bags"
-        metrics.update(drive_keys(path, prepared.config, result, lead_time_s))
-    return BagEvaluation(metrics, result, pipeline, bag, prepared.drive)
+        keys, drive = _drive_scores(path, prepared.config, result, lead_time_s)
+        metrics.update(keys)
+        sums.lead_time_s, sums.wheels = drive.lead_time_s, drive.wheels
+        sums.map_rows, sums.map_windows = drive.map_rows, drive.map_windows
+    return BagEvaluation(metrics, result, pipeline, bag, prepared.drive, sums)
+
+
+def coverage_hint(first: PipelineOutput | None, grid: GridSpec, coverage_pct: float | None) -> str | None:
+    """The self-check's one-line hint (:func:`roadbev_core.selfcheck.self_check` on the
+    evaluation's first frame and its estimate) when the evaluation's coverage fell below the
+    threshold; None otherwise."""
+    if coverage_pct is None or coverage_pct >= MIN_COVERAGE_PCT or first is None:
+        return None
+    return self_check(first.estimate, first.frame, grid).message
+
+
+def eval_record(evaluation: BagEvaluation, path: str | Path, params_file: str | Path | None = None) -> dict[str, Any]:
+    """The JSON ``roadbev eval BAG --json OUT`` writes: the metrics, the self-check's hint where
+    the bag has ground truth and the coverage fell below the threshold (``self_check``), then
+    ``bag``, ``grid``, ``backend_options`` and, when one was given, ``params_file``."""
+    metrics = dict(evaluation.metrics)
+    if metrics.get("frames_with_truth", 0) > 0:
+        config = evaluation.pipeline.config
+        hint = coverage_hint(evaluation.result.first, config.grid, metrics.get("coverage_pct"))
+        if hint:
+            metrics["self_check"] = hint
+    record = {**metrics, "bag": str(path), "grid": evaluation.bag.grid.to_dict(),
+              "backend_options": evaluation.pipeline.config.backend.options_of()}
+    if params_file:
+        record["params_file"] = str(params_file)
+    return record
 
 
 def evaluate_bag(

@@ -140,3 +140,23 @@ def test_the_config_is_a_leaf() -> None:
                    for d in deps if d not in allowed and not d.startswith("roadbev_core.config"))
     assert not wrong, "the config imports above itself:\n" + "\n".join(wrong)
     assert graph["roadbev_core.backend_plugins"] <= {"roadbev_core.errors"}
+
+
+def test_ray_is_an_optional_extra_of_the_lab() -> None:
+    """Ray (``pip install .[fleet]``) is never imported by the runtime, and by the lab and the
+    command line only inside a function (a car's install has no Ray; a command without --ray
+    never loads it)."""
+    runtime, at_top = [], []
+    for name, path in _modules().items():
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        for node in ast.walk(tree):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            if not any(n == "ray" or n.startswith("ray.") for n in names):
+                continue
+            if _top(name) in RUNTIME:
+                runtime.append(name)
+            elif node in tree.body:
+                at_top.append(name)
+    assert not runtime, f"the runtime imports ray: {runtime}"
+    assert not at_top, f"ray imported at module level (it is an optional extra): {at_top}"

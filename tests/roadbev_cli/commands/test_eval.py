@@ -280,3 +280,66 @@ def test_a_cut_drive_bag_scores_every_readable_frame_as_the_whole_bag_does(tmp_p
     assert 0 < len(maps["cut"]) < len(maps["whole"])
     same = [np.array_equal(e, maps["whole"][s], equal_nan=True) for s, e in sorted(maps["cut"].items())]
     assert all(same), same
+
+
+# ------------------------------------------------------------------------------------------------
+# many bags: a folder, a glob, --workers / --ray; one summary, the bags' JSONs pooled
+# ------------------------------------------------------------------------------------------------
+def test_many_bags_give_each_bags_json_and_the_pooled_metrics(
+    bag: Path, jpeg_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from roadbev_lab.evaluation.frames import without_timing
+
+    archive = tmp_path / "archive"
+    (archive / "day1").mkdir(parents=True)
+    for source, name in ((bag, "day1/a.mcap"), (jpeg_bag, "b.mcap")):
+        (archive / name).write_bytes(source.read_bytes())
+    summary_path, store = tmp_path / "summary.json", tmp_path / "store"
+    args = ["eval", str(archive), "--backend", "bm", "--no-progress", "--store", str(store), "--workers", "1"]
+    assert main([*args, "--json", str(summary_path), "--report", str(tmp_path / "report.md")]) == 0
+    printed = capsys.readouterr().out
+    summary = json.loads(summary_path.read_text())
+    assert summary["counts"] == {"bags": 2, "done": 2, "stored": 0, "failed": 0, "duplicate": 0}
+    assert [b["bag"] for b in summary["bags"]] == [str(archive / "b.mcap"), str(archive / "day1" / "a.mcap")]
+    for entry in summary["bags"]:  # each bag's entry is the JSON `roadbev eval BAG --json` writes
+        _rc, alone = _eval(Path(entry["bag"]), tmp_path)
+        assert without_timing(entry["result"]) == without_timing(alone)
+    pooled = summary["pooled"]
+    assert pooled["frames"] == 7 and set(CONTRACT_KEYS) <= set(pooled)
+    assert "| **pooled, 2 bag(s)** | 7 |" in printed and (tmp_path / "report.md").read_text() in printed
+    # again: both from the store; a glob names the same bags
+    assert main(["eval", str(archive / "**" / "*.mcap"), *args[2:], "--json", str(summary_path)]) == 0
+    assert json.loads(summary_path.read_text())["counts"]["stored"] == 2
+
+
+def test_many_bags_with_a_corrupt_one_keep_the_others_and_fail(
+    bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    broken = tmp_path / "broken.mcap"
+    broken.write_bytes(b"\x89MCAP0\r\n" + b"\x00garbage" * 50)
+    out = tmp_path / "summary.json"
+    assert main(["eval", str(bag), str(broken), "--backend", "bm", "--no-progress", "--workers", "1", "--store",
+                 str(tmp_path / "store"), "--json", str(out)]) == 2
+    error = _one_line_error(capsys)
+    assert "1 of 2 bag(s) failed" in error and "broken.mcap" in error
+    summary = json.loads(out.read_text())
+    assert [b["status"] for b in summary["bags"]] == ["done", "failed"] and summary["pooled"]["bags"] == 1
+
+
+def test_many_bags_refuse_options_for_one(bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["eval", str(bag), str(bag), "--out", str(tmp_path / "o.mcap")]) == 2
+    assert "--out writes one bag's outputs" in _one_line_error(capsys)
+    assert main(["eval", str(tmp_path / "*.db3")]) == 2
+    assert "no bags match" in _one_line_error(capsys)
+    assert main(["eval", str(bag), "--report", str(tmp_path / "r.md")]) == 2
+    assert "--report is for many bags" in _one_line_error(capsys)
+
+
+def test_many_bags_on_a_local_ray_cluster(bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("ray", reason="Ray is not installed (the fleet extra: pip install .[fleet])")
+    out = tmp_path / "summary.json"
+    assert main(["eval", str(bag), "--backend", "bm", "--no-progress", "--ray", "local", "--workers", "2",
+                 "--store", str(tmp_path / "store"), "--json", str(out)]) == 0
+    summary = json.loads(out.read_text())
+    assert summary["run"]["executor"]["kind"] == "ray" and summary["counts"]["done"] == 1
+    assert summary["pooled"]["frames"] == 2

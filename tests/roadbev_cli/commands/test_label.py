@@ -125,3 +125,42 @@ def test_empty_scan_and_bad_params_are_clear_errors(kitti_frame, tmp_path: Path,
     accumulate = _params(tmp_path / "acc.yaml", pose.base_height, "    label:\n      window_s: 0.5\n")
     assert main(["label", str(src), str(tmp_path / "o.mcap"), "--params", str(accumulate), "--quiet"]) == 2
     assert "needs odometry" in capsys.readouterr().err
+
+
+def test_many_bags_are_labelled_into_a_folder_with_one_summary(kitti_frame, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    import json
+
+    from roadbev_cli.cli import main
+    from roadbev_lab.evaluation.evalbag import read_eval_bag
+
+    frame, pose = kitti_frame
+    drives = tmp_path / "drives"
+    drives.mkdir()
+    _write(drives / "a.mcap", frame, pose)
+    _write(drives / "b.mcap", frame, pose, scan=frame.points[::2])  # another drive: half the points
+    (drives / "c.mcap").write_bytes(b"\x89MCAP0\r\n" + b"\x00garbage" * 50)  # a corrupt one
+    params = _params(tmp_path / "p.yaml", pose.base_height)
+    out = tmp_path / "labelled"
+    args = ["label", str(drives), str(out), "--params", str(params), "--workers", "1", "--no-progress"]
+    assert main(args) == 2
+    captured = capsys.readouterr()
+    assert "1 of 3 bag(s) failed" in captured.err and "c.mcap" in captured.err
+    summary = json.loads((out / "summary.json").read_text())
+    assert [b["status"] for b in summary["bags"]] == ["done", "done", "failed"]
+    one = tmp_path / "one.mcap"
+    assert main(["label", str(drives / "a.mcap"), str(one), "--params", str(params), "--quiet"]) == 0
+    alone, many = next(iter(read_eval_bag(one))).truth, next(iter(read_eval_bag(out / "a.mcap"))).truth
+    assert alone is not None and many is not None
+    assert np.array_equal(alone, many, equal_nan=True)  # the one-bag labels
+    results = [b["result"] for b in summary["bags"][:2]]
+    pooled = summary["pooled"]
+    assert pooled["frames"] == 2 and pooled["scans"] == sum(r["scans"] for r in results) and pooled["bags"] == 2
+    assert pooled["mean_labelled_pct"] == pytest.approx(sum(r["mean_labelled_pct"] for r in results) / 2)
+    assert "| **pooled, 2 bag(s)** |" in (out / "report.md").read_text()
+    assert not list(out.glob(".*.partial*"))
+    # again: the two labelled bags are done; a removed output is labelled again
+    (out / "b.mcap").unlink()
+    assert main(args) == 2
+    capsys.readouterr()
+    again = json.loads((out / "summary.json").read_text())
+    assert [b["status"] for b in again["bags"]] == ["stored", "done", "failed"]

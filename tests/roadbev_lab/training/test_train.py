@@ -150,3 +150,37 @@ def test_model_overrides_change_an_init_checkpoints_model_but_not_its_weights(
     with pytest.raises(TrainError, match="resumed run keeps its model"):
         train(base, GRID, frames, TrainConfig(epochs=2, batch_size=2), tmp_path / "x.pt", resume=out,
               model_overrides={"zncc_subsamples": 2}, progress=False)
+
+
+def test_roadbev_train_on_two_nodes_matches_one_process(tmp_path: Path) -> None:
+    """``roadbev train`` under torchrun as on two nodes (``--nnodes 2``, one process each, gloo),
+    both on this machine: the losses and weights of one process with the same global batch."""
+    from roadbev_cli.cli import main
+    from roadbev_lab.evaluation.evalbag import write_eval_bag
+    from roadbev_lab.synth import DriveConfig, SyntheticDrive
+
+    bag = tmp_path / "labelled.mcap"
+    write_eval_bag(bag, SyntheticDrive(DriveConfig(frames=4, seed=3, camera=CAMERA, grid=GRID)))
+    args = ["train", "--kind", "mono", "--preset", "tiny", "--bag", str(bag), "--epochs", "2", "--batch-size", "2",
+            "--seed", "5", "--no-progress"]
+    assert main([*args, "--out", str(tmp_path / "single.pt")]) == 0
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(REPO)}
+    nodes = [subprocess.Popen([sys.executable, "-m", "torch.distributed.run", "--nnodes", "2", "--node-rank", str(rank),
+                               "--nproc-per-node", "1", "--master-addr", "127.0.0.1", "--master-port", "29523",
+                               "-m", "roadbev_cli.cli", *args, "--out", str(tmp_path / "nodes.pt")],
+                              env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for rank in (0, 1)]
+    for node in nodes:
+        _out, err = node.communicate(timeout=240)
+        assert node.returncode == 0, err[-2000:]
+    two = read_checkpoint(tmp_path / "nodes.pt")
+    one = read_checkpoint(tmp_path / "single.pt")
+    assert two["meta"]["world_size"] == 2
+    np.testing.assert_allclose([h["loss"] for h in two["train_state"]["history"]],
+                               [h["loss"] for h in one["train_state"]["history"]], rtol=1e-4)
+    diffs = torch.cat([(two["state_dict"][k].double() - v.double()).abs().flatten()
+                       for k, v in one["state_dict"].items()])
+    # Adam divides each gradient by its own magnitude: float rounding in a near-zero gradient can
+    # move a weight by up to a step's learning rate (4 steps here); the rest agree tightly
+    assert float((diffs < 1e-4).double().mean()) > 0.99, float((diffs < 1e-4).double().mean())
+    assert float(diffs.max()) <= 4 * 8e-4 * 1.01  # mono's peak learning rate
