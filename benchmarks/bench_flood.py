@@ -43,10 +43,11 @@ PIPELINE_STATUS = "roadbev: pipeline"  # the node's overall status (roadbev_ros.
 
 def diagnostics_levels(recorded: Path, status_name: str = PIPELINE_STATUS) -> dict[str, Any]:
     """The node's pipeline status on ``/diagnostics`` in a recording: how many reports at each
-    level, how many of them named the latency bound (outputs late or not published), their
-    distinct messages, and the last report's values."""
+    level, how many of them named the flood (sets dropped while the backend was busy) and the
+    latency bound (outputs late or not published), their distinct messages, and the last
+    report's values."""
     counts = dict.fromkeys(DIAGNOSTIC_LEVELS.values(), 0)
-    latency_reports = 0
+    latency_reports = flood_reports = 0
     messages: dict[str, int] = {}
     last: dict[str, str] = {}
     for message in read_messages(recorded, ["/diagnostics"]):
@@ -58,8 +59,10 @@ def diagnostics_levels(recorded: Path, status_name: str = PIPELINE_STATUS) -> di
             text = str(status.message)
             messages[text] = messages.get(text, 0) + 1
             latency_reports += int(level > 0 and "max_latency_s" in text)
+            flood_reports += int(level > 0 and "dropped while the backend was busy" in text)
             last = {kv.key: kv.value for kv in status.values}
-    return {"reports": counts, "latency_reports": latency_reports, "messages": messages, "last_values": last}
+    return {"reports": counts, "flood_reports": flood_reports, "latency_reports": latency_reports,
+            "messages": messages, "last_values": last}
 
 
 def _int(values: dict[str, str], key: str) -> int | None:
@@ -87,10 +90,11 @@ def run_rate(bag: Path, rate: float, work: Path, backend: str) -> dict[str, Any]
         "latency_ms": latency,
         "dropped_stale": _int(last, "dropped_stale"),
         "node_values": last,
-        "diagnostics": {k: diagnostics[k] for k in ("reports", "latency_reports", "messages")},
+        "diagnostics": {k: diagnostics[k] for k in ("reports", "flood_reports", "latency_reports", "messages")},
         "targets": {
             "published_latency_p95_under_bound": bool(latency["p95"] < BOUND_S * 1e3),
             "outputs_keep_coming": online["outputs_matched"] > 0,
+            "diagnostics_warn_of_the_flood": diagnostics["flood_reports"] > 0,
             # whenever an output was late, the diagnostics named the bound while it lasted
             "diagnostics_name_the_bound_when_outputs_are_late": (
                 diagnostics["latency_reports"] > 0 or not _int(last, "dropped_stale")),
@@ -118,7 +122,8 @@ def main(argv: list[str] | None = None) -> int:
                   f"{row['outputs']}/{row['frames_published']} outputs, {row['outputs_per_s']:.1f}/s, "
                   f"latency p50 {row['latency_ms']['p50']:.0f} ms p95 {row['latency_ms']['p95']:.0f} ms, "
                   f"dropped stale {row['dropped_stale']}, diagnostics {row['diagnostics']['reports']} "
-                  f"({row['diagnostics']['latency_reports']} naming max_latency_s)",
+                  f"({row['diagnostics']['flood_reports']} naming the flood, "
+                  f"{row['diagnostics']['latency_reports']} max_latency_s)",
                   flush=True)
     command = "python -m benchmarks.bench_flood " + " ".join(sys.argv[1:] if argv is None else argv)
     write_json(args.out, {"command": command.strip(), "machine": machine_info(), "backend": args.backend,

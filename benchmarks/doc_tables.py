@@ -350,7 +350,7 @@ def flood(data: Mapping[str, Any]) -> str:
     """The node under an image and IMU flood (``bench_flood``): per replay speed, what came out,
     how late, what was dropped for its latency and what the diagnostics said."""
     lines = _head("replay", "images / IMU (Hz)", "outputs / frames", "outputs per s", "latency p50 / p95 (ms)",
-                  "dropped for latency", "diagnostics ok / warn / error", "naming max_latency_s")
+                  "dropped for latency", "diagnostics ok / warn / error", "warnings naming the flood")
     for row in data["rows"]:
         reports = row["diagnostics"]["reports"]
         lines.append(_row([
@@ -358,7 +358,7 @@ def flood(data: Mapping[str, Any]) -> str:
             f"{row['outputs']} / {row['frames_published']}", _fmt(row["outputs_per_s"], 1),
             f"{_fmt(row['latency_ms']['p50'], 0)} / {_fmt(row['latency_ms']['p95'], 0)}",
             str(row["dropped_stale"]), f"{reports['ok']} / {reports['warn']} / {reports['error']}",
-            str(row["diagnostics"]["latency_reports"]),
+            str(row["diagnostics"]["flood_reports"]),
         ]))
     return "\n".join(lines)
 
