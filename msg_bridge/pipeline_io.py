@@ -119,13 +119,15 @@ class OutputMessages(NamedTuple):
     points: Any | None  # sensor_msgs/PointCloud2 (only when asked for)
     road_map: Any | None = None  # grid_map_msgs/GridMap of the fused map (map on)
     tf: Any | None = None  # tf2_msgs/TFMessage <left camera frame> -> roadbev_road (with a camera frame)
+    elevation_far: Any | None = None  # grid_map_msgs/GridMap of the far-field grid (far_field.enabled)
 
 
 def output_messages(
     output: PipelineOutput, config: RoadbevConfig, factory: MessageFactory, *, with_points: bool,
     camera_frame: str | None = None,
 ) -> OutputMessages:
-    """The GridMap, RoadPreview, (optionally) PointCloud2, the fused map and the TF of one output.
+    """The GridMap, RoadPreview, (optionally) PointCloud2, the fused map, the TF and the far-field
+    GridMap (same layers, on ``config.far_grid``) of one output.
 
     Args:
         camera_frame: the left image's ``header.frame_id``: the parent of the TF to
@@ -153,4 +155,9 @@ def output_messages(
     if camera_frame:
         R, t = road_frame_in_camera(output.frame.attitude, grid.base_height)
         tf = tf_message([StaticTransform(camera_frame, frame_id, R, t)], factory, stamp_ns=stamp)
-    return OutputMessages(elevation, preview, points, road_map, tf)
+    elevation_far = None
+    if output.far is not None:
+        far_grid = config.far_field.grid(grid)
+        elevation_far = elevation_grid_map(output.far.elevation, output.far.uncertainty, far_grid, factory,
+                                           stamp_ns=stamp, frame_id=frame_id)
+    return OutputMessages(elevation, preview, points, road_map, tf, elevation_far)
