@@ -8,7 +8,8 @@ built-in backends, the ``roadbev.backends`` entry points of installed packages, 
 
 Every backend :func:`create` makes answers through :class:`RefinedBackend`: its estimates pass
 through :func:`roadbev_core.uncertainty.refine` (cells hidden behind a crest become NaN; sigma
-is the backend's calibrated model from ``roadbev_core/data/sigma_calibration.json``), one step for
+is the backend's calibrated model from ``roadbev_core/data/sigma_calibration.json``, or on a
+far-field grid from ``far_sigma_calibration.json``: :func:`roadbev_core.uncertainty.calibration_for`), one step for
 all backends (an ``ensemble``'s members each, not the ensemble again). ``create(..., raw=True)``
 gives the backend's own answer (used to calibrate).
 
