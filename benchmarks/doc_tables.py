@@ -449,6 +449,79 @@ def sigma_calibration(data: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def far_sigma_calibration(data: Mapping[str, Any]) -> str:
+    """calibrate_sigma --far-field: the far-field tables per backend (factor, footprint term) and
+    their scores on the tuning scenes, pooled and in the worst band of 1 m."""
+    lines = _head("backend", "factor", "footprint term", "within 1σ / 2σ / 3σ (%)", "confidently wrong (%)",
+                  "worst band: confidently wrong (%)", "mean σ / RMSE")
+    for name, d in data["details"].items():
+        s = d["tuning_scores"]
+        lines.append(_row([
+            name, _fmt(d["factor"]), _fmt(data["models"][name]["footprint"], 3),
+            " / ".join(_fmt(s[f"within_{k}sigma_pct"], 1) for k in (1, 2, 3)), _fmt(s["confident_wrong_pct"]),
+            _fmt(s["worst_band_confident_wrong_pct"]), _fmt(s["mean_sigma_cm"] / s["rmse_cm"]),
+        ]))
+    grid = data["grid"]
+    lines.append("")
+    lines.append(f"Tuning set: {data['frames']['scenes']} scenes (seeds {data['seeds'][0]}–{data['seeds'][1]}) with "
+                 f"features in the far-field window, the far-field grid {grid['x_min']:g}–{grid['x_max']:g} m in "
+                 f"{100 * grid['resolution']:g} cm cells, `roadbev_core/data/far_sigma_calibration.json`.")
+    return "\n".join(lines)
+
+
+def far_field_physics(data: Mapping[str, Any]) -> str:
+    """bench_far_field, the rig alone: per band of 1 m, the road one image row covers, the image
+    rows a cell holds, the disparity, the height error of a tenth of a pixel of disparity, and the
+    share of frames that see the band (docs/concepts/grid.md, "The far field")."""
+    rig = data["rig"]
+    lines = _head("band (m)", "grid, cell (cm)", "one image row covers (cm)", "image rows per cell", "disparity (px)",
+                  f"height σ of {rig['subpixel_precision_px']:g} px (cm)", "frames that see it (%)")
+    for band in data["bands"]:
+        lines.append(_row([
+            f"{band['x_from_m']:g}–{band['x_to_m']:g}", f"{band['grid']}, {_fmt(100 * band['cell_m'], 0)}",
+            _fmt(band["row_length_cm"], 1), _fmt(100 * band["cell_m"] / band["row_length_cm"], 2),
+            _fmt(band["disparity_px"], 1), _fmt(band["limit_sigma_cm"], 2), _fmt(band["in_view_pct"], 0),
+        ]))
+    lines.append("")
+    lines.append(f"At the band's centre on the RSRD rig ({rig['image']}, fx {rig['fx_px']:.0f} px, baseline "
+                 f"{rig['baseline_m']:.3f} m, {rig['base_height_m']:g} m high) at its mean pitch of "
+                 f"{rig['pitch_deg']:.1f}°: the road is in view up to {rig['farthest_in_view_m']:.1f} m, and one image "
+                 f"row at the far field's middle, rounded up to whole cells, makes its {100 * rig['far_cell_m']:g} cm "
+                 f"cells. The frames that see a band: of the benchmark's {data['frames']} frames, their pitch drawn "
+                 "from the RSRD distribution.")
+    return "\n".join(lines)
+
+
+def far_field(data: Mapping[str, Any]) -> str:
+    """bench_far_field: per band of 1 m from the grid's near edge to the far field's far edge, the
+    rig's ground sampling and physical limit, and each backend's error (and its ratio to the
+    limit), coverage and σ honesty."""
+    names = list(data["backends"])
+    lines = _head("band (m)", "cell (cm)", "one image row (cm)", "in view (% of frames)", "limit σ (cm)",
+                  *(f"`{n}`: error (× limit) · coverage · within 2σ · confidently wrong" for n in names))
+    for i, band in enumerate(data["bands"]):
+        row = [f"{band['x_from_m']:g}–{band['x_to_m']:g}", _fmt(100 * band["cell_m"], 0),
+               _fmt(band["row_length_cm"], 1), _fmt(band["in_view_pct"], 0), _fmt(band["limit_sigma_cm"], 2)]
+        for name in names:
+            b = data["backends"][name]["bands"][i]
+            row.append(f"{_fmt(b['abs_err_cm'])} cm ({_fmt(b['ratio_to_limit'], 1)}×) · "
+                       f"{_fmt(b['coverage_pct'], 0)} % · {_fmt(b['within_2sigma_pct'], 0)} % · "
+                       f"{_fmt(b['confident_wrong_pct'], 1)} %")
+        lines.append(_row(row))
+    lines.append("")
+    rig = data["rig"]
+    lines.append(f"{data['frames']} rendered frames (seeds {data['seeds'][0]}–{data['seeds'][1]}, appearance "
+                 f"`{data['appearance']}`), the RSRD rig ({rig['image']}, fx {rig['fx_px']:.0f} px, baseline "
+                 f"{rig['baseline_m']:.3f} m, {rig['base_height_m']:g} m high). The limit: the height error of a "
+                 f"{rig['subpixel_precision_px']:g} px disparity error at the band's centre at the mean pitch of "
+                 f"{rig['pitch_deg']:.1f}°, where the road is in view up to {rig['farthest_in_view_m']:.1f} m; the "
+                 "ratio compares the mean abs. error with that limit's (√(2/π) σ). Far field, all bands: " + "; ".join(
+                     f"`{n}` {_fmt(b['far']['abs_err_cm'])} cm, coverage {_fmt(b['far']['coverage_pct'], 1)} %, "
+                     f"confidently wrong {_fmt(b['far']['confident_wrong_pct'])} %, {_fmt(b['far_ms'], 0)} ms a frame"
+                     for n, b in data["backends"].items()) + ".")
+    return "\n".join(lines)
+
+
 def datum_calibration(data: Mapping[str, Any]) -> str:
     """calibrate_datum: each backend's datum sigma and drift, and how the fit scores the drives."""
     lines = _head("backend", "datum σ (mm)", "drift (mm per m driven)", "steepest drive (mm/m)", "frames",
@@ -865,6 +938,9 @@ TABLES: dict[str, Table] = {
                           ".venv/bin/roadbev eval bags/sample_drive.mcap --backend B "
                           "--json benchmarks/results/sample_drive_B.json"),
     "sigma_calibration": Table(("roadbev_core/data/sigma_calibration.json",), sigma_calibration),
+    "far_sigma_calibration": Table(("roadbev_core/data/far_sigma_calibration.json",), far_sigma_calibration),
+    "far_field": Table(("far_field.json",), far_field),
+    "far_field_physics": Table(("far_field.json",), far_field_physics, with_provenance=False),
     "datum_calibration": Table(("datum_calibration.json",), datum_calibration),
     "preview_sigma": Table(("preview_sigma.json",), preview_sigma),
     "robustness": Table(("robustness.json",), robustness),

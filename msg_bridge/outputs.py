@@ -1,8 +1,8 @@
 """A bag of the node's outputs (``roadbev eval --out``): exactly the messages the node publishes.
 
 :class:`OutputBag` writes, per :class:`roadbev_core.pipeline.PipelineOutput`, the
-``grid_map_msgs/GridMap`` and ``roadbev_msgs/RoadPreview`` (and, when they exist, the fused map
-and the ``/tf`` to ``roadbev_road``) that
+``grid_map_msgs/GridMap`` and ``roadbev_msgs/RoadPreview`` (and, when they exist, the far-field
+GridMap, the fused map and the ``/tf`` to ``roadbev_road``) that
 :func:`msg_bridge.pipeline_io.output_messages` builds (the node's own builder, here with a
 typestore factory), on the node's topics, stamped with the left image's stamp and framed as the
 node frames them, so that any tool can score them.
@@ -62,7 +62,7 @@ class OutputBag:
         self._writer.open()
         self._writer.add_topic(config.topics.elevation, "grid_map_msgs/msg/GridMap")
         self._writer.add_topic(config.topics.preview, "roadbev_msgs/msg/RoadPreview")
-        self._optional: set[str] = set()  # the fused map and /tf: added with their first message
+        self._optional: set[str] = set()  # the far field, the fused map and /tf: added with their first message
 
     @property
     def counts(self) -> dict[str, int]:
@@ -74,7 +74,8 @@ class OutputBag:
                                    camera_frame=self.camera_frame)
         self._writer.write(self.config.topics.elevation, messages.elevation, output.stamp_ns)
         self._writer.write(self.config.topics.preview, messages.preview, output.stamp_ns)
-        for topic, kind, msg in ((self.config.map.topic, "grid_map_msgs/msg/GridMap", messages.road_map),
+        for topic, kind, msg in ((self.config.far_field.topic, "grid_map_msgs/msg/GridMap", messages.elevation_far),
+                                 (self.config.map.topic, "grid_map_msgs/msg/GridMap", messages.road_map),
                                  ("/tf", "tf2_msgs/msg/TFMessage", messages.tf)):
             if msg is None:
                 continue

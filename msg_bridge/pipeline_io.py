@@ -121,6 +121,7 @@ class OutputMessages(NamedTuple):
     road_map: Any | None = None  # grid_map_msgs/GridMap of the fused map (map on)
     tf: Any | None = None  # tf2_msgs/TFMessage <left camera frame> -> roadbev_road (with a camera frame)
     preview_markers: Any | None = None  # visualization_msgs/MarkerArray of the preview (only when asked for)
+    elevation_far: Any | None = None  # grid_map_msgs/GridMap of the far-field grid (far_field.enabled)
 
 
 def output_messages(
@@ -128,7 +129,7 @@ def output_messages(
     with_preview_markers: bool = False, camera_frame: str | None = None,
 ) -> OutputMessages:
     """The GridMap, RoadPreview, (optionally) PointCloud2 and the preview's MarkerArray, the fused
-    map and the TF of one output.
+    map, the TF and the far-field GridMap (same layers, on ``config.far_grid``) of one output.
 
     Args:
         with_points, with_preview_markers: build the viewers' PointCloud2, MarkerArray.
@@ -161,4 +162,9 @@ def output_messages(
     if camera_frame:
         R, t = road_frame_in_camera(output.frame.attitude, grid.base_height)
         tf = tf_message([StaticTransform(camera_frame, frame_id, R, t)], factory, stamp_ns=stamp)
-    return OutputMessages(elevation, preview, points, road_map, tf, markers)
+    elevation_far = None
+    if output.far is not None:
+        far_grid = config.far_field.grid(grid)
+        elevation_far = elevation_grid_map(output.far.elevation, output.far.uncertainty, far_grid, factory,
+                                           stamp_ns=stamp, frame_id=frame_id)
+    return OutputMessages(elevation, preview, points, road_map, tf, markers, elevation_far)

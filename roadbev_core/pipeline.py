@@ -11,6 +11,10 @@ The node, ``roadbev eval``, the online evaluation, the demo and the benchmarks a
                            map off: wheel_track_profiles ◄────────────────┤ ─► PipelineOutput
                            map on:  FusedMap.integrate ─► map_preview ◄───┘    (+ map window)
 
+With ``far_field.enabled`` a second backend of the same kind answers the far-field grid beyond
+the grid on the same frame (:func:`build_far_backend`; ``PipelineOutput.far``); it is not fused
+into the map nor previewed yet, and the grid's own estimate is the same with it on or off.
+
 The map stage (roadbev_core.fusion) runs when ``map.enabled`` and an ego-motion source exists:
 odometry samples (``add_odometry``) or, without them, a speed (dead reckoned with the IMU's
 yaw). With the map on every preview is a contact-plane one in ``base_link``: a frame whose pose
@@ -40,10 +44,10 @@ import numpy as np
 
 from roadbev_core.attitude import ImuSample, ImuStale, imu_buffer
 from roadbev_core.backends import Backend, BackendError, create
-from roadbev_core.config import ParamError, RoadbevConfig, StereoCamera, check_image_size
+from roadbev_core.config import GridSpec, ParamError, RoadbevConfig, StereoCamera, check_image_size
 from roadbev_core.ego_motion import EgoMotion, EgoMotionStale, PlanarPose
 from roadbev_core.errors import RoadbevError
-from roadbev_core.frame import Estimate, Frame, ImplausibleFrame, implausible
+from roadbev_core.frame import Estimate, Frame, FrameError, ImplausibleFrame, implausible
 from roadbev_core.fusion import (
     FrameFusion,
     FramePlacement,
@@ -64,12 +68,14 @@ __all__ = [
     "SPEED_MAX_AGE_S",
     "BackendFactory",
     "CameraInput",
+    "FarFieldUnsupported",
     "ImuFeed",
     "MapFactory",
     "OdometryFeed",
     "Pipeline",
     "PipelineOutput",
     "build_backend",
+    "build_far_backend",
     "check_config",
     "replay",
 ]
@@ -114,6 +120,8 @@ class PipelineOutput:
         map: the fused map's window after this frame (None with the map off).
         fusion: what fusing this frame did (None with the map off).
         base_pose: ``base_link``'s planar pose in ``odom`` at the stamp (map on).
+        far: elevation and 1-sigma on the far-field grid (``config.far_grid``) with
+            ``far_field.enabled``, else None; all NaN when that grid is out of view.
     """
 
     frame: Frame
@@ -123,6 +131,7 @@ class PipelineOutput:
     map: MapWindow | None = None
     fusion: FrameFusion | None = None
     base_pose: PlanarPose | None = None
+    far: Estimate | None = None
 
     @property
     def stamp_ns(self) -> int:
@@ -151,8 +160,9 @@ def check_config(config: RoadbevConfig) -> RoadbevConfig:
     return config
 
 
-def build_backend(config: RoadbevConfig, factory: BackendFactory | None = None) -> Backend:
-    """The config's backend on the config's grid.
+def build_backend(config: RoadbevConfig, factory: BackendFactory | None = None, *,
+                  grid: GridSpec | None = None) -> Backend:
+    """The config's backend on the config's grid (or on ``grid``: the far-field one).
 
     Any failure while building (a missing checkpoint, an option the backend refuses, a
     checkpoint whose network cannot be allocated) is a :class:`BackendError` with the reason:
@@ -163,11 +173,41 @@ def build_backend(config: RoadbevConfig, factory: BackendFactory | None = None) 
     """
     name = config.backend.name
     try:
-        return (factory or create)(name, config.grid, **config.backend.options_of())
+        return (factory or create)(name, grid or config.grid, **config.backend.options_of())
     except RoadbevError as exc:
         raise BackendError(f"backend {name!r} cannot run: {exc}") from exc
     except Exception as exc:  # any failure of a backend constructor is a refusal, never a crash
         raise BackendError(f"backend {name!r} cannot run: {type(exc).__name__}: {exc}") from exc
+
+
+class FarFieldUnsupported(BackendError):
+    """``far_field.enabled`` with a backend that does not answer the far-field grid."""
+
+
+def build_far_backend(config: RoadbevConfig, backend: Backend, factory: BackendFactory | None = None
+                      ) -> Backend | None:
+    """The far-field backend: ``backend``'s kind with the same options on ``config.far_grid``
+    (None with the far field off).
+
+    Raises:
+        FarFieldUnsupported: ``backend`` does not answer a far-field grid (its ``far_field``
+            attribute: the image-view backends and their ensemble do).
+        BackendError: the backend cannot be built on that grid.
+    """
+    far_grid = config.far_grid
+    if far_grid is None:
+        return None
+    if not getattr(backend, "far_field", False):
+        raise FarFieldUnsupported(
+            f"backend {backend.name!r} does not estimate the far field (far_field.enabled): bm, sgbm and their "
+            "ensemble do")
+    return build_backend(config, factory, grid=far_grid)
+
+
+def _no_estimate(grid: GridSpec) -> Estimate:
+    """An estimate without any answer on ``grid`` (all NaN)."""
+    empty = np.full(grid.shape, np.nan, np.float32)
+    return Estimate(elevation=empty, uncertainty=empty.copy())
 
 
 class Pipeline:
@@ -181,7 +221,8 @@ class Pipeline:
             command line do; a library user embedding the pipeline may keep its own settings).
 
     Raises:
-        BackendError: the backend cannot be built.
+        BackendError: the backend (or the far-field one) cannot be built; FarFieldUnsupported when
+            it does not answer the far field.
     """
 
     def __init__(
@@ -198,6 +239,7 @@ class Pipeline:
         self._lock = threading.Lock()
         self.config = config
         self.backend = build_backend(config, backend_factory)
+        self.far_backend = build_far_backend(config, self.backend, backend_factory)
         self.imu = imu_buffer(config.imu)
         self._speed: tuple[int, float] | None = None  # (stamp ns, m/s)
         self._with_preview = self._tracks_fit(config)
@@ -239,9 +281,12 @@ class Pipeline:
             or config.backend.options_of() != old.backend.options_of()
         )
         backend = build_backend(config, self._factory) if rebuild else self.backend
+        far_backend = (build_far_backend(config, backend, self._factory)
+                       if rebuild or config.far_grid != old.far_grid else self.far_backend)
         with self._lock:
             self.config = config
             self.backend = backend
+            self.far_backend = far_backend
             self._with_preview = self._tracks_fit(config)
             if config.imu != old.imu:
                 self.imu.configure(config.imu)
@@ -427,12 +472,17 @@ class Pipeline:
             PreviewError: the estimate cannot be sampled along the wheel tracks.
         """
         with self._lock:
-            config, backend = self.config, self.backend
+            config, backend, far_backend = self.config, self.backend, self.far_backend
         check_image_size(inputs.camera.width, inputs.camera.height)
         if attitude is None:
             attitude = self.attitude_at(inputs.stamp_ns)
         frame = Frame(inputs.left, inputs.right, inputs.camera, attitude, inputs.stamp_ns)
-        return self._run(frame, config, backend)
+        output = self._run(frame, config, backend)
+        if far_backend is not None:
+            start = time.perf_counter()
+            output.far = self._far_estimate(frame, config, far_backend)
+            output.timings_ms["estimate_far"] = 1e3 * (time.perf_counter() - start)
+        return output
 
     def process_frame(self, frame: Frame) -> PipelineOutput:
         """:meth:`process` for a frame whose attitude is already known."""
@@ -456,6 +506,18 @@ class Pipeline:
         preview = self._frame_preview(estimate, frame, config)
         timings["preview"] = 1e3 * (time.perf_counter() - t1)
         return PipelineOutput(frame, estimate, preview, timings)
+
+    @staticmethod
+    def _far_estimate(frame: Frame, config: RoadbevConfig, far_backend: Backend) -> Estimate:
+        """The far-field backend's estimate of ``frame`` (all NaN where the far-field grid is out
+        of view at the frame's attitude: a steep pitch sees the road only to 9 m)."""
+        far_grid = config.far_field.grid(config.grid)
+        try:
+            estimate = far_backend.estimate(frame)
+        except FrameError:  # the far-field grid is not in the image (the frame itself was fine)
+            return _no_estimate(far_grid)
+        estimate.check_grid(far_grid)
+        return estimate
 
     def _base_pose(self, stamp_ns: int) -> PlanarPose:
         """``base_link``'s planar pose at a frame: the odometry's, else dead reckoned from the
@@ -564,11 +626,12 @@ class Pipeline:
         camera = StereoCamera.rsrd_half()
         blank = np.zeros((camera.height, camera.width, 3), np.uint8)
         with self._lock:
-            backend = self.backend
-        frame = Frame(blank, blank if backend.needs_stereo else None, camera, Attitude.from_degrees(0.0, 19.0))
+            backends = [b for b in (self.backend, self.far_backend) if b is not None]
+        frame = Frame(blank, blank if backends[0].needs_stereo else None, camera, Attitude.from_degrees(0.0, 19.0))
         flush_denormals()
-        with contextlib.suppress(Exception):  # a warm-up failure must never stop the caller
-            backend.estimate(frame)
+        for backend in backends:
+            with contextlib.suppress(Exception):  # a warm-up failure must never stop the caller
+                backend.estimate(frame)
 
 
 class OdometryFeed:

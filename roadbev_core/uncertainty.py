@@ -10,15 +10,20 @@ what a controller may trust:
    (:func:`sigma_features`): the backend's spread, a floor, the local slope, the local relief
    (the cell against its neighbourhood), the height above the fitted road plane and, where a
    crest in front would hide the road plane's level (the road may drop out of view behind it),
-   the height above that level again (``shadow``)::
+   the height above that level again (``shadow``), and the length of road one image row covers at
+   the cell (``footprint``, :func:`roadbev_core.far_field.cell_row_length`: what one pixel of the
+   matcher's window averages over, which grows with the square of the range)::
 
        sigma^2 = (raw * spread)^2 + floor^2 + (slope * |grad e| * 1 m)^2 + (relief * |e - mean|)^2
-                 + (plane * |e - road|)^2 + (shadow * depth)^2
+                 + (plane * |e - road|)^2 + (shadow * depth)^2 + (footprint * row length)^2
 
 The coefficients are fitted per backend on tuning scenes and drives (:func:`fit_sigma_model`, Gaussian
 likelihood), never on the test frames, by ``python -m benchmarks.calibrate_sigma``, which writes
 ``roadbev_core/data/sigma_calibration.json`` (with the command and the seeds);
-:func:`calibration_for` reads it.
+:func:`calibration_for` reads it. The far-field grid has tables of its own
+(``roadbev_core/data/far_sigma_calibration.json``, ``calibrate_sigma --far-field``, with the
+``footprint`` term: what a matcher resolves falls with range): a grid that starts at or beyond the
+near edge of the grid those were fitted on takes them.
 """
 
 from __future__ import annotations
@@ -33,12 +38,14 @@ import cv2
 import numpy as np
 
 from roadbev_core.config import GridSpec
+from roadbev_core.far_field import cell_row_length
 from roadbev_core.frame import Estimate, Frame
 from roadbev_core.tables import json_table
 from roadbev_core.visibility import Visibility, analyse
 
 __all__ = [
     "CALIBRATION_FILE",
+    "FAR_CALIBRATION_FILE",
     "SigmaFeatures",
     "SigmaModel",
     "calibration_for",
@@ -47,9 +54,11 @@ __all__ = [
     "refine",
     "sigma_features",
     "visible_estimate",
+    "with_footprint",
 ]
 
 CALIBRATION_FILE = Path(__file__).resolve().parent / "data" / "sigma_calibration.json"
+FAR_CALIBRATION_FILE = Path(__file__).resolve().parent / "data" / "far_sigma_calibration.json"
 _RELIEF_CELLS = 7  # window (cells) of the neighbourhood mean for the relief feature
 _SLOPE_REACH = 2  # cells each side of the central difference for the slope feature
 
@@ -62,6 +71,9 @@ class SigmaFeatures(NamedTuple):
     relief: np.ndarray  # |e - window mean of e| (m)
     plane: np.ndarray  # |e - fitted road plane| (m)
     shadow: np.ndarray  # height above the road plane where the plane's level would be hidden (m, >= 0)
+    # road length along x one image row covers at the cell (m; cell_row_length); None: not computed
+    # (only a model with a footprint term needs it)
+    footprint: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -74,6 +86,7 @@ class SigmaModel:
     relief: float = 0.0
     plane: float = 0.0
     shadow: float = 0.0
+    footprint: float = 0.0
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
@@ -81,7 +94,11 @@ class SigmaModel:
                 raise ValueError(f"SigmaModel.{name} must be a finite number >= 0, got {value!r}")
 
     def sigma(self, features: SigmaFeatures) -> np.ndarray:
-        """[R, C] float32 calibrated 1-sigma (m); NaN where the spread is NaN."""
+        """[R, C] float32 calibrated 1-sigma (m); NaN where the spread is NaN.
+
+        Raises:
+            ValueError: a model with a footprint term and features without the footprint.
+        """
         variance = (
             np.square(self.raw * features.spread.astype(np.float64))
             + self.floor**2
@@ -90,6 +107,10 @@ class SigmaModel:
             + np.square(self.plane * features.plane)
             + np.square(self.shadow * features.shadow)
         )
+        if self.footprint:
+            if features.footprint is None:
+                raise ValueError("this sigma model has a footprint term: the features need their footprint")
+            variance = variance + np.square(self.footprint * features.footprint.astype(np.float64))
         return np.sqrt(variance).astype(np.float32)
 
     def to_dict(self) -> dict[str, float]:
@@ -155,6 +176,11 @@ def visible_estimate(estimate: Estimate, grid: GridSpec, camera_y: Sequence[floa
     return elevation, sigma_features(estimate.uncertainty, grid, visibility)
 
 
+def with_footprint(features: SigmaFeatures, frame: Frame, grid: GridSpec) -> SigmaFeatures:
+    """``features`` with the footprint of ``frame``'s rig and attitude on ``grid``."""
+    return features._replace(footprint=cell_row_length(frame.camera, frame.attitude, grid))
+
+
 def refine(estimate: Estimate, frame: Frame, grid: GridSpec, *, stereo: bool,
            model: SigmaModel | None) -> Estimate:
     """The estimate a controller may trust: hidden cells NaN, sigma from ``model``.
@@ -170,6 +196,8 @@ def refine(estimate: Estimate, frame: Frame, grid: GridSpec, *, stereo: bool,
         A new :class:`Estimate` (same timings).
     """
     elevation, features = visible_estimate(estimate, grid, camera_positions(frame, stereo))
+    if model is not None and model.footprint:
+        features = with_footprint(features, frame, grid)
     sigma = estimate.uncertainty if model is None else model.sigma(features)
     sigma = np.where(np.isfinite(elevation), sigma, np.nan).astype(np.float32)
     return Estimate(elevation=elevation, uncertainty=sigma, timings_ms=dict(estimate.timings_ms))
@@ -205,6 +233,8 @@ def fit_sigma_model(features: Sequence[SigmaFeatures], errors: Sequence[np.ndarr
             "raw": feats.spread[usable], "floor": np.ones(int(usable.sum()), np.float32),
             "slope": feats.slope[usable], "relief": feats.relief[usable], "plane": feats.plane[usable],
             "shadow": feats.shadow[usable],
+            "footprint": (feats.footprint[usable] if feats.footprint is not None
+                          else np.zeros(int(usable.sum()), np.float32)),
         }
         columns.append(np.stack([np.square(squared[n].astype(np.float64)) for n in names], axis=1))
         targets.append(np.square(err[usable].astype(np.float64)))
@@ -213,7 +243,8 @@ def fit_sigma_model(features: Sequence[SigmaFeatures], errors: Sequence[np.ndarr
     basis = torch.from_numpy(np.concatenate(columns))  # [N, P] squared features
     err2 = torch.from_numpy(np.concatenate(targets))  # [N]
     active = torch.tensor([n in fit for n in names], dtype=torch.float64)
-    start = [0.0 if n == "raw" else (math.log(0.002) if n == "floor" else math.log(0.05)) for n in names]
+    first = {"raw": 0.0, "floor": math.log(0.002)}
+    start = [first.get(n, math.log(0.05)) for n in names]
     log_coeff = torch.tensor(start, dtype=torch.float64, requires_grad=True)
     optimiser = torch.optim.Adam([log_coeff], lr=0.05)
     fixed = torch.tensor([1.0 if n == "raw" else 0.0 for n in names], dtype=torch.float64)
@@ -228,7 +259,20 @@ def fit_sigma_model(features: Sequence[SigmaFeatures], errors: Sequence[np.ndarr
     return SigmaModel(**{n: float(c) for n, c in zip(names, fitted, strict=True)})
 
 
-def calibration_for(backend: str, path: Path = CALIBRATION_FILE) -> SigmaModel | None:
-    """The fitted :class:`SigmaModel` of ``backend`` (None when the table has none)."""
+def calibration_for(backend: str, path: Path = CALIBRATION_FILE, *, grid: GridSpec | None = None,
+                    far_path: Path = FAR_CALIBRATION_FILE) -> SigmaModel | None:
+    """The fitted :class:`SigmaModel` of ``backend`` (None when the table has none).
+
+    Args:
+        grid: the grid it answers: one that starts at or beyond the near edge of the grid the far-field
+            tables were fitted on (``far_path``'s ``grid``) takes ``backend``'s far-field table when
+            there is one; every other grid (and None) the table at ``path``.
+    """
+    far = json_table(far_path)
+    fitted_on = far.get("grid", {}).get("x_min")
+    if grid is not None and fitted_on is not None and grid.x_min >= float(fitted_on) - 1e-9:
+        entry = far.get("models", {}).get(backend)
+        if entry is not None:
+            return SigmaModel.from_dict(entry)
     entry = json_table(path).get("models", {}).get(backend)
     return None if entry is None else SigmaModel.from_dict(entry)

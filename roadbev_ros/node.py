@@ -94,7 +94,7 @@ class RoadBevNode(Node):
         # subscribed after it has loaded and warmed up: a recorder started beside the node matches
         # the outputs while the node loads, and a replay that waits for the node's subscriptions
         # (roadbev replay) starts only once the node can answer its first frame at full speed.
-        self._out = OutputPublishers(self, OUTPUT_QOS, self.config.topics, self.config.map)
+        self._out = OutputPublishers(self, OUTPUT_QOS, self.config.topics, self.config.map, self.config.far_field)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", OUTPUT_QOS)
         try:
             self.pipeline = Pipeline(self.config, backend_factory=backend_factory)

@@ -1,5 +1,5 @@
-"""The node's output publishers: elevation map, preview, fused map, TF and (for viewers) point cloud
-and preview markers."""
+"""The node's output publishers: elevation map, preview, far-field map (when on), fused map, TF and
+(for viewers) point cloud and preview markers."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
 from msg_bridge.pipeline_io import OutputMessages
-from roadbev_core.config import MapConfig, TopicsConfig
+from roadbev_core.config import FarFieldConfig, MapConfig, TopicsConfig
 
 __all__ = ["OutputPublishers"]
 
@@ -20,7 +20,8 @@ __all__ = ["OutputPublishers"]
 class OutputPublishers:
     """The output publishers, fed from the worker thread."""
 
-    def __init__(self, node: Any, qos: Any, topics: TopicsConfig, road_map: MapConfig) -> None:
+    def __init__(self, node: Any, qos: Any, topics: TopicsConfig, road_map: MapConfig,
+                 far_field: FarFieldConfig | None = None) -> None:
 
         self._elevation = node.create_publisher(GridMap, topics.elevation, qos)
         self._preview = node.create_publisher(RoadPreview, topics.preview, qos)
@@ -28,6 +29,8 @@ class OutputPublishers:
         self._markers = (node.create_publisher(MarkerArray, topics.preview_markers, qos) if topics.preview_markers
                          else None)
         self._map = node.create_publisher(GridMap, road_map.topic, qos)
+        # advertised only with the far field on (far_field.enabled is fixed after start)
+        self._far = node.create_publisher(GridMap, far_field.topic, qos) if far_field and far_field.enabled else None
         self._tf = node.create_publisher(TFMessage, "/tf", qos)
 
     def publish_tf(self, msg: Any) -> None:
@@ -49,6 +52,8 @@ class OutputPublishers:
         if messages.tf is not None:
             self._tf.publish(messages.tf)
         self._preview.publish(messages.preview)
+        if messages.elevation_far is not None and self._far is not None:
+            self._far.publish(messages.elevation_far)
         if messages.road_map is not None:
             self._map.publish(messages.road_map)
         if messages.points is not None and self._points is not None:

@@ -125,6 +125,24 @@ def _print_drive_keys(metrics: dict[str, Any]) -> None:
               f"{_cm(fused['confident_wrong_pct'], 2)} %")
 
 
+def _print_far_field(metrics: dict[str, Any]) -> None:
+    """The far field (a bag with its truth): the whole far grid, then error, coverage and the
+    confidently-wrong share per band of 1 m; or why it was not estimated."""
+    far = metrics.get("far_field")
+    if far is None:
+        return
+    grid = far["grid"]
+    where = f"far field {grid['x_min']:g}-{grid['x_max']:g} m ({100 * grid['resolution']:g} cm cells)"
+    if not far["estimated"]:
+        print(f"{where}: not estimated: {far['reason']}")
+        return
+    print(f"{where}: abs. error {_cm(far['abs_err_cm'])} cm, coverage {_cm(far['coverage_pct'], 1)} %, within 2 "
+          f"sigma {_cm(far['within_2sigma_pct'], 1)} %, confidently wrong {_cm(far['confident_wrong_pct'], 2)} %")
+    for band in far["bands"]:
+        print(f"  {band['x_from_m']:g}-{band['x_to_m']:g} m: abs. error {_cm(band['abs_err_cm'])} cm, coverage "
+              f"{_cm(band['coverage_pct'], 1)} %, confidently wrong {_cm(band['confident_wrong_pct'], 2)} %")
+
+
 def _cm(value: Any, digits: int = 3) -> str:
     return "nan" if value is None else f"{float(value):.{digits}f}"
 
@@ -180,6 +198,7 @@ def run(args: argparse.Namespace) -> int:
                                                       "; --out OUT.mcap saves the outputs"))
     else:
         _print_drive_keys(metrics)  # docs/interface/evaluation.md: the previews at the wheels' arrival (and the map)
+        _print_far_field(metrics)
         bands = ", ".join("-" if b is None else f"{b:.3f}" for b in metrics["band_abs_err_cm"])
         print(f"abs. error per distance band (cm, near to far): {bands}")
         print(

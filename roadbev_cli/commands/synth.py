@@ -7,7 +7,9 @@ evaluation-bag topics plus ``/odom``, ``/ground_truth/odom``, ``/tf_static`` and
 
 The bag follows docs/interface/bags.md, "Evaluation bags" (see :mod:`roadbev_lab.evaluation.evalbag`):
 stereo images (raw rgb8, or JPEG with ``--compressed``), both CameraInfos per frame, the IMU at
-``--imu-rate`` Hz, ``/ground_truth/elevation`` per frame and ``/roadbev/grid_config``. ``OUT``
+``--imu-rate`` Hz, ``/ground_truth/elevation`` per frame and ``/roadbev/grid_config``; with
+``--far-field`` also ``/ground_truth/elevation_far`` on the far-field grid of the ``far_field``
+defaults (7.08-15 m in 12 cm cells: docs/concepts/grid.md). ``OUT``
 ending in ``.mcap`` gives a single MCAP file, anything else a rosbag2 directory. The same
 arguments always give the same bytes (no wall-clock time is stored). The pavement and cameras
 are the middle of the ``real-road`` appearance range (``roadbev_lab.synth.REAL_ROAD_MIDDLE``,
@@ -21,6 +23,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from roadbev_cli.cli import CommandError, add_output_flags, list_item, progress_bar, shows_progress
+from roadbev_core.config import FarFieldConfig
 from roadbev_lab.evaluation.drivebag import write_drive_bag
 from roadbev_lab.evaluation.evalbag import write_eval_bag
 from roadbev_lab.synth import (
@@ -81,6 +84,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="yaw-rate noise of /odom, 1-sigma (default 0.002 rad/s)")
     drive.add_argument("--road-map-resolution", type=float, default=0.02, metavar="M",
                        help="cell size of /ground_truth/road_map (default 0.02 m)")
+    parser.add_argument("--far-field", action="store_true",
+                        help="also the truth on the far-field grid beyond the grid (/ground_truth/elevation_far; "
+                        "the far_field parameters' defaults: 7.08 to 15 m in 12 cm cells)")
     parser.add_argument("--image-scale", type=float, default=1.0, metavar="F",
                         help="scale the 960x528 RSRD half-resolution rig by F (e.g. 0.5; default 1)")
     parser.add_argument("--compressed", action="store_true",
@@ -125,6 +131,8 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         road=road,
     )
+    if args.far_field:
+        config = replace(config, far_grid=FarFieldConfig().grid(config.grid))
     if args.image_scale != 1.0:
         config = replace(config, camera=config.camera.scaled(args.image_scale))
     if args.drive:

@@ -8,9 +8,15 @@ built-in backends, the ``roadbev.backends`` entry points of installed packages, 
 
 Every backend :func:`create` makes answers through :class:`RefinedBackend`: its estimates pass
 through :func:`roadbev_core.uncertainty.refine` (cells hidden behind a crest become NaN; sigma
-is the backend's calibrated model from ``roadbev_core/data/sigma_calibration.json``), one step for
+is the backend's calibrated model from ``roadbev_core/data/sigma_calibration.json``, or on a
+far-field grid from ``far_sigma_calibration.json``: :func:`roadbev_core.uncertainty.calibration_for`), one step for
 all backends (an ``ensemble``'s members each, not the ensemble again). ``create(..., raw=True)``
 gives the backend's own answer (used to calibrate).
+
+A backend that can also answer the far-field grid (:class:`roadbev_core.config.FarFieldConfig`:
+coarser cells beyond the grid, on the same frame) says so with a true ``far_field`` attribute;
+:func:`roadbev_core.pipeline.build_far_backend` then builds a second one on that grid. Those
+that do not (the default) are refused when the far field is asked for.
 """
 
 from __future__ import annotations
@@ -52,7 +58,7 @@ class RefinedBackend:
         self.name = inner.name
         self.grid = inner.grid
         self.needs_stereo = inner.needs_stereo
-        self.sigma_model = calibration_for(inner.name)
+        self.sigma_model = calibration_for(inner.name, grid=inner.grid)
 
     def estimate(self, frame: Frame) -> Estimate:
         """The wrapped backend's estimate, hidden cells NaN and sigma calibrated."""

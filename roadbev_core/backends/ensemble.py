@@ -68,6 +68,8 @@ class EnsembleBackend:
         self.grid = grid
         self.members = members
         self.needs_stereo = any(m.needs_stereo for m in members)
+        # a far-field grid is answered when every member answers one
+        self.far_field = all(getattr(m, "far_field", False) for m in members)
         self._pool = ThreadPoolExecutor(max_workers=len(members), thread_name_prefix="roadbev-ensemble")
         atexit.register(self._pool.shutdown, wait=False)
 

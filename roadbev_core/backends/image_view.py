@@ -144,9 +144,15 @@ def match_window(
 
 
 class ImageViewStereo:
-    """OpenCV block matching (``bm``) or semi-global matching (``sgbm``) + binning into the grid."""
+    """OpenCV block matching (``bm``) or semi-global matching (``sgbm``) + binning into the grid.
+
+    Any grid ahead of the camera works the same way, so the far-field grid too
+    (:attr:`far_field`): its own window of the image and its own (smaller) disparities.
+    """
 
     needs_stereo = True
+    # answers a far-field grid (roadbev_core.pipeline.build_far_backend)
+    far_field = True
 
     def __init__(self, name: str, grid: GridSpec, params: ImageViewParams) -> None:
         if name not in ("bm", "sgbm"):

@@ -1,7 +1,7 @@
 """The typed configuration tree: every setting of the pipeline and the node, validated once.
 
 :class:`RoadbevConfig` holds one frozen section per concern (backend, grid, topics, sync, IMU,
-preview, vehicle, diagnostics). Each field carries the ROS parameter it is read from, with its
+preview, vehicle, map, diagnostics, far field). Each field carries the ROS parameter it is read from, with its
 description, range, choices and whether it may change at run time (:func:`param`); the node's
 parameter table (:func:`parameter_specs`: ``ros2 param describe``, ranges, read-only), the
 shipped ``config/roadbev.params.yaml`` and every loader are generated from those fields, so
@@ -46,6 +46,7 @@ __all__ = [
     "MAX_SYNC_SETS",
     "BackendConfig",
     "DiagnosticsConfig",
+    "FarFieldConfig",
     "ImuConfig",
     "MapConfig",
     "ParamSpec",
@@ -430,6 +431,47 @@ class DiagnosticsConfig:
                              f"= {self.max_rate_hz}")
 
 
+@dataclass(frozen=True)
+class FarFieldConfig:
+    """The far-field grid: a second, coarser grid per frame beyond the grid's far edge
+    (docs/concepts/grid.md, "The far field").
+
+    It starts at the grid's far edge (``x_max``), reaches ``far_field.x_max`` and spans the
+    grid's lateral range, in square cells of ``far_field.resolution``; the vertical range is its
+    own (the road 15 m ahead on a grade lies further from the reference plane than the road 5 m
+    ahead). Off by default: nothing the node publishes or estimates changes until it is on.
+    """
+
+    enabled: bool = param("far_field.enabled", False, "also estimate the far-field grid beyond the grid's far "
+                          "edge and publish it on elevation_far_topic (the image-view backends bm, sgbm and "
+                          "their ensemble; the others refuse it)", read_only=True)
+    topic: str = param("elevation_far_topic", "/roadbev/elevation_far", "far-field GridMap output (with "
+                       "far_field.enabled)", read_only=True)
+    x_max: float = param("far_field.x_max", 15.0, "far edge of the far-field grid (m ahead of the camera); its "
+                         "near edge is the grid's far edge x_max", 0.0, 100.0)
+    resolution: float = param("far_field.resolution", 0.12, "far-field cell size (m): one image row of the RSRD "
+                              "rig at the window's middle, rounded up to whole cells (docs/concepts/grid.md)",
+                              0.01, 1.0)
+    z_min: float = param("far_field.z_min", -0.5, "lowest far-field elevation (m)", -5.0, 0.0)
+    z_max: float = param("far_field.z_max", 0.5, "highest far-field elevation (m)", 0.0, 5.0)
+
+    def grid(self, near: GridSpec) -> GridSpec:
+        """The far-field grid beyond ``near`` (its lateral range, ``base_height`` and vertical
+        steps; validated by :class:`GridSpec`).
+
+        Raises:
+            ConfigError: the settings do not make a grid (not a whole number of cells, a far
+                edge not beyond ``near``'s...).
+        """
+        if not self.x_max > near.x_max:
+            raise ConfigError(f"far_field.x_max ({self.x_max:g} m) must lie beyond the grid's far edge x_max "
+                              f"({near.x_max:g} m)")
+        return GridSpec(x_min=near.x_max, x_max=self.x_max, y_min=near.y_min, y_max=near.y_max,
+                        resolution=self.resolution, z_min=self.z_min, z_max=self.z_max,
+                        z_resolution=near.z_resolution, class_resolution=near.class_resolution,
+                        base_height=near.base_height)
+
+
 # Grid parameters are GridSpec's fields under their own names (GridSpec validates the whole).
 _G = GridSpec()
 GRID_PARAMS: tuple[ParamSpec, ...] = (
@@ -452,7 +494,7 @@ class RoadbevConfig:
     :meth:`from_params`, or :meth:`with_params` for a change)."""
 
     SECTIONS: ClassVar[tuple[str, ...]] = ("backend", "topics", "sync", "imu", "preview", "vehicle", "map",
-                                           "diagnostics")
+                                           "diagnostics", "far_field")
 
     backend: BackendConfig = field(default_factory=BackendConfig)
     grid: GridSpec = field(default_factory=GridSpec)
@@ -463,6 +505,13 @@ class RoadbevConfig:
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)
     map: MapConfig = field(default_factory=MapConfig)
     diagnostics: DiagnosticsConfig = field(default_factory=DiagnosticsConfig)
+    far_field: FarFieldConfig = field(default_factory=FarFieldConfig)
+
+    @property
+    def far_grid(self) -> GridSpec | None:
+        """The far-field grid (:meth:`FarFieldConfig.grid` beyond :attr:`grid`) when
+        ``far_field.enabled``, else None."""
+        return self.far_field.grid(self.grid) if self.far_field.enabled else None
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any], *, base: RoadbevConfig | None = None) -> RoadbevConfig:
@@ -502,6 +551,11 @@ class RoadbevConfig:
             grid = GridSpec().with_overrides(**{spec.name: values[spec.name] for spec in GRID_PARAMS})
         except ConfigError as exc:
             raise ParamError(f"grid parameters do not form a valid grid: {exc}") from None
+        if sections["far_field"].enabled:
+            try:
+                sections["far_field"].grid(grid)
+            except ConfigError as exc:
+                raise ParamError(f"far-field parameters do not form a valid grid: {exc}") from None
         config = cls(grid=grid, **sections)
         config._check()
         return config
@@ -511,14 +565,16 @@ class RoadbevConfig:
         :func:`roadbev_core.pipeline.check_config`)."""
         if not is_backend_name(self.backend.name):
             raise ParamError(f"backend must be one of {', '.join(available())}; got {self.backend.name!r}")
-        grid = self.grid
-        voxels = grid.n_rows * grid.n_cols * max(grid.n_z, grid.n_classes)
-        if voxels > MAX_GRID_VOXELS:
-            raise ParamError(
-                f"the grid {grid.n_rows} x {grid.n_cols} cells x {max(grid.n_z, grid.n_classes)} levels has "
-                f"{voxels:,} voxels, more than the limit of {MAX_GRID_VOXELS:,} (coarser resolution, "
-                "z_resolution or class_resolution, or a smaller window)"
-            )
+        for what, grid in (("the grid", self.grid), ("the far-field grid", self.far_grid)):
+            if grid is None:
+                continue
+            voxels = grid.n_rows * grid.n_cols * max(grid.n_z, grid.n_classes)
+            if voxels > MAX_GRID_VOXELS:
+                raise ParamError(
+                    f"{what} {grid.n_rows} x {grid.n_cols} cells x {max(grid.n_z, grid.n_classes)} levels has "
+                    f"{voxels:,} voxels, more than the limit of {MAX_GRID_VOXELS:,} (coarser resolution, "
+                    "z_resolution or class_resolution, or a smaller window)"
+                )
         sets = self.sync.sets_per_message(4)
         if sets > MAX_SYNC_SETS:
             raise ParamError(
@@ -544,7 +600,7 @@ class RoadbevConfig:
 _SECTION_TYPES: dict[str, type] = {
     cls.__name__: cls
     for cls in (BackendConfig, TopicsConfig, SyncConfig, ImuConfig, PreviewConfig, VehicleConfig, MapConfig,
-                DiagnosticsConfig)
+                DiagnosticsConfig, FarFieldConfig)
 }
 
 

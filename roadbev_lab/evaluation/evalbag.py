@@ -11,6 +11,7 @@ topic                                  type                            per
 /stereo/right/camera_info              sensor_msgs/CameraInfo          frame
 /imu/data                              sensor_msgs/Imu                 IMU sample (100 Hz)
 /ground_truth/elevation                grid_map_msgs/GridMap           frame (layer elevation)
+/ground_truth/elevation_far            grid_map_msgs/GridMap           frame, with a far field
 /roadbev/grid_config                   std_msgs/String (JSON)          once, latched
 =====================================  ==============================  ==========================
 
@@ -23,7 +24,9 @@ jpeg).
 
 ``/roadbev/grid_config`` is a transient-local ("latched") message written first: JSON with the
 ``grid`` (every :class:`GridSpec` field), the ``camera`` (:class:`StereoCamera`) and the
-``drive`` settings that made the bag. Every message's log time is its header stamp, so a bag is
+``drive`` settings that made the bag; a drive with a far-field grid (``DriveConfig.far_grid``)
+adds ``far_grid`` and the truth on it, ``/ground_truth/elevation_far`` (a bag without one is
+written as before the far field existed). Every message's log time is its header stamp, so a bag is
 a pure function of the drive (byte-identical when regenerated).
 
 :func:`read_eval_bag` reads such bags and bags from elsewhere: it pairs left/right images and
@@ -32,6 +35,8 @@ CameraInfos by exact stamp, collects the IMU orientations (the attitude at an im
 feeds them to the pipeline in time order), and takes the horizontal grid from the ground-truth
 GridMap's ``info``. ``base_height`` and the vertical fields come from the grid parameters the
 user gave (:func:`grid_fields`), else from ``/roadbev/grid_config``, else the interface's defaults.
+The far-field truth's grid comes from its own GridMap's ``info`` likewise (its vertical range from
+the bag's ``far_grid``, else the ``far_field`` defaults).
 
 A truncated, unfinished or partly damaged bag gives every frame that is readable: damaged chunks
 are skipped (:func:`msg_bridge.bag.read_messages` with ``on_damage="skip"``), an image that does
@@ -59,12 +64,21 @@ from msg_bridge.imu import imu_message, imu_orientation
 from msg_bridge.pipeline_io import odometry_sample
 from msg_bridge.tf import StaticTransform, camera_mount, transforms_from_tf
 from roadbev_core.attitude import ImuBuffer, ImuSample, ImuStale, imu_buffer
-from roadbev_core.config import GRID_PARAMS, ConfigError, GridSpec, ImuConfig, StereoCamera, TopicsConfig
+from roadbev_core.config import (
+    GRID_PARAMS,
+    ConfigError,
+    FarFieldConfig,
+    GridSpec,
+    ImuConfig,
+    StereoCamera,
+    TopicsConfig,
+)
 from roadbev_core.ego_motion import PlanarPose
 from roadbev_core.frame import Frame
 from roadbev_core.pipeline import CameraInput
 
 __all__ = [
+    "FAR_GROUND_TRUTH_TOPIC",
     "GRID_CONFIG_TOPIC",
     "GROUND_TRUTH_TOPIC",
     "TF_STATIC_TOPIC",
@@ -81,6 +95,7 @@ __all__ = [
 
 # The evaluation bag's own topics (docs/interface/bags.md, "Evaluation bags"); the sensor topics are the node's.
 GROUND_TRUTH_TOPIC = "/ground_truth/elevation"
+FAR_GROUND_TRUTH_TOPIC = "/ground_truth/elevation_far"
 GRID_CONFIG_TOPIC = "/roadbev/grid_config"
 TF_STATIC_TOPIC = "/tf_static"
 COMPRESSED = "/compressed"
@@ -107,6 +122,7 @@ class BagTopics:
     ground_truth: str = GROUND_TRUTH_TOPIC
     grid_config: str = GRID_CONFIG_TOPIC
     tf_static: str = TF_STATIC_TOPIC
+    ground_truth_far: str = FAR_GROUND_TRUTH_TOPIC
 
     @classmethod
     def of(cls, topics: TopicsConfig, *, compressed: bool = False) -> BagTopics:
@@ -150,7 +166,8 @@ def write_eval_bag(
     Args:
         path: ``*.mcap`` (single file) or a rosbag2 directory to create; must not exist.
         drive: a :class:`roadbev_lab.synth.SyntheticDrive` (iterates ``DriveSample``s with
-            ``frame``, ``truth``; ``imu_samples()``; ``config`` with the grid).
+            ``frame``, ``truth`` and ``far_truth``; ``imu_samples()``; ``config`` with the grid and
+            the ``far_grid``, None without a far field).
         compressed: JPEG ``CompressedImage`` on ``.../image_rect/compressed`` instead of rgb8.
         compression: "zstd" (MCAP chunk compression) or "none".
         jpeg_quality: JPEG quality when ``compressed``.
@@ -163,6 +180,7 @@ def write_eval_bag(
     """
     config = getattr(drive, "config", None)
     grid: GridSpec = getattr(config, "grid", None) or GridSpec()
+    far_grid: GridSpec | None = getattr(config, "far_grid", None)
     factory = TypestoreFactory(typestore())
     imu = sorted(drive.imu_samples(), key=lambda s: s.stamp_ns)
     t = BagTopics.of(TopicsConfig(), compressed=compressed)
@@ -183,6 +201,8 @@ def write_eval_bag(
         bag.add_topic(t.right_info, "sensor_msgs/msg/CameraInfo")
         bag.add_topic(t.imu, "sensor_msgs/msg/Imu")
         bag.add_topic(t.ground_truth, "grid_map_msgs/msg/GridMap")
+        if far_grid is not None:
+            bag.add_topic(t.ground_truth_far, "grid_map_msgs/msg/GridMap")
         if extra is not None:
             extra.add_topics(bag)
         next_imu = 0
@@ -210,15 +230,18 @@ def write_eval_bag(
             stamp = int(frame.stamp_ns)
             if not config_written:
                 first = min(stamp, imu[0].stamp_ns) if imu else stamp
-                text = json.dumps(
-                    {
-                        "grid": grid.to_dict(),
-                        "camera": frame.camera.to_dict(),
-                        "drive": _jsonable(config),
-                        "frame_ids": {"left": LEFT_FRAME, "right": RIGHT_FRAME, "imu": IMU_FRAME},
-                    },
-                    sort_keys=True,
-                )
+                settings = _jsonable(config)
+                if isinstance(settings, dict) and settings.get("far_grid", 0) is None:
+                    del settings["far_grid"]  # without a far field the bag reads as before there was one
+                described = {
+                    "grid": grid.to_dict(),
+                    "camera": frame.camera.to_dict(),
+                    "drive": settings,
+                    "frame_ids": {"left": LEFT_FRAME, "right": RIGHT_FRAME, "imu": IMU_FRAME},
+                }
+                if far_grid is not None:
+                    described["far_grid"] = far_grid.to_dict()
+                text = json.dumps(described, sort_keys=True)
                 bag.write(t.grid_config, factory.new("std_msgs/msg/String", data=text), first)
                 config_written = True
             write_imu_until(stamp)
@@ -238,6 +261,11 @@ def write_eval_bag(
             truth = sample.truth.elevation if hasattr(sample.truth, "elevation") else sample.truth
             gt = grid_map_message({"elevation": truth}, grid, factory, stamp_ns=stamp, frame_id=ROAD_FRAME)
             bag.write(t.ground_truth, gt, stamp)
+            far_truth = getattr(sample, "far_truth", None)
+            if far_grid is not None and far_truth is not None:
+                far = grid_map_message({"elevation": far_truth.elevation}, far_grid, factory, stamp_ns=stamp,
+                                       frame_id=ROAD_FRAME)
+                bag.write(t.ground_truth_far, far, stamp)
             if progress is not None:
                 progress(1)
         write_imu_until(2**63 - 1)
@@ -257,10 +285,12 @@ class ExtraTopics(Protocol):
 
 
 class EvalSample(NamedTuple):
-    """One camera set of an evaluation bag and its ground truth ([n_rows, n_cols] metres or None)."""
+    """One camera set of an evaluation bag and its ground truth ([n_rows, n_cols] metres or None),
+    and the truth on the far-field grid (None without one)."""
 
     inputs: CameraInput
     truth: np.ndarray | None
+    far_truth: np.ndarray | None = None
 
 
 class LabelledFrame(NamedTuple):
@@ -281,6 +311,7 @@ class EvalBag:
     Attributes:
         path: the bag.
         grid: the evaluation grid (horizontal from the ground truth's info).
+        far_grid: the far-field grid of ``/ground_truth/elevation_far`` (None without it).
         camera: the rig of the first frame.
         stereo: whether the bag has right images.
         imu: the IMU orientations in stamp order (for :func:`roadbev_core.pipeline.replay`).
@@ -323,6 +354,8 @@ class EvalBag:
         self.odometry: list[PlanarPose] = []
         self.camera_frame = LEFT_FRAME
         self.camera_mount: tuple[np.ndarray, np.ndarray] | None = None
+        self.far_grid: GridSpec | None = None
+        self._far_truths: dict[int, np.ndarray] = {}
 
     def lost_frames(self) -> int:
         """Frames of the bag that cannot be evaluated: incomplete or undecodable ones, and left
@@ -385,7 +418,8 @@ class EvalBag:
             if any(img.shape[1::-1] != camera.size for img in (left, right) if img is not None):
                 self.skipped["images do not fit the camera"] = self.skipped.get("images do not fit the camera", 0) + 1
                 continue
-            yield EvalSample(CameraInput(left, right, camera, stamp), self._truths.get(stamp))
+            yield EvalSample(CameraInput(left, right, camera, stamp), self._truths.get(stamp),
+                             self._far_truths.get(stamp))
 
     def labelled_frames(self, buffer: ImuBuffer) -> Iterator[LabelledFrame]:
         """Frames with their attitude from ``buffer``'s rules (filled with every IMU sample of the
@@ -394,7 +428,7 @@ class EvalBag:
         counted in ``skipped``."""
         for sample in self.imu:
             buffer.add(sample.stamp_ns, sample.orientation_xyzw)
-        for inputs, truth in self:
+        for inputs, truth, _ in self:
             try:
                 attitude = buffer.attitude_at(inputs.stamp_ns)
             except ImuStale as exc:
@@ -417,6 +451,7 @@ class _Collected(NamedTuple):
     right_info: dict[int, object]
     imu: list[ImuSample]
     truths: dict[int, object]  # stamp -> GridMap message
+    far_truths: dict[int, object]  # stamp -> GridMap message of the far-field truth
     grid_config: dict[str, Any] | None
     bad_imu: int
     read: ReadStats
@@ -433,6 +468,7 @@ def _collect(path: Path, topics: BagTopics) -> _Collected:
     right_info: dict[int, object] = {}
     imu: list[tuple[int, np.ndarray]] = []
     truths: dict[int, object] = {}
+    far_truths: dict[int, object] = {}
     grid_config = None
     bad_imu = bad_odometry = 0
     odometry: list[PlanarPose] = []
@@ -471,6 +507,8 @@ def _collect(path: Path, topics: BagTopics) -> _Collected:
                 bad_imu += 1
         elif topic == topics.ground_truth:
             truths[stamp] = msg
+        elif topic == topics.ground_truth_far:
+            far_truths[stamp] = msg
         elif topic == topics.odom:
             try:
                 odometry.append(odometry_sample(msg))
@@ -479,8 +517,8 @@ def _collect(path: Path, topics: BagTopics) -> _Collected:
     imu.sort(key=lambda s: s[0])
     odometry.sort(key=lambda p: p.stamp_ns)
     samples = [ImuSample(stamp, (float(q[0]), float(q[1]), float(q[2]), float(q[3]))) for stamp, q in imu]
-    return _Collected(left, right, left_info, right_info, samples, truths, grid_config, bad_imu, read, odometry,
-                      bad_odometry, static, left_frame)
+    return _Collected(left, right, left_info, right_info, samples, truths, far_truths, grid_config, bad_imu, read,
+                      odometry, bad_odometry, static, left_frame)
 
 
 def _info_at(infos: dict[int, object], stamp: int) -> object | None:
@@ -611,10 +649,44 @@ def read_eval_bag(
     bag = EvalBag(path, grid, frames, truths, collected.imu, topics_read, compressed, stereo, skipped,
                   notes, collected.read)
     bag.odometry = collected.odometry
+    if collected.far_truths:
+        bag.far_grid, bag._far_truths = _far_truths(path, collected, base)
     camera_frame = collected.left_frame or LEFT_FRAME
     bag.camera_frame = camera_frame
     bag.camera_mount = camera_mount(collected.static, node_topics.base_frame, camera_frame)
     return bag
+
+
+def _far_truths(path: Path, collected: _Collected, base: GridSpec) -> tuple[GridSpec, dict[int, np.ndarray]]:
+    """The far-field grid (horizontal from the GridMaps' info; vertical range from the bag's
+    ``far_grid``, else the ``far_field`` defaults) and the truth on it per stamp.
+
+    Raises:
+        BagError: malformed maps, maps without an ``elevation`` layer or on different grids.
+    """
+    defaults = FarFieldConfig()
+    described = (collected.grid_config or {}).get("far_grid")
+    vertical = {"z_min": defaults.z_min, "z_max": defaults.z_max}
+    if isinstance(described, dict):
+        vertical.update({k: float(v) for k, v in described.items() if k in vertical})
+    try:
+        far_base = GridSpec.from_dict({**base.to_dict(), **vertical})
+    except ConfigError as exc:
+        raise BagError(f"{path}: the far-field grid's vertical range is invalid: {exc}") from None
+    grids: set[GridSpec] = set()
+    truths: dict[int, np.ndarray] = {}
+    for stamp, msg in collected.far_truths.items():
+        try:
+            decoded = grid_map_to_arrays(msg, far_base)
+        except MessageError as exc:
+            raise BagError(f"{path}: far-field ground truth at {stamp} ns is malformed: {exc}") from None
+        if "elevation" not in decoded.layers:
+            raise BagError(f"{path}: far-field ground truth at {stamp} ns has no 'elevation' layer")
+        grids.add(decoded.grid)
+        truths[stamp] = np.array(decoded.layers["elevation"], dtype=np.float32)
+    if len(grids) > 1:
+        raise BagError(f"{path}: the far-field ground-truth maps are on {len(grids)} different grids")
+    return grids.pop(), truths
 
 
 def bag_frames(

@@ -13,6 +13,10 @@ machine:
 * ``cost_network``: sampling, matching costs, aggregation, or the network;
 * ``post``: decisions, reprojection, binning, uncertainty.
 
+With the far field on (``far_field.enabled``) and samples that carry its truth (``far_truth``),
+the far-field grid is scored too: the ``far_field`` key (:func:`far_field_metrics`: the metrics of
+the whole far grid and per band of 1 m); without far truth the key is absent.
+
 ``fps`` is frames per second of the whole pipeline (decode + attitude + estimate + preview). The first frame is a
 warm-up (lazy initialisation, allocator growth): when more than one frame runs, it counts for the
 accuracy but not for the timing.
@@ -32,12 +36,13 @@ import numpy as np
 
 from roadbev_core.attitude import ImuSample
 from roadbev_core.backends import Backend
-from roadbev_core.config import RoadbevConfig
+from roadbev_core.config import GridSpec, RoadbevConfig
 from roadbev_core.ego_motion import PlanarPose
 from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Estimate, Frame
 from roadbev_core.pipeline import CameraInput, ImuFeed, OdometryFeed, Pipeline, PipelineOutput
 from roadbev_lab.evaluation.metrics import (
+    BandAccumulator,
     MetricAccumulator,
     Metrics,
     SigmaAccumulator,
@@ -52,6 +57,7 @@ __all__ = [
     "EvaluationError",
     "common_cell_errors",
     "evaluate",
+    "far_field_metrics",
     "format_table",
     "json_safe",
     "stage_group",
@@ -262,12 +268,22 @@ def common_cell_errors(
     return cells, 100.0 * sum_first / cells, 100.0 * sum_second / cells
 
 
-def _unpack(sample: Any) -> tuple[CameraInput, Frame | None, np.ndarray | None]:
-    """(camera set, frame when its attitude is known, truth [n_rows, n_cols] or None) of a sample:
-    a (frame or camera set, truth) pair or an object with ``.frame``/``.inputs`` and ``.truth`` (an
-    ``EvalSample``, a synthetic ``DriveSample`` whose truth is an ``ElevationLabel``)."""
+def _label_array(truth: Any) -> np.ndarray | None:
+    """A truth as [n_rows, n_cols] float32 metres (an ``ElevationLabel``'s elevation), or None."""
+    if truth is not None and hasattr(truth, "elevation"):
+        truth = truth.elevation
+    return None if truth is None else np.asarray(truth, dtype=np.float32)
+
+
+def _unpack(sample: Any) -> tuple[CameraInput, Frame | None, np.ndarray | None, np.ndarray | None]:
+    """(camera set, frame when its attitude is known, truth [n_rows, n_cols] or None, far-field
+    truth or None) of a sample: a (frame or camera set, truth) pair or an object with
+    ``.frame``/``.inputs`` and ``.truth`` (and maybe ``.far_truth``: an ``EvalSample``, a synthetic
+    ``DriveSample`` whose truths are ``ElevationLabel``s)."""
+    far_truth = None
     if hasattr(sample, "truth") and (hasattr(sample, "frame") or hasattr(sample, "inputs")):
         item, truth = getattr(sample, "frame", None) or sample.inputs, sample.truth
+        far_truth = getattr(sample, "far_truth", None)
     else:
         try:
             item, truth = sample
@@ -282,11 +298,7 @@ def _unpack(sample: Any) -> tuple[CameraInput, Frame | None, np.ndarray | None]:
         frame, inputs = None, item
     else:
         raise EvaluationError(f"sample frame must be a Frame or CameraInput, got {type(item).__name__}")
-    if truth is not None and hasattr(truth, "elevation"):
-        truth = truth.elevation
-    if truth is not None:
-        truth = np.asarray(truth, dtype=np.float32)
-    return inputs, frame, truth
+    return inputs, frame, _label_array(truth), _label_array(far_truth)
 
 
 def pipeline_for(backend: Backend, config: RoadbevConfig | None = None) -> Pipeline:
@@ -342,6 +354,8 @@ def evaluate(
     first: PipelineOutput | None = None
     refused: dict[str, int] = {}
     calibration = SigmaAccumulator()
+    far_grid = pipeline.config.far_grid
+    far: tuple[MetricAccumulator, SigmaAccumulator, BandAccumulator] | None = None
     stage_timings: list[dict[str, float]] = []
     iterator = iter(samples)
     frames = 0
@@ -351,7 +365,7 @@ def evaluate(
             sample = next(iterator)
         except StopIteration:
             break
-        inputs, frame, truth = _unpack(sample)
+        inputs, frame, truth, far_truth = _unpack(sample)
         decoded = time.perf_counter()
         try:
             odometry_feed.until(pipeline, frame.stamp_ns if frame is not None else inputs.stamp_ns)
@@ -391,6 +405,14 @@ def evaluate(
             record["coverage_pct"] = 100.0 * float(both.sum()) / max(int(labelled.sum()), 1)
             accumulator.add(estimate.elevation, truth)
             calibration.add(estimate.elevation, estimate.uncertainty, truth)
+        if far_truth is not None and output.far is not None and far_grid is not None:
+            if far_truth.shape != far_grid.shape:
+                raise EvaluationError(f"far-field ground truth is {far_truth.shape} but the far-field grid is "
+                                      f"{far_grid.shape}")
+            far = far or (MetricAccumulator(far_grid), SigmaAccumulator(), BandAccumulator(far_grid))
+            far[0].add(output.far.elevation, far_truth)
+            far[1].add(output.far.elevation, output.far.uncertainty, far_truth)
+            far[2].add(output.far.elevation, output.far.uncertainty, far_truth)
         per_frame.append(record)
         stage_timings.append(dict(estimate.timings_ms))
         if keep_estimates:
@@ -409,8 +431,11 @@ def evaluate(
     timed = per_frame[first_timed:]
     sums = EvalSums(pipeline.backend.name, accumulator, calibration, len(per_frame), len(timed),
                     sum(r["decode_ms"] for r in timed), sum(r["estimate_ms"] for r in timed), stage_sums)
+    metrics = sums.metrics()
+    if far is not None and far_grid is not None:
+        metrics["far_field"] = far_field_metrics(far_grid, *far)
     return EvalResult(
-        metrics=sums.metrics(),
+        metrics=metrics,
         accuracy=accumulator.result(),
         per_frame=per_frame,
         estimates=[o.estimate for o in outputs] if keep_estimates else None,
@@ -419,6 +444,19 @@ def evaluate(
         first=first,
         sums=sums,
     )
+
+
+def far_field_metrics(grid: GridSpec, scored: MetricAccumulator, sigma: SigmaAccumulator,
+                      bands: BandAccumulator) -> dict[str, Any]:
+    """The ``far_field`` key (docs/interface/evaluation.md): the far-field grid, its accuracy and
+    uncertainty keys over every cell, and per band of ``bands.band_m`` metres."""
+    accuracy = scored.result().to_dict()
+    del accuracy["band_abs_err_cm"]  # the far grid's bands are whole metres (below)
+    frames = accuracy.pop("frames")
+    if not accuracy["labelled_cells"]:
+        accuracy["coverage_pct"] = math.nan
+    return {"estimated": True, "grid": grid.to_dict(), "frames_with_truth": frames, **accuracy, **sigma.result(),
+            "band_m": bands.band_m, "bands": bands.result()}
 
 
 def _metrics(

@@ -11,6 +11,9 @@ The reported 1-sigma uncertainty is scored too (docs/interface/evaluation.md,
 wrong* (error beyond both 3 sigma and 1 cm: a controller trusting sigma would act on them), the
 mean sigma, and a reliability curve (the observed error quantile in bins of predicted sigma: an
 honest sigma puts the 68.3 % quantile of the error on the diagonal).
+
+The far-field grid is scored per distance band of whole metres (:class:`BandAccumulator`: error,
+coverage and sigma honesty per band), since what the camera resolves falls with range.
 """
 
 from __future__ import annotations
@@ -27,10 +30,12 @@ __all__ = [
     "CONFIDENT_WRONG_CM",
     "N_BANDS",
     "RELIABILITY_EDGES_CM",
+    "BandAccumulator",
     "MetricAccumulator",
     "Metrics",
     "SigmaAccumulator",
     "differences",
+    "distance_bands",
     "reliability_curve",
     "reliability_histogram",
     "sigma_counts",
@@ -408,3 +413,76 @@ def reliability_curve(
             entry[f"q{int(q * 100)}_abs_err_cm"] = (index + 0.5) * _REL_STEP_CM
         out.append(entry)
     return out
+
+
+# --- per distance band ------------------------------------------------------------------------
+def distance_bands(grid: GridSpec, band_m: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Bands of ``band_m`` metres of x (whole multiples: 7-8 m, 8-9 m...) over a grid.
+
+    Returns:
+        [n_rows] the band (0 = nearest) of each row, by its centre's x, and [B, 2] each band's
+        x range (m), the nominal band cut to the grid's extent.
+    """
+    if not band_m > 0:
+        raise ValueError(f"band width must be positive, got {band_m}")
+    index = np.floor(grid.x_centres() / band_m + 1e-9).astype(np.int64)  # [n_rows]
+    first = int(index.min())
+    lower = (np.arange(first, int(index.max()) + 1) * band_m).astype(np.float64)  # [B]
+    edges = np.stack([np.maximum(lower, grid.x_min), np.minimum(lower + band_m, grid.x_max)], axis=1)
+    return index - first, np.round(edges, 9)
+
+
+@dataclass
+class BandAccumulator:
+    """Error, coverage and sigma honesty per distance band (:func:`distance_bands`), summed over
+    frames (streaming, like :class:`MetricAccumulator`)."""
+
+    grid: GridSpec
+    band_m: float = 1.0
+    _band_of_row: np.ndarray = field(init=False)
+    _edges: np.ndarray = field(init=False)
+    _labelled: np.ndarray = field(init=False)  # [B] labelled cells
+    _cells: np.ndarray = field(init=False)  # [B] labelled cells with an estimate
+    _abs_sum: np.ndarray = field(init=False)  # [B] their absolute error (cm)
+    _sigma: np.ndarray = field(init=False)  # [B, 6] sigma_counts
+
+    def __post_init__(self) -> None:
+        self._band_of_row, self._edges = distance_bands(self.grid, self.band_m)
+        bands = self._edges.shape[0]
+        self._labelled = np.zeros(bands, np.int64)
+        self._cells = np.zeros(bands, np.int64)
+        self._abs_sum = np.zeros(bands, np.float64)
+        self._sigma = np.zeros((bands, 6), np.float64)
+
+    def add(self, estimate: np.ndarray, sigma: np.ndarray, truth: np.ndarray) -> None:
+        """Add one frame ([n_rows, n_cols] metres each; NaN = no estimate, sigma or label)."""
+        if not estimate.shape == sigma.shape == truth.shape == self.grid.shape:
+            raise ValueError(f"estimate {estimate.shape}, sigma {sigma.shape} and truth {truth.shape} must match "
+                             f"grid {self.grid.shape}")
+        for band in range(self._edges.shape[0]):
+            rows = self._band_of_row == band
+            e, s, t = estimate[rows], sigma[rows], truth[rows]
+            labelled = np.isfinite(t)
+            valid = labelled & np.isfinite(e)
+            self._labelled[band] += int(labelled.sum())
+            self._cells[band] += int(valid.sum())
+            self._abs_sum[band] += 100.0 * float(np.abs(e[valid].astype(np.float64) - t[valid]).sum())
+            self._sigma[band] += sigma_counts(e, s, t)
+
+    def result(self) -> list[dict[str, float | int]]:
+        """One dict per band, near to far: ``x_from_m``, ``x_to_m``, ``labelled_cells``, ``cells``,
+        ``coverage_pct``, ``abs_err_cm`` and the uncertainty keys (:func:`sigma_metrics`); NaN
+        where a band has nothing to score."""
+        out: list[dict[str, float | int]] = []
+        for band, (lo, hi) in enumerate(self._edges):
+            cells, labelled = int(self._cells[band]), int(self._labelled[band])
+            out.append({
+                "x_from_m": float(lo),
+                "x_to_m": float(hi),
+                "labelled_cells": labelled,
+                "cells": cells,
+                "coverage_pct": 100.0 * cells / labelled if labelled else math.nan,
+                "abs_err_cm": float(self._abs_sum[band]) / cells if cells else math.nan,
+                **sigma_metrics(self._sigma[band]),
+            })
+        return out

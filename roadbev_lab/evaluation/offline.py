@@ -9,6 +9,10 @@ writes them; on a drive bag with ground truth also the ``preview_at_arrival`` (a
 with the map, ``map``) keys (:func:`drive_keys`). The command only adds printing, the self-check
 hint and ``--json``; the demo evaluates its drive with the map on and off through the same
 function, so its numbers are ``roadbev eval``'s.
+
+A bag with far-field truth (``/ground_truth/elevation_far``) turns the far field on, on the grid of
+that truth, and the metrics carry the ``far_field`` key; a backend that does not estimate the far
+field runs without it and the key says so (``estimated`` false, with the reason).
 """
 
 from __future__ import annotations
@@ -18,9 +22,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from roadbev_core.config import GridSpec, RoadbevConfig
+from roadbev_core.config import ConfigError, FarFieldConfig, GridSpec, RoadbevConfig
 from roadbev_core.errors import RoadbevError
-from roadbev_core.pipeline import Pipeline, PipelineOutput, check_config
+from roadbev_core.pipeline import FarFieldUnsupported, Pipeline, PipelineOutput, check_config
 from roadbev_core.selfcheck import MIN_COVERAGE_PCT, self_check
 from roadbev_lab.evaluation.arrival import ArrivalError, map_summary, map_window_rows, per_frame_previews
 from roadbev_lab.evaluation.drivebag import is_drive_bag, read_drive_truth, score_preview_errors
@@ -123,6 +127,7 @@ class PreparedBag:
         config: the pipeline's config (the user's settings, the map switch, the bag's grid).
         pipeline: the pipeline (the camera mounted from ``/tf_static`` where the bag has it).
         drive: whether the bag is a drive bag (ground-truth poses and road map).
+        far_refused: why the bag's far-field truth is not estimated (the backend's refusal), or "".
     """
 
     path: Path
@@ -130,6 +135,7 @@ class PreparedBag:
     config: RoadbevConfig
     pipeline: Pipeline
     drive: bool
+    far_refused: str = ""
 
 
 def prepare_bag(
@@ -167,14 +173,42 @@ def prepare_bag(
         raise OfflineEvalError(f"--map needs odometry: {path} has none on {bag.topics.odom}")
     map_params = {} if map_enabled is None else {"map.enabled": bool(map_enabled)}
     # the horizontal grid comes from the ground truth's GridMap info (docs/interface/bags.md)
-    config = check_config(settings.with_params({**map_params, **bag.grid.to_dict()}))
-    pipeline = Pipeline(config)
+    config = check_config(settings.with_params({**map_params, **bag.grid.to_dict(), **_far_params(bag)}))
+    far_refused = ""
+    try:
+        pipeline = Pipeline(config)
+    except FarFieldUnsupported as exc:  # the grid is evaluated; the far-field key says why the far one is not
+        far_refused = str(exc)
+        config = config.with_params({"far_field.enabled": False})
+        pipeline = Pipeline(config)
     if bag.camera_mount is not None:  # /tf_static base_link -> camera wins over vehicle.camera_position_m
         pipeline.set_camera_mount(*bag.camera_mount)
     if len(bag) == 0:
         raise OfflineEvalError(f"bag {path} has no complete frames to evaluate")
     # a drive bag: the previews are scored at the wheels' arrival too
-    return PreparedBag(path, bag, config, pipeline, is_drive_bag(path))
+    return PreparedBag(path, bag, config, pipeline, is_drive_bag(path), far_refused)
+
+
+def _far_params(bag: EvalBag) -> dict[str, Any]:
+    """The far-field parameters of a bag with far-field truth (its grid), else none.
+
+    Raises:
+        OfflineEvalError: that truth is not on a far-field grid beyond the bag's grid.
+    """
+    far = bag.far_grid
+    if far is None:
+        return {}
+    try:
+        expected = FarFieldConfig(enabled=True, x_max=far.x_max, resolution=far.resolution, z_min=far.z_min,
+                                  z_max=far.z_max).grid(bag.grid)
+    except ConfigError as exc:
+        raise OfflineEvalError(f"{bag.path}: the far-field ground truth is not on a far-field grid: {exc}") from None
+    if expected != far:
+        raise OfflineEvalError(f"{bag.path}: the far-field ground truth's grid (x {far.x_min:g}..{far.x_max:g} m, y "
+                               f"{far.y_min:g}..{far.y_max:g} m) does not start at the grid's far edge "
+                               f"({bag.grid.x_max:g} m) across its width")
+    return {"far_field.enabled": True, "far_field.x_max": far.x_max, "far_field.resolution": far.resolution,
+            "far_field.z_min": far.z_min, "far_field.z_max": far.z_max}
 
 
 def run_prepared(
@@ -206,6 +240,8 @@ def run_prepared(
         if pipeline.map_skipped:
             metrics["map_skipped"] = dict(pipeline.map_skipped)
             sums.map_skipped = dict(pipeline.map_skipped)
+    if prepared.far_refused and bag.far_grid is not None:
+        metrics["far_field"] = {"estimated": False, "reason": prepared.far_refused, "grid": bag.far_grid.to_dict()}
     metrics["lost_frames"] = sums.lost_frames = bag.lost_frames()
     metrics["losses"] = bag.losses()
     if prepared.drive and metrics.get("frames_with_truth", 0) > 0:  # docs/interface/bags.md, "Drive bags"

@@ -9,7 +9,10 @@ that interpolates the IMU recovers the exact attitude the frame was rendered wit
 
 Ground truth is a dense LiDAR-like point cloud sampled from the height field over the grid
 (jittered 1 cm spacing, optional noise, dropout and range fall-off) turned into labels by
-:func:`roadbev_core.labels.elevation_map`, exactly as the real labels are made.
+:func:`roadbev_core.labels.elevation_map`, exactly as the real labels are made. With a far-field
+grid (``DriveConfig.far_grid``, ``make_sample(far_grid=...)``) the same is done over it too
+(``DriveSample.far_truth``), after everything else a frame draws, so the frame and its grid's
+truth are those of the same drive without it.
 """
 
 from __future__ import annotations
@@ -45,6 +48,7 @@ __all__ = [
     "ImuSample",
     "LidarConfig",
     "SyntheticDrive",
+    "check_far_grid",
     "corner_heights",
     "make_sample",
     "render_sample",
@@ -102,11 +106,13 @@ class DriveSample(NamedTuple):
         frame: the images, rig, true attitude and stamp.
         truth: labels from the LiDAR-like points (elevation NaN where no point fell).
         points_road: [N, 3] float32 LiDAR-like points in the road frame.
+        far_truth: the labels of the far-field grid (None without one).
     """
 
     frame: Frame
     truth: ElevationLabel
     points_road: np.ndarray
+    far_truth: ElevationLabel | None = None
 
 
 @dataclass(frozen=True)
@@ -147,6 +153,8 @@ class DriveConfig:
         road: the road.
         camera: the stereo rig.
         grid: the BEV grid (labels and base height).
+        far_grid: a far-field grid to label too (:meth:`roadbev_core.config.FarFieldConfig.grid`;
+            None: none).
         start_stamp_ns: time of the first IMU sample.
         lidar: the ground-truth point cloud.
         gyro_noise, accel_noise: white noise on the IMU rates (rad/s) and specific force (m/s^2),
@@ -165,8 +173,10 @@ class DriveConfig:
     lidar: LidarConfig = field(default_factory=LidarConfig)
     gyro_noise: float = 0.002
     accel_noise: float = 0.03
+    far_grid: GridSpec | None = None
 
     def __post_init__(self) -> None:
+        check_far_grid(self.far_grid)
         if self.frames < 1:
             raise SynthError(f"a drive needs at least one frame, got {self.frames}")
         if not 0.0 <= self.speed_mps <= 40.0:
@@ -184,6 +194,18 @@ class DriveConfig:
             raise SynthError("start_stamp_ns must be >= 0")
         if self.gyro_noise < 0 or self.accel_noise < 0:
             raise SynthError("IMU noise must be >= 0")
+
+
+def check_far_grid(far_grid: GridSpec | None) -> None:
+    """Refuse a far-field grid beyond the road the scenes draw (:data:`LOOK_AHEAD_M`; farther the road
+    is its bare plane, with no texture to match).
+
+    Raises:
+        SynthError: naming the limit.
+    """
+    if far_grid is not None and far_grid.x_max > LOOK_AHEAD_M - 2.0:
+        raise SynthError(f"a far-field grid to {far_grid.x_max:g} m reaches beyond the {LOOK_AHEAD_M - 2.0:g} m of "
+                         "road the scenes draw ahead of the camera")
 
 
 # --- rotations ------------------------------------------------------------------------------
@@ -291,9 +313,15 @@ def draw_mount_attitude(rng: np.random.Generator, *, in_drive: bool) -> tuple[fl
 
 # --- ground truth ---------------------------------------------------------------------------
 def sample_points(
-    scene: Scene, pose: CameraPose, grid: GridSpec, lidar: LidarConfig, rng: np.random.Generator
+    scene: Scene, pose: CameraPose, grid: GridSpec, lidar: LidarConfig, rng: np.random.Generator,
+    *, near_edge_m: float | None = None,
 ) -> np.ndarray:
-    """[N, 3] float32 LiDAR-like road-frame points on the true surface over the grid."""
+    """[N, 3] float32 LiDAR-like road-frame points on the true surface over the grid.
+
+    Args:
+        near_edge_m: where the range fall-off starts (default the grid's ``x_min``; a far-field
+            grid's points thin out as the same LiDAR's, from the grid's near edge).
+    """
     m = lidar.margin_m
     xs = np.arange(grid.x_min - m, grid.x_max + m, lidar.spacing_m)
     ys = np.arange(grid.y_min - m, grid.y_max + m, lidar.spacing_m)
@@ -304,7 +332,8 @@ def sample_points(
     if lidar.dropout > 0:
         keep &= rng.random(pts.shape[0]) >= lidar.dropout
     if lidar.range_falloff > 0:
-        prob = np.minimum(1.0, (grid.x_min / np.maximum(pts[:, 0], 1e-3)) ** lidar.range_falloff)
+        start = grid.x_min if near_edge_m is None else near_edge_m
+        prob = np.minimum(1.0, (start / np.maximum(pts[:, 0], 1e-3)) ** lidar.range_falloff)
         keep &= rng.random(pts.shape[0]) < prob
     pts = pts[keep]
     world = pose.road_to_world(pts, grid.base_height)
@@ -326,6 +355,7 @@ def render_sample(
     attitude: Attitude | None = None,
     *,
     hide_occluded: bool = False,
+    far_grid: GridSpec | None = None,
 ) -> DriveSample:
     """Render the stereo pair at ``pose``, sample the LiDAR-like points, make the labels.
 
@@ -333,6 +363,8 @@ def render_sample(
         hide_occluded: mark cells the left camera cannot see NaN in the labels (outside its
             image, or more than half of the cell's points behind a nearer surface: the far
             side of a bump, the near wall of a pothole); ``points_road`` keeps every point.
+        far_grid: also label this far-field grid (``far_truth``), from points drawn after
+            everything else (the rest of the sample is the one without it).
     """
     road = scene.config
     left, right = render_stereo(scene, camera, pose)
@@ -361,16 +393,23 @@ def render_sample(
     frame = Frame(
         left=img_left, right=img_right, camera=camera, attitude=attitude or pose.attitude, stamp_ns=int(stamp_ns)
     )
-    truth = elevation_map(points, grid)
-    if hide_occluded:
-        seen = elevation_map(points[visible_points(scene, points, pose, camera, grid.base_height, left.depth)], grid)
+    def labels(points: np.ndarray, on: GridSpec) -> ElevationLabel:
+        truth = elevation_map(points, on)
+        if not hide_occluded:
+            return truth
+        seen = elevation_map(points[visible_points(scene, points, pose, camera, on.base_height, left.depth)], on)
         hidden = truth.mask & (2 * seen.count < truth.count)
-        truth = ElevationLabel(
+        return ElevationLabel(
             elevation=np.where(hidden, np.float32(np.nan), truth.elevation).astype(np.float32),
             mask=truth.mask & ~hidden,
             count=np.where(hidden, 0, truth.count).astype(truth.count.dtype),
         )
-    return DriveSample(frame=frame, truth=truth, points_road=points)
+
+    truth = labels(points, grid)
+    far_truth = None
+    if far_grid is not None:
+        far_truth = labels(sample_points(scene, pose, far_grid, lidar, rng, near_edge_m=grid.x_min), far_grid)
+    return DriveSample(frame=frame, truth=truth, points_road=points, far_truth=far_truth)
 
 
 def visible_points(
@@ -549,7 +588,8 @@ class SyntheticDrive:
         pose, attitude = self.pose(index)
         rng = np.random.default_rng(int(self._frame_seeds[index]))
         c = self.config
-        return render_sample(self.scene, pose, c.camera, c.grid, c.lidar, rng, self.frame_stamps_ns[index], attitude)
+        return render_sample(self.scene, pose, c.camera, c.grid, c.lidar, rng, self.frame_stamps_ns[index], attitude,
+                             far_grid=c.far_grid)
 
     def trajectory(self) -> dict[str, np.ndarray]:
         """The left camera's path at the IMU stamps (road world frame: x along the road).
@@ -643,6 +683,7 @@ def make_sample(
     road: RoadConfig | None = None,
     lidar: LidarConfig | None = None,
     appearance: AppearanceRange | None = REAL_ROAD,
+    far_grid: GridSpec | None = None,
 ) -> DriveSample:
     """One independent random scene seen by a stationary-looking rig (deterministic per seed).
 
@@ -650,6 +691,11 @@ def make_sample(
     ``road`` (a random road when None, its appearance drawn from ``appearance``: by default the
     ``real-road`` range, None for the ``clean`` one) are
     placed inside the grid's window.
+
+    With ``far_grid`` the same features are placed inside its window too (from a draw of their
+    own: the road, the rig and the near features are the sample's without it; the surface under
+    them may differ where a concrete pavement's joints fall) and the sample carries its
+    ``far_truth``.
     """
     camera = camera or StereoCamera.rsrd_half()
     grid = grid or GridSpec()
@@ -659,10 +705,14 @@ def make_sample(
     road = road or random_road(rng_cfg, appearance)
     y_cam = float(rng_pose.uniform(-0.5, 0.5))
     centres = _place_in_grid(road.features, grid, y_cam, rng_pose)
+    if far_grid is not None:
+        check_far_grid(far_grid)
+        rng_far = np.random.default_rng(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, 0xFA4F1E]))
+        centres += _place_in_grid(road.features, far_grid, y_cam, rng_far)
     scene = build_scene(road, int(seed), (-4.0, LOOK_AHEAD_M + 2.0), centres)
     roll, pitch = draw_mount_attitude(rng_pose, in_drive=False)
     front, rear, _, _ = _wheel_heights(scene, np.zeros(1), np.full(1, y_cam), np.zeros(1))
     support = float((front[0] + rear[0]) / 2)
     z = support + grid.base_height + float(np.clip(rng_pose.normal(0.0, 0.01), -0.02, 0.02))
     pose = CameraPose(0.0, y_cam, z, Attitude.from_degrees(roll, pitch))
-    return render_sample(scene, pose, camera, grid, lidar, rng_render, 0)
+    return render_sample(scene, pose, camera, grid, lidar, rng_render, 0, far_grid=far_grid)

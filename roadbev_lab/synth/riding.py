@@ -410,7 +410,7 @@ class RidingDrive(SyntheticDrive):
         rng = np.random.default_rng(int(self._frame_seeds[index]))
         c = self.config
         return render_sample(self.scene, pose, c.camera, c.grid, c.lidar, rng, self.frame_stamps_ns[index],
-                             attitude, hide_occluded=True)
+                             attitude, hide_occluded=True, far_grid=c.far_grid)
 
     def ground_truth_poses(self) -> PoseSeries:
         """The exact pose and twist of ``base_link`` in ``odom`` at the IMU stamps."""

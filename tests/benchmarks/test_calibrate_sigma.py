@@ -1,13 +1,16 @@
-"""The sigma calibration's tuning set: drives of their own, refused when malformed."""
+"""The sigma calibration's tuning set: drives of their own, refused when malformed; the far-field tables."""
 
 from __future__ import annotations
+
+import json
+from pathlib import Path
 
 import pytest
 
 from benchmarks.bench_arrival import SEED_BASE as BENCH_DRIVE_SEEDS
 from benchmarks.bench_hazards import MAP_SEED_BASE, SEED_BASE
 from benchmarks.calibrate_sigma import TUNING_DRIVES, drive_samples
-from roadbev_core.config import GridSpec
+from roadbev_core.config import FarFieldConfig, GridSpec
 from roadbev_lab.demo.drive import DRIVE_SEED
 
 
@@ -27,3 +30,18 @@ def test_a_malformed_drive_is_refused_with_its_spec(spec: str) -> None:
 
 def test_no_drives_is_an_empty_set() -> None:
     assert drive_samples([], 2.0, GridSpec()) == []
+
+
+def test_the_far_field_calibration_fits_the_footprint_and_judges_the_worst_band(tmp_path: Path) -> None:
+    from benchmarks.calibrate_sigma import main
+
+    out = tmp_path / "far.json"
+    assert main(["--far-field", "--frames", "2", "--backends", "bm", "--out", str(out)]) == 0
+    table = json.loads(out.read_text())
+    far = FarFieldConfig().grid(GridSpec())
+    assert GridSpec.from_dict(table["grid"]) == far and table["drives"] == [] and table["seeds"][0] >= 200_000
+    assert table["models"]["bm"]["footprint"] > 0
+    scores = table["details"]["bm"]["tuning_scores"]
+    assert scores["worst_band_confident_wrong_pct"] == max(b["confident_wrong_pct"] for b in scores["bands"]
+                                                           if b["sigma_cells"])
+    assert [b["x_from_m"] for b in scores["bands"]] == [7.08, *range(8, 15)]

@@ -171,6 +171,40 @@ def test_costly_settings_are_refused_before_anything_is_allocated() -> None:
     check_image_size(1920, 1080)
 
 
+def test_the_far_field_is_off_by_default_and_a_coarser_grid_beyond_the_grid_when_on() -> None:
+    config = RoadbevConfig()
+    assert not config.far_field.enabled and config.far_grid is None
+    on = RoadbevConfig.from_params({"far_field.enabled": True})
+    far = on.far_grid
+    assert far is not None and far.shape == (66, 16) and far.resolution == 0.12
+    assert (far.x_min, far.x_max) == (on.grid.x_max, 15.0) and (far.y_min, far.y_max) == (on.grid.y_min, on.grid.y_max)
+    assert (far.z_min, far.z_max, far.base_height) == (-0.5, 0.5, on.grid.base_height)
+    assert on.far_field.topic == "/roadbev/elevation_far"
+    assert RoadbevConfig.from_params(on.to_params()) == on
+    # the grid moves, the far field follows it
+    moved = on.with_params({"x_max": 7.2, "base_height": 1.3})
+    assert moved.far_grid == GridSpec(x_min=7.2, x_max=15.0, resolution=0.12, z_min=-0.5, z_max=0.5, base_height=1.3)
+    # off, far-field settings that would not make a grid are not judged (nothing changes for the grid alone)
+    assert RoadbevConfig.from_params({"x_max": 7.11}).far_grid is None
+
+
+@pytest.mark.parametrize(
+    "params, reason",
+    [
+        ({"far_field.resolution": 0.1}, "far-field parameters do not form a valid grid: longitudinal x: range of "
+                                        "7.92 m is not a whole number of 0.1 m cells"),
+        ({"far_field.x_max": 7.0}, "far_field.x_max \\(7 m\\) must lie beyond the grid's far edge x_max \\(7.08 m\\)"),
+        ({"far_field.z_max": 1.5}, "below the camera"),
+        ({"x_max": 7.11}, "not a whole number"),
+        ({"far_field.resolution": 0.01, "far_field.x_max": 100.0}, "the far-field grid .* voxels, more than the limit"),
+    ],
+)
+def test_far_field_settings_that_do_not_make_a_grid_are_refused_with_their_names(params: dict[str, Any],
+                                                                                reason: str) -> None:
+    with pytest.raises(ParamError, match=reason):
+        RoadbevConfig.from_params({"far_field.enabled": True, **params})
+
+
 def test_with_params_changes_and_revalidates() -> None:
     config = RoadbevConfig()
     changed = config.with_params({"backend": "bm"})

@@ -1,4 +1,4 @@
-"""sgbm / bm: disparity window, accuracy on rendered frames, offsets caught, NaN handling."""
+"""sgbm / bm: disparity window, accuracy on rendered frames, offsets caught, NaN handling, the far field."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 
 from roadbev_core.backends import BackendError, RefinedBackend, create
 from roadbev_core.backends.image_view import ImageViewStereo, match_window
-from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.config import FarFieldConfig, GridSpec, StereoCamera
 from roadbev_core.frame import Frame, FrameError
 from roadbev_core.geometry import Attitude, project_voxels
 from roadbev_lab.evaluation.frames import evaluate
@@ -95,3 +95,42 @@ def test_errors() -> None:
     frame = Frame(np.zeros((CAMERA.height, CAMERA.width), np.uint8), None, CAMERA, Attitude())
     with pytest.raises(FrameError, match="right image"):
         create("sgbm", GRID).estimate(frame)
+
+
+FAR_GRID = FarFieldConfig(enabled=True, resolution=0.24).grid(GRID)  # 33 x 8 cells of 24 cm, 7.08-15 m
+
+
+@pytest.fixture(scope="module")
+def far_samples() -> list[tuple[Frame, np.ndarray, np.ndarray]]:
+    """Two rendered half-resolution frames with the far-field truth (features in both windows)."""
+    from roadbev_lab.synth import RoadConfig, make_sample
+
+    road = RoadConfig(road_class="B", features=("speed_bump",), surface="asphalt", noise_sigma=1.0)
+    out = []
+    for seed in (21, 22):
+        s = make_sample(seed, camera=CAMERA, grid=GRID, road=road, far_grid=FAR_GRID)
+        assert s.far_truth is not None
+        out.append((s.frame, s.truth.elevation, s.far_truth.elevation))
+    return out
+
+
+@pytest.mark.parametrize(("name", "bound_cm", "min_coverage"), [("bm", 3.5, 40.0), ("sgbm", 3.5, 40.0)])
+def test_the_far_field_from_its_own_window_and_disparities(
+    name: str, bound_cm: float, min_coverage: float, far_samples: list[tuple[Frame, np.ndarray, np.ndarray]]
+) -> None:
+    backend = create(name, FAR_GRID)
+    assert getattr(backend, "far_field", False)  # answers a far-field grid
+    frame = far_samples[0][0]
+    near_window = match_window(GRID, CAMERA, frame.attitude, margin_px=4, block_size=11)
+    far_window = match_window(FAR_GRID, CAMERA, frame.attitude, margin_px=4, block_size=11)
+    # the far rows lie above the grid's and need smaller disparities than its search reaches
+    assert far_window.top < near_window.top and far_window.min_disparity < near_window.min_disparity
+    m = evaluate(backend, [(f, far) for f, _, far in far_samples]).metrics
+    assert m["abs_err_cm"] < bound_cm, m["abs_err_cm"]
+    assert m["coverage_pct"] > min_coverage, m["coverage_pct"]
+    assert m["confident_wrong_pct"] < 2.0, m["confident_wrong_pct"]
+
+
+def test_the_ensemble_of_image_view_backends_answers_the_far_field_and_others_do_not() -> None:
+    assert getattr(create("ensemble", FAR_GRID, members="bm+sgbm"), "far_field", False)
+    assert not getattr(create("bev_sweep", GRID), "far_field", False)

@@ -1,4 +1,5 @@
-"""The pipeline's map stage: on with odometry, the per-frame pipeline without it, resets and refusals."""
+"""The pipeline's map stage: on with odometry, the per-frame pipeline without it, resets and refusals; the far
+field beside the grid."""
 
 from __future__ import annotations
 
@@ -11,9 +12,9 @@ import pytest
 from roadbev_core.config import GridSpec, ParamError, RoadbevConfig, StereoCamera
 from roadbev_core.ego_motion import PlanarPose
 from roadbev_core.errors import RoadbevError
-from roadbev_core.frame import Estimate, Frame
+from roadbev_core.frame import Estimate, Frame, FrameError
 from roadbev_core.geometry import R_BODY_FROM_OPTICAL, Attitude
-from roadbev_core.pipeline import Pipeline, check_config
+from roadbev_core.pipeline import FarFieldUnsupported, Pipeline, build_far_backend, check_config
 from roadbev_core.preview import REFERENCE_CONTACT_PLANE, REFERENCE_ROAD
 
 S = 1_000_000_000
@@ -212,3 +213,70 @@ def test_a_rig_or_attitude_no_road_camera_has_is_refused_with_its_cause(change: 
     with pytest.raises(ImplausibleFrame, match=cause):
         _pipeline().process_frame(frame)
     _pipeline().process_frame(Frame(image, image, CAMERA, Attitude.from_degrees(5.0, 8.0), S))  # a real one passes
+
+
+class FarRoad(FlatRoad):
+    """A flat road that answers any grid, the far-field one too (a cell per 10 cm of x in its
+    elevation, so the grids can be told apart); out of view beyond ``view_m``."""
+
+    name = "far_flat"
+    far_field = True
+
+    def __init__(self, grid: GridSpec, view_m: float = 100.0, **_: Any) -> None:
+        super().__init__(grid)
+        self.view_m = view_m
+
+    def estimate(self, frame: Frame) -> Estimate:
+        if self.grid.x_min >= self.view_m:
+            raise FrameError("the grid does not fall inside the image at this attitude")
+        x = np.broadcast_to(self.grid.x_centres()[:, None], self.grid.shape)
+        return Estimate((0.001 * x).astype(np.float32), np.full(self.grid.shape, 0.004, np.float32),
+                        {"matching": 1.0})
+
+
+def _far_pipeline(view_m: float = 100.0, **params: Any) -> Pipeline:
+    config = RoadbevConfig.from_params({"require_imu": False, **params})
+    return Pipeline(config, backend_factory=lambda name, grid, **o: FarRoad(grid, view_m), configure_process=False)
+
+
+def test_the_far_field_is_estimated_beside_the_grid_and_leaves_its_estimate_alone() -> None:
+    off = _far_pipeline().process_frame(_frame(0))
+    assert off.far is None and "estimate_far" not in off.timings_ms
+    pipeline = _far_pipeline(**{"far_field.enabled": True})
+    on = pipeline.process_frame(_frame(0))
+    far_grid = pipeline.config.far_grid
+    assert far_grid is not None and on.far is not None and on.far.elevation.shape == far_grid.shape
+    np.testing.assert_allclose(on.far.elevation[:, 0], 0.001 * far_grid.x_centres(), rtol=1e-6)
+    assert on.timings_ms["estimate_far"] >= 0.0
+    np.testing.assert_array_equal(on.estimate.elevation, off.estimate.elevation)
+    np.testing.assert_array_equal(on.estimate.uncertainty, off.estimate.uncertainty)
+    assert on.preview is not None and off.preview is not None
+    for with_far, without in zip(on.preview.tracks, off.preview.tracks, strict=True):
+        np.testing.assert_array_equal(with_far.elevation, without.elevation)
+
+
+def test_a_far_field_out_of_view_is_empty_not_an_error() -> None:
+    out = _far_pipeline(view_m=7.0, **{"far_field.enabled": True}).process_frame(_frame(0))
+    assert out.far is not None and np.isnan(out.far.elevation).all() and np.isnan(out.far.uncertainty).all()
+    assert np.isfinite(out.estimate.elevation).all()
+
+
+def test_a_backend_that_does_not_estimate_the_far_field_is_refused_when_it_is_asked_for() -> None:
+    config = RoadbevConfig.from_params({"require_imu": False, "far_field.enabled": True})
+    with pytest.raises(FarFieldUnsupported, match="backend 'flat' does not estimate the far field"):
+        Pipeline(config, backend_factory=lambda name, grid, **o: FlatRoad(grid), configure_process=False)
+    assert build_far_backend(RoadbevConfig(), FlatRoad(GridSpec())) is None  # off: nothing to build
+
+
+def test_reconfiguring_the_far_field_rebuilds_its_backend_only() -> None:
+    pipeline = _far_pipeline(**{"far_field.enabled": True})
+    near, far = pipeline.backend, pipeline.far_backend
+    assert far is not None and far.grid == pipeline.config.far_grid
+    pipeline.reconfigure(pipeline.config.with_params({"far_field.x_max": 12.12}))
+    assert pipeline.backend is near and pipeline.far_backend is not far
+    assert pipeline.far_backend is not None and pipeline.far_backend.grid.x_max == 12.12
+    same = pipeline.far_backend
+    pipeline.reconfigure(pipeline.config.with_params({"map.gate_sigma": 4.0}))
+    assert pipeline.far_backend is same
+    out = pipeline.process_frame(_frame(0))
+    assert out.far is not None and out.far.elevation.shape == (42, 16)

@@ -1,22 +1,25 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from roadbev_core.backends import RefinedBackend, available, create
-from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.config import FarFieldConfig, GridSpec, StereoCamera
 from roadbev_core.frame import Estimate, Frame
 from roadbev_core.geometry import Attitude
 from roadbev_core.uncertainty import (
     CALIBRATION_FILE,
+    FAR_CALIBRATION_FILE,
     SigmaFeatures,
     SigmaModel,
     calibration_for,
     fit_sigma_model,
     refine,
     visible_estimate,
+    with_footprint,
 )
 from roadbev_lab.evaluation.metrics import sigma_counts, sigma_metrics
 from roadbev_lab.synth.heightfield import SpeedBump
@@ -145,3 +148,41 @@ def test_uncertainty_keys_by_hand() -> None:
     assert m["within_3sigma_pct"] == pytest.approx(60.0)
     assert m["confident_wrong_pct"] == pytest.approx(20.0)
     assert m["mean_sigma_cm"] == pytest.approx((4 * 1.0 + 0.1) / 5)
+
+
+def test_the_footprint_term_grows_with_the_road_one_image_row_covers() -> None:
+    ones = np.ones(GRID.shape, np.float32)
+    zero = 0 * ones
+    model = SigmaModel(raw=1.0, footprint=0.2)
+    with pytest.raises(ValueError, match="footprint"):
+        model.sigma(SigmaFeatures(0.01 * ones, zero, zero, zero, zero))
+    with_rows = with_footprint(SigmaFeatures(0.01 * ones, zero, zero, zero, zero), _frame(), GRID)
+    assert with_rows.footprint is not None and np.all(np.diff(with_rows.footprint[:, 0]) < 0)  # far rows first
+    np.testing.assert_allclose(model.sigma(with_rows), np.hypot(0.01, 0.2 * with_rows.footprint), rtol=1e-6)
+    # a model without the term neither needs the footprint nor changes by it
+    plain = SigmaModel(raw=1.0)
+    np.testing.assert_array_equal(plain.sigma(with_rows), plain.sigma(with_rows._replace(footprint=None)))
+    # refine computes it only for a model that has the term
+    raw = Estimate(np.zeros(GRID.shape, np.float32), 0.002 * ones)
+    far_sigma = refine(raw, _frame(), GRID, stereo=True, model=SigmaModel(raw=1.0, footprint=1.0)).uncertainty
+    assert np.all(far_sigma[0] > far_sigma[-1]) and np.all(far_sigma > 0.002)
+
+
+def test_a_far_field_grid_takes_the_far_field_tables(tmp_path: Path) -> None:
+    far = FarFieldConfig(enabled=True).grid(GRID)
+    near_file, far_file = tmp_path / "near.json", tmp_path / "far.json"
+    near_file.write_text(json.dumps({"models": {"bm": {"raw": 1.0}, "sgbm": {"raw": 2.0}}}))
+    far_file.write_text(json.dumps({"grid": far.to_dict(), "models": {"bm": {"raw": 3.0, "footprint": 0.5}}}))
+    assert calibration_for("bm", near_file, grid=far, far_path=far_file) == SigmaModel(raw=3.0, footprint=0.5)
+    assert calibration_for("bm", near_file, grid=GRID, far_path=far_file) == SigmaModel(raw=1.0)
+    assert calibration_for("bm", near_file, far_path=far_file) == SigmaModel(raw=1.0)
+    assert calibration_for("sgbm", near_file, grid=far, far_path=far_file) == SigmaModel(raw=2.0)  # no far table
+    # the shipped tables: the image-view backends have far-field ones, fitted on the far-field grid
+    table = json.loads(FAR_CALIBRATION_FILE.read_text())
+    assert table["command"].startswith("python -m benchmarks.calibrate_sigma --far-field")
+    assert table["seeds"][0] >= 200_000 and GridSpec.from_dict(table["grid"]) == far
+    for name in ("bm", "sgbm"):
+        model = calibration_for(name, grid=far)
+        assert model is not None and model.footprint > 0 and model != calibration_for(name)
+        assert create(name, far).sigma_model == model  # type: ignore[attr-defined]
+        assert create(name, GRID).sigma_model == calibration_for(name)  # type: ignore[attr-defined]

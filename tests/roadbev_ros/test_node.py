@@ -871,3 +871,42 @@ def test_odom_from_tf_builds_the_fused_map_from_the_tf_odometry(harness: Harness
     assert harness.node._fused == 5 and harness.node.pipeline.ego.newest is not None
     assert harness.node.pipeline.ego.newest.speed == pytest.approx(10.0)
     assert harness.node.health.problems["tf missing"] == 0
+
+
+def test_the_far_field_is_published_on_its_own_topic_only_when_on(ros: Any) -> None:
+    """far_field.enabled: a second GridMap (same layers, the far-field grid) on /roadbev/elevation_far;
+    the grid's own map is unchanged, and without it the topic is not even advertised."""
+    from grid_map_msgs.msg import GridMap
+
+    from msg_bridge.grid_map import grid_map_to_arrays
+    from roadbev_core.config import GridSpec
+
+    from ._ros_harness import PitchBackend
+
+    class FarPitch(PitchBackend):
+        far_field = True
+
+    def factory(name: str, grid: Any, **options: Any) -> Any:
+        return FarPitch(grid, name=f"stub-{name}")
+
+    params = {"far_field.enabled": True, "far_field.x_max": 4.56}  # beyond the small grid (x to 3.36 m)
+    h = Harness(ros, params=params, backend_factory=factory)
+    received: list[Any] = []
+    try:
+        h.feeder.create_subscription(GridMap, "/roadbev/elevation_far", received.append, h._spun.qos)
+        assert wait_for(lambda: h.node._out._far is not None and h.node._out._far.get_subscription_count() > 0)
+        stamp = feed(h, 0)
+        near = h.wait_output(stamp)
+        assert wait_for(lambda: len(received) == 1)
+        far = grid_map_to_arrays(received[0])
+        assert far.grid == GridSpec(x_min=3.36, x_max=4.56, resolution=0.12)  # horizontal extent from the info
+        assert far.stamp_ns == stamp and far.frame_id == near.header.frame_id
+        assert list(received[0].layers) == ["elevation", "uncertainty"] == list(near.layers)
+        assert grid_map_to_arrays(near).grid.shape == (40, 64)
+    finally:
+        h.close()
+    off = Harness(ros)
+    try:
+        assert off.node._out._far is None
+    finally:
+        off.close()

@@ -54,6 +54,7 @@ def test_eval_writes_metrics(bag: Path, tmp_path: Path, capsys: pytest.CaptureFi
     assert 0.0 < data["abs_err_cm"] < 3.0 and data["coverage_pct"] > 50.0
     assert data["fps"] > 0
     assert "preview_at_arrival" not in data  # not a drive bag
+    assert "far_field" not in data  # no far-field truth in the bag
 
 
 def test_frames_limit_and_default_backend(bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

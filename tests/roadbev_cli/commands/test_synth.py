@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import hashlib
+import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from msg_bridge import bag_topics
+from msg_bridge import bag_topics, read_messages
+from msg_bridge.grid_map import grid_map_to_arrays
 from roadbev_cli.cli import main
 from roadbev_lab.evaluation.evalbag import read_eval_bag
 
@@ -28,6 +31,27 @@ def test_synth_writes_a_readable_eval_bag_deterministically(tmp_path: Path) -> N
     bag = read_eval_bag(out)
     assert len(bag) == 2 and bag.camera.size == (240, 132)
     assert all(sample.truth is not None for sample in bag)
+
+
+def test_synth_far_field_adds_its_truth_and_eval_scores_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "far.mcap"
+    assert main(["synth", str(out), *SMALL, "--seed", "3", "--far-field"]) == 0
+    topics = {t: i.count for t, i in bag_topics(out).items()}
+    assert topics["/ground_truth/elevation_far"] == 2 == topics["/ground_truth/elevation"]
+    bag = read_eval_bag(out)
+    assert bag.far_grid is not None and bag.far_grid.shape == (66, 16) and bag.far_grid.x_min == bag.grid.x_max
+    assert all(sample.far_truth is not None and np.isfinite(sample.far_truth).all() for sample in bag)
+    report = tmp_path / "far.json"
+    capsys.readouterr()
+    outputs = tmp_path / "outputs.mcap"
+    assert main(["eval", str(out), "--backend", "bm", "--json", str(report), "--out", str(outputs)]) == 0
+    assert "far field 7.08-15 m (12 cm cells): abs. error" in capsys.readouterr().out
+    far = json.loads(report.read_text())["far_field"]
+    assert far["estimated"] and far["frames_with_truth"] == 2 and len(far["bands"]) == 8
+    # --out writes what the node publishes: the far-field map on its own topic, on its grid
+    maps = [grid_map_to_arrays(m.msg) for m in read_messages(outputs, ["/roadbev/elevation_far"])]
+    assert len(maps) == 2 and maps[0].grid.shape == (66, 16) and maps[0].grid.x_min == bag.grid.x_max
+    assert [m.stamp_ns for m in maps] == bag.stamps
 
 
 def test_synth_raw_directory_bag(tmp_path: Path) -> None:

@@ -1,10 +1,13 @@
-"""Evaluation bags: writing a drive, reading it back into frames + truth, bags from elsewhere."""
+"""Evaluation bags: writing a drive, reading it back into frames + truth, bags from elsewhere; the far field's
+truth, and roadbev eval's code scoring it."""
 
 from __future__ import annotations
 
 import json
-from dataclasses import replace
+from collections.abc import Iterator
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -16,8 +19,19 @@ from msg_bridge.camera_info import camera_info_from_stereo
 from msg_bridge.grid_map import grid_map_message
 from msg_bridge.image import array_to_image
 from msg_bridge.imu import imu_message
-from roadbev_core.config import GridSpec, ImuConfig, TopicsConfig
-from roadbev_lab.evaluation.evalbag import BagTopics, bag_frames, grid_fields, read_eval_bag, write_eval_bag
+from roadbev_core.config import FarFieldConfig, GridSpec, ImuConfig, RoadbevConfig, StereoCamera, TopicsConfig
+from roadbev_core.frame import Frame
+from roadbev_core.labels import ElevationLabel
+from roadbev_lab.evaluation.evalbag import (
+    FAR_GROUND_TRUTH_TOPIC,
+    BagTopics,
+    bag_frames,
+    grid_fields,
+    read_eval_bag,
+    write_eval_bag,
+)
+from roadbev_lab.evaluation.offline import OfflineEvalError, prepare_bag, run_prepared
+from roadbev_lab.synth import DriveConfig
 from tests.msg_bridge._msg_bridge_fakes import FakeConfig, FakeDrive
 
 RAW_TOPICS = {
@@ -215,3 +229,94 @@ def test_evaluation_bags_feed_the_models() -> None:
     item = ModelInputs(source, model_config("tiny", "mono"), source.grid)[0]
     assert item["left"].shape == (3, 128, 224) and "right" not in item and "grey" not in item
     assert torch.isfinite(item["elevation"]).float().mean() > 0.5
+
+
+# --- the far field ----------------------------------------------------------------------------
+FAR = FarFieldConfig(enabled=True).grid(GridSpec())
+
+
+@dataclass(frozen=True)
+class FarConfig(FakeConfig):
+    far_grid: GridSpec | None = field(default=FAR)
+
+
+class FarSample(NamedTuple):
+    frame: Frame
+    truth: ElevationLabel
+    points_road: np.ndarray
+    far_truth: ElevationLabel | None
+
+
+class FarDrive(FakeDrive):
+    """The fake drive with a far-field truth per frame (a ramp along x, the first column unlabelled)."""
+
+    def __iter__(self) -> Iterator[FarSample]:  # type: ignore[override]
+        grid = getattr(self.config, "far_grid", None)
+        for sample in super().__iter__():
+            far = None
+            if grid is not None:
+                heights = np.broadcast_to(0.01 * (grid.x_centres() - 7.0)[:, None], grid.shape).astype(np.float32)
+                heights = heights.copy()
+                heights[:, 0] = np.nan
+                far = ElevationLabel(heights, np.isfinite(heights), np.isfinite(heights).astype(np.int32))
+            yield FarSample(sample.frame, sample.truth, sample.points_road, far)
+
+
+def _grid_config(path: Path) -> dict[str, object]:
+    (item,) = list(read_messages(path, ["/roadbev/grid_config"]))
+    return dict(json.loads(item.msg.data))
+
+
+def test_the_far_field_truth_is_written_and_read_back(tmp_path: Path) -> None:
+    drive = FarDrive(FarConfig())
+    path = tmp_path / "far.mcap"
+    counts = write_eval_bag(path, drive, compression="none")
+    assert counts[FAR_GROUND_TRUTH_TOPIC] == counts["/ground_truth/elevation"] == 4
+    described = _grid_config(path)
+    assert described["far_grid"] == FAR.to_dict()
+    bag = read_eval_bag(path)
+    assert bag.far_grid == FAR and bag.grid == GridSpec()
+    for sample, original in zip(bag, drive, strict=True):
+        assert original.far_truth is not None and sample.far_truth is not None
+        np.testing.assert_array_equal(sample.far_truth, original.far_truth.elevation)
+        np.testing.assert_array_equal(sample.truth, original.truth.elevation)
+
+
+def test_a_drive_without_a_far_field_writes_the_bag_as_before(tmp_path: Path) -> None:
+    camera = StereoCamera(50.0, 50.0, 31.5, 23.5, 0.12, 64, 48)
+    config = DriveConfig(frames=2, camera=camera)
+    path = tmp_path / "near.mcap"
+    write_eval_bag(path, FarDrive(config), compression="none")  # type: ignore[arg-type]
+    assert FAR_GROUND_TRUTH_TOPIC not in bag_topics(path)
+    described = _grid_config(path)
+    assert "far_grid" not in described and "far_grid" not in described["drive"]  # type: ignore[operator]
+    assert read_eval_bag(path).far_grid is None and next(iter(read_eval_bag(path))).far_truth is None
+    with_far = tmp_path / "with_far.mcap"
+    write_eval_bag(with_far, FarDrive(replace(config, far_grid=FAR)), compression="none")  # type: ignore[arg-type]
+    assert _grid_config(with_far)["drive"]["far_grid"] == FAR.to_dict()  # type: ignore[index]
+
+
+def test_roadbev_eval_turns_the_far_field_on_for_a_bag_with_its_truth(tmp_path: Path) -> None:
+    path = tmp_path / "far.mcap"
+    write_eval_bag(path, FarDrive(FarConfig()), compression="none")
+    prepared = prepare_bag(path, RoadbevConfig.from_params({"backend": "bm", "require_imu": False}))
+    assert prepared.config.far_grid == FAR and prepared.pipeline.far_backend is not None
+    metrics = run_prepared(prepared).metrics
+    far = metrics["far_field"]
+    assert far["estimated"] and far["grid"] == FAR.to_dict() and far["frames_with_truth"] == 4
+    assert far["labelled_cells"] == 4 * FAR.n_rows * (FAR.n_cols - 1) and len(far["bands"]) == 8
+    # a backend that does not estimate the far field: the grid is evaluated, the key says why not
+    refused = prepare_bag(path, RoadbevConfig.from_params({"backend": "bev_sweep", "require_imu": False}))
+    assert refused.config.far_grid is None and refused.pipeline.far_backend is None
+    assert "does not estimate the far field" in refused.far_refused
+    key = run_prepared(refused, max_frames=1).metrics["far_field"]
+    assert key == {"estimated": False, "reason": refused.far_refused, "grid": FAR.to_dict()}
+
+
+def test_a_far_field_truth_that_does_not_continue_the_grid_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "gap.mcap"
+    gap = GridSpec(x_min=8.04, x_max=15.0, resolution=0.12, z_min=-0.5, z_max=0.5)
+    write_eval_bag(path, FarDrive(FarConfig(far_grid=gap)), compression="none")
+    assert read_eval_bag(path).far_grid == gap
+    with pytest.raises(OfflineEvalError, match="does not start at the grid's far edge"):
+        prepare_bag(path, RoadbevConfig.from_params({"backend": "bm"}))

@@ -163,3 +163,55 @@ def test_uncertainty_calibration_counts_errors_inside_one_and_two_sigma() -> Non
     assert between["sigma_cells"] == 2 * (GRID.n_rows - 4) * (GRID.n_cols - 1)
     unscored = evaluate(OffsetBackend(truths, 0.0), [_Labelled(s.frame, None) for s in samples]).metrics
     assert unscored["sigma_cells"] == 0 and math.isnan(unscored["within_1sigma_pct"])
+
+
+class _FarLabelled(NamedTuple):
+    frame: Frame
+    truth: np.ndarray | None
+    far_truth: np.ndarray | None
+
+
+class _OneCentimetre:
+    """1 cm above the reference plane with a 0.5 cm sigma on any grid, the far-field one too."""
+
+    name = "one_cm"
+    needs_stereo = False
+    far_field = True
+
+    def __init__(self, grid: GridSpec) -> None:
+        self.grid = grid
+
+    def estimate(self, frame: Frame) -> Estimate:
+        return Estimate(np.full(self.grid.shape, 0.01, np.float32), np.full(self.grid.shape, 0.005, np.float32))
+
+
+def test_the_far_field_is_scored_per_band_when_the_samples_carry_its_truth() -> None:
+    from roadbev_core.config import RoadbevConfig
+    from roadbev_core.pipeline import Pipeline
+
+    def pipeline(far: bool) -> Pipeline:
+        config = RoadbevConfig.from_params({"require_imu": False, "far_field.enabled": far})
+        return Pipeline(config, backend_factory=lambda name, grid, **o: _OneCentimetre(grid), configure_process=False)
+
+    far_grid = pipeline(True).config.far_grid
+    assert far_grid is not None
+    image = np.zeros((CAMERA.height, CAMERA.width), dtype=np.uint8)
+    far_truth = np.zeros(far_grid.shape, np.float32)
+    far_truth[:, 0] = np.nan
+    samples = [_FarLabelled(Frame(image, image, CAMERA, Attitude.from_degrees(0.0, 19.0), stamp_ns=i),
+                            np.zeros(GridSpec().shape, np.float32), far_truth) for i in range(2)]
+    metrics = evaluate(pipeline(True), samples).metrics
+    far = metrics["far_field"]
+    assert far["estimated"] and far["grid"] == far_grid.to_dict() and far["frames_with_truth"] == 2
+    assert far["abs_err_cm"] == pytest.approx(1.0) and far["coverage_pct"] == 100.0
+    assert far["labelled_cells"] == 2 * far_grid.n_rows * (far_grid.n_cols - 1)
+    assert far["within_2sigma_pct"] == 100.0 and far["confident_wrong_pct"] == 0.0
+    assert far["band_m"] == 1.0 and [b["x_from_m"] for b in far["bands"]] == [7.08, *range(8, 15)]
+    assert all(b["abs_err_cm"] == pytest.approx(1.0) for b in far["bands"])
+    assert metrics["abs_err_cm"] == pytest.approx(1.0)  # the grid's own keys are there as always
+    json.dumps(metrics)
+    # no far-field truth, or the far field off: no key (the JSON is the one before the far field)
+    assert "far_field" not in evaluate(pipeline(True), [(s.frame, s.truth) for s in samples]).metrics
+    assert "far_field" not in evaluate(pipeline(False), samples).metrics
+    with pytest.raises(EvaluationError, match="far-field ground truth is"):
+        evaluate(pipeline(True), [samples[0]._replace(far_truth=far_truth[1:])])

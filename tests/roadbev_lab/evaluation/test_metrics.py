@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from roadbev_core.config import GridSpec
-from roadbev_lab.evaluation.metrics import MetricAccumulator
+from roadbev_lab.evaluation.metrics import BandAccumulator, MetricAccumulator, distance_bands
 
 G = GridSpec()
 
@@ -135,3 +135,40 @@ def test_sigma_accumulator_without_a_frame_has_no_score_and_refuses_mismatched_m
     assert result["reliability"] == []
     with pytest.raises(ValueError, match="must match"):
         acc.add(np.zeros(G.shape), np.zeros((2, 2)), np.zeros(G.shape))
+
+
+def test_distance_bands_are_whole_metres_cut_to_the_grid() -> None:
+    far = GridSpec(x_min=7.08, x_max=15.0, resolution=0.12, z_min=-0.5, z_max=0.5)
+    band_of_row, edges = distance_bands(far)
+    assert edges.tolist() == [[7.08, 8.0]] + [[float(x), float(x + 1)] for x in range(8, 15)]
+    x = far.x_centres()
+    assert band_of_row.tolist() == (np.floor(x) - 7).astype(int).tolist()  # row 0 (farthest) in the last band
+    assert distance_bands(G, 2.0)[1].tolist() == [[2.16, 4.0], [4.0, 6.0], [6.0, 7.08]]
+    with pytest.raises(ValueError, match="positive"):
+        distance_bands(G, 0.0)
+
+
+def test_band_accumulator_by_hand() -> None:
+    far = GridSpec(x_min=7.08, x_max=9.0, resolution=0.12, z_min=-0.5, z_max=0.5)  # 16 rows: 8 in 7.08-8, 8 in 8-9
+    acc = BandAccumulator(far)
+    truth = np.zeros(far.shape, np.float32)
+    estimate = np.full(far.shape, np.nan, np.float32)
+    sigma = np.full(far.shape, 0.01, np.float32)
+    near_rows, far_rows = far.x_centres() < 8.0, far.x_centres() >= 8.0
+    estimate[near_rows] = 0.005  # 0.5 sigma everywhere in 7.08-8 m
+    estimate[np.flatnonzero(far_rows)[0], :8] = 0.05  # half a row of 8-9 m: 5 cm at 1 cm sigma, confidently wrong
+    truth[np.flatnonzero(far_rows)[-1]] = np.nan  # one row of 8-9 m unlabelled
+    for _ in range(2):
+        acc.add(estimate, sigma, truth)
+    near, farther = acc.result()
+    assert (near["x_from_m"], near["x_to_m"], farther["x_from_m"], farther["x_to_m"]) == (7.08, 8.0, 8.0, 9.0)
+    assert near["labelled_cells"] == near["cells"] == 2 * 8 * 16 and near["coverage_pct"] == 100.0
+    assert near["abs_err_cm"] == pytest.approx(0.5) and near["within_1sigma_pct"] == 100.0
+    assert near["confident_wrong_pct"] == 0.0
+    assert farther["labelled_cells"] == 2 * 7 * 16 and farther["cells"] == 2 * 8
+    assert farther["coverage_pct"] == pytest.approx(100.0 * 8 / (7 * 16))
+    assert farther["abs_err_cm"] == pytest.approx(5.0) and farther["confident_wrong_pct"] == 100.0
+    empty = BandAccumulator(far).result()[0]
+    assert empty["cells"] == 0 and math.isnan(empty["abs_err_cm"]) and math.isnan(empty["coverage_pct"])
+    with pytest.raises(ValueError, match="must match"):
+        acc.add(estimate[:-1], sigma[:-1], truth[:-1])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import pickle
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -308,3 +309,31 @@ def test_a_seed_renders_the_scene_the_caches_hold() -> None:
                    sample.frame.attitude.roll, sample.frame.attitude.pitch)
     expected = (-0.0245085, 0.0615136, 124.565015, 121.496591, -0.00138201, 0.32167007)  # version 2
     assert fingerprint == pytest.approx(expected, rel=1e-5, abs=1e-7), "the generator changed: bump SCENE_VERSION"
+
+
+def test_a_far_field_grid_is_labelled_after_everything_else_a_frame_draws() -> None:
+    far = GridSpec(x_min=7.08, x_max=15.0, resolution=0.12, z_min=-0.5, z_max=0.5)
+    road = RoadConfig(road_class="B", features=("speed_bump",), feature_spacing_m=3.0)
+    config = DriveConfig(frames=2, seed=4, camera=SMALL.scaled(0.5), road=road)
+    plain = SyntheticDrive(config)[1]
+    drive = SyntheticDrive(replace(config, far_grid=far))
+    with_far = drive[1]
+    # the frame and the grid's truth are those of the drive without a far field
+    np.testing.assert_array_equal(with_far.frame.left, plain.frame.left)
+    np.testing.assert_array_equal(with_far.truth.elevation, plain.truth.elevation)
+    assert plain.far_truth is None and with_far.far_truth is not None
+    # the far-field truth is the height field at its cells, every cell labelled
+    pose, _ = drive.pose(1)
+    x, y = np.meshgrid(far.x_centres(), far.y_centres(), indexing="ij")
+    world = pose.road_to_world(np.stack([x, y, np.zeros_like(x)], axis=-1).reshape(-1, 3), far.base_height)
+    surface = drive.scene.height(world[:, 0], world[:, 1]) - (pose.z - far.base_height)
+    labels = with_far.far_truth.elevation.ravel()
+    # (a 12 cm cell's mean differs from its centre's height on a bump's flanks only)
+    assert np.isfinite(labels).all() and np.median(np.abs(labels - surface)) < 0.001
+    # a single sample places the features in the far window too
+    sample = make_sample(21, camera=SMALL, road=RoadConfig(road_class="A", features=("speed_bump",)), far_grid=far)
+    assert sample.far_truth is not None
+    far_heights = sample.far_truth.elevation
+    assert np.nanmax(far_heights) > np.nanmedian(far_heights) + 0.03
+    with pytest.raises(SynthError, match="beyond the 30 m of road"):
+        DriveConfig(far_grid=GridSpec(x_min=7.08, x_max=31.08, resolution=0.12, z_min=-0.5, z_max=0.5))
