@@ -363,6 +363,21 @@ def flood(data: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def fleet(data: Mapping[str, Any]) -> str:
+    """``bench_fleet``: many bags, the serial loop against one task per bag on a local Ray cluster."""
+    pooled = data["pooled"]
+    lines = _head("bags x frames", "backend", "serial (s)", f"Ray, {data['workers']} workers (s)",
+                  "cluster start (s, apart)", "speed-up", "per bag / pooled identical",
+                  "pooled abs. err. (cm) / coverage (%)")
+    lines.append(_row([
+        f"{data['bags']} x {data['frames_per_bag']}", f"`{data['backend']}`", _fmt(data["serial_s"], 1),
+        _fmt(data["ray_s"], 1), _fmt(data["ray_cluster_start_s"], 1), f"{_fmt(data['speedup'], 2)}x",
+        f"{'yes' if data['identical_per_bag'] else 'no'} / {'yes' if data['identical_pooled'] else 'no'}",
+        f"{_fmt(pooled['abs_err_cm'], 3)} / {_fmt(pooled['coverage_pct'], 1)}",
+    ]))
+    return "\n".join(lines)
+
+
 def preview_stream(data: Mapping[str, Any]) -> str:
     """bench_preview_stream: what a subscriber received on a replayed drive (node defaults, map on),
     the reference controller's last diagnostics and the fused map's sigma."""
@@ -973,6 +988,8 @@ TABLES: dict[str, Table] = {
                               "stereo:runtime=openvino,checkpoint=checkpoints/roadbev_stereo_lite_int8.onnx "
                               "--frames 40 --out benchmarks/results/node_stereo_int8.json"),
     "map_stage": Table(("map_stage.json",), map_stage),
+    "flood": Table(("flood.json",), flood),
+    "fleet": Table(("fleet.json",), fleet),
     "dds_sizes": Table(("dds_sizes.json",), dds_sizes, ".venv/bin/python -m benchmarks.bench_dds_sizes"),
     "msg_bridge": Table(("msg_bridge.json",), msg_bridge, ".venv/bin/python -m benchmarks.bench_msg_bridge"),
     "preview_stream": Table(("preview_stream.json",), preview_stream),
