@@ -38,6 +38,10 @@ sigma: the datum is common to the cells they compare, and the contact plane the 
 relative to lies on the same datum. (:class:`FrameFusion` keeps the absolute datum's sigma, the
 part that does grow with the distance driven, for diagnostics.)
 
+**The far field** (``far_field.enabled``, :meth:`FusedMap.integrate_far`): the corridor reaches
+the far-field grid's far edge, still at the grid's resolution; each map cell in a far-field cell
+takes its height and sigma, once per frame, with the frame's datum and alignment.
+
 **Fusion.** A cell keeps the weighted mean of the observations it accepted, with weights
 ``w = 1 / (s^2 (x / x_near)^k)``: ``s`` the observation's sigma, ``x`` its distance ahead of the
 camera, ``x_near`` the grid's near edge, ``k = range_exponent``. Nearer is better, and by more
@@ -119,7 +123,8 @@ class MapSettings:
     Attributes:
         resolution: cell size (m): the grid's.
         behind_m: the map reaches this far behind the rear axle.
-        ahead_m: the far edge in ``base_link`` x (camera x + the grid's ``x_max``).
+        ahead_m: the far edge in ``base_link`` x (camera x + the grid's ``x_max``; the far-field
+            grid's with the far field on).
         y_min, y_max: the corridor's lateral extent in ``base_link`` (camera y + the grid's).
         base_height: the road frame lies this far below the camera.
         error_correlation: ``rho`` of the fused variance: how correlated one cell's errors are
@@ -177,20 +182,23 @@ class MapSettings:
 
 def map_settings(config: RoadbevConfig, camera_position_m: Sequence[float] | np.ndarray | None = None) -> MapSettings:
     """The fused map's settings of ``config``: the ``map.*`` parameters, the corridor from the
-    grid and the camera's position on ``base_link`` (``camera_position_m``, [3]: from
-    ``/tf_static`` when known, else ``vehicle.camera_position_m``), and the backend's calibrated
-    datum where ``map.datum_sigma_m`` / ``map.datum_drift`` are -1.
+    grid (to the far-field grid's far edge with ``far_field.enabled``) and the camera's position on
+    ``base_link`` (``camera_position_m``, [3]: from ``/tf_static`` when known, else
+    ``vehicle.camera_position_m``), and the backend's calibrated datum where ``map.datum_sigma_m``
+    / ``map.datum_drift`` are -1.
 
     Raises:
         FusionError: settings the map cannot use.
     """
     cam = config.vehicle.camera_position_m if camera_position_m is None else tuple(camera_position_m)
     m, g = config.map, config.grid
+    far_grid = config.far_grid  # with the far field on the corridor reaches its far edge (one resolution: the grid's)
+    x_max = g.x_max if far_grid is None else far_grid.x_max
     calibrated = datum_calibration_for(config.backend.name) or (0.0, 0.0)
     datum_sigma = calibrated[0] if m.datum_sigma_m < 0 else m.datum_sigma_m
     datum_drift = calibrated[1] if m.datum_drift < 0 else m.datum_drift
     return MapSettings(
-        resolution=g.resolution, behind_m=m.behind_m, ahead_m=float(cam[0]) + g.x_max,
+        resolution=g.resolution, behind_m=m.behind_m, ahead_m=float(cam[0]) + x_max,
         y_min=float(cam[1]) + g.y_min, y_max=float(cam[1]) + g.y_max, base_height=g.base_height,
         error_correlation=m.error_correlation, gate_sigma=m.gate_sigma, reset_after=m.reset_after,
         align=m.align, align_slopes=m.align_slopes, offset_prior_m=m.offset_prior_m,
@@ -424,6 +432,21 @@ class MapWindow(NamedTuple):
                          self.resolution, centre, self.stamp_ns, datum)
 
 
+class _FrameAlignment(NamedTuple):
+    """Where :meth:`FusedMap.integrate` put the last frame: its stamp and placement, the road
+    plane's z in odom (``datum``), the alignment ``a + b u + c v`` with its covariance [3, 3], and
+    the grid's near edge ``x_near`` of its weights."""
+
+    stamp_ns: int
+    placement: FramePlacement
+    datum: float
+    a: float
+    b: float
+    c: float
+    cov: np.ndarray
+    x_near: float
+
+
 # the sums per cell: w, w z, w z^2, w sigma, w^2 sigma^2, w s (s: the map's odometer at the fusion)
 _W, _S1, _S2, _WSIG, _W2VAR, _WODO = range(6)
 
@@ -448,6 +471,9 @@ class FusedMap:
         self._sums = np.zeros((_WODO + 1, 0, 0))  # [6, n_i, n_j] see _W ... _WODO
         self._n = np.zeros((0, 0), np.int32)
         self._rejected = np.zeros((0, 0), np.int16)
+        # the cell holds an observation of the grid (not only of the far field) since it (re)started:
+        # the alignment fits each frame on those alone
+        self._near_seen = np.zeros((0, 0), bool)
         self._t_last = np.zeros((0, 0), np.int64)
         # the fused mean and sigma of every cell as a bilinear table (0 and known = 0 where nothing
         # was accepted), kept up to date cell by cell as frames change them: heights() samples it
@@ -455,6 +481,7 @@ class FusedMap:
         self._base_z: float | None = None  # base_link's origin z in odom, after the last frame
         self._driven = 0.0  # metres driven since the datum was fixed
         self._last_xy: tuple[float, float] | None = None
+        self._last_frame: _FrameAlignment | None = None  # the datum and alignment integrate_far reuses
         self.frames = 0
 
     @property
@@ -497,6 +524,7 @@ class FusedMap:
 
         self._sums = moved(self._sums)
         self._n, self._rejected, self._t_last = moved(self._n), moved(self._rejected), moved(self._t_last)
+        self._near_seen = moved(self._near_seen)
         self._table = Prepared(shape, *(moved(a.reshape(n_i, n_j)).ravel() for a in self._table[1:]))
         self._i0, self._j0 = i_lo, j_lo
 
@@ -513,6 +541,7 @@ class FusedMap:
                 row[outside] = 0.0
             self._n.ravel()[outside] = 0
             self._rejected.ravel()[outside] = 0
+            self._near_seen.ravel()[outside] = False
             for a in self._table[1:]:
                 a[outside] = 0.0
 
@@ -629,19 +658,78 @@ class FusedMap:
         flat, u, v, z, sz = flat[ok], u[ok], v[ok], z[ok] + datum, sz[ok]
         range_factor = np.maximum(u / grid.x_min, 1.0) ** s.range_exponent if grid.x_min > 0 else np.ones_like(u)
         m, ms = self._fused_at(flat)
-        both = np.isfinite(m)
+        both = np.isfinite(m) & np.take(self._near_seen.ravel(), flat)  # aligned on the grid's cells only
         a, b, c, cov, rms, aligned = self._align(z[both], sz[both] * np.sqrt(range_factor[both]), u[both], v[both],
                                                  m[both], ms[both])
         z = z + (a + b * u + c * v)
         # the alignment's variance at (u, v): g^T cov g with g = (1, u, v)
         var = sz ** 2 + (cov[0, 0] + 2.0 * cov[0, 1] * u + 2.0 * cov[0, 2] * v + cov[1, 1] * u * u
                          + 2.0 * cov[1, 2] * u * v + cov[2, 2] * v * v)
-        accepted, rejected, restarted = self._update(flat, m, ms, z, var, range_factor, stamp_ns)
+        accepted, rejected, restarted = self._update(flat, m, ms, z, var, range_factor, stamp_ns, near=True)
         self._base_z = datum + a + s.base_height - placement.camera_height_over_base
+        self._last_frame = _FrameAlignment(int(stamp_ns), placement, datum, float(a), float(b), float(c), cov,
+                                           grid.x_min)
         self.frames += 1
         return FrameFusion(float(a), float(b), float(c), aligned, int(both.sum()), rms, accepted, rejected, restarted,
                            1e3 * (time.perf_counter() - t0), float(datum_sigma), float(self._driven),
                            float(self._base_z))
+
+    def integrate_far(self, elevation: np.ndarray, sigma: np.ndarray, far_grid: GridSpec, placement: FramePlacement,
+                      stamp_ns: int) -> tuple[int, int, int]:
+        """Fuse the far-field estimate of the frame :meth:`integrate` just fused, on the map's cells.
+
+        The map keeps one resolution (the grid's). A map cell whose centre lies in a far-field
+        cell takes that cell's height and sigma as they are (no interpolation between coarse
+        cells): it is one measurement of that cell, once per frame. The map cells of one
+        far-field cell share its error (fully correlated), so nothing may count them as
+        independent: the per-cell fusion never does (each cell gets one observation per frame),
+        and whatever combines cells averages their sigmas (the preview's footprints,
+        :func:`roadbev_core.map_preview.footprint_heights`) instead of dividing by the square root
+        of their number. Inflating each cell's sigma by that root instead would publish every far
+        cell as several times less certain than the far-field estimate is.
+
+        The frame's datum and alignment are the grid's (:meth:`integrate`), fitted on the map cells
+        a grid observation reached (a cell the far field alone has seen takes no part): the far
+        field is never aligned on its own, and the alignment's slopes reach it with their variance
+        (growing with the distance). Its weights keep the grid's near edge as ``x_near``, so a
+        far-field observation weighs ``(x_near / x)^range_exponent`` of one of its sigma.
+
+        Args:
+            elevation, sigma: [R, C] the far-field estimate on ``far_grid`` (m; NaN = none).
+            far_grid: the far-field grid.
+            placement, stamp_ns: the frame's, as given to :meth:`integrate`.
+
+        Returns:
+            Cells accepted, rejected by the gate and restarted.
+
+        Raises:
+            FusionError: maps not on ``far_grid``, or no :meth:`integrate` of this frame before.
+        """
+        last = self._last_frame
+        if last is None or last.stamp_ns != int(stamp_ns) or last.placement is not placement:
+            raise FusionError("integrate_far fuses the far field of the frame integrate just fused (same placement "
+                              "and stamp)")
+        if elevation.shape != far_grid.shape or sigma.shape != far_grid.shape:
+            raise FusionError(f"far-field estimate {elevation.shape} / {sigma.shape} is not on the far-field grid "
+                              f"{far_grid.shape}")
+        s = self.settings
+        self._ensure(self._frame_corners(far_grid, placement))
+        flat, u, v = self._cells_under(far_grid, placement)
+        n_rows, n_cols = far_grid.shape
+        # the far-field cell holding each map cell's centre (rows from the far edge, columns from the left)
+        rows = np.clip(np.floor((far_grid.x_max - u) / far_grid.resolution), 0, n_rows - 1).astype(np.intp)
+        cols = np.clip(np.floor((far_grid.y_max - v) / far_grid.resolution), 0, n_cols - 1).astype(np.intp)
+        z = np.asarray(elevation, np.float64)[rows, cols]
+        sz = np.asarray(sigma, np.float64)[rows, cols]
+        ok = np.isfinite(z) & np.isfinite(sz) & (sz > 0)
+        flat, u, v, z, sz = flat[ok], u[ok], v[ok], z[ok], sz[ok]
+        range_factor = np.maximum(u / last.x_near, 1.0) ** s.range_exponent if last.x_near > 0 else np.ones_like(u)
+        z = z + last.datum + last.a + last.b * u + last.c * v
+        cov = last.cov
+        var = sz ** 2 + (cov[0, 0] + 2.0 * cov[0, 1] * u + 2.0 * cov[0, 2] * v + cov[1, 1] * u * u
+                         + 2.0 * cov[1, 2] * u * v + cov[2, 2] * v * v)
+        m, ms = self._fused_at(flat)
+        return self._update(flat, m, ms, z, var, range_factor, stamp_ns, near=False)
 
     @staticmethod
     def _frame_corners(grid: GridSpec, placement: FramePlacement) -> np.ndarray:
@@ -724,11 +812,11 @@ class FusedMap:
         return float(a), float(b), float(c), T @ cov_c @ T.T, rms, True
 
     def _update(self, flat: np.ndarray, m: np.ndarray, ms: np.ndarray, z: np.ndarray, var: np.ndarray,
-                range_factor: np.ndarray, stamp_ns: int) -> tuple[int, int, int]:
+                range_factor: np.ndarray, stamp_ns: int, *, near: bool) -> tuple[int, int, int]:
         """Gate and fuse observations z [N] with variances var [N] and range factors [N] (the
         weight is ``1 / (var * range_factor)``), all made at the map's current odometer, into the
         cells at flat buffer indices [N] (distinct), whose fused mean and sigma are m, ms [N]
-        (NaN: never seen)."""
+        (NaN: never seen); ``near``: observations of the grid (else of the far field)."""
         s = self.settings
         seen = np.isfinite(m)
         with np.errstate(invalid="ignore"):
@@ -751,6 +839,8 @@ class FusedMap:
         if any_restart:
             n[flat[restart]] = 0
         n[tf] += 1
+        near_seen = self._near_seen.ravel()
+        near_seen[tf] = near | (near_seen[tf] & ~restarted)
         self._t_last.ravel()[tf] = stamp_ns
         rejected_cells[flat] = np.where(take, 0, np.minimum(rejected, 1000)).astype(np.int16)
         self._refresh(tf, updated)

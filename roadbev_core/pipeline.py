@@ -12,8 +12,11 @@ The node, ``roadbev eval``, the online evaluation, the demo and the benchmarks a
                            map on:  FusedMap.integrate ─► map_preview ◄───┘    (+ map window)
 
 With ``far_field.enabled`` a second backend of the same kind answers the far-field grid beyond
-the grid on the same frame (:func:`build_far_backend`; ``PipelineOutput.far``); it is not fused
-into the map nor previewed yet, and the grid's own estimate is the same with it on or off.
+the grid on the same frame (:func:`build_far_backend`; ``PipelineOutput.far``), and the grid's
+own estimate is the same with it on or off. With the map on it is fused too, on the map's cells
+with the frame's alignment (:meth:`roadbev_core.fusion.FusedMap.integrate_far`), so the map and
+its contact-plane previews reach the far-field grid's far edge; the per-frame (map off) preview
+stays on the grid.
 
 The map stage (roadbev_core.fusion) runs when ``map.enabled`` and an ego-motion source exists:
 odometry samples (``add_odometry``) or, without them, a speed (dead reckoned with the IMU's
@@ -121,7 +124,8 @@ class PipelineOutput:
         fusion: what fusing this frame did (None with the map off).
         base_pose: ``base_link``'s planar pose in ``odom`` at the stamp (map on).
         far: elevation and 1-sigma on the far-field grid (``config.far_grid``) with
-            ``far_field.enabled``, else None; all NaN when that grid is out of view.
+            ``far_field.enabled``, else None; all NaN when that grid is out of view. With the map on
+            it is fused into ``map`` too.
     """
 
     frame: Frame
@@ -477,18 +481,14 @@ class Pipeline:
         if attitude is None:
             attitude = self.attitude_at(inputs.stamp_ns)
         frame = Frame(inputs.left, inputs.right, inputs.camera, attitude, inputs.stamp_ns)
-        output = self._run(frame, config, backend)
-        if far_backend is not None:
-            start = time.perf_counter()
-            output.far = self._far_estimate(frame, config, far_backend)
-            output.timings_ms["estimate_far"] = 1e3 * (time.perf_counter() - start)
-        return output
+        return self._run(frame, config, backend, far_backend)
 
     def process_frame(self, frame: Frame) -> PipelineOutput:
         """:meth:`process` for a frame whose attitude is already known."""
         return self.process(CameraInput(frame.left, frame.right, frame.camera, frame.stamp_ns), frame.attitude)
 
-    def _run(self, frame: Frame, config: RoadbevConfig, backend: Backend) -> PipelineOutput:
+    def _run(self, frame: Frame, config: RoadbevConfig, backend: Backend, far_backend: Backend | None
+             ) -> PipelineOutput:
         why = implausible(frame)
         if why:
             raise ImplausibleFrame(why)
@@ -498,14 +498,20 @@ class Pipeline:
         t1 = time.perf_counter()
         estimate.check_grid(config.grid)
         timings = {"estimate": 1e3 * (t1 - t0)}
-        mapped = self._map_stage(frame, estimate, config)
+        far = None
+        if far_backend is not None:
+            far = self._far_estimate(frame, config, far_backend)
+            t2 = time.perf_counter()
+            timings["estimate_far"] = 1e3 * (t2 - t1)
+            t1 = t2
+        mapped = self._map_stage(frame, estimate, config, far)
         if mapped is not None:
             timings["map"] = 1e3 * (time.perf_counter() - t1)
             preview, window, fusion, base = mapped
-            return PipelineOutput(frame, estimate, preview, timings, window, fusion, base)
+            return PipelineOutput(frame, estimate, preview, timings, window, fusion, base, far)
         preview = self._frame_preview(estimate, frame, config)
         timings["preview"] = 1e3 * (time.perf_counter() - t1)
-        return PipelineOutput(frame, estimate, preview, timings)
+        return PipelineOutput(frame, estimate, preview, timings, far=far)
 
     @staticmethod
     def _far_estimate(frame: Frame, config: RoadbevConfig, far_backend: Backend) -> Estimate:
@@ -540,9 +546,11 @@ class Pipeline:
         with self._lock:
             return self.ego.dead_reckon(stamp_ns, speed, yaw)
 
-    def _map_stage(self, frame: Frame, estimate: Estimate, config: RoadbevConfig
+    def _map_stage(self, frame: Frame, estimate: Estimate, config: RoadbevConfig, far: Estimate | None = None
                    ) -> tuple[PreviewProfiles | None, MapWindow | None, FrameFusion | None, PlanarPose | None] | None:
-        """Fuse the estimate and read the preview off the map (None: the map is off).
+        """Fuse the estimate (and the far-field one, ``far``, with the frame's alignment:
+        :meth:`roadbev_core.fusion.FusedMap.integrate_far`) and read the preview off the map
+        (None: the map is off).
 
         With the map on every preview is a contact-plane one in ``base_link`` (one stream:
         docs/concepts/preview.md, "One reference per drive"): before the map holds three tyre
@@ -557,7 +565,7 @@ class Pipeline:
         except EgoMotionStale as exc:
             reason = str(exc).split(" (")[0]
             self.map_skipped[reason] = self.map_skipped.get(reason, 0) + 1
-            return self._frame_only_preview(frame, estimate, config), None, None, None
+            return self._frame_only_preview(frame, estimate, config, far), None, None, None
         position, R_mount = self.camera_mount
         if self.fused is None:
             self.fused = self._map_factory(map_settings(config, position))
@@ -571,6 +579,7 @@ class Pipeline:
             plane_z = fused.base_z + plane.height_m  # the contact plane under base_link's origin
         fusion = fused.integrate(estimate.elevation, estimate.uncertainty, config.grid, placement, frame.stamp_ns,
                                  base_z_prediction=fused.predicted_base_z(plane_z))
+        self._integrate_far(fused, far, config, placement, frame.stamp_ns)
         preview = self._map_preview(fused, placement, config,
                                     base.speed if self._odometry_seen else self.speed_at(frame.stamp_ns))
         window = fused.window(base, frame.stamp_ns)
@@ -586,7 +595,16 @@ class Pipeline:
         return map_preview(fused, placement, config.vehicle, tyre_width_m=p.tyre_width_m, spacing_m=p.spacing_m,
                            rear_axle=p.rear_axle, vehicle_speed=speed, max_gap_m=p.max_gap_m)
 
-    def _frame_only_preview(self, frame: Frame, estimate: Estimate, config: RoadbevConfig) -> PreviewProfiles | None:
+    @staticmethod
+    def _integrate_far(fused: FusedMap, far: Estimate | None, config: RoadbevConfig, placement: FramePlacement,
+                       stamp_ns: int) -> None:
+        """Fuse the far-field estimate of the frame just fused (nothing without one)."""
+        far_grid = config.far_grid
+        if far is not None and far_grid is not None:
+            fused.integrate_far(far.elevation, far.uncertainty, far_grid, placement, stamp_ns)
+
+    def _frame_only_preview(self, frame: Frame, estimate: Estimate, config: RoadbevConfig,
+                            far: Estimate | None = None) -> PreviewProfiles | None:
         """The contact-plane preview of one frame on its own (the map cannot place it): the frame
         fused into an empty map at the origin, so its plane is the road's it sees ahead (or the
         body's), with the last known speed."""
@@ -599,6 +617,7 @@ class Pipeline:
                                 R_mount)
         alone.integrate(estimate.elevation, estimate.uncertainty, config.grid, placement, frame.stamp_ns,
                         base_z_prediction=0.0)
+        self._integrate_far(alone, far, config, placement, frame.stamp_ns)
         return self._map_preview(alone, placement, config, speed)
 
     def _frame_preview(self, estimate: Estimate, frame: Frame, config: RoadbevConfig) -> PreviewProfiles | None:

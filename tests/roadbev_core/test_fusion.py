@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +25,7 @@ from roadbev_core.fusion import (
     sample_prepared,
 )
 from roadbev_core.geometry import R_BODY_FROM_OPTICAL, Attitude
-from roadbev_core.map_preview import map_preview
+from roadbev_core.map_preview import footprint_heights, map_preview
 
 GRID = GridSpec()
 CAMERA = np.array(VehicleConfig().camera_position_m)  # [3] in base_link
@@ -349,3 +350,88 @@ def test_a_window_crops_to_the_cells_around_a_position() -> None:
     assert whole is not None and whole.elevation.shape == (n_rows, n_cols)
     assert whole.centre == pytest.approx((10.0, 1.0))
     assert window.crop((50.0, 1.0), (1.0, 1.0)) is None  # outside the map
+
+
+# --- the far field in the map -------------------------------------------------------------------
+FAR_CONFIG = RoadbevConfig.from_params({"far_field.enabled": True})
+FAR_GRID = FAR_CONFIG.far_field.grid(GRID)
+
+
+def test_with_the_far_field_on_the_corridor_reaches_its_far_edge_and_nothing_else_changes() -> None:
+    off, on = map_settings(RoadbevConfig()), map_settings(FAR_CONFIG)
+    assert off.ahead_m == pytest.approx(CAMERA[0] + GRID.x_max)
+    assert on.ahead_m == pytest.approx(CAMERA[0] + FAR_GRID.x_max) and FAR_GRID.x_max == 15.0
+    assert replace(on, ahead_m=off.ahead_m) == off  # one resolution, the grid's; the same width
+    assert on.resolution == GRID.resolution
+
+
+def _far_frame(fused: FusedMap, far: np.ndarray, far_sigma: float, stamp: int, *, near_sigma: float = 0.004
+               ) -> None:
+    """Fuse a level frame at the origin: a flat near estimate (0) and the far estimate ``far`` [R, C]."""
+    base = PlanarPose(stamp, 0.0, 0.0, 0.0, 0.0, 0.0)
+    placement = place_frame(base, Attitude(0.0, 0.0), CAMERA, LEVEL_MOUNT)
+    fused.integrate(np.zeros(GRID.shape), np.full(GRID.shape, near_sigma), GRID, placement, stamp,
+                    base_z_prediction=0.0)
+    fused.integrate_far(far, np.full(FAR_GRID.shape, far_sigma), FAR_GRID, placement, stamp)
+
+
+def _far_cell_centres() -> tuple[np.ndarray, np.ndarray]:
+    """[R, C] odom x, y of the far-field cells' centres for the level frame at the origin."""
+    u, v = np.meshgrid(FAR_GRID.x_centres(), FAR_GRID.y_centres(), indexing="ij")
+    return CAMERA[0] + u, CAMERA[1] + v
+
+
+def test_each_map_cell_takes_the_value_and_sigma_of_the_far_field_cell_it_lies_in() -> None:
+    fused = FusedMap(map_settings(FAR_CONFIG))
+    far = np.random.default_rng(3).uniform(-0.05, 0.05, FAR_GRID.shape)  # a different height per coarse cell
+    _far_frame(fused, far, 0.01, 1)
+    datum = CAMERA[2] - GRID.base_height  # the road plane's z of a level frame at base_z 0
+    x, y = _far_cell_centres()
+    quarter = 0.25 * FAR_GRID.resolution  # inside the coarse cell, more than a map cell from its edges
+    for dx, dy in ((0.0, 0.0), (quarter, -quarter), (-quarter, quarter)):
+        z, s = fused.heights(x + dx, y + dy)
+        np.testing.assert_allclose(z, far + datum, atol=1e-9)  # the coarse cell's value, not a blend
+        np.testing.assert_allclose(s, 0.01, rtol=1e-6)  # and its sigma, as it is
+    window = fused.window(PlanarPose(1, 0.0, 0.0, 0.0, 0.0, 0.0), 1)
+    wx, wy = window.cell_centres()
+    ahead, left = wx - CAMERA[0], wy - CAMERA[1]
+    assert ahead.max() > FAR_GRID.x_max - GRID.resolution  # the window reaches the far edge
+    rows = (ahead > FAR_GRID.x_min) & (ahead < FAR_GRID.x_max)
+    cols = (left > FAR_GRID.y_min) & (left < FAR_GRID.y_max)
+    assert np.isfinite(window.elevation[np.ix_(rows, cols)]).all()  # every map cell of the far field
+
+
+def test_fusing_a_far_frame_twice_counts_its_coarse_cell_as_one_measurement_not_many() -> None:
+    sigma = 0.01
+    x, y = _far_cell_centres()
+    for rho in (1.0, 0.0):
+        fused = FusedMap(_far_settings(error_correlation=rho))
+        for stamp in (1, 2):  # the same far frame twice
+            _far_frame(fused, np.zeros(FAR_GRID.shape), sigma, stamp, near_sigma=sigma)
+        _, far_sigma = fused.heights(x, y)
+        # what a near cell measured by these two frames with the same sigma gets: one measurement's
+        # sigma with the default (frames correlated), sigma / sqrt(2) with independent frames; a
+        # coarse cell counted once per map cell it covers would give sigma / sqrt(2 * 16)
+        floor = sigma if rho == 1.0 else sigma / math.sqrt(2.0)
+        _, near_sigma = fused.heights(np.array([CAMERA[0] + 4.0]), np.array([CAMERA[1]]))
+        assert near_sigma[0] >= floor - 1e-9
+        assert np.all(far_sigma >= floor - 1e-9)
+        assert np.all(far_sigma < 1.5 * sigma)  # not inflated by sqrt(16) either
+        # a tyre footprint over the 16 map cells of one coarse cell is as uncertain as that one cell
+        _, footprint = footprint_heights(fused, x[10:11, 5], y[10:11, 5], 0.0, 0.9 * FAR_GRID.resolution,
+                                         0.9 * FAR_GRID.resolution)
+        assert footprint[0] == pytest.approx(far_sigma[10, 5], rel=1e-6)
+
+
+def _far_settings(**changes: object) -> MapSettings:
+    return map_settings(FAR_CONFIG.with_params({f"map.{k}": v for k, v in changes.items()}))
+
+
+def test_the_far_field_is_fused_only_after_its_frame() -> None:
+    fused = FusedMap(map_settings(FAR_CONFIG))
+    placement = place_frame(PlanarPose(1, 0.0, 0.0, 0.0, 0.0, 0.0), Attitude(0.0, 0.0), CAMERA, LEVEL_MOUNT)
+    with pytest.raises(FusionError, match="the frame integrate just fused"):
+        fused.integrate_far(np.zeros(FAR_GRID.shape), np.full(FAR_GRID.shape, 0.01), FAR_GRID, placement, 1)
+    fused.integrate(np.zeros(GRID.shape), np.full(GRID.shape, 0.01), GRID, placement, 1, base_z_prediction=0.0)
+    with pytest.raises(FusionError, match="not on the far-field grid"):
+        fused.integrate_far(np.zeros(GRID.shape), np.full(GRID.shape, 0.01), FAR_GRID, placement, 1)

@@ -280,3 +280,38 @@ def test_reconfiguring_the_far_field_rebuilds_its_backend_only() -> None:
     assert pipeline.far_backend is same
     out = pipeline.process_frame(_frame(0))
     assert out.far is not None and out.far.elevation.shape == (42, 16)
+
+
+def _far_drive(pipeline: Pipeline, frames: int) -> list[Any]:
+    outputs = []
+    for k in range(frames + 1):
+        pipeline.add_odometry(PlanarPose((1 + k) * S // 10, 0.1 * k, 0.0, 0.0, 1.0, 0.0))
+    for k in range(frames):
+        outputs.append(pipeline.process_frame(_frame(k)))
+    return outputs
+
+
+def test_with_the_far_field_and_the_map_on_the_map_and_its_preview_reach_the_far_edge() -> None:
+    off = _far_drive(_far_pipeline(), 3)[-1]
+    on_pipeline = _far_pipeline(**{"far_field.enabled": True})
+    on = _far_drive(on_pipeline, 3)[-1]
+    far_grid = on_pipeline.config.far_grid
+    camera_x = on_pipeline.config.vehicle.camera_position_m[0]
+    assert far_grid is not None and on.map is not None and off.map is not None and on.fusion is not None
+    assert on.map.resolution == off.map.resolution  # one resolution: the grid's
+    x_on, _ = on.map.cell_centres()
+    x_off, _ = off.map.cell_centres()
+    base_x = on.base_pose.x
+    assert x_off.max() - base_x < camera_x + 7.2 < x_on.max() - base_x
+    seen = np.isfinite(on.map.elevation).any(axis=1)
+    assert (x_on[seen] - base_x - camera_x).max() > far_grid.x_max - 0.1  # the far field is in the map
+    assert on.preview is not None and off.preview is not None
+    assert on.preview.n_samples > off.preview.n_samples
+    for track in on.preview.tracks:
+        reach = on.preview.distances()[np.isfinite(track.elevation)].max() - camera_x
+        assert reach >= 14.9
+    # the near part is the grid's alone: fused alike with the far field on or off
+    rows = (x_on - base_x - camera_x) < 6.5
+    rows_off = (x_off - base_x - camera_x) < 6.5
+    np.testing.assert_allclose(on.map.elevation[rows][-rows_off.sum():], off.map.elevation[rows_off], atol=1e-6,
+                               equal_nan=True)
