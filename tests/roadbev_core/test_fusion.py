@@ -435,3 +435,14 @@ def test_the_far_field_is_fused_only_after_its_frame() -> None:
     fused.integrate(np.zeros(GRID.shape), np.full(GRID.shape, 0.01), GRID, placement, 1, base_z_prediction=0.0)
     with pytest.raises(FusionError, match="not on the far-field grid"):
         fused.integrate_far(np.zeros(GRID.shape), np.full(GRID.shape, 0.01), FAR_GRID, placement, 1)
+
+
+def test_a_frame_is_aligned_on_cells_the_grid_saw_never_on_cells_only_the_far_field_saw() -> None:
+    fused = FusedMap(map_settings(FAR_CONFIG))
+    _far_frame(fused, np.full(FAR_GRID.shape, 0.05), 0.004, 1)  # a far field 5 cm off the grid's road
+    # 7 m on, the grid lies where only that far field was fused: nothing to align on, the prediction holds
+    base = PlanarPose(2, 7.0, 0.0, 0.0, 0.0, 0.0)
+    placement = place_frame(base, Attitude(0.0, 0.0), CAMERA, LEVEL_MOUNT)
+    fusion = fused.integrate(np.zeros(GRID.shape), np.full(GRID.shape, 0.004), GRID, placement, 2,
+                             base_z_prediction=0.0)
+    assert not fusion.aligned and fusion.overlap_cells == 0 and fusion.offset_m == 0.0
