@@ -978,6 +978,9 @@ TABLES: dict[str, Table] = {
                              f"{_NODE} --drive --rate 10 --frames 60 --modes 5hz --backends ensemble bm sgbm stereo "
                              "ensemble:members=stereo+sgbm ensemble:members=stereo+bm bev_sweep "
                              "bev_sweep:min_score=0.7 --out benchmarks/results/node_candidates.json"),
+    "node_far_field": Table(("node_far_field.json",), node_candidates,
+                            f"{_NODE} --drive --rate 10 --frames 60 --modes 5hz --backends ensemble --node-param "
+                            "far_field.enabled=true --out benchmarks/results/node_far_field.json"),
     "node_stereo": Table(("node_stereo.json",), node_rows, f"{_NODE} --backends stereo stereo:runtime=openvino "
                                                            "--frames 40 --out benchmarks/results/node_stereo.json"),
     "node_stereo_threads2": Table(("node_stereo_threads2.json",), node_rows,
