@@ -584,19 +584,7 @@ def read_eval_bag(
     truths: dict[int, np.ndarray] = {}
     grid = base
     if collected.truths:
-        grids = set()
-        for stamp, msg in collected.truths.items():
-            try:
-                decoded = grid_map_to_arrays(msg, base)
-            except MessageError as exc:
-                raise BagError(f"{path}: ground truth at {stamp} ns is malformed: {exc}") from None
-            if "elevation" not in decoded.layers:
-                raise BagError(f"{path}: ground truth at {stamp} ns has no 'elevation' layer")
-            grids.add(decoded.grid)
-            truths[stamp] = np.array(decoded.layers["elevation"], dtype=np.float32)
-        if len(grids) > 1:
-            raise BagError(f"{path}: the ground-truth maps are on {len(grids)} different grids")
-        grid = grids.pop()
+        grid, truths = _decode_truths(path, collected.truths, base, "ground truth", "ground-truth maps")
         horizontal = {k: v for k, v in overrides.items() if k in _HORIZONTAL_FIELDS}
         if any(abs(getattr(grid, k) - v) > 1e-9 for k, v in horizontal.items()):
             notes.append("horizontal grid parameters ignored: the ground truth's GridMap info defines the grid")
@@ -673,19 +661,32 @@ def _far_truths(path: Path, collected: _Collected, base: GridSpec) -> tuple[Grid
         far_base = GridSpec.from_dict({**base.to_dict(), **vertical})
     except ConfigError as exc:
         raise BagError(f"{path}: the far-field grid's vertical range is invalid: {exc}") from None
+    return _decode_truths(path, collected.far_truths, far_base, "far-field ground truth",
+                          "far-field ground-truth maps")
+
+
+def _decode_truths(path: Path, messages: Mapping[int, Any], base: GridSpec, what: str, maps: str
+                   ) -> tuple[GridSpec, dict[int, np.ndarray]]:
+    """The grid of ground-truth GridMaps (horizontal from their info, vertical from ``base``) and
+    each stamp's ``elevation`` layer [rows, cols] on it.
+
+    Raises:
+        BagError: a malformed map, one without an ``elevation`` layer, or maps on different grids
+            (``what`` names one map, ``maps`` all of them).
+    """
     grids: set[GridSpec] = set()
     truths: dict[int, np.ndarray] = {}
-    for stamp, msg in collected.far_truths.items():
+    for stamp, msg in messages.items():
         try:
-            decoded = grid_map_to_arrays(msg, far_base)
+            decoded = grid_map_to_arrays(msg, base)
         except MessageError as exc:
-            raise BagError(f"{path}: far-field ground truth at {stamp} ns is malformed: {exc}") from None
+            raise BagError(f"{path}: {what} at {stamp} ns is malformed: {exc}") from None
         if "elevation" not in decoded.layers:
-            raise BagError(f"{path}: far-field ground truth at {stamp} ns has no 'elevation' layer")
+            raise BagError(f"{path}: {what} at {stamp} ns has no 'elevation' layer")
         grids.add(decoded.grid)
         truths[stamp] = np.array(decoded.layers["elevation"], dtype=np.float32)
     if len(grids) > 1:
-        raise BagError(f"{path}: the far-field ground-truth maps are on {len(grids)} different grids")
+        raise BagError(f"{path}: the {maps} are on {len(grids)} different grids")
     return grids.pop(), truths
 
 
