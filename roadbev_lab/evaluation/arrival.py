@@ -71,6 +71,7 @@ __all__ = [
     "WheelErrors",
     "WheelPath",
     "arrival_points",
+    "camera_in_odom",
     "feature_mask",
     "map_accuracy",
     "map_summary",
@@ -423,15 +424,7 @@ def arrival_points(
     msg_stamps = np.array([p.stamp_ns for p in order], np.int64)
     pos, R = truth.interpolate(msg_stamps)  # [M, 3], [M, 3, 3] base_link at each stamp
     yaw_base = planar_yaw(R)
-    # the camera: position and yaw of its body (for the per-frame road frame)
-    if settings.camera_in_base is not None:
-        cam_pos = np.asarray(settings.camera_in_base[0], np.float64)
-        R_base_cambody = np.asarray(settings.camera_in_base[1], np.float64) @ R_BODY_FROM_OPTICAL.T
-    else:
-        cam_pos = np.asarray(settings.vehicle.camera_position_m, np.float64)
-        R_base_cambody = np.eye(3)
-    cam_world = pos + np.einsum("mij,j->mi", R, cam_pos)  # [M, 3]
-    yaw_cam = planar_yaw(np.einsum("mij,jk->mik", R, R_base_cambody))  # [M]
+    cam_world, yaw_cam = camera_in_odom(pos, R, settings)  # [M, 3], [M]: for the per-frame road frame
     road_origin_z = cam_world[:, 2] - settings.base_height
     # the true contact plane at each stamp
     wheels = settings.vehicle.wheel_positions()  # [4, 2]
@@ -667,6 +660,19 @@ def _offset_under_the_car(error: np.ndarray, held: np.ndarray, gx: np.ndarray, g
     half = 0.5 * vehicle.track_width_m
     under = held & (along >= 0.0) & (along <= vehicle.wheelbase_m) & (np.abs(across) <= half)
     return float(np.median(error[under])) if under.any() else math.nan
+
+
+def camera_in_odom(pos: np.ndarray, R: np.ndarray, settings: ArrivalSettings) -> tuple[np.ndarray, np.ndarray]:
+    """The camera's position [M, 3] in ``odom`` and the yaw [M] of its body, from ``base_link``'s
+    poses (``pos`` [M, 3], ``R`` [M, 3, 3]) and the camera's mounting in ``settings``
+    (``camera_in_base`` when known, else ``vehicle.camera_position_m`` with the body level)."""
+    if settings.camera_in_base is not None:
+        cam_pos = np.asarray(settings.camera_in_base[0], np.float64)
+        R_base_cambody = np.asarray(settings.camera_in_base[1], np.float64) @ R_BODY_FROM_OPTICAL.T
+    else:
+        cam_pos = np.asarray(settings.vehicle.camera_position_m, np.float64)
+        R_base_cambody = np.eye(3)
+    return pos + np.einsum("mij,j->mi", R, cam_pos), planar_yaw(np.einsum("mij,jk->mik", R, R_base_cambody))
 
 
 def per_frame_previews(outputs: Sequence[PipelineOutput]) -> list[TimedPreview]:

@@ -44,7 +44,6 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from roadbev_core.config import GridSpec
-from roadbev_core.geometry import R_BODY_FROM_OPTICAL
 from roadbev_core.preview import PreviewProfiles, TrackProfile, read_profile
 from roadbev_core.ride.preview_gain import DEFAULT_TIME_CONSTANT_S, preview_gains
 from roadbev_core.ride.preview_lqr import PreviewLqr
@@ -57,6 +56,7 @@ from roadbev_lab.evaluation.arrival import (
     RoadMap,
     TimedPreview,
     Trajectory,
+    camera_in_odom,
 )
 from roadbev_lab.ride.iso2631 import weighted_rms
 
@@ -176,13 +176,7 @@ def _track_name(profiles: PreviewProfiles, wheel: str) -> str | None:
 def _camera_poses(truth: Trajectory, settings: ArrivalSettings, stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Camera position [M, 3] in ``odom`` and the yaw [M] of its body at ``stamps`` (as the arrival metric)."""
     pos, R = truth.interpolate(stamps)
-    if settings.camera_in_base is not None:
-        cam_pos = np.asarray(settings.camera_in_base[0], np.float64)
-        R_base_cambody = np.asarray(settings.camera_in_base[1], np.float64) @ R_BODY_FROM_OPTICAL.T
-    else:
-        cam_pos = np.asarray(settings.vehicle.camera_position_m, np.float64)
-        R_base_cambody = np.eye(3)
-    return pos + np.einsum("mij,j->mi", R, cam_pos), planar_yaw(np.einsum("mij,jk->mik", R, R_base_cambody))
+    return camera_in_odom(pos, R, settings)
 
 
 def preview_feedforward(previews: Sequence[TimedPreview], road: WheelRoad, truth: Trajectory, settings: RideSettings,
