@@ -72,7 +72,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     fused.add_argument("--no-map", dest="map", action="store_false", help="the per-frame pipeline only")
     add_fleet_arguments(parser, store=True)
     parser.add_argument("--report", default=None, metavar="OUT.md",
-                        help="many bags: also write the printed report (Markdown) here")
+                        help="many bags: also write the printed report (Markdown) here (its folder is created)")
 
 
 def check_bag_path(path: Path) -> None:
@@ -147,6 +147,14 @@ def _cm(value: Any, digits: int = 3) -> str:
     return "nan" if value is None else f"{float(value):.{digits}f}"
 
 
+def _write_output(path: str, text: str, what: str) -> None:
+    """Write ``text`` to ``path`` (its folder created, as ``--json``'s help says) and say so."""
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    print(f"{what} written to {out}")
+
+
 def run(args: argparse.Namespace) -> int:
     """Evaluate, print the table, write the JSON; non-zero exit (via CommandError) on bad input."""
     if wants_fleet(args.bag, args):
@@ -217,10 +225,7 @@ def run(args: argparse.Namespace) -> int:
         counts = ", ".join(f"{t}: {n}" for t, n in sorted(outputs.counts.items()))
         print(f"outputs written to {args.out} ({counts})")
     if args.json:
-        out = Path(args.json)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(to_json(record))
-        print(f"metrics written to {out}")
+        _write_output(args.json, to_json(record), "metrics")
     if metrics["frames"] == 0 and result.refused:
         reasons = "; ".join(f"{n} x {reason}" for reason, n in sorted(result.refused.items()))
         raise CommandError(f"every frame was refused: {reasons}")
@@ -263,14 +268,8 @@ def _run_many(args: argparse.Namespace) -> int:
     report = eval_report(summary)
     print(report, end="")
     if args.report:
-        out = Path(args.report)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(report)
-        print(f"report written to {out}")
+        _write_output(args.report, report, "report")
     if args.json:
-        out = Path(args.json)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(to_json(summary))
-        print(f"summary written to {out}")
+        _write_output(args.json, to_json(summary), "summary")
     fail_on_failed_bags(fleet)
     return 0
