@@ -49,6 +49,7 @@ from benchmarks.preview_budget import (
     candidate_previews,
     candidates_from_node,
     make_backend,
+    node_rows,
 )
 from roadbev_core.fusion import MapWindow
 from roadbev_lab.evaluation.arrival import TimedPreview, map_accuracy, preview_at_arrival
@@ -243,8 +244,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default=str(RESULTS / "arrival.json"))
     args = parser.parse_args(argv)
     try:
-        node = json.loads(Path(args.node_results).read_text())
-        candidates = candidates_from_node(args.candidates, node["rows"])
+        rows = node_rows([json.loads(Path(path).read_text()) for path in args.node_results])
+        candidates = candidates_from_node(args.candidates, rows)
     except (OSError, ValueError, KeyError) as exc:
         parser.error(f"--node-results {args.node_results}: {exc}")
     unknown = set(args.budget or ()) - {c.name for c in candidates}

@@ -14,13 +14,17 @@ the true state and one preview source (rows):
   contact to the window's far edge, one per frame), read without the plane's attitude, and
   ``map_plane_attitude``: the same with the true plane's slopes undone (what the
   contact-plane fields in ``RoadPreview`` are for);
+* with ``--far-field``: ``window_far``, ``map_plane_far`` and ``map_plane_attitude_far``, the
+  same perfect previews reaching the far-field grid's far edge (``far_field.x_max_m``, 15 m) instead of the grid's: the
+  ceiling of a configuration with ``far_field.enabled``;
 * per **candidate** (``--candidates NAME=BACKEND[:PARAM=VALUE,...]``, a configuration of the
   node, :mod:`benchmarks.preview_budget`): its fused-map previews as the node makes them on the
   rendered frames (the drive's own drifting odometry and ``/tf_static`` mount), on the frames its
   measured time per frame lets it fuse, each used from when it is received (its measured
   latency, ``--node-results``: a ``bench_node --drive`` JSON), read with the contact plane each
   message carries (as the reference node does); with ``--budget`` also one row per stage of the
-  error budget (``NAME:true_answered``, ...). Rendered drives only: ``--render-seeds`` drives,
+  error budget (``NAME:true_answered``, ...; a far-field candidate has no ``true_answered`` /
+  ``true_all`` rows: the rendered drives keep the grid's labels only). Rendered drives only: ``--render-seeds`` drives,
   ``--render-duration`` s long, their frames kept in ``--frame-cache`` for the next run.
 
 Each preview row's ``share`` is the share of the ceiling's gain over the no-preview controller
@@ -31,7 +35,7 @@ frames, the frame step of the camera rate, the ride settings) returning a list o
 
 Run: ``.venv/bin/python -m benchmarks.bench_ride [--duration 20] [--seeds 3] [--speeds 5 10 20]
 [--rates 5 10] [--render-seeds 1] [--render-duration 6] [--candidates stereo_int8=stereo:...]
-[--budget] [--jobs N | --ray ADDRESS]``; writes ``benchmarks/results/ride.json`` and ``ride.png``.
+[--budget] [--far-field] [--jobs N | --ray ADDRESS]``; writes ``benchmarks/results/ride.json`` and ``ride.png``.
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ import math
 import sys
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -50,6 +55,7 @@ import numpy as np
 
 from benchmarks.common import CACHE, RESULTS, add_executor_arguments, executor_from, machine_info, write_json
 from benchmarks.preview_budget import (
+    LABEL_STAGES,
     STAGE_SEPARATOR,
     STAGES,
     Candidate,
@@ -58,7 +64,9 @@ from benchmarks.preview_budget import (
     candidate_previews,
     candidates_from_node,
     make_backend,
+    node_rows,
 )
+from roadbev_core.config import FarFieldConfig, GridSpec
 
 SEED_BASE = 310_000  # disjoint from training, test, tuning (200000+) and the map's tuning drives (300001+)
 CAMERA_RATE_HZ = 10.0  # drives are rendered at 10 Hz; slower cameras take every k-th frame
@@ -123,7 +131,10 @@ def candidate_makers(candidates: Sequence[Candidate], budget: Sequence[str] | No
     for candidate in candidates:
         rows = CandidateRows(candidate, shared)
         budgeted = budget is not None and (not budget or candidate.name in budget)
+        far = candidate.config(GridSpec()).far_grid is not None  # rendered drives keep no far-field labels
         for stage in STAGES if budgeted else ("shipped",):
+            if far and stage in LABEL_STAGES:
+                continue
             name = candidate.name if stage == "shipped" else f"{candidate.name}{STAGE_SEPARATOR}{stage}"
             makers[name] = rows.maker(stage)
     makers.update({name: factory(name) for name, factory in PREVIEW_MAKERS.items()})
@@ -141,9 +152,11 @@ def scores(rows: dict[str, dict[str, Any]]) -> dict[str, float]:
 
 
 def run_cell(kind: str, speed: float, seed: int, duration: float, rates: Sequence[float], lead: float,
-             makers: dict[str, PreviewMaker], frame_cache: Any = None, preview_gain: bool = True) -> dict[str, Any]:
+             makers: dict[str, PreviewMaker], frame_cache: Any = None, preview_gain: bool = True,
+             far_x_max: float | None = None) -> dict[str, Any]:
     """One drive: every source ridden at every camera rate (rendered only when ``makers``; its
-    frames from ``frame_cache``, a :class:`benchmarks.preview_budget.DriveFrames`, when given)."""
+    frames from ``frame_cache``, a :class:`benchmarks.preview_budget.DriveFrames`, when given);
+    with ``far_x_max`` (m ahead of the camera) also the perfect rows reaching that far."""
     from roadbev_lab.evaluation.arrival import ArrivalSettings, Trajectory, preview_at_arrival
     from roadbev_lab.ride import (
         RideSettings,
@@ -176,17 +189,23 @@ def run_cell(kind: str, speed: float, seed: int, duration: float, rates: Sequenc
     render_s = time.perf_counter() - start_time
     window = perfect_previews(truth, road_map, stamps, grid, settings)
     fused = perfect_map_previews(truth, road_map, stamps, grid, settings)
+    perfect: dict[str, list[Any]] = {"window": window, "map_plane": fused, "map_plane_attitude": fused}
+    if far_x_max is not None:
+        reach = replace(grid, x_max=far_x_max)
+        perfect["window_far"] = perfect_previews(truth, road_map, stamps, reach, settings)
+        perfect["map_plane_far"] = perfect_map_previews(truth, road_map, stamps, reach, settings)
+        perfect["map_plane_attitude_far"] = perfect["map_plane_far"]
     # contact-plane rows read with a plane: the true one for the perfect map, the one each
     # message carries for the rendered rows
-    attitude = {"map_plane_attitude": true_plane_slopes(truth, road_map, settings, stamps),
+    slopes = true_plane_slopes(truth, road_map, settings, stamps)
+    attitude = {"map_plane_attitude": slopes, "map_plane_attitude_far": slopes,
                 **{name: carried_plane_slopes for name in makers}}
     out: dict[str, Any] = {"road": kind, "speed_mps": speed, "seed": seed, "duration_s": frames / CAMERA_RATE_HZ,
                            "rendered": bool(makers), "render_s": round(render_s, 1), "rates": {}}
     base: dict[str, Any] | None = None
     for rate in rates:
         step = max(1, int(round(CAMERA_RATE_HZ / rate)))
-        sources: dict[str, Any] = {"window": window[::step], "map_plane": fused[::step],
-                                   "map_plane_attitude": fused[::step]}
+        sources: dict[str, Any] = {name: previews[::step] for name, previews in perfect.items()}
         fused_frames: dict[str, int] = {}
         stream: dict[str, dict[str, int]] = {}
         for name, make in makers.items():
@@ -271,8 +290,9 @@ def _pooled_arrival(items: Sequence[dict[str, Any]]) -> dict[str, float]:
 
 
 def _row_order(name: str) -> tuple[int, str]:
-    order = {"passive": 0, "no_preview": 1, "true_road": 2, "window": 3, "map_plane": 4, "map_plane_attitude": 5}
-    return (order.get(name, 6), name)
+    order = {"passive": 0, "no_preview": 1, "true_road": 2, "window": 3, "map_plane": 4, "map_plane_attitude": 5,
+             "window_far": 6, "map_plane_far": 7, "map_plane_attitude_far": 8}
+    return (order.get(name, 9), name)
 
 
 def plot(table: Sequence[dict[str, Any]], path: Path) -> None:
@@ -330,14 +350,14 @@ class CellJob(NamedTuple):
 
 def _run_job(job: CellJob, *, rates: Sequence[float], latency: float, candidates: Sequence[Candidate],
              budget: Sequence[str] | None,
-             frame_cache: str, preview_gain: bool) -> dict[str, Any]:
+             frame_cache: str, preview_gain: bool, far_x_max: float | None = None) -> dict[str, Any]:
     """:func:`run_cell` of one job (a process of the pool builds its own makers and caches)."""
     what = "rendered" if job.rendered else "truth-only"
     print(f"{what} drive {job.kind} {job.speed:g} m/s seed {job.seed}, {job.duration:g} s", file=sys.stderr,
           flush=True)
     makers = candidate_makers(candidates, budget) if job.rendered else {}
     return run_cell(job.kind, job.speed, job.seed, job.duration, rates, latency, makers,
-                    DriveFrames(frame_cache) if job.rendered else None, preview_gain)
+                    DriveFrames(frame_cache) if job.rendered else None, preview_gain, far_x_max)
 
 
 def _cell_order(args: argparse.Namespace, base: int, rendered: bool,
@@ -410,6 +430,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="drive seeds start here (the benchmark's own by default; tuning runs take others)")
     parser.add_argument("--latency", type=float, default=0.1, help="latency of the truth rows (s)")
     add_executor_arguments(parser, "drives ridden")
+    parser.add_argument("--far-field", action="store_true",
+                        help="also the perfect rows reaching the far-field grid's far edge (window_far, "
+                             "map_plane_far, map_plane_attitude_far): the ceiling of candidates with far_field.enabled")
     parser.add_argument("--no-preview-gain", action="store_true",
                         help="the controller applies all of every preview (no gain measured on the road ridden)")
     parser.add_argument("--out", default=str(RESULTS / "ride.json"))
@@ -421,8 +444,8 @@ def main(argv: list[str] | None = None) -> int:
     candidates: list[Candidate] = []
     if args.candidates:
         try:
-            node = json.loads(Path(args.node_results).read_text())
-            candidates = candidates_from_node(args.candidates, node["rows"])
+            rows = node_rows([json.loads(Path(path).read_text()) for path in args.node_results])
+            candidates = candidates_from_node(args.candidates, rows)
         except (OSError, ValueError, KeyError) as exc:
             parser.error(f"--node-results {args.node_results}: {exc}")
     unknown = set(args.budget or ()) - {c.name for c in candidates}
@@ -452,7 +475,8 @@ def main(argv: list[str] | None = None) -> int:
                 jobs += [CellJob(kind, speed, base + 1000 * k + 100 * i + 50 + s, args.render_duration, True)
                          for s in range(args.render_seeds)]
     work = partial(_run_job, rates=tuple(args.rates), latency=args.latency, candidates=tuple(candidates),
-                   budget=args.budget, frame_cache=args.frame_cache, preview_gain=not args.no_preview_gain)
+                   budget=args.budget, frame_cache=args.frame_cache, preview_gain=not args.no_preview_gain,
+                   far_x_max=FarFieldConfig().x_max if args.far_field else None)
     with executor_from(args, parser) as pool:  # drives are independent and deterministic: the same cells anywhere
         done = pool.map(work, jobs)
         info["executor"] = pool.describe()
@@ -465,6 +489,7 @@ def main(argv: list[str] | None = None) -> int:
         "command": "python -m benchmarks.bench_ride " + " ".join(argv if argv is not None else sys.argv[1:]),
         "latency_s": args.latency,
         "preview_gain": not args.no_preview_gain,
+        "far_field": args.far_field,
         "budget": args.budget,
         "candidates": [{"name": c.name, "backend": c.backend, "params": dict(c.params), "latency_s": c.latency_s,
                         "period_s": c.period_s} for c in candidates],

@@ -62,6 +62,7 @@ from roadbev_lab.training.datasets import SCENE_VERSION
 
 __all__ = [
     "DEFAULT_CANDIDATES",
+    "LABEL_STAGES",
     "STAGES",
     "STAGE_SEPARATOR",
     "CachedEstimates",
@@ -70,12 +71,15 @@ __all__ = [
     "TrueDatumMap",
     "candidate_previews",
     "candidates_from_node",
+    "node_rows",
     "node_schedule",
     "parse_candidate",
 ]
 
 STAGES: tuple[str, ...] = ("shipped", "true_answered", "true_all", "true_odometry", "true_datum", "true_plane",
                            "no_latency")
+# The stages that take the frame's labels: rendered drives keep the grid's, not the far field's.
+LABEL_STAGES: tuple[str, ...] = ("true_answered", "true_all")
 STAGE_SEPARATOR = ":"  # a budget row's name: "<candidate>:<stage>"
 # The configurations the benchmarks compare by default: every backend a user could pick (bev_sweep
 # also re-tuned for the ride on tuning drives: its defaults were tuned on single frames of the clean
@@ -122,8 +126,9 @@ def add_candidate_arguments(parser: argparse.ArgumentParser, frame_cache: Path, 
     ``--candidates``, ``--node-results``, ``--budget`` and ``--frame-cache``."""
     parser.add_argument("--candidates", nargs="*", default=list(DEFAULT_CANDIDATES), metavar="NAME=BACKEND[:P=V,...]",
                         help=candidates_help)
-    parser.add_argument("--node-results", default=str(RESULTS / "node_candidates.json"), metavar="JSON",
-                        help="bench_node --drive results: each candidate's latency and time per frame in the node")
+    parser.add_argument("--node-results", nargs="+", default=[str(RESULTS / "node_candidates.json")], metavar="JSON",
+                        help="bench_node --drive results (one or more): each candidate's latency and time per "
+                             "frame in the node")
     parser.add_argument("--budget", nargs="*", default=None, metavar="NAME",
                         help="add the error budget of these candidates (all when none is named): one row per "
                              "stage taken from the truth (preview_budget.STAGES)")
@@ -171,14 +176,28 @@ def candidates_from_node(specs: Sequence[str], node_results: Sequence[Mapping[st
     return out
 
 
+def node_rows(results: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """The rows of ``bench_node --drive`` results (their JSONs), each with the node parameters its
+    run set for every row (``node_params``, e.g. ``far_field.enabled``)."""
+    return [{**row, "node_params": dict(data.get("node_params") or {})} for data in results for row in data["rows"]]
+
+
+def _costs(backend: str, params: Mapping[str, Any]) -> dict[str, str]:
+    """The parameters among ``params`` that change what the node spends on a frame: the backend's
+    options (``<backend>.<option>``) and the far field's (``far_field.*``); the preview's do not."""
+    return {key: str(value) for key, value in params.items()
+            if key.startswith(f"{backend}.") or key.startswith("far_field.")}
+
+
 def _node_row(backend: str, params: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> Mapping[str, Any] | None:
-    """The ``5hz`` row (the bag's own timing, as a camera delivers it) of ``backend`` with exactly
-    the backend options (``<backend>.<option>``) of ``params`` (other parameters, such as the
-    preview's, do not change what the node spends on a frame)."""
-    want = {key: str(value) for key, value in params.items() if key.startswith(f"{backend}.")}
+    """The ``5hz`` row (the bag's own timing, as a camera delivers it) of ``backend`` run with
+    exactly the cost-bearing parameters (:func:`_costs`) of ``params``: its backend options and
+    the node parameters of its run (:func:`node_rows`)."""
+    want = _costs(backend, params)
     for row in rows:
         name, _, options = str(row["backend"]).partition(":")
         have = {f"{name}.{item.partition('=')[0]}": item.partition("=")[2] for item in filter(None, options.split(","))}
+        have.update(_costs(name, row.get("node_params") or {}))
         if row.get("mode") == "5hz" and name == backend and have == want:
             return row
     return None
@@ -215,20 +234,41 @@ def node_schedule(stamps_ns: Sequence[int], period_s: float, latency_s: float) -
 
 class CachedEstimates:
     """A backend whose estimates are kept by frame stamp, so that every row of a drive (budget
-    stages, camera rates, per frame and fused) uses the same estimate of a frame."""
+    stages, camera rates, per frame and fused) uses the same estimate of a frame.
 
-    def __init__(self, inner: Backend) -> None:
+    ``on_grid`` builds (``build(grid)``) and caches the same kind of backend on another grid: the
+    far-field one the pipeline asks for with ``far_field.enabled``.
+    """
+
+    def __init__(self, inner: Backend, build: Callable[[GridSpec], Backend] | None = None) -> None:
         self.inner = inner
         self.name = inner.name
         self.grid = inner.grid
         self.needs_stereo = inner.needs_stereo
+        self.far_field = bool(getattr(inner, "far_field", False))
         self.estimates: dict[int, Estimate] = {}
+        self._build = build
+        self._other_grids: dict[GridSpec, CachedEstimates] = {}
 
     def estimate(self, frame: Frame) -> Estimate:
         stamp = int(frame.stamp_ns)
         if stamp not in self.estimates:
             self.estimates[stamp] = self.inner.estimate(frame)
         return self.estimates[stamp]
+
+    def on_grid(self, grid: GridSpec) -> CachedEstimates:
+        """This backend on ``grid`` (itself on its own grid), its estimates cached too.
+
+        Raises:
+            ValueError: another grid, and no way to build the backend on it.
+        """
+        if grid == self.grid:
+            return self
+        if grid not in self._other_grids:
+            if self._build is None:
+                raise ValueError(f"{self.name}: no backend on the grid {grid} (built without a factory)")
+            self._other_grids[grid] = CachedEstimates(self._build(grid))
+        return self._other_grids[grid]
 
 
 class _TruthBackend:
@@ -238,6 +278,7 @@ class _TruthBackend:
     def __init__(self, cached: CachedEstimates, labels: Mapping[int, np.ndarray], answered: bool) -> None:
         self.cached, self.labels, self.answered = cached, labels, answered
         self.name, self.grid, self.needs_stereo = cached.name, cached.grid, cached.needs_stereo
+        self.far_field = cached.far_field
 
     def estimate(self, frame: Frame) -> Estimate:
         est = self.cached.estimate(frame)
@@ -335,17 +376,22 @@ def candidate_previews(drive: RidingDrive, samples: Sequence[DriveSample], candi
     fused_frames = [frames[i] for i, _ in schedule]
     received = {stamps[i]: at for i, at in schedule}
     backend: Backend = cached
-    if stage in ("true_answered", "true_all"):
-        labels = {int(s.frame.stamp_ns): s.truth.elevation for s in samples}
-        backend = _TruthBackend(cached, labels, answered=stage == "true_answered")
     extra: dict[str, Any] = {} if map_on else {"map.enabled": False}
     map_factory: Callable[[MapSettings], FusedMap] = FusedMap
     if stage == "true_datum":
         extra["map.align"] = False
         map_factory = lambda settings: TrueDatumMap(settings, truth)  # noqa: E731
     config = candidate.config(drive.config.grid, extra)
-    pipeline = Pipeline(config, backend_factory=lambda *_a, **_k: backend, map_factory=map_factory,
-                        configure_process=False)
+    if stage in LABEL_STAGES:
+        if config.far_grid is not None:
+            raise ValueError(f"budget stage {stage!r} needs the far field's labels, which rendered drives do not keep")
+        labels = {int(s.frame.stamp_ns): s.truth.elevation for s in samples}
+        backend = _TruthBackend(cached, labels, answered=stage == "true_answered")
+
+    def backend_on(_name: str, grid: GridSpec, **_options: Any) -> Backend:
+        return backend if grid == config.grid else cached.on_grid(grid)  # the far field on its own grid
+
+    pipeline = Pipeline(config, backend_factory=backend_on, map_factory=map_factory, configure_process=False)
     pipeline.set_camera_mount(*drive.base_to_camera)
     odometry = drive.ground_truth_poses() if stage == "true_odometry" else drive.odometry()
     outputs: list[Any] = []
@@ -363,8 +409,11 @@ def candidate_previews(drive: RidingDrive, samples: Sequence[DriveSample], candi
 
 
 def make_backend(candidate: Candidate, grid: GridSpec) -> CachedEstimates:
-    """The candidate's backend on ``grid``, its estimates cached by stamp."""
-    return CachedEstimates(create(candidate.backend, grid, **candidate.backend_options()))
+    """The candidate's backend on ``grid`` (and on the far-field grid when asked), its estimates
+    cached by stamp."""
+    options = candidate.backend_options()
+    return CachedEstimates(create(candidate.backend, grid, **options),
+                           lambda other: create(candidate.backend, other, **options))
 
 
 class DriveFrames:

@@ -74,3 +74,17 @@ def test_truth_only_drives_are_taken_from_an_earlier_run(tmp_path: Any) -> None:
     (tmp_path / "bad.json").write_text("{")
     with pytest.raises(BenchError, match="not a bench_ride result"):
         truth_cells_from(tmp_path / "bad.json", [], 20.0, [5.0], 0.1)
+
+
+def test_the_far_field_rows_reach_the_far_edge_and_see_more_at_speed() -> None:
+    from benchmarks.bench_ride import run_cell
+
+    cell = run_cell("bumps", 20.0, 7, 2.0, (10.0,), 0.1, {}, far_x_max=15.0)
+    data = cell["rates"]["10"]
+    assert {"window", "map_plane", "window_far", "map_plane_far", "map_plane_attitude_far"} <= set(data["rows"])
+    # at 20 m/s the grid's window leaves the controller a fraction of its horizon; the far edge more
+    assert data["share"]["window_far"] > data["share"]["window"]
+    assert data["share"]["map_plane_attitude_far"] > data["share"]["map_plane_attitude"]
+    plain = run_cell("bumps", 20.0, 7, 2.0, (10.0,), 0.1, {})
+    assert "window_far" not in plain["rates"]["10"]["rows"]
+    assert plain["rates"]["10"]["share"]["window"] == pytest.approx(data["share"]["window"])

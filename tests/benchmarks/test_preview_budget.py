@@ -16,11 +16,12 @@ from benchmarks.preview_budget import (
     DriveFrames,
     candidate_previews,
     candidates_from_node,
+    node_rows,
     node_schedule,
     parse_candidate,
     with_true_plane,
 )
-from roadbev_core.config import GridSpec
+from roadbev_core.config import FarFieldConfig, GridSpec
 from roadbev_core.frame import Estimate
 from roadbev_lab.evaluation.arrival import REFERENCE_CONTACT_PLANE, ArrivalSettings, Trajectory
 from roadbev_lab.ride import RideSettings, perfect_map_previews
@@ -58,6 +59,43 @@ def test_candidates_take_their_latency_and_period_from_the_node_row() -> None:
     assert candidates_from_node(["stereo"], rows)[0].latency_s == pytest.approx(0.3)
     with pytest.raises(ValueError, match="no bench_node row"):
         candidates_from_node(["bm"], rows)
+
+
+def test_far_field_candidates_take_the_row_of_a_run_with_the_far_field() -> None:
+    near = {"backend": "ensemble", "mode": "5hz", "latency_ms": {"p50": 75.0}, "inference_p50_ms": 55.0,
+            "overhead_mean_ms": 5.0}
+    far = {**near, "latency_ms": {"p50": 89.0}, "overhead_mean_ms": 19.0}
+    rows = node_rows([{"rows": [near]}, {"rows": [far], "node_params": {"far_field.enabled": True}}])
+    plain, with_far = candidates_from_node(["ensemble", "far=ensemble:far_field.enabled=true"], rows)
+    assert plain.latency_s == pytest.approx(0.075) and plain.period_s == pytest.approx(0.060)
+    assert with_far.latency_s == pytest.approx(0.089) and with_far.period_s == pytest.approx(0.074)
+    # the preview's parameters cost nothing in the node: the plain row serves
+    (gapless,) = candidates_from_node(["g=ensemble:preview.max_gap_m=0"], rows)
+    assert gapless.latency_s == pytest.approx(0.075)
+    with pytest.raises(ValueError, match="no bench_node row"):
+        candidates_from_node(["far=ensemble:far_field.enabled=true"], node_rows([{"rows": [near]}]))
+
+
+def test_cached_estimates_build_the_same_backend_on_another_grid_once() -> None:
+    built: list[GridSpec] = []
+
+    class Inner:
+        name, needs_stereo, far_field = "stub", False, True
+
+        def __init__(self, grid: GridSpec) -> None:
+            self.grid = grid
+            built.append(grid)
+
+        def estimate(self, frame: Any) -> Any:
+            return SimpleNamespace(grid=self.grid)
+
+    near, far = GridSpec(), FarFieldConfig().grid(GridSpec())
+    cached = CachedEstimates(Inner(near), Inner)
+    assert cached.on_grid(near) is cached and cached.far_field
+    on_far = cached.on_grid(far)
+    assert on_far is cached.on_grid(far) and on_far.grid == far and built == [near, far]
+    with pytest.raises(ValueError, match="no backend on the grid"):
+        CachedEstimates(Inner(near)).on_grid(far)
 
 
 def test_cached_estimates_run_each_frame_once() -> None:
@@ -169,3 +207,40 @@ def test_perfect_map_previews_are_unchanged_against_the_true_plane() -> None:
             diff = (tb.elevation - ta.elevation) + plane.height_at(x, np.full(x.size, ta.lateral_offset))
             ok = np.isfinite(diff)
             assert np.ptp(diff[ok]) < 1e-5
+
+
+class Flat:
+    """A backend that answers a flat road (0 m, sigma 1 cm) on every cell of whatever grid it is on."""
+
+    name, needs_stereo, far_field = "bm", True, True
+
+    def __init__(self, grid: GridSpec) -> None:
+        self.grid = grid
+
+    def estimate(self, frame: Any) -> Estimate:
+        return Estimate(np.zeros(self.grid.shape, np.float32), np.full(self.grid.shape, 0.01, np.float32))
+
+
+def test_a_far_field_candidate_previews_to_the_far_edge_and_refuses_the_label_stages(tmp_path: Any) -> None:
+    drive = _small_drive(4)
+    samples = DriveFrames(tmp_path).samples(drive)
+    grid = drive.config.grid
+    cached = CachedEstimates(Flat(grid), Flat)
+    settings = RideSettings(arrival=ArrivalSettings(base_height=grid.base_height, camera_in_base=drive.base_to_camera))
+    far = Candidate("far", "bm", {"far_field.enabled": True}, latency_s=0.1)
+    near = Candidate("near", "bm", latency_s=0.1)
+
+    def reach(previews: list[Any]) -> float:  # farthest answered distance ahead of base_link (m)
+        return max(float(p.profiles.distances()[np.isfinite(p.profiles.track("front_left").elevation)].max())
+                   for p in previews)
+
+    camera_x = float(drive.base_to_camera[0][0])
+    far_edge = FarFieldConfig().grid(grid).x_max
+    with_far = candidate_previews(drive, samples, far, cached, "shipped", ride_settings=settings)
+    without = candidate_previews(drive, samples, near, cached, "shipped", ride_settings=settings)
+    assert reach(without) <= camera_x + grid.x_max + 1e-6
+    assert reach(with_far) > camera_x + grid.x_max + 1.0 and reach(with_far) <= camera_x + far_edge + 1e-6
+    assert len(cached.on_grid(FarFieldConfig().grid(grid)).estimates) == len(drive)  # the far grid's own cache
+    for stage in ("true_answered", "true_all"):
+        with pytest.raises(ValueError, match="far field's labels"):
+            candidate_previews(drive, samples, far, cached, stage, ride_settings=settings)
