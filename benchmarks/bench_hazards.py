@@ -22,12 +22,16 @@ within 0.5 m along x, potholes also across), the distance from the front axle to
 at the first report (the tracker's ``first_reported_distance_m``) and the time from that map's
 stamp until the true front axle reaches the near edge (ground truth poses; the monitor's own
 latency comes on top), against what the window allows (its far edge ahead of the front axle /
-speed); the height error at the first report and at the last update; reported tracks that match
-no feature, per km driven.
+speed); the height error at the first report, when the feature's near edge comes within
+the grid's far edge ahead of the camera (7.08 m: the report as it stands then) and at the last
+update; reported tracks that match no feature, per km driven. ``--far-field`` runs the pipeline
+with ``far_field.enabled`` (the map and its window reach the far-field grid's far edge);
+``--latency`` charges the node's latency (image stamp to map received) on every lead time.
 
 Run: ``.venv/bin/python -m benchmarks.bench_hazards [--seeds 3]`` (true maps, writes
 ``benchmarks/results/hazards.json``) or ``.venv/bin/python -m benchmarks.bench_hazards --map
-[--speeds 5 10 20] [--rate 10] [--duration 12] [--smooth-duration S]`` (writes
+[--speeds 5 10 20] [--rate 10] [--duration 12] [--smooth-duration S] [--backend B] [--far-field]
+[--latency S]`` (writes
 ``benchmarks/results/hazards_map.json``); both take ``--jobs N`` or ``--ray ADDRESS`` (drives in parallel).
 """
 
@@ -120,10 +124,10 @@ def _odometry_to_truth(x: float, y: float, stamp_ns: int, odometry: list[Any], g
 
 
 def run_map_drive(speed: float, rate: float, duration: float, seed: int, spacing: float, backend: str,
-                  features: bool) -> dict[str, Any]:
-    """Render one drive, build its fused map with ``backend``, track hazards on every window,
-    score the reports against the drive's features."""
-    from roadbev_core.config import RoadbevConfig
+                  features: bool, far_field: bool = False, latency_s: float = 0.0) -> dict[str, Any]:
+    """Render one drive, build its fused map with ``backend`` (and the far field), track hazards
+    on every window, score the reports against the drive's features (lead times less ``latency_s``)."""
+    from roadbev_core.config import FarFieldConfig, RoadbevConfig
     from roadbev_core.geometry import quaternion_to_rotation
     from roadbev_core.hazard_tracking import HazardTracker, TrackerSettings
     from roadbev_core.pipeline import Pipeline, check_config
@@ -137,18 +141,23 @@ def run_map_drive(speed: float, rate: float, duration: float, seed: int, spacing
     drive = RidingDrive(RidingConfig(drive=DriveConfig(frames=frames, speed_mps=speed, frame_rate_hz=rate, seed=seed,
                                                        road=road), tail_s=1.5))
     grid = drive.config.grid
-    config = check_config(RoadbevConfig.from_params({**grid.to_dict(), "backend": backend, "map.enabled": True}))
+    config = check_config(RoadbevConfig.from_params({**grid.to_dict(), "backend": backend, "map.enabled": True,
+                                                     "far_field.enabled": far_field}))
+    reach_x = FarFieldConfig().grid(grid).x_max if far_field else grid.x_max  # the map's window ahead of the camera
     pipeline = Pipeline(config, configure_process=False)
     pipeline.set_camera_mount(*drive.base_to_camera)
     tracker = HazardTracker(TrackerSettings(vehicle=config.vehicle))
     track_ms: list[float] = []
+    heights: dict[int, list[tuple[int, float]]] = {}  # track id -> (map stamp, reported height) per window
 
     def on_output(out: Any) -> None:
         if out.map is None:
             return
         t0 = time.perf_counter()
-        tracker.update(out.map, out.base_pose)
+        report = tracker.update(out.map, out.base_pose)
         track_ms.append(1e3 * (time.perf_counter() - t0))
+        for t in report.hazards:
+            heights.setdefault(t.id, []).append((report.stamp_ns, t.height_m))
 
     start = time.perf_counter()
     odometry = planar_odometry(drive.odometry())
@@ -168,7 +177,8 @@ def run_map_drive(speed: float, rate: float, duration: float, seed: int, spacing
     stamps = gt.stamp_ns.astype(np.int64)
     last_frame_ns = int(drive.frame_stamps_ns[-1])
     cam_x = float(drive.base_to_camera[0][0])
-    reach_m = cam_x + grid.x_max - wheelbase  # the window's far edge ahead of the front axle
+    reach_m = cam_x + reach_x - wheelbase  # the window's far edge ahead of the front axle
+    latency_ns = int(round(latency_s * 1e9))
     scored: list[dict[str, Any]] = []
     matched_ids: set[int] = set()
     for (name, fx, fy, height), feat in zip(drive.features_in_odom(), drive.scene.features, strict=True):
@@ -194,8 +204,15 @@ def run_map_drive(speed: float, rate: float, duration: float, seed: int, spacing
                                "lateral_m": round(float(lateral), 2), "reported": bool(hits)}
         if hits:
             t = min(hits, key=lambda h: h.first_reported_ns or 0)
+            # the report as it stands when the near edge comes within the grid's far edge of the camera
+            near = np.flatnonzero(ahead <= grid.x_max - (wheelbase - cam_x))
+            near_ns = int(stamps[near[0]]) if near.size else arrival_ns
+            history = heights.get(t.id, [])
+            then = [h for stamp, h in history if stamp + latency_ns <= near_ns] or [h for _, h in history[:1]]
             row.update(first_reported_distance_m=round(t.first_reported_distance_m, 3),
-                       lead_s=round((arrival_ns - int(t.first_reported_ns or 0)) * 1e-9, 3),
+                       lead_s=round((arrival_ns - int(t.first_reported_ns or 0) - latency_ns) * 1e-9, 3),
+                       first_height_rel_err=round(abs(t.first_reported_height_m - height) / abs(height), 4),
+                       height_at_near_rel_err=round(abs(then[-1] - height) / abs(height), 4) if then else None,
                        height_est_m=round(t.height_m, 4),
                        height_rel_err=round(abs(t.height_m - height) / abs(height), 4),
                        detections=t.detections)
@@ -203,7 +220,8 @@ def run_map_drive(speed: float, rate: float, duration: float, seed: int, spacing
     false = [t for t in tracks if t.id not in matched_ids]
     travelled_km = float(np.sum(np.linalg.norm(np.diff(gt.position[:, :2], axis=0), axis=1))) / 1000.0
     return {"speed_mps": speed, "rate_hz": rate, "seed": seed, "features_on_road": features, "frames": frames,
-            "window_reach_m": round(reach_m, 3), "window_lead_s": round(reach_m / speed, 3),
+            "far_field": far_field, "latency_s": latency_s,
+            "window_reach_m": round(reach_m, 3), "window_lead_s": round(reach_m / speed - latency_s, 3),
             "features": scored, "false_alarms": len(false),
             "false_alarm_tracks": [{"kind": t.kind, "x": round(t.x, 2), "y": round(t.y, 2),
                                     "height_m": round(t.height_m, 4), "detections": t.detections} for t in false],
@@ -220,18 +238,23 @@ def summarise_map(drives: list[dict[str, Any]]) -> list[dict[str, Any]]:
         rep = [f for f in feats if f["reported"]]
         leads = [f["lead_s"] for f in rep]
         errs = [f["height_rel_err"] for f in rep]
+        first_errs = [f["first_height_rel_err"] for f in rep if "first_height_rel_err" in f]
+        near_errs = [f["height_at_near_rel_err"] for f in rep if f.get("height_at_near_rel_err") is not None]
         with_features = [d for d in ds if d["features_on_road"]]
         smooth = [d for d in ds if not d["features_on_road"]]
         row: dict[str, Any] = {
             "speed_mps": speed, "features": len(feats), "reported": len(rep),
             "reported_pct": 100.0 * len(rep) / max(1, len(feats)),
             "reported_1s_ahead_pct": 100.0 * sum(v >= 1.0 for v in leads) / max(1, len(feats)),
+            "reported_0.6s_ahead_pct": 100.0 * sum(v >= 0.6 for v in leads) / max(1, len(feats)),
             "window_lead_s": ds[0]["window_lead_s"],
             "lead_s_median": float(np.median(leads)) if leads else None,
             "lead_s_min": float(np.min(leads)) if leads else None,
             "first_reported_distance_m_median": float(np.median([f["first_reported_distance_m"] for f in rep]))
             if rep else None,
             "height_rel_err_mean": float(np.mean(errs)) if errs else None,
+            "first_height_rel_err_mean": float(np.mean(first_errs)) if first_errs else None,
+            "height_at_near_rel_err_mean": float(np.mean(near_errs)) if near_errs else None,
             "height_within_15pct": float(np.mean(np.array(errs) <= 0.15)) if errs else None,
             "false_alarms_per_km_feature_roads": sum(d["false_alarms"] for d in with_features)
             / max(1e-9, sum(d["km"] for d in with_features)) if with_features else None,
@@ -248,12 +271,12 @@ def smooth_duration(args: argparse.Namespace) -> float:
     return float(args.duration if args.smooth_duration is None else args.smooth_duration)
 
 
-def _map_job(job: tuple[float, float, float, int, float, str, bool]) -> dict[str, Any]:
+def _map_job(job: tuple[float, float, float, int, float, str, bool, bool, float]) -> dict[str, Any]:
     """:func:`run_map_drive` of one drive, with its lines on stderr."""
-    speed, rate, duration, seed, spacing, backend, features = job
+    speed, rate, duration, seed, spacing, backend, features, far_field, latency_s = job
     print(f"rendered drive {speed:g} m/s {'features' if features else 'smooth'} seed {seed}, "
           f"{duration:g} s at {rate:g} Hz", file=sys.stderr, flush=True)
-    d = run_map_drive(speed, rate, duration, seed, spacing, backend, features)
+    d = run_map_drive(speed, rate, duration, seed, spacing, backend, features, far_field, latency_s)
     rep = [f for f in d["features"] if f["reported"]]
     print(f"  {len(rep)}/{len(d['features'])} features reported, leads "
           f"{sorted(f['lead_s'] for f in rep)} s (window {d['window_lead_s']} s), "
@@ -278,13 +301,15 @@ def main_map(args: argparse.Namespace, argv: list[str] | None, parser: argparse.
         for features in (True, False) if speed in args.smooth_speeds else (True,):
             seed = MAP_SEED_BASE + 100 * i + (0 if features else 50)
             duration = args.duration if features else smooth_duration(args)
-            jobs.append((speed, args.rate, duration, seed, args.spacing, args.backend, features))
+            jobs.append((speed, args.rate, duration, seed, args.spacing, args.backend, features, args.far_field,
+                         args.latency))
     with executor_from(args, parser) as pool:  # drives are independent and deterministic: the same results anywhere
         drives = pool.map(_map_job, jobs)
         info["executor"] = pool.describe()
     data = {"what": "hazards tracked on the fused map of rendered drives (bench_hazards --map; see its docstring)",
             "command": "python -m benchmarks.bench_hazards " + " ".join(argv if argv is not None else sys.argv[1:]),
-            "backend": args.backend, "machine": info, "wall_s": round(time.perf_counter() - start, 1),
+            "backend": args.backend, "far_field": args.far_field, "latency_s": args.latency, "machine": info,
+            "wall_s": round(time.perf_counter() - start, 1),
             "summary": summarise_map(drives), "drives": drives}
     out = Path(args.out or RESULTS / "hazards_map.json")
     write_json(out, data)
@@ -308,6 +333,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rate", type=float, default=10.0, help="--map: camera rate (Hz)")
     parser.add_argument("--spacing", type=float, default=6.0, help="--map: feature spacing (m)")
     parser.add_argument("--backend", default=MAP_BACKEND, help=f"--map: the backend (default {MAP_BACKEND})")
+    parser.add_argument("--far-field", action="store_true",
+                        help="--map: far_field.enabled (the map reaches the far-field grid's far edge)")
+    parser.add_argument("--latency", type=float, default=0.0,
+                        help="--map: the node's latency (s, image stamp to map received), charged on every lead")
     add_executor_arguments(parser, "drives run")
     args = parser.parse_args(argv)
     if args.smooth_duration is not None and not args.smooth_duration > 0:
