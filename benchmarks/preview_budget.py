@@ -425,7 +425,11 @@ class DriveFrames:
         self.root = Path(root)
 
     def folder(self, drive: RidingDrive) -> Path:
-        key = f"{drive.riding!r}/scene-v{SCENE_VERSION}/drive-v{DRIVE_VERSION}"
+        # A far-field grid only adds labels the store does not keep, drawn after everything a frame
+        # draws: the frames are the same with it or without, so it is no part of the key (which
+        # also keeps the keys of frames stored before the drive's config had the field).
+        riding = replace(drive.riding, drive=replace(drive.riding.drive, far_grid=None))
+        key = f"{riding!r}".replace(", far_grid=None", "") + f"/scene-v{SCENE_VERSION}/drive-v{DRIVE_VERSION}"
         return self.root / hashlib.sha1(key.encode()).hexdigest()[:16]
 
     def samples(self, drive: RidingDrive) -> list[DriveSample]:

@@ -244,3 +244,15 @@ def test_a_far_field_candidate_previews_to_the_far_edge_and_refuses_the_label_st
     for stage in ("true_answered", "true_all"):
         with pytest.raises(ValueError, match="far field's labels"):
             candidate_previews(drive, samples, far, cached, stage, ride_settings=settings)
+
+
+def test_stored_frames_are_the_same_with_a_far_field_grid(tmp_path: Any) -> None:
+    from dataclasses import replace
+
+    drive = _small_drive(2)
+    with_far = RidingDrive(replace(drive.riding, drive=replace(drive.riding.drive,
+                                                               far_grid=FarFieldConfig().grid(drive.config.grid))))
+    store = DriveFrames(tmp_path)
+    assert store.folder(with_far) == store.folder(drive)
+    other = RidingDrive(replace(drive.riding, drive=replace(drive.riding.drive, seed=6)))
+    assert store.folder(other) != store.folder(drive)
