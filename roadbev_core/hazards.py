@@ -13,8 +13,10 @@ y; NaN = unknown):
 2. **Residual** = height - level, on the full-resolution cells; cells with ``|residual| >=
    seed_fraction * min_height_m`` form candidates (8-connected, bumps and dips separately).
 3. **A hazard** is a candidate whose peak reaches ``min_height_m``, whose area reaches
-   ``min_area_m2`` and whose extent along x stays within ``max_length_m`` (longer ones are
-   kerbs, ruts or the road's edge, not discrete features): kind ``bump`` (positive: speed bumps,
+   ``min_area_m2``, whose extent along x stays within ``max_length_m`` (longer ones are
+   kerbs, ruts or the road's edge, not discrete features) and whose height reaches
+   ``min_significance`` of its 1-sigma (below, the map cannot tell it from its own noise: the
+   far field's coarse cells, a backend unsure of a cell): kind ``bump`` (positive: speed bumps,
    humps, a step up) or ``pothole`` (negative), position (residual-weighted centroid in the map's
    frame), extent along x and y (a longer component is split by thresholding it again at twice
    the level, until its parts are short enough), height or depth (signed; the 75th percentile of |residual| over
@@ -61,6 +63,8 @@ class HazardSettings:
         level_window_m: (along x, across y) window of the level.
         passes: masking passes of the level.
         max_length_m: longest extent along x of a discrete hazard.
+        min_significance: least height of a hazard in units of its 1-sigma (its confidence is 0
+            there).
     """
 
     min_height_m: float = 0.025
@@ -70,9 +74,11 @@ class HazardSettings:
     level_window_m: tuple[float, float] = (8.0, 3.0)
     passes: int = 3
     max_length_m: float = 6.0
+    min_significance: float = 2.0
 
     def __post_init__(self) -> None:
         ok = (0.001 <= self.min_height_m <= 1.0 and 0.0 <= self.min_area_m2 <= 100.0
+              and 0.0 <= self.min_significance <= 10.0
               and 0.05 <= self.seed_fraction <= 1.0 and 0.01 <= self.block_m <= 1.0 and 1 <= self.passes <= 10
               and all(math.isfinite(w) and w >= 2 * self.block_m for w in self.level_window_m))
         if not ok:
@@ -259,6 +265,8 @@ def _components(v: np.ndarray, region: np.ndarray, threshold: float, kind: str, 
         cy = float((weights.sum(axis=0) @ ys[left: left + w]) / weights.sum())
         height_sigma = math.hypot(float(sig[top + peak_idx[0], left + peak_idx[1]]), noise)
         z = height / max(height_sigma, 1e-4)
+        if z < s.min_significance:
+            continue
         out.append(Hazard(kind, cx, cy, h * resolution, w * resolution, sign * height, height_sigma,
                           float(np.clip((z - 2.0) / 4.0, 0.0, 1.0)), area))
 

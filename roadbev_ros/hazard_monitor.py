@@ -61,7 +61,8 @@ DEFAULTS: dict[str, Any] = {
     "hazards_topic": "/roadbev/hazards",
     "cost_topic": "/roadbev/hazard_cost",
     "markers_topic": "/roadbev/hazard_markers",
-    "min_height_m": 0.025,
+    "min_height_m": HazardSettings.min_height_m,
+    "min_significance": HazardSettings.min_significance,
     "confirm_hits": 2,
     "max_misses": 2,
     "gate_m": 0.5,
@@ -92,7 +93,8 @@ class HazardMonitorNode(Node):
         vehicle = VehicleConfig(wheelbase_m=float(p["vehicle.wheelbase_m"]),
                                 track_width_m=float(p["vehicle.track_width_m"]))
         self.tracker = HazardTracker(TrackerSettings(
-            detector=HazardSettings(min_height_m=float(p["min_height_m"])), gate_m=float(p["gate_m"]),
+            detector=HazardSettings(min_height_m=float(p["min_height_m"]),
+                                    min_significance=float(p["min_significance"])), gate_m=float(p["gate_m"]),
             confirm_hits=int(p["confirm_hits"]), max_misses=int(p["max_misses"]),
             full_cost_height_m=float(p["full_cost_height_m"]), vehicle=vehicle))
         self.ego = EgoMotion(max_age_s=float(p["odom_max_age_s"]))

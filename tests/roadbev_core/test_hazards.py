@@ -44,6 +44,20 @@ def test_bump_and_pothole_on_a_tilted_plane() -> None:
     assert cost.dtype == np.int8 and 58 <= cost[r0, c0] <= 62 and cost[r0 + 100, c0] <= 2
 
 
+def test_a_bump_the_map_is_unsure_of_is_no_hazard() -> None:
+    e = _plane()
+    r0, _ = _index(4.0, 0.3, e.shape)
+    e[r0 - 15: r0 + 15, :] += 0.04  # a 4 cm bump
+    sure = np.full(e.shape, 0.005, np.float32)
+    unsure = sure.copy()
+    unsure[r0 - 40: r0 + 40, :] = 0.03  # far-field cells: 3 cm sigma there
+    assert [h.kind for h in detect_hazards(e, sure, RES, (0.0, 0.0))] == ["bump"]
+    assert detect_hazards(e, unsure, RES, (0.0, 0.0)) == []
+    assert detect_hazards(e, unsure, RES, (0.0, 0.0), HazardSettings(min_significance=1.0))[0].confidence == 0.0
+    with pytest.raises(HazardError):
+        HazardSettings(min_significance=-1.0)
+
+
 def test_smooth_rough_plane_has_no_hazard_and_unknown_cells_stay_unknown() -> None:
     rng = np.random.default_rng(0)
     e = _plane() + rng.normal(0.0, 0.003, (1500, 150)).astype(np.float32)
