@@ -40,7 +40,15 @@ part that does grow with the distance driven, for diagnostics.)
 
 **The far field** (``far_field.enabled``, :meth:`FusedMap.integrate_far`): the corridor reaches
 the far-field grid's far edge, still at the grid's resolution; each map cell in a far-field cell
-takes its height and sigma, once per frame, with the frame's datum and alignment.
+takes its height and sigma, once per frame, with the frame's datum and alignment. The grid's
+observation supersedes the far field's: a cell the far field alone has seen starts again from
+its first grid observation, or is forgotten when the grid looks at it and declines it (a cell
+hidden behind a crest, one the matcher could not match: what the grid cannot tell there, the
+coarser, farther look cannot either), and a cell the grid has seen takes no far-field observation. The far
+field's errors are several times the grid's and correlated over whole coarse cells, so its weight
+in a mean with grid observations would be small and its bias not; this way every cell the grid
+has looked at holds what it would hold without the far field (and so does the alignment fitted
+on those cells).
 
 **Fusion.** A cell keeps the weighted mean of the observations it accepted, with weights
 ``w = 1 / (s^2 (x / x_near)^k)``: ``s`` the observation's sigma, ``x`` its distance ahead of the
@@ -535,15 +543,18 @@ class FusedMap:
         # the whole buffer's lattice, row and column coordinates broadcast (no [n_i * n_j] index arrays)
         x = (self._i0 + np.arange(n_i) + 0.5) * r  # [n_i]
         y = (self._j0 + np.arange(n_j) + 0.5) * r  # [n_j]
-        outside = np.flatnonzero((self._n > 0) & ~self._inside_corridor(x[:, None], y[None, :], base))  # [K]
-        if outside.size:
+        self._clear(np.flatnonzero((self._n > 0) & ~self._inside_corridor(x[:, None], y[None, :], base)))
+
+    def _clear(self, cells: np.ndarray) -> None:
+        """Forget the cells at flat buffer indices [K]."""
+        if cells.size:
             for row in self._sums.reshape(_WODO + 1, -1):
-                row[outside] = 0.0
-            self._n.ravel()[outside] = 0
-            self._rejected.ravel()[outside] = 0
-            self._near_seen.ravel()[outside] = False
+                row[cells] = 0.0
+            self._n.ravel()[cells] = 0
+            self._rejected.ravel()[cells] = 0
+            self._near_seen.ravel()[cells] = False
             for a in self._table[1:]:
-                a[outside] = 0.0
+                a[cells] = 0.0
 
     # --- reading -------------------------------------------------------------------------------
     def _fused_at(self, flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -655,6 +666,10 @@ class FusedMap:
         cols = (grid.y_max - v) / grid.resolution - 0.5
         z, sz = sample_bilinear(np.asarray(elevation, np.float64), np.asarray(sigma, np.float64), rows, cols)
         ok = np.isfinite(z) & np.isfinite(sz) & (sz > 0)
+        # a cell the grid looked at and declined (hidden, unmatched) holds no far-field value either
+        # (module docstring, "The far field")
+        declined = flat[~ok]
+        self._clear(declined[(self._n.ravel()[declined] > 0) & ~self._near_seen.ravel()[declined]])
         flat, u, v, z, sz = flat[ok], u[ok], v[ok], z[ok] + datum, sz[ok]
         range_factor = np.maximum(u / grid.x_min, 1.0) ** s.range_exponent if grid.x_min > 0 else np.ones_like(u)
         m, ms = self._fused_at(flat)
@@ -699,6 +714,9 @@ class FusedMap:
             far_grid: the far-field grid.
             placement, stamp_ns: the frame's, as given to :meth:`integrate`.
 
+        A map cell the grid has already seen takes no far-field observation (the module docstring,
+        "The far field").
+
         Returns:
             Cells accepted, rejected by the gate and restarted.
 
@@ -713,7 +731,9 @@ class FusedMap:
             raise FusionError(f"far-field estimate {elevation.shape} / {sigma.shape} is not on the far-field grid "
                               f"{far_grid.shape}")
         s = self.settings
-        self._ensure(self._frame_corners(far_grid, placement))
+        # the buffer holds the corridor and the far field's footprint together (moved to hold the
+        # footprint alone, it would drop the corridor behind it)
+        self._ensure(np.concatenate([self._corridor_corners(placement.base), self._frame_corners(far_grid, placement)]))
         flat, u, v = self._cells_under(far_grid, placement)
         n_rows, n_cols = far_grid.shape
         # the far-field cell holding each map cell's centre (rows from the far edge, columns from the left)
@@ -818,13 +838,19 @@ class FusedMap:
         cells at flat buffer indices [N] (distinct), whose fused mean and sigma are m, ms [N]
         (NaN: never seen); ``near``: observations of the grid (else of the far field)."""
         s = self.settings
+        near_seen = self._near_seen.ravel()
+        if not near:  # a cell the grid has seen takes no far-field observation (module docstring)
+            keep = ~near_seen[flat]
+            flat, m, ms, z, var, range_factor = flat[keep], m[keep], ms[keep], z[keep], var[keep], range_factor[keep]
         seen = np.isfinite(m)
+        # a cell the far field alone has seen starts again from the grid's observation
+        superseded = seen & ~near_seen[flat] if near else np.zeros(flat.shape, bool)
         with np.errstate(invalid="ignore"):
-            far = seen & (np.abs(z - m) > s.gate_sigma * np.sqrt(var + ms ** 2))
+            far = seen & ~superseded & (np.abs(z - m) > s.gate_sigma * np.sqrt(var + ms ** 2))
         n, sums = self._n.ravel(), self._sums.reshape(_WODO + 1, -1)  # views
         rejected_cells = self._rejected.ravel()
         rejected = rejected_cells[flat].astype(np.int32) + far
-        restart = far & (rejected >= s.reset_after)
+        restart = (far & (rejected >= s.reset_after)) | superseded
         take = ~far | restart
         # restart: the cell starts again from this observation
         tf, tz, tv = flat[take], z[take], var[take]
@@ -839,9 +865,8 @@ class FusedMap:
         if any_restart:
             n[flat[restart]] = 0
         n[tf] += 1
-        near_seen = self._near_seen.ravel()
         near_seen[tf] = near | (near_seen[tf] & ~restarted)
         self._t_last.ravel()[tf] = stamp_ns
         rejected_cells[flat] = np.where(take, 0, np.minimum(rejected, 1000)).astype(np.int16)
         self._refresh(tf, updated)
-        return int(take.sum()), int(far.sum() - restart.sum()), int(restart.sum())
+        return int(take.sum()), int((far & ~restart).sum()), int((far & restart).sum())  # superseded: no restart

@@ -446,3 +446,64 @@ def test_a_frame_is_aligned_on_cells_the_grid_saw_never_on_cells_only_the_far_fi
     fusion = fused.integrate(np.zeros(GRID.shape), np.full(GRID.shape, 0.004), GRID, placement, 2,
                              base_z_prediction=0.0)
     assert not fusion.aligned and fusion.overlap_cells == 0 and fusion.offset_m == 0.0
+
+
+def test_the_grids_observation_supersedes_the_far_fields() -> None:
+    fused = FusedMap(map_settings(FAR_CONFIG))
+    _far_frame(fused, np.full(FAR_GRID.shape, 0.05), 0.02, 1)  # a far field 5 cm off the road
+    x, y = _far_cell_centres()
+    datum = CAMERA[2] - GRID.base_height
+    # 7 m on, the grid sees a flat road where only that far field was fused: the cells take the
+    # grid's observation alone (no blend, no rejection); the next far field leaves them alone
+    base = PlanarPose(2, 7.0, 0.0, 0.0, 0.0, 0.0)
+    placement = place_frame(base, Attitude(0.0, 0.0), CAMERA, LEVEL_MOUNT)
+    fusion = fused.integrate(np.zeros(GRID.shape), np.full(GRID.shape, 0.004), GRID, placement, 2,
+                             base_z_prediction=0.0)
+    assert fusion.rejected == 0 and fusion.restarted == 0
+    fused.integrate_far(np.full(FAR_GRID.shape, -0.05), np.full(FAR_GRID.shape, 0.02), FAR_GRID, placement, 2)
+    ahead = x - CAMERA[0] - 7.0
+    seen = (ahead > GRID.x_min + 0.1) & (ahead < GRID.x_max - 0.1)
+    z, _ = fused.heights(x[seen], y[seen])
+    np.testing.assert_allclose(z, datum, atol=1e-9)
+    beyond = ahead > GRID.x_max + 0.2  # only the far field has seen these: both far frames fused
+    z, _ = fused.heights(x[beyond], y[beyond])
+    assert np.all(np.abs(z - datum) < 0.05)
+
+
+def test_with_the_far_field_the_cells_the_grid_saw_hold_what_they_hold_without_it() -> None:
+    rng = np.random.default_rng(11)
+    plain, with_far = FusedMap(map_settings(RoadbevConfig())), FusedMap(map_settings(FAR_CONFIG))
+    x, y, yaw = 0.0, 0.0, 0.0
+    for k in range(40):  # 40 frames 1.5 m apart on a bend, noisy grid and far-field estimates
+        base = PlanarPose(k + 1, x, y, yaw, 0.0, 0.0)
+        x, y, yaw = x + 1.5 * math.cos(yaw), y + 1.5 * math.sin(yaw), yaw + 0.02
+        placement = place_frame(base, Attitude(0.0, 0.0), CAMERA, LEVEL_MOUNT)
+        near = rng.normal(0.0, 0.004, GRID.shape)
+        for fused in (plain, with_far):
+            fused.integrate(near, np.full(GRID.shape, 0.004), GRID, placement, k + 1, base_z_prediction=0.0)
+        with_far.integrate_far(rng.normal(0.02, 0.02, FAR_GRID.shape), np.full(FAR_GRID.shape, 0.02), FAR_GRID,
+                               placement, k + 1)
+    r = GRID.resolution  # read at the map cells' centres: between them, a read blends neighbours
+    xs, ys = np.meshgrid((np.arange(1000, 3000) + 0.5) * r, (np.arange(-150, 1000) + 0.5) * r, indexing="ij")
+    z0, s0 = plain.heights(xs.ravel(), ys.ravel())
+    z1, s1 = with_far.heights(xs.ravel(), ys.ravel())
+    seen = np.isfinite(z0)
+    assert seen.sum() > 1000 and np.isfinite(z1).sum() > seen.sum()  # the far field reaches farther
+    np.testing.assert_allclose(z1[seen], z0[seen], atol=1e-9)
+    np.testing.assert_allclose(s1[seen], s0[seen], atol=1e-9)
+
+
+def test_a_cell_the_grid_looks_at_and_declines_holds_no_far_field_value() -> None:
+    fused = FusedMap(map_settings(FAR_CONFIG))
+    _far_frame(fused, np.full(FAR_GRID.shape, 0.05), 0.02, 1)
+    x, y = _far_cell_centres()
+    ahead = x - CAMERA[0] - 7.0
+    looked = (ahead > GRID.x_min + 0.1) & (ahead < GRID.x_max - 0.1)
+    assert np.isfinite(fused.heights(x[looked], y[looked])[0]).all()
+    # 7 m on, the grid looks at those cells and declines all of them (hidden, unmatched)
+    placement = place_frame(PlanarPose(2, 7.0, 0.0, 0.0, 0.0, 0.0), Attitude(0.0, 0.0), CAMERA, LEVEL_MOUNT)
+    fused.integrate(np.full(GRID.shape, np.nan), np.full(GRID.shape, np.nan), GRID, placement, 2,
+                    base_z_prediction=0.0)
+    assert np.isnan(fused.heights(x[looked], y[looked])[0]).all()
+    beyond = ahead > GRID.x_max + 0.2  # never looked at by the grid: the far field's value stays
+    assert np.isfinite(fused.heights(x[beyond], y[beyond])[0]).all()
