@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks.common import RESULTS, add_executor_arguments, executor_from, machine_info, write_json
+from roadbev_core.config import DEFAULT_BACKEND
 
 SEED_BASE = 320_000
 ROADS: dict[str, tuple[str, tuple[str, ...]]] = {
@@ -93,9 +94,8 @@ def run_drive(kind: str, seed: int, duration: float, speed: float) -> dict[str, 
 
 MAP_SEED_BASE = 330_000
 MAP_KINDS = {"speed_bump": "bump", "hump": "bump", "pothole": "pothole"}
-# The backend the README's fused-map hazards table was measured with: this benchmark's own
-# setting, not the node's default (roadbev_core.config.DEFAULT_BACKEND).
-MAP_BACKEND = "bev_sweep"
+# The fused map is the node's default configuration's unless --backend names another.
+MAP_BACKEND = DEFAULT_BACKEND
 
 
 def _feature_extent(feature: Any) -> tuple[float, float]:

@@ -119,7 +119,7 @@ def ride_shares(data: Mapping[str, Any]) -> str:
     """Share of the true road's gain per configuration on the rendered drives: mean ± std over the
     drives, and the worst drive."""
     cells = _cells(data["table"], rendered=True)
-    names = ["window", "map_plane_attitude"] + [c["name"] for c in data["candidates"]]
+    names = [*_perfect_rows(cells, ("window", "map_plane_attitude")), *(c["name"] for c in data["candidates"])]
     lines = _header(cells, "preview (mean ± std, worst drive)")
     for name in names:
         row = [f"`{name}`"]
@@ -141,6 +141,12 @@ def ride_shares(data: Mapping[str, Any]) -> str:
                      f"`{c['name']}` {1e3 * c['latency_s']:.0f} ms / {1e3 * c['period_s']:.0f} ms a frame"
                      for c in data["candidates"]) + ".")
     return "\n".join(lines)
+
+
+def _perfect_rows(cells: Sequence[Mapping[str, Any]], names: Sequence[str]) -> list[str]:
+    """``names`` and, where the run has them (``bench_ride --far-field``), their rows reaching the
+    far-field grid's far edge (``<name>_far``)."""
+    return [*names, *(f"{n}_far" for n in names if any(f"{n}_far" in c["rows"] for c in cells))]
 
 
 def _streams(data: Mapping[str, Any]) -> dict[str, tuple[int, int]]:
@@ -172,7 +178,7 @@ def ride_truth(data: Mapping[str, Any]) -> str:
         ("Wk passive / no preview / true road (m/s²)", lambda c: " / ".join(
             _fmt(c["rows"][r]["wk_rms_mps2"]) for r in ("passive", "no_preview", "true_road"))),
     ]
-    for name in ("window", "map_plane", "map_plane_attitude"):
+    for name in _perfect_rows(cells, ("window", "map_plane", "map_plane_attitude")):
         rows.append((f"share `{name}`", functools.partial(_share_cell, name)))
     for title, value in rows:
         lines.append(_row([title] + [value(c) for c in cells]))
@@ -196,15 +202,18 @@ def ride_budget(data: Mapping[str, Any], candidate: str | None = None) -> str:
     lines = _header(cells, f"`{name}`, the truth in one stage")
     for stage in STAGES:
         row_name = name if stage == "shipped" else f"{name}{STAGE_SEPARATOR}{stage}"
+        if not any(row_name in cell["rows"] for cell in cells):
+            continue  # a stage the run did not take (a far-field candidate's label stages)
         row = [_STAGE_TITLES[stage]]
         for cell in cells:
             r = cell["rows"].get(row_name, {})
             row.append(_fmt(r.get("share_mean")))
         lines.append(_row(row))
-    row = ["a perfect fused map (`map_plane_attitude`)"]
-    for cell in cells:
-        row.append(_fmt(cell["rows"].get("map_plane_attitude", {}).get("share_mean")))
-    lines.append(_row(row))
+    for perfect in _perfect_rows(cells, ("map_plane_attitude",)):
+        row = [f"a perfect fused map (`{perfect}`)"]
+        for cell in cells:
+            row.append(_fmt(cell["rows"].get(perfect, {}).get("share_mean")))
+        lines.append(_row(row))
     return "\n".join(lines)
 
 
@@ -771,21 +780,33 @@ def hazards(data: Mapping[str, Any]) -> str:
 
 def hazards_map(data: Mapping[str, Any]) -> str:
     """bench_hazards --map: the tracker on the fused map of rendered drives, per speed."""
-    lines = _head("speed (m/s)", "features", "reported", "reported ≥ 1 s before the front axle",
+    lines = _head("speed (m/s)", "features", "reported", "reported ≥ 1 s / ≥ 0.6 s before the front axle",
                   "window allows (s)", "lead median / min (s)", "first report ahead of the front axle, median (m)",
-                  "height error mean, within 15 %", "false alarms per km: feature roads / smooth road")
+                  "height error mean: first report / in the grid's reach / last", "last within 15 %",
+                  "false alarms per km: feature roads / smooth road")
+
+    def pct(value: float | None) -> str:
+        return "–" if value is None else f"{100 * value:.0f} %"
+
     for s in data["summary"]:
         smooth = "–" if s["false_alarms_smooth"] is None else (
             f"{s['false_alarms_smooth']} over {1e3 * s['smooth_km']:.0f} m")
         lines.append(_row([
             f"{s['speed_mps']:g}", str(s["features"]), f"{s['reported']} ({s['reported_pct']:.0f} %)",
-            f"{s['reported_1s_ahead_pct']:.0f} %", _fmt(s["window_lead_s"]),
+            f"{s['reported_1s_ahead_pct']:.0f} % / "
+            + ("–" if "reported_0.6s_ahead_pct" not in s else f"{s['reported_0.6s_ahead_pct']:.0f} %"),
+            _fmt(s["window_lead_s"]),
             f"{_fmt(s['lead_s_median'])} / {_fmt(s['lead_s_min'])}", _fmt(s["first_reported_distance_m_median"], 1),
-            f"{100 * s['height_rel_err_mean']:.0f} %, {100 * s['height_within_15pct']:.0f} %",
+            f"{pct(s.get('first_height_rel_err_mean'))} / {pct(s.get('height_at_near_rel_err_mean'))} / "
+            f"{pct(s['height_rel_err_mean'])}", pct(s["height_within_15pct"]),
             f"{s['false_alarms_per_km_feature_roads']:.0f} / {smooth}",
         ]))
     lines.append("")
-    lines.append(f"Backend `{data['backend']}`, the map on with each drive's own odometry.")
+    far = " with the far field (`far_field.enabled`)" if data.get("far_field") else ""
+    latency = data.get("latency_s") or 0.0
+    charged = (f"; every lead is charged the node's latency, {1e3 * latency:.0f} ms" if latency
+               else "; the node's latency is not charged on the leads")
+    lines.append(f"Backend `{data['backend']}`{far}, the map on with each drive's own odometry{charged}.")
     return "\n".join(lines)
 
 
@@ -1003,8 +1024,14 @@ TABLES: dict[str, Table] = {
     "ride_truth": Table(("ride.json",), ride_truth, with_provenance=False),
     "ride_budget": Table(("ride.json",), ride_budget, with_provenance=False),
     "ride_arrival": Table(("ride.json",), ride_arrival, with_provenance=False),
+    "ride_far_shares": Table(("ride_far_field.json",), ride_shares),
+    "ride_far_truth": Table(("ride_far_field.json",), ride_truth, with_provenance=False),
+    "ride_far_budget": Table(("ride_far_field.json",), functools.partial(ride_budget, candidate="ensemble_far"),
+                             with_provenance=False),
+    "ride_far_arrival": Table(("ride_far_field.json",), ride_arrival, with_provenance=False),
     "hazards": Table(("hazards.json",), hazards),
     "hazards_map": Table(("hazards_map.json",), hazards_map),
+    "hazards_map_far_field": Table(("hazards_map_far_field.json",), hazards_map),
     "labels": Table(("labels.json",), labels, ".venv/bin/python -m benchmarks.bench_labels"),
     "synth": Table(("synth.json",), synth, ".venv/bin/python -m benchmarks.bench_synth"),
     "fleet_plan": Table((*(f"sample_drive_{b}.json" for b in SAMPLE_DRIVE_BACKENDS), "labels.json"), fleet_plan,

@@ -388,6 +388,10 @@ class EvalBag:
     def stamps(self) -> list[int]:
         return [f.stamp_ns for f in self._frames]
 
+    def far_truth(self, stamp_ns: int) -> np.ndarray | None:
+        """[R, C] the far-field truth at ``stamp_ns`` on :attr:`far_grid` (None: none there)."""
+        return self._far_truths.get(int(stamp_ns))
+
     def __len__(self) -> int:
         return len(self._frames)
 

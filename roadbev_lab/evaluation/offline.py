@@ -40,6 +40,7 @@ __all__ = [
     "drive_keys",
     "eval_record",
     "evaluate_bag",
+    "far_field_params",
     "prepare_bag",
     "run_prepared",
 ]
@@ -173,7 +174,7 @@ def prepare_bag(
         raise OfflineEvalError(f"--map needs odometry: {path} has none on {bag.topics.odom}")
     map_params = {} if map_enabled is None else {"map.enabled": bool(map_enabled)}
     # the horizontal grid comes from the ground truth's GridMap info (docs/interface/bags.md)
-    config = check_config(settings.with_params({**map_params, **bag.grid.to_dict(), **_far_params(bag)}))
+    config = check_config(settings.with_params({**map_params, **bag.grid.to_dict(), **far_field_params(bag)}))
     far_refused = ""
     try:
         pipeline = Pipeline(config)
@@ -189,7 +190,7 @@ def prepare_bag(
     return PreparedBag(path, bag, config, pipeline, is_drive_bag(path), far_refused)
 
 
-def _far_params(bag: EvalBag) -> dict[str, Any]:
+def far_field_params(bag: EvalBag) -> dict[str, Any]:
     """The far-field parameters of a bag with far-field truth (its grid), else none.
 
     Raises:

@@ -4,7 +4,11 @@ The same metrics as ``roadbev eval`` (:class:`roadbev_lab.evaluation.metrics.Met
 :class:`~roadbev_lab.evaluation.metrics.SigmaAccumulator` over the recorded ``uncertainty`` layer, the keys
 of docs/interface/evaluation.md), but every estimate has travelled over DDS: the bag's input topics are replayed as raw
 bytes, the node runs as a separate process (``roadbev node``), its outputs are recorded to an
-MCAP bag, and the recorded elevation maps are matched to ``/ground_truth/elevation`` by stamp.
+MCAP bag, and the recorded elevation maps are matched to ``/ground_truth/elevation`` by stamp. With the far
+field on (``far_field.enabled`` among the parameters) and a bag with its truth
+(``/ground_truth/elevation_far``), the far-field grid is set from that truth as ``roadbev eval``
+sets it, the node's ``/roadbev/elevation_far`` is recorded and scored the same way: the
+``far_field`` key of :func:`roadbev_lab.evaluation.frames.far_field_metrics`.
 
 Two pacings:
 
@@ -42,8 +46,9 @@ from roadbev_core.pipeline import check_config
 from roadbev_lab.evaluation.arrival import TimedPreview, map_accuracy
 from roadbev_lab.evaluation.drivebag import is_drive_bag, read_drive_truth, score_previews
 from roadbev_lab.evaluation.evalbag import EvalBag, grid_fields, read_eval_bag
-from roadbev_lab.evaluation.frames import json_safe
-from roadbev_lab.evaluation.metrics import MetricAccumulator, Metrics, SigmaAccumulator
+from roadbev_lab.evaluation.frames import far_field_metrics, json_safe
+from roadbev_lab.evaluation.metrics import BandAccumulator, MetricAccumulator, Metrics, SigmaAccumulator
+from roadbev_lab.evaluation.offline import far_field_params
 from roadbev_ros.dds import child_env, init_ros
 from roadbev_ros.diagnostics import DROP_KINDS
 from roadbev_ros.record import Recorder
@@ -170,13 +175,14 @@ def _whole_frames(path: Path, eval_bag: EvalBag) -> set[int]:
     return stamps
 
 
-def _estimates(recorded: Path, grid: GridSpec) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    """Stamp -> (elevation, 1-sigma) [R, C] of every recorded map; the sigma is NaN where the map
-    has no ``uncertainty`` layer."""
+def _estimates(recorded: Path, grid: GridSpec, topic: str = ELEVATION_TOPIC
+               ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Stamp -> (elevation, 1-sigma) [R, C] of every recorded map on ``topic``; the sigma is NaN
+    where the map has no ``uncertainty`` layer."""
     out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     if not recorded.exists():
         return out
-    for item in bag.read_messages(recorded, [ELEVATION_TOPIC], on_damage="skip"):
+    for item in bag.read_messages(recorded, [topic], on_damage="skip"):
         decoded = grid_map_to_arrays(item.msg, base=grid)
         elevation = np.asarray(decoded.layers["elevation"], dtype=np.float32)
         sigma = decoded.layers.get("uncertainty")
@@ -184,6 +190,24 @@ def _estimates(recorded: Path, grid: GridSpec) -> dict[int, tuple[np.ndarray, np
             elevation, np.full_like(elevation, np.nan) if sigma is None else np.asarray(sigma, dtype=np.float32)
         )
     return out
+
+
+def _far_scores(recorded: Path, topic: str, far_grid: GridSpec, eval_bag: EvalBag, frames: Sequence[int]
+                ) -> dict[str, Any]:
+    """The ``far_field`` key over the recorded far-field maps of ``frames`` (a frame with truth and
+    no map counts as all unanswered), as ``roadbev eval`` scores it."""
+    estimates = _estimates(recorded, far_grid, topic)
+    scored, sigma, bands = MetricAccumulator(far_grid), SigmaAccumulator(), BandAccumulator(far_grid)
+    empty = np.full(far_grid.shape, np.nan, np.float32)
+    for stamp in frames:
+        truth = eval_bag.far_truth(stamp)
+        if truth is None:
+            continue
+        elevation, uncertainty = estimates.get(stamp, (empty, empty))
+        scored.add(elevation, truth)
+        sigma.add(elevation, uncertainty, truth)
+        bands.add(elevation, uncertainty, truth)
+    return far_field_metrics(far_grid, scored, sigma, bands)
 
 
 def stop_process(proc: subprocess.Popen[bytes], timeout: float = 10.0) -> None:
@@ -250,6 +274,11 @@ def evaluate_online(
         recorded.unlink()
     extra = {k: v for k, v in all_params.items() if k not in grid.to_dict()}
     extra.update(node_params or {})
+    far_grid = None
+    if eval_bag.far_grid is not None and str(extra.get("far_field.enabled", "")).lower() == "true":
+        extra.update(far_field_params(eval_bag))  # the far grid of the bag's truth, as roadbev eval sets it
+        far_grid = eval_bag.far_grid
+    far_topic = settings.far_field.topic
     if eval_bag.compressed:
         extra["image_transport"] = "compressed"
     if rate is None:
@@ -276,7 +305,8 @@ def evaluate_online(
     spinner = threading.Thread(target=spin, daemon=True)
     spinner.start()
     watcher = _Watcher()
-    recorder = Recorder(io_node, recorded, OUTPUT_TOPICS, listener=watcher)
+    recorder = Recorder(io_node, recorded, (*OUTPUT_TOPICS, far_topic) if far_grid else OUTPUT_TOPICS,
+                        listener=watcher)
     with log_path.open("wb") as log:
         proc = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=child_env())
     try:
@@ -344,6 +374,8 @@ def evaluate_online(
             calibration.add(elevation, sigma, truths[stamp])
     accuracy = acc.result()
     metrics: dict[str, Any] = {"backend": backend, **accuracy.to_dict(), **calibration.result()}
+    if far_grid is not None:
+        metrics["far_field"] = _far_scores(recorded, far_topic, far_grid, eval_bag, frames)
     if not truths:
         metrics.update(frames=len(frames), coverage_pct=math.nan)
     answered = len(frames) - missing

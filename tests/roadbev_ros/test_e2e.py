@@ -17,9 +17,10 @@ import pytest
 from msg_bridge import bag
 from msg_bridge.tf import TransformTree, transforms_from_tf
 from roadbev_core.backends import create
-from roadbev_core.config import DEFAULT_BACKEND, StereoCamera
+from roadbev_core.config import DEFAULT_BACKEND, FarFieldConfig, GridSpec, RoadbevConfig, StereoCamera
 from roadbev_lab.evaluation.evalbag import read_eval_bag, write_eval_bag
 from roadbev_lab.evaluation.frames import evaluate
+from roadbev_lab.evaluation.offline import prepare_bag, run_prepared
 from roadbev_lab.evaluation.online import evaluate_online, format_online
 from roadbev_lab.synth import DriveConfig, SyntheticDrive
 from roadbev_ros.dds import child_env
@@ -228,3 +229,19 @@ def test_a_drive_replayed_into_the_node_gives_the_fused_map_and_previews_of_eval
         for key, value in offline[section].items():
             if isinstance(value, float):
                 assert online[section][key] == pytest.approx(value, rel=1e-5, abs=1e-6), (section, key)
+
+
+def test_the_far_field_online_matches_offline(ros: object, tmp_path: Path) -> None:
+    path = tmp_path / "far.mcap"
+    camera = StereoCamera.rsrd_half().scaled(0.5)
+    far_grid = FarFieldConfig().grid(GridSpec())
+    write_eval_bag(path, SyntheticDrive(DriveConfig(frames=3, camera=camera, seed=5, far_grid=far_grid)))
+    offline = run_prepared(prepare_bag(path, RoadbevConfig.from_params({"backend": "bm"}))).metrics["far_field"]
+    result = evaluate_online(path, tmp_path / "online", backend="bm", node_params={"far_field.enabled": True})
+    online = result.metrics["far_field"]
+    assert offline["estimated"] and offline["cells"] > 0 and offline["frames_with_truth"] == 3
+    for key in ("frames_with_truth", "labelled_cells", "cells", "abs_err_cm", "coverage_pct", "sigma_cells",
+                "within_2sigma_pct", "confident_wrong_pct"):
+        assert online[key] == pytest.approx(offline[key], rel=1e-6, abs=1e-9), key
+    assert [b["cells"] for b in online["bands"]] == [b["cells"] for b in offline["bands"]]
+    assert bag.bag_topics(result.recorded)["/roadbev/elevation_far"].count == 3
