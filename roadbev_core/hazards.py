@@ -21,8 +21,10 @@ y; NaN = unknown):
    frame), extent along x and y (a longer component is split by thresholding it again at twice
    the level, until its parts are short enough), height or depth (signed; the 75th percentile of |residual| over
    the cells above half the peak: the crest or floor without the single roughest cell), its
-   1-sigma (the map's sigma at the peak with
-   the residual's noise floor: the median absolute residual of the level cells, x 1.4826), and a
+   1-sigma (the map's sigma on the road around it, the median over a ring of ``ring_m`` outside
+   the hazard, with the residual's noise floor: the median absolute residual of the level cells,
+   x 1.4826; the sigma on the hazard itself is no measure of whether it is there: a calibrated
+   sigma grows with the estimate's own relief, so it is largest exactly on a real bump), and a
    confidence ``clip((|h| / sigma - 2) / 4, 0, 1)`` (0 at a 2-sigma peak, 1 from 6 sigma up: a
    documented heuristic, not a probability).
 
@@ -65,6 +67,7 @@ class HazardSettings:
         max_length_m: longest extent along x of a discrete hazard.
         min_significance: least height of a hazard in units of its 1-sigma (its confidence is 0
             there).
+        ring_m: width of the ring of road around a hazard whose sigma is the hazard's.
     """
 
     min_height_m: float = 0.025
@@ -75,10 +78,11 @@ class HazardSettings:
     passes: int = 3
     max_length_m: float = 6.0
     min_significance: float = 2.0
+    ring_m: float = 0.3
 
     def __post_init__(self) -> None:
         ok = (0.001 <= self.min_height_m <= 1.0 and 0.0 <= self.min_area_m2 <= 100.0
-              and 0.0 <= self.min_significance <= 10.0
+              and 0.0 <= self.min_significance <= 10.0 and 0.0 < self.ring_m <= 5.0
               and 0.05 <= self.seed_fraction <= 1.0 and 0.01 <= self.block_m <= 1.0 and 1 <= self.passes <= 10
               and all(math.isfinite(w) and w >= 2 * self.block_m for w in self.level_window_m))
         if not ok:
@@ -263,12 +267,27 @@ def _components(v: np.ndarray, region: np.ndarray, threshold: float, kind: str, 
         weights = np.where(sub, vals, 0.0)
         cx = float((weights.sum(axis=1) @ xs[top: top + h]) / weights.sum())
         cy = float((weights.sum(axis=0) @ ys[left: left + w]) / weights.sum())
-        height_sigma = math.hypot(float(sig[top + peak_idx[0], left + peak_idx[1]]), noise)
+        height_sigma = math.hypot(_ring_sigma(sub, sig, top, left, max(1, round(s.ring_m / resolution))), noise)
         z = height / max(height_sigma, 1e-4)
         if z < s.min_significance:
             continue
         out.append(Hazard(kind, cx, cy, h * resolution, w * resolution, sign * height, height_sigma,
                           float(np.clip((z - 2.0) / 4.0, 0.0, 1.0)), area))
+
+
+def _ring_sigma(component: np.ndarray, sig: np.ndarray, top: int, left: int, reach: int) -> float:
+    """The median sigma (> 0) of the cells within ``reach`` cells around a component (``component``
+    [h, w] bool, its box at (top, left) of ``sig`` [R, C]), outside it; 0 where none is known."""
+    r0, c0 = max(top - reach, 0), max(left - reach, 0)
+    r1 = min(top + component.shape[0] + reach, sig.shape[0])
+    c1 = min(left + component.shape[1] + reach, sig.shape[1])
+    inside = np.zeros((r1 - r0, c1 - c0), np.uint8)
+    inside[top - r0: top - r0 + component.shape[0], left - c0: left - c0 + component.shape[1]] = component
+    kernel = np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)
+    ring = (cv2.dilate(inside, kernel) > 0) & (inside == 0)
+    values = sig[r0:r1, c0:c1][ring]
+    values = values[values > 0]
+    return float(np.median(values)) if values.size else 0.0
 
 
 def severity_cost(residual: np.ndarray, full_cost_height_m: float = 0.10) -> np.ndarray:

@@ -54,6 +54,12 @@ def test_a_bump_the_map_is_unsure_of_is_no_hazard() -> None:
     assert [h.kind for h in detect_hazards(e, sure, RES, (0.0, 0.0))] == ["bump"]
     assert detect_hazards(e, unsure, RES, (0.0, 0.0)) == []
     assert detect_hazards(e, unsure, RES, (0.0, 0.0), HazardSettings(min_significance=1.0))[0].confidence == 0.0
+    # a calibrated sigma grows with the estimate's relief, so it is large on the bump itself: the
+    # road around it says whether the bump is there
+    on_bump = sure.copy()
+    on_bump[r0 - 15: r0 + 15, :] = 0.03
+    (bump,) = detect_hazards(e, on_bump, RES, (0.0, 0.0))
+    assert bump.height_sigma_m == pytest.approx(0.005, abs=0.001) and bump.confidence > 0.8
     with pytest.raises(HazardError):
         HazardSettings(min_significance=-1.0)
 
