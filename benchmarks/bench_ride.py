@@ -70,6 +70,10 @@ from roadbev_core.config import FarFieldConfig, GridSpec
 
 SEED_BASE = 310_000  # disjoint from training, test, tuning (200000+) and the map's tuning drives (300001+)
 CAMERA_RATE_HZ = 10.0  # drives are rendered at 10 Hz; slower cameras take every k-th frame
+TAIL_S = 1.5  # the drive goes on this long after its last frame (the wheels reach what it saw)
+# The longest drive one road strip holds (roadbev_lab.synth.riding: 700 m of rasters, less the
+# look-ahead), with room for the drive's speed to wander above its nominal value.
+STRIP_DRIVE_M = 560.0
 ROAD_KINDS = ("bumps", "potholes", "rough")
 # (drive, rendered frames, frame step of the camera rate, ride settings) -> the row's messages
 PreviewMaker = Callable[[Any, Sequence[Any], int, Any], list[Any]]
@@ -169,9 +173,9 @@ def run_cell(kind: str, speed: float, seed: int, duration: float, rates: Sequenc
     from roadbev_lab.synth import DriveConfig, RidingConfig, RidingDrive
 
     rng = np.random.default_rng(seed)
-    frames = max(2, int(round(duration * CAMERA_RATE_HZ)))
+    frames = max(2, int(round(drive_duration(duration, speed) * CAMERA_RATE_HZ)))
     drive = RidingDrive(RidingConfig(drive=DriveConfig(frames=frames, speed_mps=speed, frame_rate_hz=CAMERA_RATE_HZ,
-                                                       seed=seed, road=road_config(kind, rng)), tail_s=1.5))
+                                                       seed=seed, road=road_config(kind, rng)), tail_s=TAIL_S))
     gt = drive.ground_truth_poses()
     truth = Trajectory(gt.stamp_ns, gt.position, gt.orientation_xyzw)
     road_map = drive.road_map()
@@ -229,6 +233,13 @@ def run_cell(kind: str, speed: float, seed: int, duration: float, rates: Sequenc
               f"no preview {wk['no_preview']:.3f}, true {wk['true_road']:.3f} m/s^2; share "
               + ", ".join(f"{k} {v:.2f}" for k, v in share.items() if k != "true_road"), file=sys.stderr, flush=True)
     return out
+
+
+def drive_duration(duration: float, speed: float) -> float:
+    """Seconds of camera frames of a drive asked ``duration`` s at ``speed`` m/s: at most what one
+    road strip holds (:data:`STRIP_DRIVE_M`; 30 m/s: 17.1 s), whole frames."""
+    fits = math.floor((STRIP_DRIVE_M / max(speed, 1e-3) - TAIL_S) * CAMERA_RATE_HZ) / CAMERA_RATE_HZ
+    return min(duration, fits)
 
 
 def preview_stream(previews: Sequence[Any]) -> dict[str, int]:
@@ -400,7 +411,8 @@ def truth_cells_from(path: Path, wanted: Sequence[tuple[str, float, int]], durat
         cell = cells.get(key)
         if cell is None:
             raise BenchError(f"--truth-from {path}: no truth-only drive {key[0]} {key[1]:g} m/s seed {key[2]}")
-        if not math.isclose(cell["duration_s"], round(duration * CAMERA_RATE_HZ) / CAMERA_RATE_HZ) or \
+        wanted_s = round(drive_duration(duration, key[1]) * CAMERA_RATE_HZ) / CAMERA_RATE_HZ
+        if not math.isclose(cell["duration_s"], wanted_s) or \
                 sorted(float(r) for r in cell["rates"]) != sorted(float(r) for r in rates):
             raise BenchError(f"--truth-from {path}: drive {key[0]} {key[1]:g} m/s seed {key[2]} was ridden "
                              f"{cell['duration_s']} s at {sorted(cell['rates'])} Hz")
@@ -416,14 +428,16 @@ PREVIEW_MAKERS: dict[str, Callable[[str], PreviewMaker]] = {}  # extra preview r
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--duration", type=float, default=20.0, help="seconds of camera frames per truth-only drive")
+    parser.add_argument("--duration", type=float, default=20.0,
+                        help="seconds of camera frames per truth-only drive (at most what one road strip holds at "
+                             "the drive's speed: 17.1 s at 30 m/s)")
     parser.add_argument("--seeds", type=int, default=3, help="truth-only drives per road kind and speed")
     parser.add_argument("--speeds", type=float, nargs="+", default=[5.0, 10.0, 20.0])
     parser.add_argument("--rates", type=float, nargs="+", default=[5.0, 10.0])
     parser.add_argument("--roads", nargs="+", default=list(ROAD_KINDS), choices=ROAD_KINDS)
     parser.add_argument("--render-seeds", type=int, default=1, help="rendered drives per road kind and speed")
     parser.add_argument("--render-duration", type=float, default=6.0,
-                        help="seconds of camera frames per rendered drive")
+                        help="seconds of camera frames per rendered drive (capped as --duration)")
     add_candidate_arguments(parser, CACHE / "ride_frames", "configurations of the node to ride with (node "
                             "parameters after the colon; each needs a row in --node-results); none: truth rows only")
     parser.add_argument("--seed-base", type=int, default=SEED_BASE,

@@ -88,3 +88,12 @@ def test_the_far_field_rows_reach_the_far_edge_and_see_more_at_speed() -> None:
     plain = run_cell("bumps", 20.0, 7, 2.0, (10.0,), 0.1, {})
     assert "window_far" not in plain["rates"]["10"]["rows"]
     assert plain["rates"]["10"]["share"]["window"] == pytest.approx(data["share"]["window"])
+
+
+def test_a_drive_is_at_most_what_one_road_strip_holds() -> None:
+    from benchmarks.bench_ride import drive_duration, run_cell
+
+    assert drive_duration(20.0, 20.0) == 20.0 and drive_duration(6.0, 30.0) == 6.0
+    assert drive_duration(20.0, 30.0) == pytest.approx(17.1)
+    cell = run_cell("rough", 40.0, 8, 20.0, (10.0,), 0.1, {})  # 20 s at 40 m/s would leave the strip
+    assert cell["duration_s"] == pytest.approx(drive_duration(20.0, 40.0))
