@@ -311,7 +311,9 @@ def evaluate_online(
         proc = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=child_env())
     try:
         deadline = time.monotonic() + startup_timeout_s
-        while ELEVATION_TOPIC not in recorder.subscribed:
+        # every scored output subscribed before the first frame goes out (discovery is per topic)
+        scored = {ELEVATION_TOPIC, far_topic} if far_grid is not None else {ELEVATION_TOPIC}
+        while not scored <= set(recorder.subscribed):
             if proc.poll() is not None:
                 raise OnlineEvalError(f"the node exited (code {proc.returncode}): {_tail(log_path)}")
             if time.monotonic() > deadline:
