@@ -275,7 +275,8 @@ def evaluate_online(
     extra = {k: v for k, v in all_params.items() if k not in grid.to_dict()}
     extra.update(node_params or {})
     far_grid = None
-    if eval_bag.far_grid is not None and str(extra.get("far_field.enabled", "")).lower() == "true":
+    # the node's far field as its config reads it (the params file, params and node_params together)
+    if eval_bag.far_grid is not None and settings.with_params(dict(node_params or {})).far_field.enabled:
         extra.update(far_field_params(eval_bag))  # the far grid of the bag's truth, as roadbev eval sets it
         far_grid = eval_bag.far_grid
     far_topic = settings.far_field.topic
