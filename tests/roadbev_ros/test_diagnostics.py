@@ -99,17 +99,22 @@ def test_health_levels_and_values() -> None:
     assert snap.level == OK and snap.values["problem.imu stale"] == "1"
 
 
-def test_an_input_flood_warns_while_most_sets_are_dropped_unprocessed() -> None:
-    clock = FakeClock()
-    health = Health(backend="bm", clock=clock, window_s=2.0)
-    for k in range(100):  # 50 Hz of image sets for 2 s; the backend answers one in ten
+def _camera(health: Health, clock: FakeClock, sets: int, period_s: float, answered_every: int) -> None:
+    """``sets`` image sets ``period_s`` apart, one in ``answered_every`` answered, the rest dropped busy."""
+    for k in range(sets):
         health.frame_in()
         health.set_in()
-        if k % 10 == 0:
+        if k % answered_every == 0:
             health.output(50.0, 60.0, 40.0, 2.0, 1.0)
         else:
             health.drop("busy")
-        clock.t += 0.02
+        clock.t += period_s
+
+
+def test_an_input_flood_warns_while_most_sets_are_dropped_unprocessed() -> None:
+    clock = FakeClock()
+    health = Health(backend="bm", clock=clock, window_s=2.0)
+    _camera(health, clock, 100, 0.02, 10)  # 50 Hz of image sets for 2 s; the backend answers one in ten
     snap = health.snapshot()
     assert snap.level == WARN
     assert snap.message.startswith("90 of 100 image sets in the last 2 s dropped while the backend was busy")
@@ -124,14 +129,7 @@ def test_an_input_flood_warns_while_most_sets_are_dropped_unprocessed() -> None:
 def test_a_camera_the_backend_keeps_up_with_does_not_warn() -> None:
     clock = FakeClock()
     health = Health(backend="bm", clock=clock, window_s=2.0)
-    for k in range(20):  # 10 Hz, every second set replaced: half answered is not a flood
-        health.frame_in()
-        health.set_in()
-        if k % 2 == 0:
-            health.output(50.0, 60.0, 40.0, 2.0, 1.0)
-        else:
-            health.drop("busy")
-        clock.t += 0.1
+    _camera(health, clock, 20, 0.1, 2)  # 10 Hz, every second set replaced: half answered is not a flood
     assert health.snapshot().level == OK
 
 

@@ -76,18 +76,26 @@ def test_not_an_mcap_file(tmp_path: Path) -> None:
         scan_file(path)
 
 
-def test_messages_outside_chunks_are_found_and_read(tmp_path: Path) -> None:
-    path = tmp_path / "loose.mcap"
+def _loose_bag(path: Path, topics: tuple[str, ...], *, statistics: bool = True, data_crcs: bool = False) -> list[int]:
+    """A bag without chunks: five strings ``m0``..``m4`` at log times 0..4, on ``topics`` in turn;
+    the channel ids of ``topics``."""
     factory = bag_factory()
     text, _digest = typestore().generate_msgdef("std_msgs/msg/String", ros_version=2)
     with path.open("wb") as stream:
-        writer = Writer(stream, use_chunking=False, use_statistics=False)
+        writer = Writer(stream, use_chunking=False, use_statistics=statistics, enable_data_crcs=data_crcs)
         writer.start(profile="ros2", library="test")
         schema = writer.register_schema("std_msgs/msg/String", "ros2msg", text.encode())
-        channels = [writer.register_channel(topic, "cdr", schema) for topic in ("/a", "/b")]
+        channels = [writer.register_channel(topic, "cdr", schema) for topic in topics]
         for k in range(5):
-            writer.add_message(channels[k % 2], k, serialize(factory.new("std_msgs/msg/String", data=f"m{k}")), k)
+            message = serialize(factory.new("std_msgs/msg/String", data=f"m{k}"))
+            writer.add_message(channels[k % len(topics)], k, message, k)
         writer.finish()
+    return channels
+
+
+def test_messages_outside_chunks_are_found_and_read(tmp_path: Path) -> None:
+    path = tmp_path / "loose.mcap"
+    channels = _loose_bag(path, ("/a", "/b"), statistics=False)
     scan = scan_file(path)
     assert not scan.chunks and scan.statistics is None
     assert [loose_message_channel(scan, offset) for _t, offset, _n in scan.loose] == [channels[k % 2] for k in range(5)]
@@ -175,16 +183,7 @@ def test_a_damaged_message_index_is_reported_and_never_trusted(tmp_path: Path, a
 
 def test_messages_outside_chunks_are_dropped_when_the_data_crc_fails(tmp_path: Path) -> None:
     path = tmp_path / "loose.mcap"
-    factory = bag_factory()
-    text, _digest = typestore().generate_msgdef("std_msgs/msg/String", ros_version=2)
-    with path.open("wb") as stream:
-        writer = Writer(stream, use_chunking=False, enable_data_crcs=True)
-        writer.start(profile="ros2", library="test")
-        channel = writer.register_channel("/a", "cdr", writer.register_schema("std_msgs/msg/String", "ros2msg",
-                                                                              text.encode()))
-        for k in range(5):
-            writer.add_message(channel, k, serialize(factory.new("std_msgs/msg/String", data=f"m{k}")), k)
-        writer.finish()
+    _loose_bag(path, ("/a",), data_crcs=True)
     assert [m.msg.data for m in read_messages(path)] == [f"m{k}" for k in range(5)]
     data = path.read_bytes()
     flip(path, data.index(b"m2"), ord("m") ^ ord("M"))  # nothing but the data section's CRC covers it
