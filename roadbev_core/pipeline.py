@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 
 from roadbev_core.attitude import ImuSample, ImuStale, imu_buffer
-from roadbev_core.backends import Backend, BackendError, create
+from roadbev_core.backends import Backend, BackendError, SubmitsEstimates, create, start_estimate
 from roadbev_core.config import GridSpec, ParamError, RoadbevConfig, StereoCamera, check_image_size
 from roadbev_core.ego_motion import EgoMotion, EgoMotionStale, PlanarPose
 from roadbev_core.errors import RoadbevError
@@ -205,7 +205,10 @@ def build_far_backend(config: RoadbevConfig, backend: Backend, factory: BackendF
         raise FarFieldUnsupported(
             f"backend {backend.name!r} does not estimate the far field (far_field.enabled): bm, sgbm and their "
             "ensemble do")
-    return build_backend(config, factory, grid=far_grid)
+    far = build_backend(config, factory, grid=far_grid)
+    if isinstance(far, SubmitsEstimates) and type(far) is type(backend):
+        far.share_workers(backend)  # near and far matchers queue on one pool (Pipeline._run)
+    return far
 
 
 def _no_estimate(grid: GridSpec) -> Estimate:
@@ -494,15 +497,19 @@ class Pipeline:
             raise ImplausibleFrame(why)
         flush_denormals()
         t0 = time.perf_counter()
-        estimate = backend.estimate(frame)
+        # The far field's estimate starts with the grid's: on a backend that shares its workers
+        # (an ensemble) its matchers take whichever worker the grid's members free first.
+        finish = start_estimate(backend, frame)
+        finish_far = start_estimate(far_backend, frame) if far_backend is not None else None
+        estimate = finish()
         t1 = time.perf_counter()
         estimate.check_grid(config.grid)
         timings = {"estimate": 1e3 * (t1 - t0)}
         far = None
-        if far_backend is not None:
-            far = self._far_estimate(frame, config, far_backend)
+        if finish_far is not None:
+            far = self._far_estimate(finish_far, config)
             t2 = time.perf_counter()
-            timings["estimate_far"] = 1e3 * (t2 - t1)
+            timings["estimate_far"] = 1e3 * (t2 - t1)  # what the far field adds to the frame's time
             t1 = t2
         mapped = self._map_stage(frame, estimate, config, far)
         if mapped is not None:
@@ -514,12 +521,13 @@ class Pipeline:
         return PipelineOutput(frame, estimate, preview, timings, far=far)
 
     @staticmethod
-    def _far_estimate(frame: Frame, config: RoadbevConfig, far_backend: Backend) -> Estimate:
-        """The far-field backend's estimate of ``frame`` (all NaN where the far-field grid is out
-        of view at the frame's attitude: a steep pitch sees the road only to 9 m)."""
+    def _far_estimate(finish: Callable[[], Estimate], config: RoadbevConfig) -> Estimate:
+        """The far-field backend's estimate (``finish``: :func:`start_estimate`'s call), all NaN
+        where the far-field grid is out of view at the frame's attitude (a steep pitch sees the
+        road only to 9 m)."""
         far_grid = config.far_field.grid(config.grid)
         try:
-            estimate = far_backend.estimate(frame)
+            estimate = finish()
         except FrameError:  # the far-field grid is not in the image (the frame itself was fine)
             return _no_estimate(far_grid)
         estimate.check_grid(far_grid)

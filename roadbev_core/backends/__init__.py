@@ -16,12 +16,16 @@ gives the backend's own answer (used to calibrate).
 A backend that can also answer the far-field grid (:class:`roadbev_core.config.FarFieldConfig`:
 coarser cells beyond the grid, on the same frame) says so with a true ``far_field`` attribute;
 :func:`roadbev_core.pipeline.build_far_backend` then builds a second one on that grid. Those
-that do not (the default) are refused when the far field is asked for.
+that do not (the default) are refused when the far field is asked for. A backend that can start
+an estimate and finish it later on workers it shares with another of its kind
+(:class:`SubmitsEstimates`: the ``ensemble``) lets the pipeline run the grid's and the far
+field's estimates of a frame together.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import Any, Protocol, runtime_checkable
 
 from roadbev_core.backend_plugins import BackendError, available, find, takes_checkpoint
@@ -29,7 +33,8 @@ from roadbev_core.config import GridSpec
 from roadbev_core.frame import Estimate, Frame
 from roadbev_core.uncertainty import calibration_for, refine
 
-__all__ = ["Backend", "BackendError", "RefinedBackend", "available", "create", "takes_checkpoint"]
+__all__ = ["Backend", "BackendError", "RefinedBackend", "SubmitsEstimates", "available", "create", "start_estimate",
+           "takes_checkpoint"]
 
 
 @runtime_checkable
@@ -43,6 +48,28 @@ class Backend(Protocol):
     def estimate(self, frame: Frame) -> Estimate:
         """Elevation and uncertainty of ``self.grid`` for one frame."""
         ...
+
+
+@runtime_checkable
+class SubmitsEstimates(Protocol):
+    """A backend whose estimate can be started now and finished later, on workers it can share
+    with another backend of its kind (so that the two frames' worth of work queue on one pool)."""
+
+    def submit(self, frame: Frame) -> Callable[[], Estimate]:
+        """Start the estimate of ``frame``; the returned call waits for it (raising what it raised)."""
+        ...
+
+    def share_workers(self, other: Any) -> None:
+        """Run on ``other``'s workers from now on."""
+        ...
+
+
+def start_estimate(backend: Backend, frame: Frame) -> Callable[[], Estimate]:
+    """``backend``'s estimate of ``frame`` started now where it can be (:class:`SubmitsEstimates`),
+    else made when the returned call asks for it."""
+    if isinstance(backend, SubmitsEstimates):
+        return backend.submit(frame)
+    return lambda: backend.estimate(frame)
 
 
 class RefinedBackend:

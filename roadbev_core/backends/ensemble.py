@@ -14,6 +14,11 @@ per cell the ensemble takes
   disagree, the cell is less certain than either says;
 * NaN where no member answered.
 
+With the far field on, the pipeline gives the far-field ensemble the near one's workers
+(:meth:`EnsembleBackend.share_workers`) and submits both on the frame (:meth:`EnsembleBackend.submit`),
+near members first: the far-field matchers (a few ms each) run on whichever worker is free first
+while the slowest near member is still matching, so the far field adds little to a frame's latency.
+
 Options:
     members: the member backends joined by ``+`` (or commas), default ``bm+sgbm`` (the configuration
         whose preview the ride benchmark found worth the most), each with its default options.
@@ -23,7 +28,8 @@ from __future__ import annotations
 
 import atexit
 import time
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -73,10 +79,25 @@ class EnsembleBackend:
         self._pool = ThreadPoolExecutor(max_workers=len(members), thread_name_prefix="roadbev-ensemble")
         atexit.register(self._pool.shutdown, wait=False)
 
-    def estimate(self, frame: Frame) -> Estimate:
-        """Every member's estimate of ``frame``, combined."""
+    def share_workers(self, other: EnsembleBackend) -> None:
+        """Run the members on ``other``'s workers from now on (its members and these queue on one
+        pool, in the order they are submitted); this ensemble's own workers end."""
+        if other._pool is not self._pool:
+            self._pool.shutdown(wait=True)
+            self._pool = other._pool
+
+    def submit(self, frame: Frame) -> Callable[[], Estimate]:
+        """Start every member on ``frame``; the returned call waits for them and combines
+        (raising what a member raised)."""
         start = time.perf_counter()
         futures = [self._pool.submit(m.estimate, frame) for m in self.members]
+        return lambda: self._combined(futures, start)
+
+    def estimate(self, frame: Frame) -> Estimate:
+        """Every member's estimate of ``frame``, combined."""
+        return self.submit(frame)()
+
+    def _combined(self, futures: list[Future[Estimate]], start: float) -> Estimate:
         estimates = [f.result() for f in futures]
         answered = time.perf_counter()
         elevation, sigma = combine(estimates)

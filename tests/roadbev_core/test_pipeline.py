@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from roadbev_core.backends.ensemble import EnsembleBackend
 from roadbev_core.config import GridSpec, ParamError, RoadbevConfig, StereoCamera
 from roadbev_core.ego_motion import PlanarPose
 from roadbev_core.errors import RoadbevError
@@ -253,6 +254,23 @@ def test_the_far_field_is_estimated_beside_the_grid_and_leaves_its_estimate_alon
     assert on.preview is not None and off.preview is not None
     for with_far, without in zip(on.preview.tracks, off.preview.tracks, strict=True):
         np.testing.assert_array_equal(with_far.elevation, without.elevation)
+
+
+def test_an_ensemble_estimates_the_far_field_on_the_grids_workers_with_the_same_answer() -> None:
+    config = RoadbevConfig.from_params({"require_imu": False, "far_field.enabled": True})
+    pipeline = Pipeline(config, configure_process=False)
+    near, far = pipeline.backend, pipeline.far_backend
+    assert isinstance(near, EnsembleBackend) and isinstance(far, EnsembleBackend)
+    assert far._pool is near._pool  # one pool: the far matchers take the worker the grid's free first
+    from roadbev_lab.synth import make_sample
+
+    frame = make_sample(31, camera=StereoCamera.rsrd_half().scaled(0.5), far_grid=config.far_grid).frame
+    out = pipeline.process_frame(frame)
+    alone = far.estimate(frame)
+    assert out.far is not None and np.isfinite(alone.elevation).any()
+    np.testing.assert_array_equal(out.far.elevation, alone.elevation)
+    np.testing.assert_array_equal(out.far.uncertainty, alone.uncertainty)
+    np.testing.assert_array_equal(out.estimate.elevation, near.estimate(frame).elevation)
 
 
 def test_a_far_field_out_of_view_is_empty_not_an_error() -> None:

@@ -79,3 +79,38 @@ def test_the_registry_builds_refined_members_and_refuses_bad_ones() -> None:
     for members in ("bm", "bm,bm", "bm,ensemble", "bm,magic"):
         with pytest.raises(BackendError):
             create("ensemble", GRID, members=members)
+
+
+class _Recording:
+    """A member that notes the order the shared workers start it in."""
+
+    needs_stereo = True
+
+    def __init__(self, name: str, value: float, started: list[str], fail: Exception | None = None) -> None:
+        self.name, self.grid, self.value, self.started, self.fail = name, GRID, value, started, fail
+
+    def estimate(self, frame: Any) -> Estimate:
+        self.started.append(self.name)
+        if self.fail is not None:
+            raise self.fail
+        return _estimate(self.value, 0.003)
+
+
+def test_an_ensemble_sharing_workers_queues_behind_the_one_submitted_first() -> None:
+    started: list[str] = []
+    near = EnsembleBackend(GRID, [_Recording("near_a", 0.0, started), _Recording("near_b", 0.02, started)])
+    far = EnsembleBackend(GRID, [_Recording("far_a", 0.01, started), _Recording("far_b", 0.03, started)])
+    far.share_workers(near)
+    finish_near, finish_far = near.submit(None), far.submit(None)  # type: ignore[arg-type]
+    assert float(finish_near().elevation[0, 0]) == pytest.approx(0.01)
+    assert float(finish_far().elevation[0, 0]) == pytest.approx(0.02)
+    assert set(started[:2]) == {"near_a", "near_b"}  # two workers: the near members start first
+    assert far.estimate(None).elevation[0, 0] == pytest.approx(0.02)  # type: ignore[arg-type]
+
+
+def test_a_submitted_estimate_raises_what_its_member_raised_when_it_is_finished() -> None:
+    started: list[str] = []
+    broken = EnsembleBackend(GRID, [_Recording("a", 0.0, started), _Recording("b", 0.0, started, ValueError("no"))])
+    finish = broken.submit(None)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="no"):
+        finish()
