@@ -16,7 +16,10 @@ the true state and one preview source (rows):
   contact-plane fields in ``RoadPreview`` are for);
 * with ``--far-field``: ``window_far``, ``map_plane_far`` and ``map_plane_attitude_far``, the
   same perfect previews reaching the far-field grid's far edge (``far_field.x_max_m``, 15 m) instead of the grid's: the
-  ceiling of a configuration with ``far_field.enabled``;
+  ceiling of a configuration with ``far_field.enabled``; and ``window_visible``, ``window_far_visible``: the perfect
+  windows without the road the camera cannot see from where it is (behind a crest or a pothole's rim), bridged as the
+  node's preview bridges gaps (:func:`roadbev_lab.ride.perfect_previews` with ``visible_only``): the ceiling of any
+  camera at that mount;
 * per **candidate** (``--candidates NAME=BACKEND[:PARAM=VALUE,...]``, a configuration of the
   node, :mod:`benchmarks.preview_budget`): its fused-map previews as the node makes them on the
   rendered frames (the drive's own drifting odometry and ``/tf_static`` mount), on the frames its
@@ -199,6 +202,8 @@ def run_cell(kind: str, speed: float, seed: int, duration: float, rates: Sequenc
         perfect["window_far"] = perfect_previews(truth, road_map, stamps, reach, settings)
         perfect["map_plane_far"] = perfect_map_previews(truth, road_map, stamps, reach, settings)
         perfect["map_plane_attitude_far"] = perfect["map_plane_far"]
+        perfect["window_visible"] = perfect_previews(truth, road_map, stamps, grid, settings, visible_only=True)
+        perfect["window_far_visible"] = perfect_previews(truth, road_map, stamps, reach, settings, visible_only=True)
     # contact-plane rows read with a plane: the true one for the perfect map, the one each
     # message carries for the rendered rows
     slopes = true_plane_slopes(truth, road_map, settings, stamps)
@@ -446,7 +451,9 @@ def main(argv: list[str] | None = None) -> int:
     add_executor_arguments(parser, "drives ridden")
     parser.add_argument("--far-field", action="store_true",
                         help="also the perfect rows reaching the far-field grid's far edge (window_far, "
-                             "map_plane_far, map_plane_attitude_far): the ceiling of candidates with far_field.enabled")
+                             "map_plane_far, map_plane_attitude_far): the ceiling of candidates with "
+                             "far_field.enabled; and the perfect windows of only the road the camera sees "
+                             "(window_visible, window_far_visible)")
     parser.add_argument("--no-preview-gain", action="store_true",
                         help="the controller applies all of every preview (no gain measured on the road ridden)")
     parser.add_argument("--out", default=str(RESULTS / "ride.json"))

@@ -145,8 +145,10 @@ def ride_shares(data: Mapping[str, Any]) -> str:
 
 def _perfect_rows(cells: Sequence[Mapping[str, Any]], names: Sequence[str]) -> list[str]:
     """``names`` and, where the run has them (``bench_ride --far-field``), their rows reaching the
-    far-field grid's far edge (``<name>_far``)."""
-    return [*names, *(f"{n}_far" for n in names if any(f"{n}_far" in c["rows"] for c in cells))]
+    far-field grid's far edge (``<name>_far``) and those of only the road the camera sees from
+    where it is (``<name>_visible``, ``<name>_far_visible``)."""
+    return [f"{n}{suffix}" for suffix in ("", "_visible", "_far", "_far_visible") for n in names
+            if not suffix or any(f"{n}{suffix}" in c["rows"] for c in cells)]
 
 
 def _streams(data: Mapping[str, Any]) -> dict[str, tuple[int, int]]:
@@ -209,8 +211,10 @@ def ride_budget(data: Mapping[str, Any], candidate: str | None = None) -> str:
             r = cell["rows"].get(row_name, {})
             row.append(_fmt(r.get("share_mean")))
         lines.append(_row(row))
-    for perfect in _perfect_rows(cells, ("map_plane_attitude",)):
-        row = [f"a perfect fused map (`{perfect}`)"]
+    for perfect in _perfect_rows(cells, ("map_plane_attitude",)) + _perfect_rows(cells, ("window",))[1:]:
+        what = "a perfect fused map" if perfect.startswith("map_plane") else (
+            "a perfect camera, of the road it sees" if perfect.endswith("_visible") else "a perfect camera")
+        row = [f"{what} (`{perfect}`)"]
         for cell in cells:
             row.append(_fmt(cell["rows"].get(perfect, {}).get("share_mean")))
         lines.append(_row(row))
@@ -541,8 +545,10 @@ def far_field(data: Mapping[str, Any]) -> str:
                  f"{rig['pitch_deg']:.1f}°, where the road is in view up to {rig['farthest_in_view_m']:.1f} m; the "
                  "ratio compares the mean abs. error with that limit's (√(2/π) σ). Far field, all bands: " + "; ".join(
                      f"`{n}` {_fmt(b['far']['abs_err_cm'])} cm, coverage {_fmt(b['far']['coverage_pct'], 1)} %, "
-                     f"confidently wrong {_fmt(b['far']['confident_wrong_pct'])} %, {_fmt(b['far_ms'], 0)} ms a frame"
-                     for n, b in data["backends"].items()) + ".")
+                     f"confidently wrong {_fmt(b['far']['confident_wrong_pct'])} %, "
+                     f"{_fmt(b['far_ms'], 0)} ms added to a frame"
+                     for n, b in data["backends"].items()) + " (the time a frame takes beyond the grid's estimate: "
+                 "an ensemble's far-field matchers run beside the grid's).")
     return "\n".join(lines)
 
 

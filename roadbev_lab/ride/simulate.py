@@ -23,7 +23,10 @@ the road velocity ahead, which comes from one of the sources:
   (:mod:`roadbev_core.ride.preview_gain`, ``RideSettings.preview_gain``).
 
 :func:`perfect_previews` makes the messages a perfect per-frame camera would send (the true road
-cut to the grid's window at each frame's stamp): what the window alone allows;
+cut to the grid's window at each frame's stamp): what the window alone allows; with
+``visible_only`` the road the camera cannot see from where it is (:func:`hidden_from`: behind a
+crest, a pothole's rim) is left out and bridged as the node's preview bridges gaps: what any
+camera at that mount allows;
 :func:`perfect_map_previews` those of a perfect fused map (contact-plane reference, from the
 front tyre contact to the window's far edge), and :func:`true_plane_slopes` the attitude of
 their plane, so that the cost of a contact-plane preview without its plane can be measured;
@@ -43,8 +46,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from roadbev_core.config import GridSpec
-from roadbev_core.preview import PreviewProfiles, TrackProfile, read_profile
+from roadbev_core.config import GridSpec, PreviewConfig
+from roadbev_core.preview import PreviewProfiles, TrackProfile, bridge_gaps, read_profile
 from roadbev_core.ride.preview_gain import DEFAULT_TIME_CONSTANT_S, preview_gains
 from roadbev_core.ride.preview_lqr import PreviewLqr
 from roadbev_core.ride.quarter_car import FRONT_WHEELS, RideError
@@ -67,6 +70,7 @@ __all__ = [
     "WheelRoad",
     "carried_plane_slopes",
     "gain_share",
+    "hidden_from",
     "perfect_map_previews",
     "perfect_previews",
     "preview_feedforward",
@@ -373,13 +377,47 @@ def gain_share(no_preview: float, ceiling: float, value: float) -> float:
     return (no_preview - value) / gain
 
 
+# Sight lines are tested against the road every RAY_STEP_M along the ground; a road point within
+# TARGET_CLEARANCE_M of the target is the target's own surface, not an occluder.
+RAY_STEP_M = 0.02
+TARGET_CLEARANCE_M = 0.05
+OCCLUSION_TOLERANCE_M = 0.002
+
+
+def hidden_from(camera: np.ndarray, points: np.ndarray, road_map: RoadMap) -> np.ndarray:
+    """[N] whether the road hides each point of ``points`` [N, 3] (odom) from ``camera`` [3]: the
+    straight line between them passes below the true road (by more than
+    :data:`OCCLUSION_TOLERANCE_M`) somewhere short of the point, tested every
+    :data:`RAY_STEP_M` of ground; a point outside the map is not hidden by what lies outside."""
+    c = np.asarray(camera, np.float64)
+    p = np.asarray(points, np.float64)
+    ground = np.hypot(p[:, 0] - c[0], p[:, 1] - c[1])  # [N]
+    if ground.size == 0:
+        return np.zeros(0, bool)
+    steps = np.arange(1, int(math.ceil(float(ground.max()) / RAY_STEP_M)) + 1) * RAY_STEP_M  # [K]
+    t = steps[None, :] / np.maximum(ground, 1e-9)[:, None]  # [N, K] fraction of the way to the point
+    before = t < 1.0 - TARGET_CLEARANCE_M / np.maximum(ground, 1e-9)[:, None]
+    x = c[0] + t * (p[:, 0:1] - c[0])  # [N, K]
+    y = c[1] + t * (p[:, 1:2] - c[1])
+    z = c[2] + t * (p[:, 2:3] - c[2])
+    road = road_map.height(np.where(before, x, c[0]), np.where(before, y, c[1]))  # [N, K]
+    with np.errstate(invalid="ignore"):
+        below = before & (road > z + OCCLUSION_TOLERANCE_M)
+    return np.asarray(below.any(axis=1))
+
+
 def perfect_previews(truth: Trajectory, road_map: RoadMap, stamps_ns: Sequence[int], grid: GridSpec,
                      settings: RideSettings, track_offsets_m: Sequence[float] = (0.8, -0.8),
-                     track_names: Sequence[str] = ("left", "right")) -> list[TimedPreview]:
+                     track_names: Sequence[str] = ("left", "right"), *, visible_only: bool = False,
+                     max_gap_m: float = PreviewConfig().max_gap_m) -> list[TimedPreview]:
     """The per-frame messages (``REFERENCE_ROAD``) a perfect camera would send at ``stamps_ns``:
     the true road (footprint ``tyre_width_m`` x ``patch_length_m``) along each track, at the
     grid's sample positions (x from ``grid.x_min`` + half a cell to ``grid.x_max``, one cell
-    apart, ahead of the camera with its yaw), relative to the plane ``base_height`` below the camera."""
+    apart, ahead of the camera with its yaw), relative to the plane ``base_height`` below the camera.
+
+    With ``visible_only`` a sample whose track centre the road hides from the camera
+    (:func:`hidden_from`) has no value, and gaps of at most ``max_gap_m`` are bridged as the
+    node's preview bridges them (:func:`roadbev_core.preview.bridge_gaps`)."""
     stamps = np.asarray(list(stamps_ns), np.int64)
     cam_world, yaw = _camera_poses(truth, settings.arrival, stamps)
     spacing = grid.resolution
@@ -394,7 +432,12 @@ def perfect_previews(truth: Trajectory, road_map: RoadMap, stamps_ns: Sequence[i
             py = cam_world[m, 1] + s * xs + c * offset
             h = road_map.footprint(px, py, np.full(xs.size, yaw[m]), settings.tyre_width_m, settings.patch_length_m)
             rel = (h - (cam_world[m, 2] - settings.arrival.base_height)).astype(np.float32)
-            tracks.append(TrackProfile(name, float(offset), settings.tyre_width_m, rel, np.zeros_like(rel)))
+            sigma = np.zeros_like(rel)
+            if visible_only:
+                centre = np.stack([px, py, road_map.height(px, py)], axis=1)  # [S, 3]
+                rel[hidden_from(cam_world[m], centre, road_map)] = np.nan
+                rel, sigma = bridge_gaps(rel, np.where(np.isfinite(rel), 0.0, np.nan), spacing, max_gap_m)
+            tracks.append(TrackProfile(name, float(offset), settings.tyre_width_m, rel, sigma))
         profiles = PreviewProfiles(float(start), float(spacing), tuple(tracks))
         out.append(TimedPreview(int(stamp), REFERENCE_ROAD, profiles))
     return out

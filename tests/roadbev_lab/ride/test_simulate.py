@@ -11,10 +11,11 @@ import pytest
 from roadbev_core.config import GridSpec
 from roadbev_core.preview import PreviewProfiles, TrackProfile
 from roadbev_core.ride import PreviewLqr, RideError
-from roadbev_lab.evaluation.arrival import REFERENCE_CONTACT_PLANE, ArrivalSettings, TimedPreview
+from roadbev_lab.evaluation.arrival import REFERENCE_CONTACT_PLANE, ArrivalSettings, RoadMap, TimedPreview
 from roadbev_lab.ride import (
     RideSettings,
     gain_share,
+    hidden_from,
     perfect_map_previews,
     perfect_previews,
     preview_feedforward,
@@ -131,6 +132,41 @@ def test_perfect_previews_hold_the_true_road() -> None:
     x_peak = p.distances()[np.argmax(left)] + 1.6
     assert x_peak == pytest.approx(6.0, abs=0.05)
     assert np.nanmin(left) == pytest.approx(0.0, abs=1e-6)
+
+
+def _hidden_along(road_map: RoadMap, xs: np.ndarray) -> np.ndarray:
+    points = np.stack([xs, np.zeros_like(xs), road_map.height(xs, np.zeros_like(xs))], axis=1)
+    return hidden_from(np.array([1.6, 0.0, 1.1]), points, road_map)  # the camera of straight() at T0
+
+
+def test_the_road_behind_a_rim_or_a_crest_is_hidden_from_the_camera() -> None:
+    xs = np.arange(3.0, 14.0, 0.02)
+    dip = _hidden_along(bump_map(-0.06, at=9.0, length=0.8), xs)
+    assert not dip[(xs < 8.6) | (xs > 9.4)].any()  # the road before and after it is seen
+    assert dip[(xs > 8.6) & (xs < 9.0)].any()  # the dip's near half lies behind its rim
+    assert not dip[(xs > 9.05) & (xs < 9.4)].any()  # its far wall faces the camera
+    bump = _hidden_along(bump_map(0.06, at=9.0, length=0.8), xs)
+    assert not bump[xs < 9.0].any() and bump[(xs > 9.05) & (xs < 9.4)].any()  # its back side is hidden
+    assert not _hidden_along(bump_map(0.0), xs).any()  # a flat road hides nothing
+
+
+def test_a_visible_only_preview_bridges_what_the_camera_cannot_see() -> None:
+    truth, road_map = straight(10.0, 3.0), bump_map(-0.06, at=9.0, length=0.8)
+    grid = replace(GridSpec(), x_max=15.0)
+    (whole,) = perfect_previews(truth, road_map, [T0], grid, SETTINGS)
+    (seen,) = perfect_previews(truth, road_map, [T0], grid, SETTINGS, visible_only=True)
+    x = whole.profiles.distances() + 1.6
+    hidden = _hidden_along(road_map, x)
+    assert hidden.any()
+    for name in ("left", "right"):
+        true = np.asarray(whole.profiles.track(name).elevation)
+        got, sigma = np.asarray(seen.profiles.track(name).elevation), np.asarray(seen.profiles.track(name).uncertainty)
+        np.testing.assert_array_equal(got[~hidden], true[~hidden])
+        assert np.all(sigma[~hidden] == 0.0)
+        assert np.isfinite(got[hidden]).all() and np.all(sigma[hidden] > 0.0)  # bridged: the gap is short
+        assert np.all(got[hidden] > true[hidden])  # the line over the rim misses the dip's depth
+    (unbridged,) = perfect_previews(truth, road_map, [T0], grid, SETTINGS, visible_only=True, max_gap_m=0.0)
+    assert np.isnan(np.asarray(unbridged.profiles.track("left").elevation)[hidden]).all()
 
 
 def test_a_wrong_preview_is_turned_down_by_its_measured_gain() -> None:
