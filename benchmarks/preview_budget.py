@@ -12,6 +12,12 @@ shipped (:data:`STAGES`):
 
 * ``shipped``: the candidate as the node runs it (map on);
 * ``true_answered``: the true heights on the cells the backend answered (what estimation error costs);
+* ``true_features``, ``true_surface``: the true heights on the answered cells of the road's
+  features only (bumps, potholes, patches: :func:`label_features`), or on the other answered cells
+  only: which of the two the estimation error costs;
+* ``true_short``: on the answered cells, the truth's relief shorter than :data:`SHORT_BAND_M`
+  along x with the estimate's longer one (:func:`short_band`): whether the error is in the road's
+  fine shape or in its slopes and level;
 * ``true_all``: the true heights on every cell the camera sees (what declined cells cost as well);
 * ``true_odometry``: the true planar pose of ``base_link`` instead of the drive's drifting odometry;
 * ``true_datum``: each frame placed at the true height of ``base_link`` with no vertical alignment;
@@ -71,15 +77,24 @@ __all__ = [
     "TrueDatumMap",
     "candidate_previews",
     "candidates_from_node",
+    "label_features",
     "node_rows",
     "node_schedule",
     "parse_candidate",
+    "short_band",
 ]
 
-STAGES: tuple[str, ...] = ("shipped", "true_answered", "true_all", "true_odometry", "true_datum", "true_plane",
-                           "no_latency")
+STAGES: tuple[str, ...] = ("shipped", "true_answered", "true_features", "true_surface", "true_short", "true_all",
+                           "true_odometry", "true_datum", "true_plane", "no_latency")
 # The stages that take the frame's labels: rendered drives keep the grid's, not the far field's.
-LABEL_STAGES: tuple[str, ...] = ("true_answered", "true_all")
+LABEL_STAGES: tuple[str, ...] = ("true_answered", "true_features", "true_surface", "true_short", "true_all")
+# A label cell is a feature's when it stands FEATURE_THRESHOLD_M off the road's mean over
+# FEATURE_WINDOW_M along x (the preview-at-arrival metric's threshold), with FEATURE_MARGIN_M around it.
+FEATURE_THRESHOLD_M = 0.015
+FEATURE_WINDOW_M = (1.0, 0.27)
+FEATURE_MARGIN_M = 0.06
+# The relief shorter than this along x is the road's fine shape (true_short).
+SHORT_BAND_M = 1.0
 STAGE_SEPARATOR = ":"  # a budget row's name: "<candidate>:<stage>"
 # The configurations the benchmarks compare by default: every backend a user could pick (bev_sweep
 # also re-tuned for the ride on tuning drives: its defaults were tuned on single frames of the clean
@@ -271,26 +286,79 @@ class CachedEstimates:
         return self._other_grids[grid]
 
 
-class _TruthBackend:
-    """The cached estimates with their heights replaced by the frame's labels: on the cells the
-    backend answered (``answered``) or on every labelled cell (sigma there: the frame's median)."""
+def _window_mean(values: np.ndarray, rows: int, cols: int) -> np.ndarray:
+    """[R, C] the mean of the finite cells of ``values`` [R, C] in a ``rows`` x ``cols`` window
+    (odd) around each cell (NaN where the window holds none)."""
+    known = np.isfinite(values)
+    stacked = np.stack([np.where(known, values, 0.0), known.astype(np.float64)])  # [2, R, C]
+    for axis, size in ((1, rows), (2, cols)):
+        half = size // 2
+        pad = [(0, 0)] * 3
+        pad[axis] = (half + 1, half)
+        c = np.cumsum(np.pad(stacked, pad), axis=axis)
+        hi = [slice(None)] * 3
+        lo = [slice(None)] * 3
+        hi[axis], lo[axis] = slice(size, None), slice(0, -size)
+        stacked = c[tuple(hi)] - c[tuple(lo)]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(stacked[1] > 0, stacked[0] / stacked[1], np.nan)
 
-    def __init__(self, cached: CachedEstimates, labels: Mapping[int, np.ndarray], answered: bool) -> None:
-        self.cached, self.labels, self.answered = cached, labels, answered
+
+def _odd_cells(length_m: float, resolution: float) -> int:
+    return 2 * int(round(0.5 * length_m / resolution)) + 1
+
+
+def label_features(label: np.ndarray, resolution: float) -> np.ndarray:
+    """[R, C] bool: the cells of a label [R, C] (NaN = unlabelled) that belong to the road's
+    features: at least :data:`FEATURE_THRESHOLD_M` off the label's mean over :data:`FEATURE_WINDOW_M`
+    (along x, across), and the cells within :data:`FEATURE_MARGIN_M` of them."""
+    mean = _window_mean(label, _odd_cells(FEATURE_WINDOW_M[0], resolution), _odd_cells(FEATURE_WINDOW_M[1], resolution))
+    with np.errstate(invalid="ignore"):
+        off = np.abs(label - mean) > FEATURE_THRESHOLD_M
+    margin = _odd_cells(2 * FEATURE_MARGIN_M, resolution)
+    return np.asarray((_window_mean(off.astype(np.float64), margin, margin) > 0) & np.isfinite(label))
+
+
+def short_band(elevation: np.ndarray, resolution: float) -> np.ndarray:
+    """[R, C] the relief of ``elevation`` [R, C] shorter than :data:`SHORT_BAND_M` along x: the
+    heights less their mean over that length (NaN where the height is)."""
+    return np.asarray(elevation - _window_mean(elevation, _odd_cells(SHORT_BAND_M, resolution), 1))
+
+
+class _TruthBackend:
+    """The cached estimates with the truth in one label stage (:data:`LABEL_STAGES`): the frame's
+    labels on the cells the backend answered (``true_answered``), on those of the road's features
+    or the others (``true_features``, ``true_surface``), the labels' short band with the estimate's
+    long one (``true_short``), or the labels on every labelled cell (``true_all``; sigma there: the
+    frame's median)."""
+
+    def __init__(self, cached: CachedEstimates, labels: Mapping[int, np.ndarray], stage: str) -> None:
+        if stage not in LABEL_STAGES:
+            raise ValueError(f"{stage!r} is not a label stage (one of {', '.join(LABEL_STAGES)})")
+        self.cached, self.labels, self.stage = cached, labels, stage
         self.name, self.grid, self.needs_stereo = cached.name, cached.grid, cached.needs_stereo
         self.far_field = cached.far_field
 
     def estimate(self, frame: Frame) -> Estimate:
         est = self.cached.estimate(frame)
         truth = self.labels[int(frame.stamp_ns)]
-        if self.answered:
-            elevation = np.where(np.isfinite(est.elevation), truth, np.nan)
-            sigma = est.uncertainty
-        else:
+        answered = np.isfinite(est.elevation) & np.isfinite(truth)
+        resolution = self.grid.resolution
+        sigma = est.uncertainty
+        if self.stage == "true_all":
             elevation = truth
             known = est.uncertainty[np.isfinite(est.uncertainty)]
             fill = float(np.median(known)) if known.size else 0.005
             sigma = np.where(np.isfinite(est.uncertainty), est.uncertainty, fill)
+        elif self.stage == "true_answered":
+            elevation = np.where(np.isfinite(est.elevation), truth, np.nan)
+        elif self.stage == "true_short":
+            mixed = est.elevation - short_band(est.elevation, resolution) + short_band(truth, resolution)
+            elevation = np.where(answered & np.isfinite(mixed), mixed, est.elevation)
+        else:
+            features = label_features(truth, resolution)
+            take = answered & (features if self.stage == "true_features" else ~features)
+            elevation = np.where(take, truth, est.elevation)
         sigma = np.where(np.isfinite(elevation), sigma, np.nan)
         return Estimate(elevation.astype(np.float32), sigma.astype(np.float32), dict(est.timings_ms))
 
@@ -386,7 +454,7 @@ def candidate_previews(drive: RidingDrive, samples: Sequence[DriveSample], candi
         if config.far_grid is not None:
             raise ValueError(f"budget stage {stage!r} needs the far field's labels, which rendered drives do not keep")
         labels = {int(s.frame.stamp_ns): s.truth.elevation for s in samples}
-        backend = _TruthBackend(cached, labels, answered=stage == "true_answered")
+        backend = _TruthBackend(cached, labels, stage)
 
     def backend_on(_name: str, grid: GridSpec, **_options: Any) -> Backend:
         return backend if grid == config.grid else cached.on_grid(grid)  # the far field on its own grid

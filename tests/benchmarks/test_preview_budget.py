@@ -10,15 +10,18 @@ import numpy as np
 import pytest
 
 from benchmarks.preview_budget import (
+    LABEL_STAGES,
     STAGES,
     CachedEstimates,
     Candidate,
     DriveFrames,
     candidate_previews,
     candidates_from_node,
+    label_features,
     node_rows,
     node_schedule,
     parse_candidate,
+    short_band,
     with_true_plane,
 )
 from roadbev_core.config import FarFieldConfig, GridSpec
@@ -177,6 +180,10 @@ def test_stored_frames_read_back_and_truth_goes_into_one_stage(tmp_path: Any) ->
     assert right_known("shipped") == right_known("true_answered") == 0 < right_known("true_all")
     assert left_apart("shipped", "true_answered") > 0.003
     assert left_apart("true_answered", "true_all") < 0.001
+    # the ripple is shorter than a metre: the truth's short band takes most of it away, and the
+    # cells off the bumps carry most of it
+    assert left_apart("true_short", "true_answered") < 0.5 * left_apart("shipped", "true_answered")
+    assert left_apart("true_surface", "true_answered") < left_apart("true_features", "true_answered")
     with pytest.raises(ValueError, match="unknown budget stage"):
         candidate_previews(drive, samples, candidate, cached, "true_everything", ride_settings=settings)
 
@@ -221,6 +228,30 @@ class Flat:
         return Estimate(np.zeros(self.grid.shape, np.float32), np.full(self.grid.shape, 0.01, np.float32))
 
 
+def test_a_labels_features_are_what_stands_off_the_road_around_them() -> None:
+    grid = GridSpec()
+    x = grid.x_centres()  # [R]
+    label = np.repeat((0.01 * x)[:, None], grid.n_cols, axis=1)  # a grade: no feature
+    assert not label_features(label, grid.resolution).any()
+    bump = np.abs(x - 4.5) < 0.15  # a 5 cm bump 0.3 m long across the road
+    label[bump] += 0.05
+    label[:, :3] = np.nan
+    features = label_features(label, grid.resolution)
+    assert features[bump, 3:].all() and not features[:, :3].any()
+    near = np.abs(x - 4.5) < 0.15 + 0.06 + 1e-6
+    assert not features[~near].any()  # the bump and its margin only
+
+
+def test_the_short_band_is_the_relief_shorter_than_a_metre() -> None:
+    grid = GridSpec()
+    x = grid.x_centres()[:, None]  # [R, 1]
+    ripple = 0.004 * np.sin(2 * np.pi * x / 0.3)
+    ramp = 0.02 * x
+    band = short_band(np.repeat(ramp + ripple, 4, axis=1), grid.resolution)
+    inner = slice(20, -20)  # a metre's mean is whole away from the edges
+    np.testing.assert_allclose(band[inner], np.repeat(ripple, 4, axis=1)[inner], atol=0.0012)
+
+
 def test_a_far_field_candidate_previews_to_the_far_edge_and_refuses_the_label_stages(tmp_path: Any) -> None:
     drive = _small_drive(4)
     samples = DriveFrames(tmp_path).samples(drive)
@@ -241,7 +272,7 @@ def test_a_far_field_candidate_previews_to_the_far_edge_and_refuses_the_label_st
     assert reach(without) <= camera_x + grid.x_max + 1e-6
     assert reach(with_far) > camera_x + grid.x_max + 1.0 and reach(with_far) <= camera_x + far_edge + 1e-6
     assert len(cached.on_grid(FarFieldConfig().grid(grid)).estimates) == len(drive)  # the far grid's own cache
-    for stage in ("true_answered", "true_all"):
+    for stage in LABEL_STAGES:
         with pytest.raises(ValueError, match="far field's labels"):
             candidate_previews(drive, samples, far, cached, stage, ride_settings=settings)
 
