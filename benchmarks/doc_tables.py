@@ -1036,6 +1036,7 @@ TABLES: dict[str, Table] = {
     "ride_shares": Table(("ride.json",), ride_shares),
     "ride_truth": Table(("ride.json",), ride_truth, with_provenance=False),
     "ride_budget": Table(("ride.json",), ride_budget, with_provenance=False),
+    "ride_budget_cells": Table(("ride_budget_cells.json",), ride_budget),
     "ride_arrival": Table(("ride.json",), ride_arrival, with_provenance=False),
     "ride_far_shares": Table(("ride_far_field.json",), ride_shares),
     "ride_far_truth": Table(("ride_far_field.json",), ride_truth, with_provenance=False),
