@@ -42,9 +42,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 from benchmarks.common import RESULTS
 from roadbev_core.backends import Backend, create
+from roadbev_core.box_filter import box_mean
 from roadbev_core.config import GridSpec, RoadbevConfig
 from roadbev_core.frame import Estimate, Frame
 from roadbev_core.fusion import FrameFusion, FramePlacement, FusedMap, MapSettings, MapWindow
@@ -288,20 +290,13 @@ class CachedEstimates:
 
 def _window_mean(values: np.ndarray, rows: int, cols: int) -> np.ndarray:
     """[R, C] the mean of the finite cells of ``values`` [R, C] in a ``rows`` x ``cols`` window
-    (odd) around each cell (NaN where the window holds none)."""
+    (odd) around each cell (NaN where the window holds none): the ratio of the window means
+    (:func:`roadbev_core.box_filter.box_mean`) of the known heights and of the known mask."""
     known = np.isfinite(values)
-    stacked = np.stack([np.where(known, values, 0.0), known.astype(np.float64)])  # [2, R, C]
-    for axis, size in ((1, rows), (2, cols)):
-        half = size // 2
-        pad = [(0, 0)] * 3
-        pad[axis] = (half + 1, half)
-        c = np.cumsum(np.pad(stacked, pad), axis=axis)
-        hi = [slice(None)] * 3
-        lo = [slice(None)] * 3
-        hi[axis], lo[axis] = slice(size, None), slice(0, -size)
-        stacked = c[tuple(hi)] - c[tuple(lo)]
+    planes = torch.from_numpy(np.stack([np.where(known, values, 0.0), known]).astype(np.float64))  # [2, R, C]
+    total, count = box_mean(planes, (rows, cols)).numpy()
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(stacked[1] > 0, stacked[0] / stacked[1], np.nan)
+        return np.where(count > 0, total / count, np.nan)
 
 
 def _odd_cells(length_m: float, resolution: float) -> int:
