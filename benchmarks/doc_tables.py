@@ -199,16 +199,20 @@ def default_candidate(data: Mapping[str, Any]) -> str:
     raise KeyError(f"the results hold no candidate of the default configuration ({DEFAULT_BACKEND})")
 
 
+def _stage_rows(name: str, cells: Sequence[Mapping[str, Any]]) -> list[tuple[str, str]]:
+    """(stage, row name) of the error budget's stages of candidate ``name`` that the run took
+    (a far-field candidate has no label stages; an older run lacks the newer stages)."""
+    rows = [(stage, name if stage == "shipped" else f"{name}{STAGE_SEPARATOR}{stage}") for stage in STAGES]
+    return [(stage, row) for stage, row in rows if any(row in cell["rows"] for cell in cells)]
+
+
 def ride_budget(data: Mapping[str, Any], candidate: str | None = None) -> str:
     """The error budget of one configuration (the default): its share with one stage at a time
     taken from the truth, per speed and camera rate (mean over the drives)."""
     name = candidate or default_candidate(data)
     cells = _cells(data["table"], rendered=True)
     lines = _header(cells, f"`{name}`, the truth in one stage")
-    for stage in STAGES:
-        row_name = name if stage == "shipped" else f"{name}{STAGE_SEPARATOR}{stage}"
-        if not any(row_name in cell["rows"] for cell in cells):
-            continue  # a stage the run did not take (a far-field candidate's label stages)
+    for stage, row_name in _stage_rows(name, cells):
         row = [_STAGE_TITLES[stage]]
         for cell in cells:
             r = cell["rows"].get(row_name, {})
@@ -255,9 +259,7 @@ def arrival_rows(data: Mapping[str, Any], rows: Sequence[str] | None = None) -> 
 
 def arrival_budget(data: Mapping[str, Any]) -> str:
     """bench_arrival: the error budget of the default configuration at arrival (all / features, cm)."""
-    name = default_candidate(data)
-    rows = [name if s == "shipped" else f"{name}{STAGE_SEPARATOR}{s}" for s in STAGES]
-    return arrival_rows(data, [r for r in rows if any(r in cell["rows"] for cell in data["table"])])
+    return arrival_rows(data, [row for _, row in _stage_rows(default_candidate(data), data["table"])])
 
 
 def arrival_backends(data: Mapping[str, Any]) -> str:
