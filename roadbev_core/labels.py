@@ -17,6 +17,8 @@ from roadbev_core.geometry import Attitude, camera_to_road
 
 __all__ = [
     "ElevationLabel",
+    "cell_index",
+    "cell_means",
     "class_to_elevation",
     "elevation_map",
     "elevation_map_from_camera",
@@ -35,17 +37,10 @@ class ElevationLabel(NamedTuple):
     count: np.ndarray  # type: ignore[assignment]
 
 
-def elevation_map(points_road: np.ndarray, grid: GridSpec, *, clip_z: bool = False) -> ElevationLabel:
-    """Mean elevation of the road-frame points in each grid cell.
-
-    Args:
-        points_road: [N, 3] (x, y, z) in the road frame; extra columns are ignored.
-        grid: the BEV grid.
-        clip_z: drop points outside ``[z_min, z_max]`` before averaging.
-
-    Returns:
-        ElevationLabel with elevation NaN where no point fell.
-    """
+def cell_index(points_road: np.ndarray, grid: GridSpec, *, clip_z: bool = False) -> np.ndarray:
+    """Flat cell index [N] (intp, ``row * n_cols + col``) of each road-frame point [N, 3+];
+    ``n_rows * n_cols`` (one cell past the grid) for a point outside the grid, with a
+    non-finite coordinate, or with ``clip_z`` outside ``[z_min, z_max]``."""
     pts = np.asarray(points_road)
     if pts.ndim != 2 or pts.shape[1] < 3:
         raise ValueError(f"points must be [N, 3], got {pts.shape}")
@@ -58,22 +53,43 @@ def elevation_map(points_road: np.ndarray, grid: GridSpec, *, clip_z: bool = Fal
     keep = (r >= 0) & (r < grid.n_rows) & (c >= 0) & (c < grid.n_cols) & np.isfinite(z)
     if clip_z:
         keep &= (z >= grid.z_min) & (z <= grid.z_max)
-    n_cells = grid.n_rows * grid.n_cols
     # Points outside go to one extra "dump" cell rather than being compressed out: boolean
     # indexing would cost more than everything else together.
     with np.errstate(invalid="ignore"):  # NaN/inf casts are masked out by `keep`
-        flat = np.where(keep, r.astype(np.intp) * grid.n_cols + c.astype(np.intp), n_cells)  # [N]
+        return np.where(keep, r.astype(np.intp) * grid.n_cols + c.astype(np.intp), grid.n_rows * grid.n_cols)
+
+
+def cell_means(flat: np.ndarray, grid: GridSpec, *values: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Point count [n_rows, n_cols] (int32) and, per ``values`` array [N], the mean of its points
+    in each cell [n_rows, n_cols] (float32, NaN where no point fell), for points indexed by
+    :func:`cell_index` (``flat`` [N]; those past the grid are left out)."""
+    n_cells = grid.n_rows * grid.n_cols
     count = np.bincount(flat, minlength=n_cells + 1)[:n_cells]
-    total = np.bincount(flat, weights=np.where(keep, z, 0.0), minlength=n_cells + 1)[:n_cells]
     mask = count > 0
-    elevation = np.full(n_cells, np.nan, dtype=np.float64)
-    elevation[mask] = total[mask] / count[mask]
-    shape = grid.shape
-    return ElevationLabel(
-        elevation=elevation.reshape(shape).astype(np.float32),
-        mask=mask.reshape(shape),
-        count=count.reshape(shape).astype(np.int32),
-    )
+    means = []
+    for value in values:
+        # the dump cell's sum (where a left-out point's NaN may land) is cut off with it
+        total = np.bincount(flat, weights=value, minlength=n_cells + 1)[:n_cells]
+        mean = np.full(n_cells, np.nan, dtype=np.float64)
+        mean[mask] = total[mask] / count[mask]
+        means.append(mean.reshape(grid.shape).astype(np.float32))
+    return count.reshape(grid.shape).astype(np.int32), means
+
+
+def elevation_map(points_road: np.ndarray, grid: GridSpec, *, clip_z: bool = False) -> ElevationLabel:
+    """Mean elevation of the road-frame points in each grid cell.
+
+    Args:
+        points_road: [N, 3] (x, y, z) in the road frame; extra columns are ignored.
+        grid: the BEV grid.
+        clip_z: drop points outside ``[z_min, z_max]`` before averaging.
+
+    Returns:
+        ElevationLabel with elevation NaN where no point fell.
+    """
+    flat = cell_index(points_road, grid, clip_z=clip_z)  # [N]
+    count, (elevation,) = cell_means(flat, grid, np.asarray(points_road)[:, 2])
+    return ElevationLabel(elevation=elevation, mask=count > 0, count=count)
 
 
 def elevation_map_from_camera(

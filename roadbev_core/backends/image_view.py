@@ -24,7 +24,7 @@ from roadbev_core.backends.common import StageClock, grey_u8
 from roadbev_core.config import ConfigError, GridSpec, StereoCamera
 from roadbev_core.frame import Estimate, Frame, FrameError
 from roadbev_core.geometry import Attitude, optical_from_road_rotation, project_points, road_to_camera
-from roadbev_core.labels import elevation_map
+from roadbev_core.labels import cell_index, cell_means
 
 __all__ = ["ImageViewParams", "ImageViewStereo", "MatchWindow", "create_bm", "create_sgbm", "match_window"]
 
@@ -196,15 +196,17 @@ class ImageViewStereo:
     def _road_points(
         self, disparity: np.ndarray, window: MatchWindow, camera: StereoCamera, attitude: Attitude
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Road-frame points [N, 3] of the valid disparities [h, w] of the crop, and their depths [N].
+        """Road-frame points [h * w, 3] of the disparities [h, w] of the crop (row-major), and
+        their depths [h * w]; NaN for a pixel without a valid disparity.
 
         A pixel (u, v) with depth Z is at Z * ray(u, v) in the optical frame; in the road frame
-        the ray's components are sums of a per-column and a per-row term, so only [N]-sized
-        arithmetic remains after the valid pixels are picked.
+        the ray's components are sums of a per-column and a per-row term. Invalid pixels are kept
+        as NaN (the binning leaves them out) rather than compressed out: picking the valid ones
+        costs more than the arithmetic on them.
         """
         # cv2 marks invalid pixels with (min_disparity - 1); zero disparity is at infinity.
-        rows, cols = np.nonzero(disparity > max(window.min_disparity - 0.5, 0.5))
-        depth = (camera.fx * camera.baseline) / disparity[rows, cols]  # [N] float32
+        valid = disparity > max(window.min_disparity - 0.5, 0.5)  # [h, w]
+        depth = (camera.fx * camera.baseline) / np.where(valid, disparity, np.float32(np.nan))  # [h, w] float32
         R = optical_from_road_rotation(attitude)  # road -> optical; rows of R.T map optical -> road
         x_norm = (np.arange(window.left, window.right) - camera.cx) / camera.fx  # [w]
         y_norm = (np.arange(window.top, window.bottom) - camera.cy) / camera.fy  # [h]
@@ -213,9 +215,9 @@ class ImageViewStereo:
             # road_k = sum_j R[j, k] * optical_j with optical = Z * (x_norm, y_norm, 1)
             per_col = (R[0, k] * x_norm + R[2, k]).astype(np.float32)
             per_row = (R[1, k] * y_norm).astype(np.float32)
-            points[:, k] = depth * (per_col[cols] + per_row[rows])
+            points[:, k] = (depth * (per_col[None, :] + per_row[:, None])).ravel()
         points[:, 2] += self.grid.base_height
-        return points, depth
+        return points, depth.ravel()
 
     def estimate(self, frame: Frame) -> Estimate:
         """Elevation and uncertainty of ``self.grid`` for one stereo frame."""
@@ -236,20 +238,18 @@ class ImageViewStereo:
         disparity = raw.astype(np.float32) * (1.0 / 16.0)  # fixed point, 4 fractional bits
         clock.lap("matching")
         points, depth = self._road_points(disparity, window, camera, frame.attitude)
-        # Points outside the height range are mismatches; the label code keeps the rest.
-        keep = (points[:, 2] >= grid.z_min) & (points[:, 2] <= grid.z_max)
-        points, depth = points[keep], depth[keep]
+        # Points outside the height range are mismatches; the label code leaves them out.
+        flat = cell_index(points, grid, clip_z=True)  # [N]
         clock.lap("projection")
-        label = elevation_map(points, grid)
+        z = points[:, 2]
         # Disparity precision -> elevation: a depth error moves the point along its ray, whose
         # vertical share is (camera height above the point) / depth.
-        sigma_point = depth * (p.disparity_sigma_px / (camera.fx * camera.baseline)) * (grid.base_height - points[:, 2])
-        # Second moment per cell (same label code): E[z^2 + sigma^2] - E[z]^2 = spread + precision.
-        points[:, 2] = np.square(points[:, 2]) + np.square(sigma_point)
-        second = elevation_map(points, grid).elevation
-        enough = label.count >= p.min_points
-        elevation = np.where(enough, label.elevation, np.nan).astype(np.float32)
-        variance = np.maximum(second - np.square(label.elevation), 0.0)
+        sigma_point = depth * (p.disparity_sigma_px / (camera.fx * camera.baseline)) * (grid.base_height - z)
+        # Second moment per cell: E[z^2 + sigma^2] - E[z]^2 = spread + precision.
+        count, (mean, second) = cell_means(flat, grid, z, np.square(z) + np.square(sigma_point))
+        enough = count >= p.min_points
+        elevation = np.where(enough, mean, np.nan).astype(np.float32)
+        variance = np.maximum(second - np.square(mean), 0.0)
         uncertainty = np.where(enough, np.sqrt(variance), np.nan).astype(np.float32)
         clock.lap("post")
         return Estimate(elevation=elevation, uncertainty=uncertainty, timings_ms=clock.timings)

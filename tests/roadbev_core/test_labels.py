@@ -6,6 +6,8 @@ import pytest
 from roadbev_core.config import GridSpec
 from roadbev_core.geometry import Attitude, road_to_camera
 from roadbev_core.labels import (
+    cell_index,
+    cell_means,
     class_to_elevation,
     elevation_map,
     elevation_map_from_camera,
@@ -63,6 +65,28 @@ def test_clip_z_drops_points_outside_the_range() -> None:
     pts = np.array([[4.0, 0.0, 0.5], [4.0, 0.0, 0.1]])
     assert np.nanmax(elevation_map(pts, G).elevation) == pytest.approx(0.3)
     assert np.nanmax(elevation_map(pts, G, clip_z=True).elevation) == pytest.approx(0.1)
+
+
+def test_one_binning_averages_several_values_per_cell() -> None:
+    rng = np.random.default_rng(3)
+    pts = np.column_stack([rng.uniform(G.x_min - 0.5, G.x_max + 0.5, 4000),
+                           rng.uniform(G.y_min - 0.5, G.y_max + 0.5, 4000), rng.uniform(-0.3, 0.3, 4000)])
+    pts[::50, 2] = np.nan
+    flat = cell_index(pts, G, clip_z=True)
+    assert flat.shape == (4000,)
+    n_cells = G.n_rows * G.n_cols
+    outside = (pts[:, 0] < G.x_min) | (pts[:, 0] >= G.x_max) | ~np.isfinite(pts[:, 2]) | (np.abs(pts[:, 2]) > 0.2)
+    assert np.all(flat[outside] == n_cells) and np.all(flat[~outside & (pts[:, 1] < G.y_max)
+                                                           & (pts[:, 1] > G.y_min)] < n_cells)
+    count, (mean_z, mean_sq) = cell_means(flat, G, pts[:, 2], np.square(pts[:, 2]))
+    label = elevation_map(pts, G, clip_z=True)
+    np.testing.assert_array_equal(count, label.count)
+    np.testing.assert_array_equal(mean_z, label.elevation)
+    squared = pts.copy()
+    squared[:, 2] = np.square(pts[:, 2])
+    squared[~np.isfinite(pts[:, 2]) | (np.abs(pts[:, 2]) > 0.2), 2] = np.nan  # the clip, applied to z
+    np.testing.assert_allclose(mean_sq, elevation_map(squared, G).elevation, rtol=1e-6, equal_nan=True)
+    assert mean_sq.dtype == np.float32 and count.dtype == np.int32
 
 
 def test_camera_frame_points_give_the_same_map() -> None:
