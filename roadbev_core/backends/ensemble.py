@@ -22,6 +22,8 @@ while the slowest near member is still matching, so the far field adds little to
 Options:
     members: the member backends joined by ``+`` (or commas), default ``bm+sgbm`` (the configuration
         whose preview the ride benchmark found worth the most), each with its default options.
+    <member>.<option>: an option of one member (``sgbm.refine_width=21``; as a node parameter
+        ``ensemble.sgbm.refine_width``).
 """
 
 from __future__ import annotations
@@ -111,13 +113,22 @@ class EnsembleBackend:
         return {"backend": self.name, "members": [m.name for m in self.members]}
 
 
-def create_ensemble(grid: GridSpec, members: str = DEFAULT_MEMBERS) -> EnsembleBackend:
-    """Backend factory: ``create("ensemble", grid, members="stereo+sgbm")``.
+def create_ensemble(grid: GridSpec, members: str = DEFAULT_MEMBERS, **member_options: Any) -> EnsembleBackend:
+    """Backend factory: ``create("ensemble", grid, members="stereo+sgbm", **{"sgbm.block_size": 9})``.
 
     Raises:
-        BackendError: fewer than two members, an unknown or repeated one, or a member that cannot run.
+        BackendError: fewer than two members, an unknown or repeated one, a member option not
+            of the form ``<member>.<option>`` for one of the members, or a member that cannot run
+            (its options refused).
     """
     names = [n.strip() for n in str(members).replace(",", "+").split("+") if n.strip()]
     if len(set(names)) != len(names) or "ensemble" in names:
         raise BackendError(f"ensemble members must be distinct backends other than the ensemble, got {members!r}")
-    return EnsembleBackend(grid, [create(n, grid) for n in names])
+    options: dict[str, dict[str, Any]] = {n: {} for n in names}
+    for key, value in member_options.items():
+        member, _, option = key.partition(".")
+        if member not in options or not option:
+            raise BackendError(f"ensemble option {key!r} is neither 'members' nor '<member>.<option>' for a member "
+                               f"({', '.join(names)})")
+        options[member][option] = value
+    return EnsembleBackend(grid, [create(n, grid, **options[n]) for n in names])

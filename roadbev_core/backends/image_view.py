@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, fields
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import cv2
 import numpy as np
@@ -26,7 +26,8 @@ from roadbev_core.frame import Estimate, Frame, FrameError
 from roadbev_core.geometry import Attitude, optical_from_road_rotation, project_points, road_to_camera
 from roadbev_core.labels import cell_index, cell_means
 
-__all__ = ["ImageViewParams", "ImageViewStereo", "MatchWindow", "create_bm", "create_sgbm", "match_window"]
+__all__ = ["ImageViewParams", "ImageViewStereo", "MatchWindow", "create_bm", "create_sgbm", "match_window",
+           "refine_disparity"]
 
 _SGBM_MODES = {
     "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
@@ -54,6 +55,9 @@ class ImageViewParams:
         disparity_margin_px: extra disparities searched on either side of the grid's range.
         min_points: cells with fewer points are NaN.
         disparity_sigma_px: 1-sigma disparity precision used for the uncertainty floor.
+        refine_width, refine_height: window (pixels, odd) of one Lucas-Kanade step that
+            re-estimates each disparity's sub-pixel part (:func:`refine_disparity`); 0 = the
+            matcher's own sub-pixel fit.
     """
 
     block_size: int = 5
@@ -69,9 +73,12 @@ class ImageViewParams:
     disparity_margin_px: int = 4
     min_points: int = 1
     disparity_sigma_px: float = 0.25
+    refine_width: int = 0
+    refine_height: int = 3
 
     def __post_init__(self) -> None:
-        for name in ("block_size", "speckle_window", "speckle_range", "pre_filter_cap", "min_points"):
+        for name in ("block_size", "speckle_window", "speckle_range", "pre_filter_cap", "min_points", "refine_width",
+                     "refine_height"):
             value = getattr(self, name)
             if not isinstance(value, int) or value < 0:
                 raise ConfigError(f"{name} must be a non-negative integer, got {value!r}")
@@ -85,6 +92,9 @@ class ImageViewParams:
             raise ConfigError(f"disparity_sigma_px must be positive, got {self.disparity_sigma_px}")
         if self.min_points < 1:
             raise ConfigError(f"min_points must be >= 1, got {self.min_points}")
+        if self.refine_width and (self.refine_width % 2 == 0 or self.refine_height % 2 == 0):
+            raise ConfigError(f"the refinement window must have odd sides, got {self.refine_width} x "
+                              f"{self.refine_height}")
 
     @classmethod
     def from_options(cls, options: dict[str, Any], defaults: dict[str, Any]) -> ImageViewParams:
@@ -94,6 +104,58 @@ class ImageViewParams:
         if unknown:
             raise ConfigError(f"unknown option(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(known))}")
         return cls(**{**defaults, **options})
+
+
+# Side (pixels) of the window over which each image is brought to zero mean and unit spread before
+# the refinement: the two cameras' gains and offsets differ, the gradient step must not see it.
+_NORMALISE_PX = 15
+# A step longer than this is not a sub-pixel correction but another match; the matcher's stands.
+_MAX_STEP_PX = 1.0
+
+
+def _normalised(image: np.ndarray) -> np.ndarray:
+    """[h, w] float32: ``image`` less its local mean, over its local spread (``_NORMALISE_PX``)."""
+    grey = image.astype(np.float32)
+    k = (_NORMALISE_PX, _NORMALISE_PX)
+    mean = cv2.blur(grey, k)
+    spread = np.sqrt(np.maximum(cv2.blur(grey * grey, k) - mean * mean, 1.0))
+    return cast("np.ndarray", (grey - mean) / spread)
+
+
+def refine_disparity(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, valid: np.ndarray,
+                     window: tuple[int, int]) -> np.ndarray:
+    """Each valid disparity's sub-pixel part re-estimated by one Lucas-Kanade step.
+
+    Block matchers fit a parabola to three matching costs, which pulls disparities towards whole
+    pixels (pixel locking); on a road, whose disparity changes steadily down the image, that is
+    a ripple in the heights. One Gauss-Newton step on the locally normalised images,
+    ``d += sum(r gx) / sum(gx^2)`` over ``window`` (width, height) with ``r`` the left image less the
+    right one warped by ``d`` and ``gx`` the warped image's horizontal gradient, re-estimates it.
+    A window wider than tall: the road's disparity changes down the image, not along a row.
+
+    Args:
+        left, right: [h, w] uint8 rectified crops.
+        disparity: [h, w] float32 the matcher's disparities (pixels).
+        valid: [h, w] bool, the disparities to refine.
+        window: (width, height) of the sums, odd.
+
+    Returns:
+        [h, w] float32: refined where valid and the step is under ``_MAX_STEP_PX``, else ``disparity``.
+    """
+    h, w = disparity.shape
+    start = np.where(valid, disparity, np.float32(0.0))
+    map_x = np.arange(w, dtype=np.float32)[None, :] - start  # [h, w] where each left pixel lies in the right image
+    map_y = np.broadcast_to(np.arange(h, dtype=np.float32)[:, None], (h, w))
+    warped = cv2.remap(_normalised(right), map_x, np.ascontiguousarray(map_y), cv2.INTER_LINEAR)  # [h, w]
+    gx = cv2.Sobel(warped, cv2.CV_32F, 1, 0, ksize=1) * np.float32(0.5)  # central difference
+    residual = _normalised(left) - warped
+    # left(u) = right(u - d - delta) ~ warped(u) - delta gx(u): delta = -sum(r gx) / sum(gx^2)
+    num = cv2.boxFilter(residual * gx, -1, window, normalize=False)
+    den = cv2.boxFilter(gx * gx, -1, window, normalize=False)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        step = -num / den
+    usable = valid & (den > 1e-3) & (np.abs(step) < _MAX_STEP_PX)
+    return np.where(usable, disparity + step, disparity).astype(np.float32)
 
 
 class MatchWindow(NamedTuple):
@@ -112,6 +174,11 @@ class MatchWindow(NamedTuple):
     right: int
     min_disparity: int
     num_disparities: int
+
+    def valid(self, disparity: np.ndarray) -> np.ndarray:
+        """[h, w] bool: the matcher's disparities [h, w] of this window that are matches."""
+        # cv2 marks invalid pixels with (min_disparity - 1); zero disparity is at infinity.
+        return cast("np.ndarray", disparity > max(self.min_disparity - 0.5, 0.5))
 
 
 def match_window(
@@ -204,8 +271,7 @@ class ImageViewStereo:
         as NaN (the binning leaves them out) rather than compressed out: picking the valid ones
         costs more than the arithmetic on them.
         """
-        # cv2 marks invalid pixels with (min_disparity - 1); zero disparity is at infinity.
-        valid = disparity > max(window.min_disparity - 0.5, 0.5)  # [h, w]
+        valid = window.valid(disparity)  # [h, w]
         depth = (camera.fx * camera.baseline) / np.where(valid, disparity, np.float32(np.nan))  # [h, w] float32
         R = optical_from_road_rotation(attitude)  # road -> optical; rows of R.T map optical -> road
         x_norm = (np.arange(window.left, window.right) - camera.cx) / camera.fx  # [w]
@@ -237,6 +303,10 @@ class ImageViewStereo:
         raw = self._matcher(window.min_disparity, window.num_disparities).compute(left, right)
         disparity = raw.astype(np.float32) * (1.0 / 16.0)  # fixed point, 4 fractional bits
         clock.lap("matching")
+        if p.refine_width:
+            disparity = refine_disparity(left, right, disparity, window.valid(disparity),
+                                         (p.refine_width, p.refine_height))
+            clock.lap("refinement")
         points, depth = self._road_points(disparity, window, camera, frame.attitude)
         # Points outside the height range are mismatches; the label code leaves them out.
         flat = cell_index(points, grid, clip_z=True)  # [N]

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from roadbev_core.backends import BackendError, RefinedBackend, create
-from roadbev_core.backends.image_view import ImageViewStereo, match_window
+from roadbev_core.backends.image_view import ImageViewStereo, match_window, refine_disparity
 from roadbev_core.config import FarFieldConfig, GridSpec, StereoCamera
 from roadbev_core.frame import Frame, FrameError
 from roadbev_core.geometry import Attitude, project_voxels
@@ -85,6 +85,43 @@ def test_uncertainty_and_nan(samples: list[tuple[Frame, np.ndarray]]) -> None:
     assert np.isnan(blank.elevation).all()
 
 
+def _textured_pair(shift_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """A random-texture left image [120, 200] and its right image: the left shifted by
+    ``shift_px`` to the left (every pixel's disparity ``shift_px``), the right one with another
+    gain and offset, as two cameras have."""
+    rng = np.random.default_rng(5)
+    texture = cv2.GaussianBlur(rng.uniform(0, 255, (120, 260)).astype(np.float32), (0, 0), 1.2)
+    left = texture[:, 30:230]
+    shift = np.array([[1, 0, shift_px], [0, 1, 0]], np.float32)  # right(u) = left(u + d)
+    right = cv2.warpAffine(texture, shift, (260, 120), flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP)[:, 30:230]
+    right = 0.8 * right + 20.0
+    return np.clip(left, 0, 255).astype(np.uint8), np.clip(right, 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("true_px", [7.0, 7.3, 7.5, 7.8])
+def test_the_refinement_recovers_the_sub_pixel_part(true_px: float) -> None:
+    left, right = _textured_pair(true_px)
+    valid = np.ones(left.shape, bool)
+    inner = (slice(20, -20), slice(40, -20))
+    for start in (np.floor(true_px), np.round(true_px), true_px - 0.4):  # a locked or a poor sub-pixel fit
+        disparity = np.full(left.shape, start, np.float32)
+        error = np.median(np.abs(refine_disparity(left, right, disparity, valid, (21, 3))[inner] - true_px))
+        assert error < 0.1 and (error < 0.5 * abs(start - true_px) or error < 0.02), (start, error)
+    # a step of a pixel or more would be another match, not a sub-pixel part: none is taken
+    far_off = np.full(left.shape, true_px + 3.0, np.float32)
+    out = refine_disparity(left, right, far_off, valid, (21, 3))
+    assert np.all(np.abs(out - far_off) < 1.0) and np.any(out == far_off)
+    none = refine_disparity(left, right, far_off, np.zeros_like(valid), (21, 3))
+    np.testing.assert_array_equal(none, far_off)
+
+
+def test_the_refinement_lowers_sgbm_error_on_rendered_frames(samples: list[tuple[Frame, np.ndarray]]) -> None:
+    plain = evaluate(create("sgbm", GRID), samples).metrics
+    refined = evaluate(create("sgbm", GRID, refine_width=21), samples).metrics
+    assert refined["abs_err_cm"] < plain["abs_err_cm"], (plain["abs_err_cm"], refined["abs_err_cm"])
+    assert refined["coverage_pct"] >= plain["coverage_pct"] - 1.0
+
+
 def test_errors() -> None:
     with pytest.raises(BackendError, match="unknown option"):
         create("bm", GRID, window=9)
@@ -92,6 +129,10 @@ def test_errors() -> None:
         create("bm", GRID, block_size=4)
     with pytest.raises(BackendError, match="mode"):
         create("sgbm", GRID, mode="fast")
+    with pytest.raises(BackendError, match="odd sides"):
+        create("sgbm", GRID, refine_width=20)
+    with pytest.raises(BackendError, match="refine_height"):
+        create("sgbm", GRID, refine_width=21, refine_height=-1)
     frame = Frame(np.zeros((CAMERA.height, CAMERA.width), np.uint8), None, CAMERA, Attitude())
     with pytest.raises(FrameError, match="right image"):
         create("sgbm", GRID).estimate(frame)

@@ -81,6 +81,23 @@ def test_the_registry_builds_refined_members_and_refuses_bad_ones() -> None:
             create("ensemble", GRID, members=members)
 
 
+def test_member_options_reach_their_member_only() -> None:
+    options: dict[str, Any] = {"sgbm.refine_width": 21, "bm.block_size": 9}
+    ensemble = create("ensemble", GRID, **options)
+    assert isinstance(ensemble, EnsembleBackend)
+    members: list[Any] = list(ensemble.members)
+    bm, sgbm = (m.params for m in members)
+    assert (bm.block_size, bm.refine_width) == (9, 0)
+    assert (sgbm.block_size, sgbm.refine_width) == (7, 21)
+    refused: list[dict[str, Any]] = [{"stereo.threads": 1}, {"sgbm": 3}, {"sgbm.": 3}]
+    for bad in refused:
+        with pytest.raises(BackendError, match="member"):
+            create("ensemble", GRID, **bad)
+    unknown: dict[str, Any] = {"sgbm.window": 9}
+    with pytest.raises(BackendError, match="unknown option"):
+        create("ensemble", GRID, **unknown)
+
+
 class _Recording:
     """A member that notes the order the shared workers start it in."""
 
