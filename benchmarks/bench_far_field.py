@@ -15,9 +15,10 @@ this reports
   the error to it; the length of road one image row covers there; the share of frames whose
   pitch keeps the band's centre inside the image.
 
-Run: ``.venv/bin/python -m benchmarks.bench_far_field [--frames 100] [--backends bm sgbm ensemble]
-[--appearance real-road] [--out benchmarks/results/far_field.json]``; the table is on
-docs/results/backends.md (``python -m benchmarks.doc_tables --write``).
+Run: ``.venv/bin/python -m benchmarks.bench_far_field [--frames 100]
+[--backends bm sgbm ensemble ensemble:sgbm.refine_width=21] [--appearance real-road]
+[--out benchmarks/results/far_field.json]``; the table is on docs/results/backends.md
+(``python -m benchmarks.doc_tables --write``).
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.common import EVAL_SEED_BASE, RESULTS, add_appearance_argument, machine_info, write_json
+from benchmarks.common import EVAL_SEED_BASE, RESULTS, add_appearance_argument, backend_spec, machine_info, write_json
 from roadbev_core.config import GridSpec, RoadbevConfig, StereoCamera
 from roadbev_core.far_field import SUBPIXEL_PRECISION_PX, far_cell_size, farthest_road_in_view, road_sampling
 from roadbev_core.pipeline import Pipeline
@@ -68,10 +69,12 @@ def band_physics(grid: GridSpec, camera: StereoCamera, pitch_rad: float, pitches
     return out
 
 
-def run_backend(name: str, config: RoadbevConfig, samples: list[Any], physics: list[dict[str, Any]]
+def run_backend(spec: str, config: RoadbevConfig, samples: list[Any], physics: list[dict[str, Any]]
                 ) -> dict[str, Any]:
-    """One backend over the samples: the near and far metrics and the bands (aligned with ``physics``)."""
-    pipeline = Pipeline(config.with_params({"backend": name}), configure_process=False)
+    """One backend (``NAME[:OPTION=VALUE,...]``) over the samples: the near and far metrics and the
+    bands (aligned with ``physics``)."""
+    name, options = backend_spec(spec)
+    pipeline = Pipeline(config.with_params({"backend": name, **options}), configure_process=False)
     result = evaluate(pipeline, samples, keep_estimates=True)
     outputs = result.outputs or []
     near = BandAccumulator(config.grid, BAND_M)
@@ -97,7 +100,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_far_field", description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help=f"frames (default {DEFAULT_FRAMES})")
     parser.add_argument("--backends", nargs="+", default=list(BACKENDS),
-                        help=f"backends that estimate the far field (default {' '.join(BACKENDS)})")
+                        help=f"backends that estimate the far field, NAME[:OPTION=VALUE,...] (default "
+                             f"{' '.join(BACKENDS)})")
     add_appearance_argument(parser, "the frames")
     parser.add_argument("--out", type=Path, default=RESULTS / "far_field.json", help="result JSON")
     args = parser.parse_args(argv)

@@ -38,7 +38,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.common import RESULTS, available_backends, machine_info, write_json
+from benchmarks.common import RESULTS, available_backends, backend_spec, machine_info, write_json
 from roadbev_core.config import DEFAULT_BACKEND, parse_assignments
 
 REPO = Path(__file__).resolve().parents[1]
@@ -84,13 +84,6 @@ def _float(values: dict[str, str], key: str) -> float:
         return float(values[key])
     except (KeyError, ValueError):
         return math.nan
-
-
-def backend_spec(spec: str) -> tuple[str, dict[str, Any]]:
-    """``NAME[:OPTION=VALUE,...]`` -> the backend name and its options as node parameters."""
-    name, _, options = spec.partition(":")
-    items = [item for item in options.split(",") if item]
-    return name, {f"{name}.{key}": value for key, value in parse_assignments(items, "--backends").items()}
 
 
 def run_one(

@@ -18,7 +18,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
-from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.config import GridSpec, StereoCamera, parse_assignments
 from roadbev_core.frame import Estimate, Frame
 from roadbev_lab.evaluation.frames import to_json
 from roadbev_lab.fleet.executors import Executor, FleetError, make_executor
@@ -30,6 +30,7 @@ __all__ = [
     "add_appearance_argument",
     "add_executor_arguments",
     "available_backends",
+    "backend_spec",
     "eval_samples",
     "executor_from",
     "machine_info",
@@ -136,6 +137,13 @@ def scene_samples(
 
     scenes = SyntheticSet(cache, seeds, grid=grid, appearance=appearance)
     return [scenes[i] for i in range(len(scenes))]
+
+
+def backend_spec(spec: str) -> tuple[str, dict[str, Any]]:
+    """``NAME[:OPTION=VALUE,...]`` -> the backend name and its options as node parameters."""
+    name, _, options = spec.partition(":")
+    items = [item for item in options.split(",") if item]
+    return name, {f"{name}.{key}": value for key, value in parse_assignments(items, "--backends").items()}
 
 
 def available_backends(names: Iterable[str] = ("bev_sweep", "sgbm", "bm", "stereo", "mono")) -> dict[str, str]:
