@@ -1017,6 +1017,13 @@ TABLES: dict[str, Table] = {
     "node_far_field": Table(("node_far_field.json",), node_candidates,
                             f"{_NODE} --drive --rate 10 --frames 60 --modes 5hz --backends ensemble --node-param "
                             "far_field.enabled=true --out benchmarks/results/node_far_field.json"),
+    "node_refined": Table(("node_refined.json",), node_candidates,
+                          f"{_NODE} --drive --rate 10 --frames 60 --modes 5hz --backends ensemble "
+                          "ensemble:sgbm.refine_width=21 --out benchmarks/results/node_refined.json"),
+    "node_refined_far": Table(("node_refined_far.json",), node_candidates,
+                              f"{_NODE} --drive --rate 10 --frames 60 --modes 5hz --backends ensemble "
+                              "ensemble:sgbm.refine_width=21 --node-param far_field.enabled=true "
+                              "--out benchmarks/results/node_refined_far.json"),
     "node_stereo": Table(("node_stereo.json",), node_rows, f"{_NODE} --backends stereo stereo:runtime=openvino "
                                                            "--frames 40 --out benchmarks/results/node_stereo.json"),
     "node_stereo_threads2": Table(("node_stereo_threads2.json",), node_rows,
@@ -1045,6 +1052,10 @@ TABLES: dict[str, Table] = {
     "ride_far_budget": Table(("ride_far_field.json",), functools.partial(ride_budget, candidate="ensemble_far"),
                              with_provenance=False),
     "ride_far_arrival": Table(("ride_far_field.json",), ride_arrival, with_provenance=False),
+    "ride_refined_shares": Table(("ride_refined.json",), ride_shares),
+    "ride_refined_arrival": Table(("ride_refined.json",), ride_arrival, with_provenance=False),
+    "ride_refined_far_shares": Table(("ride_refined_far.json",), ride_shares),
+    "ride_refined_far_arrival": Table(("ride_refined_far.json",), ride_arrival, with_provenance=False),
     "hazards": Table(("hazards.json",), hazards),
     "hazards_map": Table(("hazards_map.json",), hazards_map),
     "hazards_map_far_field": Table(("hazards_map_far_field.json",), hazards_map),

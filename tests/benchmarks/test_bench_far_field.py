@@ -35,3 +35,12 @@ def test_one_frame_gives_every_band_from_the_grid_to_the_far_edge(tmp_path: Path
     # the docs' table renders from such a file, one row per band
     table = doc_tables.far_field(data)
     assert table.startswith("| band (m) |") and table.count("\n| ") == len(bands) and "`bm`: error" in table
+
+
+def test_a_backend_with_options_is_scored_under_its_spec(tmp_path: Path) -> None:
+    out = tmp_path / "far_field.json"
+    assert main(["--frames", "1", "--backends", "bm", "bm:block_size=15", "--out", str(out)]) == 0
+    scored = json.loads(out.read_text())["backends"]
+    assert list(scored) == ["bm", "bm:block_size=15"]
+    # another block size answers other cells: the option reached the backend
+    assert scored["bm"]["near"]["coverage_pct"] != scored["bm:block_size=15"]["near"]["coverage_pct"]
