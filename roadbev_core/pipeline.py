@@ -12,7 +12,10 @@ The node, ``roadbev eval``, the online evaluation, the demo and the benchmarks a
                            map on:  FusedMap.integrate ─► map_preview ◄───┘    (+ map window)
 
 With ``far_field.enabled`` a second backend of the same kind answers the far-field grid beyond
-the grid on the same frame (:func:`build_far_backend`; ``PipelineOutput.far``), and the grid's
+the grid on the same frame (:func:`build_far_backend`; ``PipelineOutput.far``) where the backend
+has a far field; with one that has none (``far_field_unsupported``) the pipeline runs as with the
+far field off and says why in :attr:`Pipeline.far_field_off` (the node's diagnostics, ``roadbev
+eval``'s ``far_field`` key). The grid's
 own estimate is the same with it on or off. With the map on it is fused too, on the map's cells
 with the frame's alignment (:meth:`roadbev_core.fusion.FusedMap.integrate_far`), so the map and
 its contact-plane previews reach the far-field grid's far edge; the per-frame (map off) preview
@@ -80,6 +83,7 @@ __all__ = [
     "build_backend",
     "build_far_backend",
     "check_config",
+    "far_field_unsupported",
     "replay",
 ]
 
@@ -188,6 +192,15 @@ class FarFieldUnsupported(BackendError):
     """``far_field.enabled`` with a backend that does not answer the far-field grid."""
 
 
+def far_field_unsupported(config: RoadbevConfig, backend: Backend) -> str:
+    """Why the far field ``config`` asks for is not estimated with ``backend`` (one without a true
+    ``far_field`` attribute), or "" (asked for and estimated, or not asked for)."""
+    if config.far_field.enabled and not getattr(backend, "far_field", False):
+        return f"backend {backend.name!r} does not estimate the far field (far_field.enabled): bm, sgbm and their " \
+               "ensemble do"
+    return ""
+
+
 def build_far_backend(config: RoadbevConfig, backend: Backend, factory: BackendFactory | None = None
                       ) -> Backend | None:
     """The far-field backend: ``backend``'s kind with the same options on ``config.far_grid``
@@ -201,10 +214,9 @@ def build_far_backend(config: RoadbevConfig, backend: Backend, factory: BackendF
     far_grid = config.far_grid
     if far_grid is None:
         return None
-    if not getattr(backend, "far_field", False):
-        raise FarFieldUnsupported(
-            f"backend {backend.name!r} does not estimate the far field (far_field.enabled): bm, sgbm and their "
-            "ensemble do")
+    unsupported = far_field_unsupported(config, backend)
+    if unsupported:
+        raise FarFieldUnsupported(unsupported)
     far = build_backend(config, factory, grid=far_grid)
     if isinstance(far, SubmitsEstimates) and type(far) is type(backend):
         far.share_workers(backend)  # near and far matchers queue on one pool (Pipeline._run)
@@ -227,9 +239,14 @@ class Pipeline:
         configure_process: apply the config's thread count process-wide (the node and the
             command line do; a library user embedding the pipeline may keep its own settings).
 
+    Attributes:
+        config: the config it runs: the one given, with the far field off when the backend has
+            none (``far_field_off`` says so).
+        far_field_off: why the far field the config asks for is not estimated
+            (:func:`far_field_unsupported`), or "".
+
     Raises:
-        BackendError: the backend (or the far-field one) cannot be built; FarFieldUnsupported when
-            it does not answer the far field.
+        BackendError: the backend (or the far-field one) cannot be built.
     """
 
     def __init__(
@@ -244,8 +261,9 @@ class Pipeline:
         self._map_factory = map_factory
         self._configure_process = configure_process
         self._lock = threading.Lock()
-        self.config = config
         self.backend = build_backend(config, backend_factory)
+        self.far_field_off = far_field_unsupported(config, self.backend)
+        self.config = config = self._runnable(config, self.far_field_off)
         self.far_backend = build_far_backend(config, self.backend, backend_factory)
         self.imu = imu_buffer(config.imu)
         self._speed: tuple[int, float] | None = None  # (stamp ns, m/s)
@@ -264,6 +282,12 @@ class Pipeline:
             configure_threads(config.backend.inference_threads)
 
     # --- configuration -------------------------------------------------------------------------
+    @staticmethod
+    def _runnable(config: RoadbevConfig, far_field_off: str) -> RoadbevConfig:
+        """``config``, with the far field off where the backend has none (``far_field_off``): the
+        map's corridor and the previews then end at the grid's far edge, as with it off."""
+        return config.with_params({"far_field.enabled": False}) if far_field_off else config
+
     @staticmethod
     def _tracks_fit(config: RoadbevConfig) -> bool:
         p = config.preview
@@ -288,12 +312,15 @@ class Pipeline:
             or config.backend.options_of() != old.backend.options_of()
         )
         backend = build_backend(config, self._factory) if rebuild else self.backend
+        far_field_off = far_field_unsupported(config, backend)
+        config = self._runnable(config, far_field_off)
         far_backend = (build_far_backend(config, backend, self._factory)
                        if rebuild or config.far_grid != old.far_grid else self.far_backend)
         with self._lock:
             self.config = config
             self.backend = backend
             self.far_backend = far_backend
+            self.far_field_off = far_field_off
             self._with_preview = self._tracks_fit(config)
             if config.imu != old.imu:
                 self.imu.configure(config.imu)

@@ -34,6 +34,7 @@ __all__ = [
     "ProblemLog",
     "RateMeter",
     "ThrottledLog",
+    "far_field_state",
     "frequency_check",
     "late_output",
     "node_values",
@@ -258,6 +259,8 @@ class Health:
     """
 
     backend: str = ""
+    # "on", "off", or "off: <why>" when the far field is asked for and the backend has none
+    far_field: str = "off"
     window_s: float = 5.0
     problem_window_s: float = 5.0
     clock: Callable[[], float] = time.monotonic
@@ -420,6 +423,7 @@ class Health:
 
             values = {
                 "backend": self.backend,
+                "far_field": self.far_field,
                 "input_rate_hz": f"{in_rate:.2f}",
                 "set_rate_hz": f"{self.set_rate.rate():.2f}",
                 "output_rate_hz": f"{out_rate:.2f}",
@@ -575,6 +579,15 @@ def node_values(*, queued_set: bool, queued_left_images: int, map_state: str, ta
     }
 
 
+def far_field_state(estimated: bool, why_not: str) -> str:
+    """The ``far_field`` diagnostic value: "on" where the far field is estimated, "off: <why>"
+    where it is asked for and not estimated (``why_not``: the pipeline's ``far_field_off``), else
+    "off"."""
+    if estimated:
+        return "on"
+    return f"off: {why_not}" if why_not else "off"
+
+
 class NodeDiagnostics:
     """What the RoadBEV node reports on ``/diagnostics``: its :class:`Health` figures, the problems
     (:class:`ProblemLog`), the outputs' :class:`OutputTally` and whether its clock moves.
@@ -584,19 +597,22 @@ class NodeDiagnostics:
         config: a :class:`roadbev_core.config.tree.DiagnosticsConfig` (as :meth:`Health.configure`).
         warn: writes one warning line (the node's logger).
         steady: seconds, monotonic (injectable for tests).
+        far_field: whether the far field is estimated: "on", "off", or "off: <why>" when it is
+            asked for and the backend has none (:func:`far_field_state`).
     """
 
     def __init__(self, backend: str, config: Any, warn: Callable[[str], object],
-                 steady: Callable[[], float] = time.monotonic) -> None:
-        self.health = Health(backend=backend)
+                 steady: Callable[[], float] = time.monotonic, *, far_field: str = "off") -> None:
+        self.health = Health(backend=backend, far_field=far_field)
         self.health.configure(config)
         self.report = ProblemLog(self.health, warn, config.log_throttle_s, steady)
         self.tally = OutputTally()
         self._clock = ClockWatch(steady)
 
-    def configure(self, backend: str, config: Any) -> None:
+    def configure(self, backend: str, config: Any, *, far_field: str = "off") -> None:
         """A new backend or new settings (a parameter change)."""
         self.health.backend = backend
+        self.health.far_field = far_field
         self.report.throttle.period_s = config.log_throttle_s
         self.health.configure(config)
 

@@ -50,7 +50,13 @@ from roadbev_core.pipeline import BackendFactory, Pipeline, check_config
 from roadbev_core.selfcheck import self_check
 from roadbev_ros.camera_inputs import LEFT_IMAGE, LEFT_INFO, RIGHT_IMAGE, RIGHT_INFO, CameraInputs
 from roadbev_ros.dds import asks_for_help, init_ros, raise_interrupt, spin_until_shutdown
-from roadbev_ros.diagnostics import COMPRESSED_SUFFIX, NodeDiagnostics, to_diagnostic_array, transport_hint
+from roadbev_ros.diagnostics import (
+    COMPRESSED_SUFFIX,
+    NodeDiagnostics,
+    far_field_state,
+    to_diagnostic_array,
+    transport_hint,
+)
 from roadbev_ros.mailbox import Mailbox
 from roadbev_ros.map_services import MapServices
 from roadbev_ros.motion import MotionInputs
@@ -102,7 +108,8 @@ class RoadBevNode(Node):
             raise ParamError(str(exc)) from None
         self.pipeline.warm_up()  # before the inputs are subscribed (above)
         log = self.get_logger()
-        self._status = NodeDiagnostics(self.pipeline.backend.name, self.config.diagnostics, log.warning)
+        self._status = NodeDiagnostics(self.pipeline.backend.name, self.config.diagnostics, log.warning,
+                                       far_field=self._far_field_state())
         self.health, self._problem = self._status.health, self._status.report
         self._mailbox: Mailbox[tuple[Any, ...]] = Mailbox()
         topics = self.config.topics
@@ -159,6 +166,15 @@ class RoadBevNode(Node):
         """On the steady clock: diagnostics go on while a simulated /clock stops or jumps back."""
         return self.create_timer(period_s, self._publish_diagnostics, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
+    def _far_field_state(self) -> str:
+        """The far field as the pipeline runs it (the ``far_field`` diagnostic); where it is asked
+        for and the backend has none, the reason is also logged once as a warning."""
+        why_not = self.pipeline.far_field_off
+        if why_not:
+            self.get_logger().warning(f"{why_not}; the map and the previews end at the grid's far edge "
+                                      f"and {self.config.far_field.topic} stays silent")
+        return far_field_state(self.pipeline.far_backend is not None, why_not)
+
     def _image_topic(self, base: str) -> str:
         """The topic of the image stream ``base``: raw, ``base`` (rcl applies the remaps); compressed,
         the remapped ``base`` + ``/compressed``: a remap of the base moves it, as in image_transport."""
@@ -193,7 +209,7 @@ class RoadBevNode(Node):
         if old.diagnostics.period_s != config.diagnostics.period_s:
             self.destroy_timer(self._diag_timer)
             self._diag_timer = self._diagnostics_timer(config.diagnostics.period_s)
-        self._status.configure(self.pipeline.backend.name, config.diagnostics)
+        self._status.configure(self.pipeline.backend.name, config.diagnostics, far_field=self._far_field_state())
         self.get_logger().info("parameters updated")
         return SetParametersResult(successful=True)
 

@@ -16,7 +16,8 @@ gives the backend's own answer (used to calibrate).
 A backend that can also answer the far-field grid (:class:`roadbev_core.config.FarFieldConfig`:
 coarser cells beyond the grid, on the same frame) says so with a true ``far_field`` attribute;
 :func:`roadbev_core.pipeline.build_far_backend` then builds a second one on that grid. Those
-that do not (the default) are refused when the far field is asked for. A backend that can start
+that do not (the default) run the grid alone when the far field is asked for
+(:attr:`roadbev_core.pipeline.Pipeline.far_field_off` says why). A backend that can start
 an estimate and finish it later on workers it shares with another of its kind
 (:class:`SubmitsEstimates`: the ``ensemble``) lets the pipeline run the grid's and the far
 field's estimates of a frame together.

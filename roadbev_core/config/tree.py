@@ -445,7 +445,8 @@ class FarFieldConfig:
     enabled: bool = param("far_field.enabled", False, "also estimate the far-field grid beyond the grid's far "
                           "edge and publish it on elevation_far_topic; with the map on, fuse it into the map, "
                           "whose window and previews then reach its far edge (the image-view backends bm, sgbm "
-                          "and their ensemble; the others refuse it)", read_only=True)
+                          "and their ensemble; with the others the node runs the grid alone and says why)",
+                          read_only=True)
     topic: str = param("elevation_far_topic", "/roadbev/elevation_far", "far-field GridMap output (with "
                        "far_field.enabled)", read_only=True)
     x_max: float = param("far_field.x_max", 15.0, "far edge of the far-field grid (m ahead of the camera); its "

@@ -24,7 +24,7 @@ from typing import Any
 
 from roadbev_core.config import ConfigError, FarFieldConfig, GridSpec, RoadbevConfig
 from roadbev_core.errors import RoadbevError
-from roadbev_core.pipeline import FarFieldUnsupported, Pipeline, PipelineOutput, check_config
+from roadbev_core.pipeline import Pipeline, PipelineOutput, check_config
 from roadbev_core.selfcheck import MIN_COVERAGE_PCT, self_check
 from roadbev_lab.evaluation.arrival import ArrivalError, map_summary, map_window_rows, per_frame_previews
 from roadbev_lab.evaluation.drivebag import is_drive_bag, read_drive_truth, score_preview_errors
@@ -175,13 +175,8 @@ def prepare_bag(
     map_params = {} if map_enabled is None else {"map.enabled": bool(map_enabled)}
     # the horizontal grid comes from the ground truth's GridMap info (docs/interface/bags.md)
     config = check_config(settings.with_params({**map_params, **bag.grid.to_dict(), **far_field_params(bag)}))
-    far_refused = ""
-    try:
-        pipeline = Pipeline(config)
-    except FarFieldUnsupported as exc:  # the grid is evaluated; the far-field key says why the far one is not
-        far_refused = str(exc)
-        config = config.with_params({"far_field.enabled": False})
-        pipeline = Pipeline(config)
+    pipeline = Pipeline(config)  # the grid is evaluated; the far-field key says why the far one is not
+    config, far_refused = pipeline.config, pipeline.far_field_off
     if bag.camera_mount is not None:  # /tf_static base_link -> camera wins over vehicle.camera_position_m
         pipeline.set_camera_mount(*bag.camera_mount)
     if len(bag) == 0:

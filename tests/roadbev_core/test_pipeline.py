@@ -279,11 +279,25 @@ def test_a_far_field_out_of_view_is_empty_not_an_error() -> None:
     assert np.isfinite(out.estimate.elevation).all()
 
 
-def test_a_backend_that_does_not_estimate_the_far_field_is_refused_when_it_is_asked_for() -> None:
-    config = RoadbevConfig.from_params({"require_imu": False, "far_field.enabled": True})
+def test_a_backend_without_a_far_field_runs_as_with_it_off_and_says_why() -> None:
+    asked = RoadbevConfig.from_params({"require_imu": False, "far_field.enabled": True})
+    pipeline = Pipeline(asked, backend_factory=lambda name, grid, **o: FlatRoad(grid), configure_process=False)
+    assert "backend 'flat' does not estimate the far field" in pipeline.far_field_off
+    assert pipeline.far_backend is None and pipeline.config == asked.with_params({"far_field.enabled": False})
+    out = pipeline.process_frame(_frame(0))
+    assert out.far is None and np.isfinite(out.estimate.elevation).all()
+    # asked for directly, the far-field backend of such a backend is refused
     with pytest.raises(FarFieldUnsupported, match="backend 'flat' does not estimate the far field"):
-        Pipeline(config, backend_factory=lambda name, grid, **o: FlatRoad(grid), configure_process=False)
+        build_far_backend(asked, FlatRoad(GridSpec()))
     assert build_far_backend(RoadbevConfig(), FlatRoad(GridSpec())) is None  # off: nothing to build
+    # a parameter change to a backend that has one turns it on, and back
+    far_capable = _far_pipeline(**{"far_field.enabled": True})
+    assert far_capable.far_field_off == "" and far_capable.far_backend is not None
+    off = Pipeline(RoadbevConfig.from_params({"require_imu": False}),
+                   backend_factory=lambda name, grid, **o: FlatRoad(grid), configure_process=False)
+    assert off.far_field_off == "" and off.far_backend is None
+    off.reconfigure(asked)
+    assert "does not estimate the far field" in off.far_field_off and off.config.far_grid is None
 
 
 def test_reconfiguring_the_far_field_rebuilds_its_backend_only() -> None:

@@ -903,10 +903,21 @@ def test_the_far_field_is_published_on_its_own_topic_only_when_on(ros: Any) -> N
         assert far.stamp_ns == stamp and far.frame_id == near.header.frame_id
         assert list(received[0].layers) == ["elevation", "uncertainty"] == list(near.layers)
         assert grid_map_to_arrays(near).grid.shape == (40, 64)
+        assert h.node._status.health.far_field == "on"
     finally:
         h.close()
     off = Harness(ros)
     try:
-        assert off.node._out._far is None
+        assert off.node._out._far is None and off.node._status.health.far_field == "off"
     finally:
         off.close()
+    # asked for with a backend that has none: the node runs the grid and says why on /diagnostics
+    without = Harness(ros, params=params)
+    try:
+        state = without.node._status.health.far_field
+        assert state.startswith("off: backend 'stub") and "does not estimate the far field" in state, state
+        assert without.node.pipeline.config.far_grid is None
+        stamp = feed(without, 0)
+        assert without.wait_output(stamp).header.stamp is not None
+    finally:
+        without.close()
