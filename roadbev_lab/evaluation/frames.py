@@ -303,9 +303,11 @@ def _unpack(sample: Any) -> tuple[CameraInput, Frame | None, np.ndarray | None, 
 
 def pipeline_for(backend: Backend, config: RoadbevConfig | None = None) -> Pipeline:
     """A pipeline around an already built backend (benchmarks and tests that build their own),
-    with ``config``'s other settings (the defaults when None) and the backend's grid."""
+    with ``config``'s other settings (the defaults when None) and the backend's grid; the far field
+    off (it needs a second backend on its own grid: run a :class:`Pipeline` for it)."""
     base = config or RoadbevConfig()
-    config = replace(base, grid=backend.grid, backend=replace(base.backend, name=backend.name))
+    config = replace(base, grid=backend.grid, backend=replace(base.backend, name=backend.name),
+                     far_field=replace(base.far_field, enabled=False))
     return Pipeline(config, backend_factory=lambda *_args, **_options: backend, configure_process=False)
 
 
