@@ -284,9 +284,10 @@ def arrival_backends(data: Mapping[str, Any]) -> str:
 
 def node_candidates(data: Mapping[str, Any]) -> str:
     """bench_node --drive: each configuration in the node with the map on, fed a camera's timing:
-    frames fused, latency, inference, the node's own time per frame and its wait for the IMU."""
+    frames fused, latency, inference, the node's own time per frame and its wait for the motion
+    samples after each image's stamp (IMU, odometry)."""
     lines = _head("configuration", "frames fused", "latency p50 / p95 (ms)", "inference p50 (ms)",
-                  "node overhead mean (ms)", "IMU wait mean (ms)")
+                  "node overhead mean (ms)", "IMU / odometry wait mean (ms)")
     for r in data["rows"]:
         lines.append(f"| `{r['backend']}` | {r['outputs']}/{r['frames']} | {_fmt(r['latency_ms']['p50'], 0)} / "
                      f"{_fmt(r['latency_ms']['p95'], 0)} | {_fmt(r['inference_p50_ms'], 0)} | "
@@ -295,9 +296,9 @@ def node_candidates(data: Mapping[str, Any]) -> str:
     lines.append("")
     lines.append(f"A {bag['frames']}-frame drive at {bag['frame_rate_hz']:g} Hz with odometry (the map on), "
                  "replayed with the bag's timing: each image leaves the replay at its stamp, so a node free "
-                 "when it comes waits for the IMU sample after the stamp (a camera driver delivers an image "
-                 "some tens of milliseconds after its stamp, by when that sample has come; a configuration "
-                 "still busy with the previous frame finds it there).")
+                 "when it comes waits for the IMU and odometry samples after the stamp (a camera driver "
+                 "delivers an image some tens of milliseconds after its stamp, by when they have come; a "
+                 "configuration still busy with the previous frame finds them there).")
     return "\n".join(lines)
 
 

@@ -453,11 +453,22 @@ class Pipeline:
             return self.config.map.enabled and (self._odometry_seen or self._speed is not None)
 
     def wait_for_attitude(self, stamp_ns: int, timeout_s: float, stop: Callable[[], bool] = lambda: False) -> float:
-        """Wait (live) up to ``timeout_s`` for an IMU (and, when odometry comes, an odometry)
-        sample at or after ``stamp_ns``, so attitude and pose are interpolated rather than taken
-        from older samples; returns the seconds waited (``stop()`` true ends the wait early)."""
+        """Wait (live) up to ``timeout_s`` for an IMU sample at or after ``stamp_ns``, so the
+        attitude is interpolated rather than taken from older samples; returns the seconds waited
+        (``stop()`` true ends the wait early). The pose waits later (:meth:`wait_for_pose`)."""
+        return self._wait(lambda: self.attitude_ready(stamp_ns), timeout_s, stop)
+
+    def wait_for_pose(self, stamp_ns: int, timeout_s: float, stop: Callable[[], bool] = lambda: False) -> float:
+        """Wait (live) up to ``timeout_s`` for an odometry sample at or after ``stamp_ns`` (none
+        while no odometry is coming), so the pose the map places the frame at is interpolated;
+        returns the seconds waited. The estimate does not need it: a node waits for it only
+        before the map stage (``process(..., before_map=...)``), by when it has mostly come."""
+        return self._wait(lambda: self.odometry_ready(stamp_ns), timeout_s, stop)
+
+    @staticmethod
+    def _wait(ready: Callable[[], bool], timeout_s: float, stop: Callable[[], bool]) -> float:
         start = time.monotonic()
-        while not self.inputs_ready(stamp_ns) and time.monotonic() - start < timeout_s and not stop():
+        while not ready() and time.monotonic() - start < timeout_s and not stop():
             time.sleep(0.002)
         return time.monotonic() - start
 
@@ -491,13 +502,17 @@ class Pipeline:
         return speed[1]
 
     # --- processing ----------------------------------------------------------------------------
-    def process(self, inputs: CameraInput, attitude: Attitude | None = None) -> PipelineOutput:
+    def process(self, inputs: CameraInput, attitude: Attitude | None = None, *,
+                before_map: Callable[[], object] | None = None) -> PipelineOutput:
         """Estimate the elevation and the preview for one camera set.
 
         Args:
             inputs: the images, rig and stamp.
             attitude: the camera attitude when it is known otherwise (synthetic data); None =
                 from the IMU samples added so far.
+            before_map: called once the estimate is made, before the map stage reads the pose at
+                the stamp (the node waits there for the odometry sample after the stamp:
+                :meth:`wait_for_pose`).
 
         Raises:
             ConfigError: an image larger than the configured limit.
@@ -511,14 +526,14 @@ class Pipeline:
         if attitude is None:
             attitude = self.attitude_at(inputs.stamp_ns)
         frame = Frame(inputs.left, inputs.right, inputs.camera, attitude, inputs.stamp_ns)
-        return self._run(frame, config, backend, far_backend)
+        return self._run(frame, config, backend, far_backend, before_map)
 
     def process_frame(self, frame: Frame) -> PipelineOutput:
         """:meth:`process` for a frame whose attitude is already known."""
         return self.process(CameraInput(frame.left, frame.right, frame.camera, frame.stamp_ns), frame.attitude)
 
-    def _run(self, frame: Frame, config: RoadbevConfig, backend: Backend, far_backend: Backend | None
-             ) -> PipelineOutput:
+    def _run(self, frame: Frame, config: RoadbevConfig, backend: Backend, far_backend: Backend | None,
+             before_map: Callable[[], object] | None = None) -> PipelineOutput:
         why = implausible(frame)
         if why:
             raise ImplausibleFrame(why)
@@ -538,6 +553,9 @@ class Pipeline:
             t2 = time.perf_counter()
             timings["estimate_far"] = 1e3 * (t2 - t1)  # what the far field adds to the frame's time
             t1 = t2
+        if before_map is not None:
+            before_map()
+            t1 = time.perf_counter()  # the map's and the preview's times leave the wait out
         mapped = self._map_stage(frame, estimate, config, far)
         if mapped is not None:
             timings["map"] = 1e3 * (time.perf_counter() - t1)

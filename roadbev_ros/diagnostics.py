@@ -346,7 +346,8 @@ class Health:
             stamp_age_ms: outputs published minus the image stamp, by the node's clock.
             inference_ms: the backend's ``estimate``.
             overhead_ms: the node's own work (conversions, preview, publishing).
-            imu_wait_ms: time spent waiting for an IMU sample at or after the image stamp.
+            imu_wait_ms: time spent waiting for the IMU sample at or after the image stamp (before
+                the estimate) and the odometry one (before the map stage).
         """
         with self._lock:
             self.outputs += 1

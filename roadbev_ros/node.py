@@ -231,12 +231,22 @@ class RoadBevNode(Node):
         t0 = time.perf_counter()
         inputs = camera_input(msgs, config.topics.image_transport)
         self._tf.see_frame(str(msgs[0].header.frame_id), inputs.stamp_ns)
-        # IMU messages may arrive after the images: wait for a sample at or after the stamp
-        imu_wait = self.pipeline.wait_for_attitude(inputs.stamp_ns, config.imu.wait_s, lambda: self._mailbox.closed)
+        # IMU and odometry messages may arrive after the images: the estimate waits for an IMU
+        # sample at or after the stamp, the map stage for an odometry one (by then it has mostly
+        # come), both within imu_wait_s of the set's arrival
+        def stop() -> bool:
+            return self._mailbox.closed
+
+        imu_wait = self.pipeline.wait_for_attitude(inputs.stamp_ns, config.imu.wait_s, stop)
         self.health.imu_age_s = self.pipeline.imu_age_s(inputs.stamp_ns)
-        t1 = time.perf_counter()
-        output = self.pipeline.process(inputs)
-        t2 = time.perf_counter()
+        waited = [imu_wait]
+        deadline = time.monotonic() - imu_wait + config.imu.wait_s
+
+        def wait_for_pose() -> None:
+            waited.append(self.pipeline.wait_for_pose(inputs.stamp_ns, max(0.0, deadline - time.monotonic()), stop))
+
+        output = self.pipeline.process(inputs, before_map=wait_for_pose)
+        wait = sum(waited)
         messages = output_messages(output, config, _FACTORY, with_points=self._out.points_wanted(),
                                    with_preview_markers=self._out.preview_markers_wanted(),
                                    camera_frame=self._tf.mount.camera_frame)
@@ -250,8 +260,8 @@ class RoadBevNode(Node):
         latency_ms = (time.monotonic() - arrival) * 1e3
         stamp_age_ms = (self.get_clock().now().nanoseconds - inputs.stamp_ns) * 1e-6
         estimate_ms = output.timings_ms["estimate"]
-        overhead_ms = ((t1 - t0) - imu_wait + (t2 - t1) - estimate_ms * 1e-3 + (t3 - t2)) * 1e3
-        self.health.output(latency_ms, stamp_age_ms, estimate_ms, overhead_ms, imu_wait * 1e3)
+        overhead_ms = ((t3 - t0) - wait - estimate_ms * 1e-3) * 1e3
+        self.health.output(latency_ms, stamp_age_ms, estimate_ms, overhead_ms, wait * 1e3)
         # coverage of every frame, and when it is low the likely causes (measured on such frames only)
         check = self_check(output.estimate, output.frame, config.grid, measure_when_ok=False)
         self.health.coverage(check.coverage_pct, check.ok, check.message)

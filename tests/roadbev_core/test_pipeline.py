@@ -15,7 +15,7 @@ from roadbev_core.ego_motion import PlanarPose
 from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Estimate, Frame, FrameError
 from roadbev_core.geometry import R_BODY_FROM_OPTICAL, Attitude
-from roadbev_core.pipeline import FarFieldUnsupported, Pipeline, build_far_backend, check_config
+from roadbev_core.pipeline import CameraInput, FarFieldUnsupported, Pipeline, build_far_backend, check_config
 from roadbev_core.preview import REFERENCE_CONTACT_PLANE, REFERENCE_ROAD
 
 S = 1_000_000_000
@@ -102,6 +102,29 @@ def test_with_odometry_frames_are_fused_and_the_preview_comes_from_the_map() -> 
     values = np.concatenate([t.elevation[np.isfinite(t.elevation)] for t in last.tracks])
     assert values.size > 100 and np.max(np.abs(values)) < 1e-4  # flat relative to the contact plane
     assert "map" in outputs[-1].timings_ms
+
+
+def test_the_map_stage_waits_for_the_pose_after_the_estimate_is_made() -> None:
+    """The estimate needs only the attitude: a node waits for the odometry sample after the stamp
+    just before the map stage, and the frame is placed at the pose interpolated at its stamp."""
+    pipeline = _pipeline()
+    pipeline.set_camera_mount([1.6, 0.0, 1.1], R_BODY_FROM_OPTICAL)
+    pipeline.add_odometry(PlanarPose(S // 10, 0.0, 0.0, 0.0, 10.0, 0.0))
+    frame = _frame(1)  # stamped 0.2 s: after the only odometry sample
+    assert not pipeline.odometry_ready(frame.stamp_ns)
+    assert pipeline.wait_for_pose(frame.stamp_ns, 0.01) >= 0.01  # waits out its timeout
+    calls: list[bool] = []
+
+    def odometry_arrives() -> None:  # while the estimate was being made
+        calls.append(pipeline.odometry_ready(frame.stamp_ns))
+        pipeline.add_odometry(PlanarPose(3 * S // 10, 2.0, 0.0, 0.0, 10.0, 0.0))
+        assert pipeline.wait_for_pose(frame.stamp_ns, 1.0) < 0.5
+
+    inputs = CameraInput(frame.left, frame.right, frame.camera, frame.stamp_ns)
+    out = pipeline.process(inputs, frame.attitude, before_map=odometry_arrives)
+    assert calls == [False] and out.map is not None and out.fusion is not None
+    assert out.base_pose is not None and out.base_pose.x == pytest.approx(1.0)  # halfway between the two samples
+    assert "map" in out.timings_ms
 
 
 def test_rear_axle_tracks_start_at_the_rear_axle() -> None:
