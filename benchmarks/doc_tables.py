@@ -1018,6 +1018,13 @@ TABLES: dict[str, Table] = {
     "node_far_field": Table(("node_far_field.json",), node_candidates,
                             f"{_NODE} --drive --rate 10 --frames 60 --modes 5hz --backends ensemble --node-param "
                             "far_field.enabled=true --out benchmarks/results/node_far_field.json"),
+    "node_wait_split": Table(("node_wait_split.json",), node_candidates,
+                             f"{_NODE} --drive --rate 10 --frames 60 --modes 5hz --backends ensemble "
+                             "--out benchmarks/results/node_wait_split.json"),
+    "node_wait_split_far": Table(("node_wait_split_far.json",), node_candidates,
+                                 f"{_NODE} --drive --rate 10 --frames 60 --modes 5hz --backends ensemble "
+                                 "--node-param far_field.enabled=true "
+                                 "--out benchmarks/results/node_wait_split_far.json"),
     "node_refined": Table(("node_refined.json",), node_candidates,
                           f"{_NODE} --drive --rate 10 --frames 60 --modes 5hz --backends ensemble "
                           "ensemble:sgbm.refine_width=21 --out benchmarks/results/node_refined.json"),
