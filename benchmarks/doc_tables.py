@@ -979,6 +979,14 @@ class Table:
 
 
 _NODE = ".venv/bin/python -m benchmarks.bench_node"
+
+def _node_drive(name: str, backends: str, node_param: str = "") -> Table:
+    """The table of a ``bench_node --drive`` run at 10 Hz (60 frames, the bag's timing) of
+    ``backends``, with ``node_param`` for every row, written to ``<name>.json``."""
+    param = f" --node-param {node_param}" if node_param else ""
+    return Table((f"{name}.json",), node_candidates, f"{_NODE} --drive --rate 10 --frames 60 --modes 5hz --backends "
+                                                     f"{backends}{param} --out benchmarks/results/{name}.json")
+
 TABLES: dict[str, Table] = {
     "demo": Table(("demo.json",), demo),
     "demo_stages": Table(("demo.json",), demo_stages, with_provenance=False),
@@ -1011,27 +1019,14 @@ TABLES: dict[str, Table] = {
     "node": Table(("node.json",), node_rows, f"{_NODE} --frames 40"),
     "node_map": Table(("node_map.json",), node_rows, f"{_NODE} --drive --rate 10 --frames 40 --backends bev_sweep "
                                                      "--out benchmarks/results/node_map.json"),
-    "node_candidates": Table(("node_candidates.json",), node_candidates,
-                             f"{_NODE} --drive --rate 10 --frames 60 --modes 5hz --backends ensemble bm sgbm stereo "
-                             "ensemble:members=stereo+sgbm ensemble:members=stereo+bm bev_sweep "
-                             "bev_sweep:min_score=0.7 --out benchmarks/results/node_candidates.json"),
-    "node_far_field": Table(("node_far_field.json",), node_candidates,
-                            f"{_NODE} --drive --rate 10 --frames 60 --modes 5hz --backends ensemble --node-param "
-                            "far_field.enabled=true --out benchmarks/results/node_far_field.json"),
-    "node_wait_split": Table(("node_wait_split.json",), node_candidates,
-                             f"{_NODE} --drive --rate 10 --frames 60 --modes 5hz --backends ensemble "
-                             "--out benchmarks/results/node_wait_split.json"),
-    "node_wait_split_far": Table(("node_wait_split_far.json",), node_candidates,
-                                 f"{_NODE} --drive --rate 10 --frames 60 --modes 5hz --backends ensemble "
-                                 "--node-param far_field.enabled=true "
-                                 "--out benchmarks/results/node_wait_split_far.json"),
-    "node_refined": Table(("node_refined.json",), node_candidates,
-                          f"{_NODE} --drive --rate 10 --frames 60 --modes 5hz --backends ensemble "
-                          "ensemble:sgbm.refine_width=21 --out benchmarks/results/node_refined.json"),
-    "node_refined_far": Table(("node_refined_far.json",), node_candidates,
-                              f"{_NODE} --drive --rate 10 --frames 60 --modes 5hz --backends ensemble "
-                              "ensemble:sgbm.refine_width=21 --node-param far_field.enabled=true "
-                              "--out benchmarks/results/node_refined_far.json"),
+    "node_candidates": _node_drive("node_candidates", "ensemble bm sgbm stereo ensemble:members=stereo+sgbm "
+                                   "ensemble:members=stereo+bm bev_sweep bev_sweep:min_score=0.7"),
+    "node_far_field": _node_drive("node_far_field", "ensemble", "far_field.enabled=true"),
+    "node_wait_split": _node_drive("node_wait_split", "ensemble"),
+    "node_wait_split_far": _node_drive("node_wait_split_far", "ensemble", "far_field.enabled=true"),
+    "node_refined": _node_drive("node_refined", "ensemble ensemble:sgbm.refine_width=21"),
+    "node_refined_far": _node_drive("node_refined_far", "ensemble ensemble:sgbm.refine_width=21",
+                                    "far_field.enabled=true"),
     "node_stereo": Table(("node_stereo.json",), node_rows, f"{_NODE} --backends stereo stereo:runtime=openvino "
                                                            "--frames 40 --out benchmarks/results/node_stereo.json"),
     "node_stereo_threads2": Table(("node_stereo_threads2.json",), node_rows,
