@@ -129,7 +129,7 @@ def refine_disparity(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
     Block matchers fit a parabola to three matching costs, which pulls disparities towards whole
     pixels (pixel locking); on a road, whose disparity changes steadily down the image, that is
     a ripple in the heights. One Gauss-Newton step on the locally normalised images,
-    ``d += sum(r gx) / sum(gx^2)`` over ``window`` (width, height) with ``r`` the left image less the
+    ``d -= sum(r gx) / sum(gx^2)`` over ``window`` (width, height) with ``r`` the left image less the
     right one warped by ``d`` and ``gx`` the warped image's horizontal gradient, re-estimates it.
     A window wider than tall: the road's disparity changes down the image, not along a row.
 
