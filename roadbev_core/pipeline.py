@@ -442,10 +442,6 @@ class Pipeline:
         with self._lock:
             return not self._odometry_seen or self.ego.brackets(stamp_ns)
 
-    def inputs_ready(self, stamp_ns: int) -> bool:
-        """Attitude and pose of a frame at ``stamp_ns`` are final."""
-        return self.attitude_ready(stamp_ns) and self.odometry_ready(stamp_ns)
-
     @property
     def map_active(self) -> bool:
         """Whether frames are fused now (``map.enabled`` and odometry or a speed has arrived)."""
