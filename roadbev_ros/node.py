@@ -168,7 +168,8 @@ class RoadBevNode(Node):
 
     def _far_field_state(self) -> str:
         """The far field as the pipeline runs it (the ``far_field`` diagnostic); where it is asked
-        for and the backend has none, the reason is also logged once as a warning."""
+        for and the backend has none, the reason is also logged as a warning (at start and at each
+        parameter change)."""
         why_not = self.pipeline.far_field_off
         if why_not:
             self.get_logger().warning(f"{why_not}; the map and the previews end at the grid's far edge "
