@@ -128,7 +128,6 @@ class PreparedBag:
         config: the pipeline's config (the user's settings, the map switch, the bag's grid).
         pipeline: the pipeline (the camera mounted from ``/tf_static`` where the bag has it).
         drive: whether the bag is a drive bag (ground-truth poses and road map).
-        far_refused: why the bag's far-field truth is not estimated (the backend's refusal), or "".
     """
 
     path: Path
@@ -136,7 +135,11 @@ class PreparedBag:
     config: RoadbevConfig
     pipeline: Pipeline
     drive: bool
-    far_refused: str = ""
+
+    @property
+    def far_refused(self) -> str:
+        """Why the bag's far-field truth is not estimated (the backend has no far field), or ""."""
+        return self.pipeline.far_field_off
 
 
 def prepare_bag(
@@ -176,13 +179,12 @@ def prepare_bag(
     # the horizontal grid comes from the ground truth's GridMap info (docs/interface/bags.md)
     config = check_config(settings.with_params({**map_params, **bag.grid.to_dict(), **far_field_params(bag)}))
     pipeline = Pipeline(config)  # the grid is evaluated; the far-field key says why the far one is not
-    config, far_refused = pipeline.config, pipeline.far_field_off
     if bag.camera_mount is not None:  # /tf_static base_link -> camera wins over vehicle.camera_position_m
         pipeline.set_camera_mount(*bag.camera_mount)
     if len(bag) == 0:
         raise OfflineEvalError(f"bag {path} has no complete frames to evaluate")
     # a drive bag: the previews are scored at the wheels' arrival too
-    return PreparedBag(path, bag, config, pipeline, is_drive_bag(path), far_refused)
+    return PreparedBag(path, bag, pipeline.config, pipeline, is_drive_bag(path))
 
 
 def far_field_params(bag: EvalBag) -> dict[str, Any]:
