@@ -77,6 +77,8 @@ setup(
             "ensemble = roadbev_core.backends.ensemble:create_ensemble",
             "stereo = roadbev_core.backends.learned:create_stereo",
             "mono = roadbev_core.backends.learned:create_mono",
+            "gwcnet = roadbev_core.backends.gwcnet:create_gwcnet",
+            "adabins = roadbev_core.backends.adabins:create_adabins",
         ],
     },
 )

@@ -146,7 +146,8 @@ def backend_spec(spec: str) -> tuple[str, dict[str, Any]]:
     return name, {f"{name}.{key}": value for key, value in parse_assignments(items, "--backends").items()}
 
 
-def available_backends(names: Iterable[str] = ("bev_sweep", "sgbm", "bm", "stereo", "mono")) -> dict[str, str]:
+def available_backends(names: Iterable[str] = ("bev_sweep", "sgbm", "bm", "stereo", "mono", "gwcnet", "adabins")
+                       ) -> dict[str, str]:
     """Backends that can be created here: name -> '' (ok) or the reason it is skipped."""
     from roadbev_core.backends import BackendError, create
 

@@ -64,9 +64,11 @@ BUILTIN_BACKENDS: Mapping[str, str] = {
     "ensemble": "roadbev_core.backends.ensemble:create_ensemble",
     "stereo": "roadbev_core.backends.learned:create_stereo",
     "mono": "roadbev_core.backends.learned:create_mono",
+    "gwcnet": "roadbev_core.backends.gwcnet:create_gwcnet",
+    "adabins": "roadbev_core.backends.adabins:create_adabins",
 }
 # Built-in backends whose networks come from a checkpoint (the `checkpoint` parameter applies to them).
-_CHECKPOINT_BACKENDS = frozenset({"stereo", "mono"})
+_CHECKPOINT_BACKENDS = frozenset({"stereo", "mono", "gwcnet", "adabins"})
 _BUILTIN_SOURCE = "built in"
 # a dotted module, a colon, a dotted attribute: "pkg.module:factory"
 _PATH = re.compile(r"^[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*(\.[A-Za-z_]\w*)*$")

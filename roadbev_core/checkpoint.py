@@ -19,20 +19,34 @@ import torch
 
 from roadbev_core.config import ConfigError, GridSpec, StereoCamera
 from roadbev_core.errors import RoadbevError
+from roadbev_core.models.adabins import AdaBinsConfig, AdaBinsLite
+from roadbev_core.models.gwcnet import GwcNetConfig, GwcNetLite
 from roadbev_core.models.presets import ModelConfig
 from roadbev_core.models.roadbev import RoadBEV
 
 __all__ = [
+    "ADABINS_FORMAT",
+    "BASELINES",
     "FORMAT",
+    "GWCNET_FORMAT",
+    "BaselineNetwork",
     "CheckpointError",
     "TrainingEnvelope",
+    "baseline_kind",
+    "checked_state",
+    "load_baseline",
     "load_model",
     "read_checkpoint",
+    "save_baseline",
     "save_checkpoint",
     "training_envelope",
 ]
 
 FORMAT = "roadbev-checkpoint/1"
+# The image-view baselines (roadbev_core.models.gwcnet, .adabins): keys format, model_config
+# (their configuration's dict), state_dict, meta (training command, data, budget) and envelope.
+GWCNET_FORMAT = "roadbev-gwcnet-checkpoint/1"
+ADABINS_FORMAT = "roadbev-adabins-checkpoint/1"
 
 
 class CheckpointError(RoadbevError, ValueError):
@@ -154,22 +168,40 @@ def save_checkpoint(
     return path
 
 
-def read_checkpoint(path: str | Path) -> dict[str, Any]:
-    """The checkpoint dict at ``path`` (loaded with ``weights_only=True``).
+def baseline_kind(path: str | Path) -> str | None:
+    """The image-view baseline (:data:`BASELINES`) a checkpoint holds, None for anything else.
+
+    Raises:
+        CheckpointError: a missing or unreadable file.
+    """
+    payload = _load(Path(path))
+    form = payload.get("format") if isinstance(payload, dict) else None
+    return next((kind for kind, (f, _, _) in BASELINES.items() if f == form), None)
+
+
+def _load(path: Path) -> Any:
+    """A checkpoint file's content, loaded with ``weights_only=True``."""
+    if not path.is_file():
+        raise CheckpointError(f"checkpoint {path} does not exist")
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many types for corrupt files (pickle, zip, runtime)
+        raise CheckpointError(f"checkpoint {path} is unreadable or corrupt: {exc.__class__.__name__}") from exc
+
+
+def read_checkpoint(path: str | Path, *, expect: str = FORMAT) -> dict[str, Any]:
+    """The checkpoint dict at ``path`` (loaded with ``weights_only=True``), of format ``expect``
+    (:data:`FORMAT`, a RoadBEV network's, or a baseline's in :data:`BASELINES`).
 
     Raises:
         CheckpointError: missing file, unreadable or foreign content.
     """
     path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f"checkpoint {path} does not exist")
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for corrupt files (pickle, zip, runtime)
-        raise CheckpointError(f"checkpoint {path} is unreadable or corrupt: {exc.__class__.__name__}") from exc
-    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
-        raise CheckpointError(f"{path} is not a RoadBEV checkpoint (format {FORMAT!r})")
-    for key in ("model_config", "grid", "state_dict"):
+    payload = _load(path)
+    if not isinstance(payload, dict) or payload.get("format") != expect:
+        what = {FORMAT: "a RoadBEV", GWCNET_FORMAT: "a GwcNet-lite", ADABINS_FORMAT: "an AdaBins-lite"}[expect]
+        raise CheckpointError(f"{path} is not {what} checkpoint (format {expect!r})")
+    for key in ("model_config", "grid" if expect == FORMAT else "envelope", "state_dict"):
         if key not in payload:
             raise CheckpointError(f"checkpoint {path} lacks {key!r}")
     return payload
@@ -198,7 +230,20 @@ def load_model(path: str | Path, *, grid: GridSpec | None = None) -> tuple[RoadB
     except (ConfigError, TypeError) as exc:
         raise CheckpointError(f"checkpoint {path} has a bad configuration: {exc}") from exc
     model = RoadBEV(config, grid or trained_grid)
-    state = {k: v.float() if v.is_floating_point() else v for k, v in payload["state_dict"].items()}
+    state = checked_state(payload["state_dict"], path)
+    try:
+        model.load_state_dict(state)
+    except RuntimeError as exc:
+        raise CheckpointError(
+            f"checkpoint {path} does not fit a {config.kind} model on this grid: {str(exc).splitlines()[0]}"
+        ) from exc
+    return model.eval(), payload
+
+
+def checked_state(state_dict: dict[str, torch.Tensor], path: str | Path) -> dict[str, torch.Tensor]:
+    """A checkpoint's weights in fp32, refused (:class:`CheckpointError`) when one is not finite
+    or beyond :data:`MAX_WEIGHT`."""
+    state = {k: v.float() if v.is_floating_point() else v for k, v in state_dict.items()}
     broken = [k for k, v in state.items() if v.is_floating_point() and not bool(torch.isfinite(v).all())]
     if broken:
         more = f" and {len(broken) - 1} more" if len(broken) > 1 else ""
@@ -208,10 +253,53 @@ def load_model(path: str | Path, *, grid: GridSpec | None = None) -> tuple[RoadB
     if largest[0] > MAX_WEIGHT:
         raise CheckpointError(f"checkpoint {path} has implausible weights: |{largest[1]}| up to {largest[0]:.3g} "
                               f"(a trained model stays far below {MAX_WEIGHT:g}); a damaged or tampered file?")
+    return state
+
+
+# An image-view baseline network of Table I.
+BaselineNetwork = GwcNetLite | AdaBinsLite
+# The image-view baselines: kind -> (checkpoint format, configuration, network).
+BASELINES: dict[str, tuple[str, type[GwcNetConfig] | type[AdaBinsConfig], type[BaselineNetwork]]] = {
+    "gwcnet": (GWCNET_FORMAT, GwcNetConfig, GwcNetLite),
+    "adabins": (ADABINS_FORMAT, AdaBinsConfig, AdaBinsLite),
+}
+
+
+def save_baseline(path: str | Path, kind: str, model: BaselineNetwork, envelope: TrainingEnvelope, *,
+                  meta: dict[str, Any] | None = None) -> Path:
+    """Write an image-view baseline network (``kind`` in :data:`BASELINES`: weights, configuration,
+    the grid and rig it was trained for, ``meta``) to ``path`` atomically."""
+    path = Path(path)
+    payload: dict[str, Any] = {
+        "format": BASELINES[kind][0],
+        "model_config": model.config.to_dict(),
+        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+        "meta": dict(meta or {}),
+        "envelope": envelope.to_dict(),
+    }
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(payload, tmp)
+    tmp.replace(path)
+    return path
+
+
+def load_baseline(path: str | Path, kind: str) -> tuple[BaselineNetwork, dict[str, Any]]:
+    """The image-view baseline network ``kind`` of a checkpoint (eval mode, fp32) and the checkpoint dict.
+
+    Raises:
+        CheckpointError: missing, corrupt or foreign file, bad configuration, weights that do not fit.
+    """
+    form, config_type, network = BASELINES[kind]
+    payload = read_checkpoint(path, expect=form)
     try:
-        model.load_state_dict(state)
+        config = config_type.from_dict(payload["model_config"])
+    except (ConfigError, TypeError) as exc:
+        raise CheckpointError(f"checkpoint {path} has a bad configuration: {exc}") from exc
+    model = network(config)  # type: ignore[arg-type]  # the format names the configuration's network
+    try:
+        model.load_state_dict(checked_state(payload["state_dict"], path))
     except RuntimeError as exc:
-        raise CheckpointError(
-            f"checkpoint {path} does not fit a {config.kind} model on this grid: {str(exc).splitlines()[0]}"
-        ) from exc
+        raise CheckpointError(f"checkpoint {path} does not fit a {kind} network of {config}: "
+                              f"{str(exc).splitlines()[0]}") from exc
     return model.eval(), payload

@@ -52,7 +52,9 @@ from torch import nn
 
 from roadbev_core.config import ConfigError, GridSpec, StereoCamera
 from roadbev_core.geometry import Attitude
+from roadbev_core.models.adabins import AdaBinsLite
 from roadbev_core.models.efficientnet import fold_batchnorm
+from roadbev_core.models.gwcnet import GwcNetConfig, GwcNetLite
 from roadbev_core.models.loss import soft_argmin
 from roadbev_core.models.presets import ModelConfig
 from roadbev_core.models.roadbev import (
@@ -237,6 +239,47 @@ def export_onnx(
         "meta": json.dumps(meta or {}, default=str),
     }
     onnx.helper.set_model_props(proto, props)
+    proto.producer_name = "roadbev"
+    data = proto.SerializeToString()
+    if out is not None:
+        write_graph(data, out)
+    return cast("bytes", data)
+
+
+# The baselines' graphs: kind -> (input names, output names).
+BASELINE_IO = {"gwcnet": (("left", "right"), ("disparity", "sigma")),
+               "adabins": (("image",), ("depth", "sigma", "centres"))}
+
+
+def export_baseline_onnx(model: GwcNetLite | AdaBinsLite, kind: str, out: str | Path | None = None, *,
+                         meta: dict[str, Any] | None = None, opset: int = OPSET) -> bytes:
+    """The ONNX graph of an image-view baseline (``gwcnet``: inputs ``left``, ``right`` [B, 3, H, W]
+    uint8 of any size that is a multiple of 8, outputs ``disparity``, ``sigma`` [B, H, W];
+    ``adabins``: input ``image`` [B, 3, h, w] uint8 at its input size, outputs ``depth``, ``sigma``
+    [B, h / 2, w / 2] and ``centres`` [B, n_bins]), fp32, written to ``out`` when given."""
+    import onnx
+
+    if kind not in BASELINE_IO:
+        raise DeployError(f"unknown baseline {kind!r}; one of {', '.join(BASELINE_IO)}")
+    inputs, outputs = BASELINE_IO[kind]
+    net = copy.deepcopy(model).float().eval()
+    config = net.config
+    if isinstance(config, GwcNetConfig):
+        example: tuple[torch.Tensor, ...] = (torch.zeros(1, 3, 64, 128, dtype=torch.uint8),) * 2
+        dynamic = {name: {0: "batch", 2: "height", 3: "width"} for name in inputs}
+        dynamic.update({name: {0: "batch", 1: "height", 2: "width"} for name in outputs})
+    else:
+        example = (torch.zeros(1, 3, config.input_height, config.input_width, dtype=torch.uint8),)
+        dynamic = {name: {0: "batch"} for name in (*inputs, *outputs)}
+    with torch.no_grad(), warnings.catch_warnings(), tempfile.TemporaryDirectory(prefix="roadbev_onnx_") as tmp:
+        warnings.simplefilter("ignore", category=torch.jit.TracerWarning)
+        traced = Path(tmp) / "model.onnx"
+        torch.onnx.export(net, example, str(traced), dynamo=False, input_names=list(inputs),
+                          output_names=list(outputs), dynamic_axes=dynamic, opset_version=opset,
+                          do_constant_folding=True)
+        proto = onnx.load_from_string(traced.read_bytes())
+    onnx.helper.set_model_props(proto, {"roadbev_baseline": kind, "model_config": json.dumps(config.to_dict()),
+                                        "opset": str(opset), "meta": json.dumps(meta or {}, default=str)})
     proto.producer_name = "roadbev"
     data = proto.SerializeToString()
     if out is not None:

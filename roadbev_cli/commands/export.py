@@ -1,6 +1,7 @@
 """``roadbev export``: a checkpoint for deployment, as a ``.pt`` (weights, model config, grid; no
 optimizer state) or as an ONNX graph (``--format onnx``, :mod:`roadbev_core.deploy`), fp32 or with
-int8 convolutions (``--int8``, post-training quantisation calibrated on training scenes)."""
+int8 convolutions (``--int8``, post-training quantisation calibrated on training scenes). The
+image-view baselines' checkpoints (``gwcnet``, ``adabins``) export the same way, fp32."""
 
 from __future__ import annotations
 
@@ -9,10 +10,19 @@ from pathlib import Path
 from typing import Any
 
 from roadbev_cli.cli import CommandError, add_output_flags, output_path, progress_bar, shows_progress
-from roadbev_core.checkpoint import load_model, save_checkpoint
+from roadbev_core.checkpoint import (
+    baseline_kind,
+    load_baseline,
+    load_model,
+    save_baseline,
+    save_checkpoint,
+    training_envelope,
+)
 from roadbev_core.deploy import (
+    BASELINE_IO,
     OPSET,
     DeployError,
+    export_baseline_onnx,
     export_onnx,
     frame_feeds,
     input_names,
@@ -49,6 +59,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
 
+    kind = baseline_kind(args.checkpoint)
+    if kind is not None:
+        return _export_baseline(args, kind)
     model, payload = load_model(args.checkpoint)
     meta = dict(payload.get("meta", {}))
     train_state = payload.get("train_state") or {}
@@ -78,6 +91,24 @@ def run(args: argparse.Namespace) -> int:
     print(f"exported RoadBEV-{model.config.kind} ({model.config.backbone}, C={model.config.channels}, "
           f"{params / 1e6:.2f} M parameters) for a {model.grid.n_rows}x{model.grid.n_cols} grid to {path} "
           f"({what}; {path.stat().st_size / 1e6:.1f} MB)")
+    return 0
+
+
+def _export_baseline(args: argparse.Namespace, kind: str) -> int:
+    """An image-view baseline's checkpoint as ONNX (``--format onnx``) or again as a checkpoint."""
+    if args.int8 or args.half or args.gather:
+        raise CommandError(f"--int8, --half and --gather are for RoadBEV checkpoints, not {kind}")
+    model, payload = load_baseline(args.checkpoint, kind)
+    meta = {**dict(payload.get("meta", {})), "exported_from": args.checkpoint.name}
+    if args.format == "onnx":
+        export_baseline_onnx(model, kind, args.out, meta=meta, opset=args.opset)
+        what = f"ONNX opset {args.opset}, inputs {', '.join(BASELINE_IO[kind][0])}"
+    else:
+        save_baseline(args.out, kind, model, training_envelope(payload), meta=meta)
+        what = "checkpoint"
+    params = sum(p.numel() for p in model.parameters())
+    print(f"exported {kind} ({params / 1e6:.2f} M parameters) to {args.out} ({what}; "
+          f"{Path(args.out).stat().st_size / 1e6:.1f} MB)")
     return 0
 
 

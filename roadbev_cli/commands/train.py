@@ -1,4 +1,6 @@
-"""``roadbev train``: train RoadBEV-mono / RoadBEV-stereo on synthetic scenes, bags or RSRD.
+"""``roadbev train``: train RoadBEV-mono / RoadBEV-stereo on synthetic scenes, bags or RSRD, or the
+learned image-view baselines of Table I, GwcNet-lite (``--kind gwcnet``, stereo) and AdaBins-lite
+(``--kind adabins``, mono), on the same data.
 
 Single process by default; for several GPUs or nodes launch it through ``torchrun``, e.g.
 ``torchrun --nproc_per_node 4 -m roadbev_cli.cli train ...`` (``--batch-size`` is the global
@@ -12,20 +14,25 @@ import sys
 from pathlib import Path
 
 from roadbev_cli.cli import CommandError, add_output_flags, shows_progress
+from roadbev_core.checkpoint import BASELINES
 from roadbev_core.config import GridSpec, parse_assignments
 from roadbev_core.models.presets import model_config
 from roadbev_lab.data.rsrd import RsrdSet
 from roadbev_lab.evaluation.evalbag import bag_frames
 from roadbev_lab.training.datasets import TEST_SEED_START, ConcatSource, FrameSource, LabelledFrames, SyntheticSet
 from roadbev_lab.training.train import TrainConfig, train
+from roadbev_lab.training.train_image_view import train_image_view
 
-HELP = "train RoadBEV-mono / RoadBEV-stereo"
+HELP = "train RoadBEV-mono / RoadBEV-stereo (or the image-view baselines GwcNet-lite, AdaBins-lite)"
 DEFAULT_CACHE = Path(".cache") / "roadbev"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     model = parser.add_argument_group("model")
-    model.add_argument("--kind", choices=("stereo", "mono"), required=True, help="which network")
+    model.add_argument("--kind", choices=("stereo", "mono", *BASELINES), required=True,
+                       help="which network (gwcnet, adabins: the learned image-view stereo and mono baselines, "
+                            "trained on the disparities / depths of the labelled road; --preset, --resume and "
+                            "--model-option do not apply to them)")
     model.add_argument("--preset", choices=("paper", "lite", "tiny"), default="lite",
                        help="model size (default lite; paper needs a GPU)")
     model.add_argument("--out", type=Path, required=True, help="checkpoint to write (.pt)")
@@ -94,6 +101,14 @@ def run(args: argparse.Namespace) -> int:
             with args.log.open("a") as handle:
                 handle.write(line + "\n")
 
+    if args.kind in BASELINES:
+        if args.resume or args.model_option:
+            raise CommandError(f"--kind {args.kind} takes --init to continue, not --resume or --model-option")
+        done = train_image_view(args.kind, data, config, args.out, init=args.init, pretrained=args.pretrained,
+                                log=log, meta={"command": " ".join(["roadbev", "train", *sys.argv[2:]])})
+        print(f"wrote {done['checkpoint']}: {done['steps']} steps, {done['epochs_done']} epochs"
+              + (" (stopped at the time cap)" if done["stopped_early"] else ""))
+        return 0
     result = train(model_config(args.preset, args.kind), grid, data, config, args.out, resume=args.resume,
                    init=args.init, model_overrides=overrides, pretrained=args.pretrained,
                    progress=shows_progress(args), log=log)

@@ -26,8 +26,8 @@ from roadbev_core.frame import Estimate, Frame, FrameError
 from roadbev_core.geometry import Attitude, optical_from_road_rotation, project_points, road_to_camera
 from roadbev_core.labels import cell_index, cell_means
 
-__all__ = ["ImageViewParams", "ImageViewStereo", "MatchWindow", "create_bm", "create_sgbm", "match_window",
-           "refine_disparity"]
+__all__ = ["ImageViewParams", "ImageViewStereo", "MatchWindow", "cell_elevations", "create_bm", "create_sgbm",
+           "disparity_height_sigma", "disparity_road_points", "match_window", "refine_disparity", "road_points"]
 
 _SGBM_MODES = {
     "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
@@ -210,6 +210,77 @@ def match_window(
     return MatchWindow(top, bottom, left, right, d_min, num)
 
 
+def road_points(depth: np.ndarray, rows: np.ndarray, cols: np.ndarray, camera: StereoCamera, attitude: Attitude,
+                base_height: float) -> np.ndarray:
+    """Road-frame points [h * w, 3] (row-major) of the pixels at ``rows`` [h] x ``cols`` [w] of the
+    left image with optical depths ``depth`` [h, w] (NaN: no point, a NaN row).
+
+    A pixel (u, v) with depth Z is at Z * ray(u, v) in the optical frame; in the road frame
+    the ray's components are sums of a per-column and a per-row term. Pixels without a depth are
+    kept as NaN (the binning leaves them out) rather than compressed out: picking the valid ones
+    costs more than the arithmetic on them.
+    """
+    R = optical_from_road_rotation(attitude)  # road -> optical; rows of R.T map optical -> road
+    x_norm = (cols - camera.cx) / camera.fx  # [w]
+    y_norm = (rows - camera.cy) / camera.fy  # [h]
+    points = np.empty((depth.size, 3), dtype=np.float32)
+    for k in range(3):
+        # road_k = sum_j R[j, k] * optical_j with optical = Z * (x_norm, y_norm, 1)
+        per_col = (R[0, k] * x_norm + R[2, k]).astype(np.float32)
+        per_row = (R[1, k] * y_norm).astype(np.float32)
+        points[:, k] = (depth * (per_col[None, :] + per_row[:, None])).ravel()
+    points[:, 2] += base_height
+    return points
+
+
+def disparity_road_points(disparity: np.ndarray, valid: np.ndarray, window: MatchWindow, camera: StereoCamera,
+                          attitude: Attitude, base_height: float) -> tuple[np.ndarray, np.ndarray]:
+    """Road-frame points [h * w, 3] of the disparities [h, w] of a window's crop (row-major), and
+    their depths [h * w]; NaN for a pixel whose disparity is not ``valid`` [h, w]."""
+    depth = (camera.fx * camera.baseline) / np.where(valid, disparity, np.float32(np.nan))  # [h, w] float32
+    points = road_points(depth, np.arange(window.top, window.bottom), np.arange(window.left, window.right), camera,
+                         attitude, base_height)
+    return points, depth.ravel()
+
+
+def disparity_height_sigma(points: np.ndarray, depth: np.ndarray, disparity_sigma_px: float | np.ndarray,
+                           camera: StereoCamera, base_height: float) -> np.ndarray:
+    """[N] the height 1-sigma of points [N, 3] at depths [N] from a disparity 1-sigma (pixels, one
+    value or [N]): a depth error moves a point along its ray, whose vertical share is (camera
+    height above the point) / depth."""
+    return depth * (disparity_sigma_px / (camera.fx * camera.baseline)) * (base_height - points[:, 2])
+
+
+def cell_elevations(points: np.ndarray, point_sigma: np.ndarray, grid: GridSpec, min_points: int,
+                    clock: StageClock | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """An image-view estimate's points binned into the grid as the labels are (the paper's
+    protocol): per cell the mean height of its points, and as its 1-sigma one point's (their
+    spread about the mean with each point's own height 1-sigma, ``point_sigma`` [N]).
+
+    Args:
+        points: [N, 3] road frame (NaN rows are left out).
+        min_points: cells with fewer points are NaN.
+        clock: laps ``projection`` and ``post`` on it when given.
+
+    Returns:
+        elevation and uncertainty [n_rows, n_cols] float32, NaN where no estimate.
+    """
+    # Points outside the height range are mismatches; the label code leaves them out.
+    flat = cell_index(points, grid, clip_z=True)  # [N]
+    if clock is not None:
+        clock.lap("projection")
+    z = points[:, 2]
+    # Second moment per cell: E[z^2 + sigma^2] - E[z]^2 = spread + precision.
+    count, (mean, second) = cell_means(flat, grid, z, np.square(z) + np.square(point_sigma))
+    enough = count >= min_points
+    elevation = np.where(enough, mean, np.nan).astype(np.float32)
+    variance = np.maximum(second - np.square(mean), 0.0)
+    uncertainty = np.where(enough, np.sqrt(variance), np.nan).astype(np.float32)
+    if clock is not None:
+        clock.lap("post")
+    return elevation, uncertainty
+
+
 class ImageViewStereo:
     """OpenCV block matching (``bm``) or semi-global matching (``sgbm``) + binning into the grid.
 
@@ -260,31 +331,6 @@ class ImageViewStereo:
             self._matchers[key] = m
         return self._matchers[key]
 
-    def _road_points(
-        self, disparity: np.ndarray, window: MatchWindow, camera: StereoCamera, attitude: Attitude
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Road-frame points [h * w, 3] of the disparities [h, w] of the crop (row-major), and
-        their depths [h * w]; NaN for a pixel without a valid disparity.
-
-        A pixel (u, v) with depth Z is at Z * ray(u, v) in the optical frame; in the road frame
-        the ray's components are sums of a per-column and a per-row term. Invalid pixels are kept
-        as NaN (the binning leaves them out) rather than compressed out: picking the valid ones
-        costs more than the arithmetic on them.
-        """
-        valid = window.valid(disparity)  # [h, w]
-        depth = (camera.fx * camera.baseline) / np.where(valid, disparity, np.float32(np.nan))  # [h, w] float32
-        R = optical_from_road_rotation(attitude)  # road -> optical; rows of R.T map optical -> road
-        x_norm = (np.arange(window.left, window.right) - camera.cx) / camera.fx  # [w]
-        y_norm = (np.arange(window.top, window.bottom) - camera.cy) / camera.fy  # [h]
-        points = np.empty((depth.size, 3), dtype=np.float32)
-        for k in range(3):
-            # road_k = sum_j R[j, k] * optical_j with optical = Z * (x_norm, y_norm, 1)
-            per_col = (R[0, k] * x_norm + R[2, k]).astype(np.float32)
-            per_row = (R[1, k] * y_norm).astype(np.float32)
-            points[:, k] = (depth * (per_col[None, :] + per_row[:, None])).ravel()
-        points[:, 2] += self.grid.base_height
-        return points, depth.ravel()
-
     def estimate(self, frame: Frame) -> Estimate:
         """Elevation and uncertainty of ``self.grid`` for one stereo frame."""
         if frame.right is None:
@@ -307,21 +353,10 @@ class ImageViewStereo:
             disparity = refine_disparity(left, right, disparity, window.valid(disparity),
                                          (p.refine_width, p.refine_height))
             clock.lap("refinement")
-        points, depth = self._road_points(disparity, window, camera, frame.attitude)
-        # Points outside the height range are mismatches; the label code leaves them out.
-        flat = cell_index(points, grid, clip_z=True)  # [N]
-        clock.lap("projection")
-        z = points[:, 2]
-        # Disparity precision -> elevation: a depth error moves the point along its ray, whose
-        # vertical share is (camera height above the point) / depth.
-        sigma_point = depth * (p.disparity_sigma_px / (camera.fx * camera.baseline)) * (grid.base_height - z)
-        # Second moment per cell: E[z^2 + sigma^2] - E[z]^2 = spread + precision.
-        count, (mean, second) = cell_means(flat, grid, z, np.square(z) + np.square(sigma_point))
-        enough = count >= p.min_points
-        elevation = np.where(enough, mean, np.nan).astype(np.float32)
-        variance = np.maximum(second - np.square(mean), 0.0)
-        uncertainty = np.where(enough, np.sqrt(variance), np.nan).astype(np.float32)
-        clock.lap("post")
+        points, depth = disparity_road_points(disparity, window.valid(disparity), window, camera, frame.attitude,
+                                              grid.base_height)
+        sigma = disparity_height_sigma(points, depth, p.disparity_sigma_px, camera, grid.base_height)
+        elevation, uncertainty = cell_elevations(points, sigma, grid, p.min_points, clock)
         return Estimate(elevation=elevation, uncertainty=uncertainty, timings_ms=clock.timings)
 
     def describe(self) -> dict[str, Any]:

@@ -182,8 +182,8 @@ class BackendConfig:
 
     name: str = param("backend", DEFAULT_BACKEND, "elevation backend (see roadbev_core.backends)",
                       open_choices=True)
-    checkpoint: str = param("checkpoint", "", "checkpoint file for the learned backends (stereo, mono); "
-                            "empty = the shipped one")
+    checkpoint: str = param("checkpoint", "", "checkpoint file for the learned backends (stereo, mono, gwcnet, "
+                            "adabins); empty = the shipped one")
     inference_threads: int = param("inference_threads", 0, "threads for the backend's torch/OpenCV work; "
                                    "0 = one less than the CPU cores (a core stays free for the callbacks)", 0, 256)
     # "<backend>.<option>" parameters, as given (the backend checks them when it is built)

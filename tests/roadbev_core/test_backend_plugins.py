@@ -23,7 +23,7 @@ from roadbev_core.geometry import Attitude
 from roadbev_core.pipeline import Pipeline, check_config
 
 REPO = Path(__file__).resolve().parents[2]
-BUILTIN = ["bev_sweep", "bm", "ensemble", "mono", "sgbm", "stereo"]
+BUILTIN = ["adabins", "bev_sweep", "bm", "ensemble", "gwcnet", "mono", "sgbm", "stereo"]
 # A backend package as a user would write it: no roadbev code but the protocol's types.
 TOY_MODULE = '''
 import numpy as np
@@ -170,8 +170,8 @@ def test_a_module_path_names_a_backend_installed_without_entry_points(site: Path
         ("no_such_module_anywhere:create", "backend plugin 'no_such_module_anywhere:create' "
                                            "\\(no_such_module_anywhere:create, module:attr path\\) cannot be imported: "
                                            "ModuleNotFoundError"),
-        ("magic", "unknown backend 'magic'; choose from bev_sweep, bm, ensemble, fails_to_import, missing, mono, "
-                  "not_a_backend, not_callable, sgbm, stereo, toy$"),
+        ("magic", "unknown backend 'magic'; choose from adabins, bev_sweep, bm, ensemble, fails_to_import, gwcnet, "
+                  "missing, mono, not_a_backend, not_callable, sgbm, stereo, toy$"),
         ("toy", "backend 'toy': .*unexpected keyword argument 'colour'"),
     ],
 )
@@ -181,7 +181,7 @@ def test_a_plugin_that_does_not_work_is_refused_by_name(toy: Path, name: str, re
 
 
 def test_an_unknown_name_in_the_config_lists_the_plugins_too(toy: Path) -> None:
-    with pytest.raises(ParamError, match=r"backend must be one of bev_sweep, bm, .*, stereo, toy; got 'magic'"):
+    with pytest.raises(ParamError, match=r"backend must be one of adabins, bev_sweep, bm, .*, stereo, toy; got 'magic'"):
         RoadbevConfig.from_params({"backend": "magic"})
     with pytest.raises(ParamError, match=r"unknown parameter 'magic\.height'"):
         RoadbevConfig.from_params({"magic.height": 1.0})

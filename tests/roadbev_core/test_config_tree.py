@@ -93,7 +93,7 @@ def test_every_parameter_has_a_description_a_valid_default_and_one_name() -> Non
         spec.check(spec.default)
     assert {"base_height", "x_min", "resolution", "class_resolution", "vehicle.wheelbase_m"} <= set(names)
     backend = next(s for s in parameter_specs() if s.name == "backend")
-    assert backend.choices == ("bev_sweep", "bm", "ensemble", "mono", "sgbm", "stereo")  # from the backend registry
+    assert backend.choices == ("adabins", "bev_sweep", "bm", "ensemble", "gwcnet", "mono", "sgbm", "stereo")  # from the backend registry
 
 
 def test_round_trip_and_typed_sections() -> None:
@@ -143,7 +143,8 @@ def test_the_config_leaves_what_only_a_component_judges_to_the_component() -> No
         ({"imu_to_camera_rpy_deg": [0.0, "a", 1.0]}, "list of finite"),
         ({"resolution": 0.07}, "whole number"),
         ({"z_max": 2.0}, "below the camera"),
-        ({"backend": "not a path:"}, "backend must be one of bev_sweep, bm, ensemble, mono, sgbm, stereo; "
+        ({"backend": "not a path:"}, "backend must be one of adabins, bev_sweep, bm, ensemble, gwcnet, mono, sgbm, "
+                                     "stereo; "
                                      "got 'not a path:'"),
         ({"bm": 5}, "unknown parameter 'bm'"),
         ({"pkg.mod": 5}, "unknown parameter 'pkg.mod'"),

@@ -14,9 +14,11 @@ from roadbev_core.backends import BackendError, create
 from roadbev_core.checkpoint import save_checkpoint
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.deploy import (
+    BASELINE_IO,
     FORMAT,
     DeployError,
     OnnxRunner,
+    export_baseline_onnx,
     export_onnx,
     frame_feeds,
     geometry_feeds,
@@ -27,6 +29,8 @@ from roadbev_core.deploy import (
 )
 from roadbev_core.frame import Frame
 from roadbev_core.geometry import Attitude
+from roadbev_core.models.adabins import AdaBinsConfig, AdaBinsLite
+from roadbev_core.models.gwcnet import GwcNetConfig, GwcNetLite
 from roadbev_core.models.presets import model_config
 from roadbev_core.models.roadbev import RoadBEV, voxel_geometry
 from roadbev_core.models.voxel_query import gather_voxels, query_voxels
@@ -288,3 +292,37 @@ def test_openvino_computes_every_frame_of_a_shape_with_that_shapes_fixed_graph(
     for a, b in zip(after_warm_up, fresh(other_rig), strict=True):
         np.testing.assert_array_equal(a, b)
     assert [o.shape[1:] for o in after_warm_up] == [exported.grid.shape] * 3
+
+
+@pytest.mark.parametrize("kind", ["gwcnet", "adabins"])
+def test_the_baselines_export_to_graphs_that_compute_what_torch_does(kind: str, tmp_path: Path) -> None:
+    import onnxruntime as ort
+
+    torch.manual_seed(0)
+    if kind == "gwcnet":
+        small = GwcNetConfig(max_disparity=16, features=16, groups=4, volume_channels=4)
+        model: GwcNetLite | AdaBinsLite = GwcNetLite(small)
+        left = torch.randint(0, 255, (1, 3, 48, 96), dtype=torch.uint8)
+        inputs: tuple[torch.Tensor, ...] = (left, left.roll(2, dims=-1))
+    else:
+        model = AdaBinsLite(AdaBinsConfig(channels=8, n_bins=16, embedding=16, heads=2, layers=1, queries=8))
+        inputs = (torch.randint(0, 255, (1, 3, 264, 480), dtype=torch.uint8),)
+    model.eval()
+    data = export_baseline_onnx(model, kind, tmp_path / f"{kind}.onnx", meta={"command": "test"})
+    proto = onnx.load(str(tmp_path / f"{kind}.onnx"))
+    props = {p.key: p.value for p in proto.metadata_props}
+    assert props["roadbev_baseline"] == kind and json.loads(props["meta"])["command"] == "test"
+    session = ort.InferenceSession(data, providers=["CPUExecutionProvider"])
+    names, outputs = BASELINE_IO[kind]
+    got = session.run(None, {name: x.numpy() for name, x in zip(names, inputs, strict=True)})
+    with torch.no_grad():
+        expected = model(*inputs)
+    assert len(got) == len(outputs)
+    for g, e in zip(got, expected, strict=True):
+        np.testing.assert_allclose(g, e.numpy(), rtol=1e-4, atol=1e-4)
+    if kind == "gwcnet":  # any window size that is a multiple of the stride
+        bigger = torch.randint(0, 255, (1, 3, 64, 136), dtype=torch.uint8)
+        out = session.run(None, {"left": bigger.numpy(), "right": bigger.numpy()})
+        assert out[0].shape == (1, 64, 136)
+    with pytest.raises(DeployError, match="unknown baseline"):
+        export_baseline_onnx(model, "psmnet")

@@ -90,7 +90,8 @@ def test_corrupt_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None
 
 def test_unknown_backend(bag: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["eval", str(bag), "--backend", "magic"]) == 2
-    assert "backend must be one of bev_sweep, bm, ensemble, mono, sgbm, stereo; got 'magic'" in _one_line_error(capsys)
+    assert ("backend must be one of adabins, bev_sweep, bm, ensemble, gwcnet, mono, sgbm, stereo; got 'magic'"
+            in _one_line_error(capsys))
 
 
 def test_bad_params(bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

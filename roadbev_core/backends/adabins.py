@@ -1,0 +1,143 @@
+"""``adabins``: a learned monocular depth network (AdaBins-lite) converted to the grid.
+
+The image-view protocol of the paper's Table I for monocular methods: the network
+(:class:`roadbev_core.models.adabins.AdaBinsLite`) estimates the left image's depth, which is
+resampled to the image's pixels in the window that sees the grid, turned into road-frame points
+(:func:`roadbev_core.backends.image_view.road_points`) and binned into the grid as the labels are
+(:func:`~roadbev_core.backends.image_view.cell_elevations`), each point's height 1-sigma from
+the spread of the network's depth distribution. The registry's calibration step then fits the
+sigma like every backend's.
+
+Options:
+    checkpoint: an AdaBins-lite checkpoint (``roadbev train --kind adabins``); default the shipped
+        ``checkpoints/adabins_lite.pt``.
+    threads: torch intra-op threads (default: torch's current setting).
+    min_points: cells with fewer points are NaN (default 1).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, cast
+
+import cv2
+import numpy as np
+import torch
+
+from roadbev_core.backend_plugins import BackendError
+from roadbev_core.backends.common import StageClock
+from roadbev_core.backends.image_view import cell_elevations, match_window, road_points
+from roadbev_core.checkpoint import CheckpointError, load_baseline, training_envelope
+from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.frame import Estimate, Frame, FrameError
+from roadbev_core.geometry import Attitude
+from roadbev_core.models.adabins import AdaBinsConfig, AdaBinsLite
+from roadbev_core.share import find_shared, shared_candidates
+
+__all__ = ["AdaBinsBackend", "create_adabins", "default_checkpoint", "depth_pixels", "grid_window", "network_image"]
+
+
+def default_checkpoint() -> Path:
+    """The shipped AdaBins-lite checkpoint (the source tree's, else an install's share)."""
+    folder = find_shared("checkpoints") or shared_candidates("checkpoints")[0]
+    return folder / "adabins_lite.pt"
+
+
+def grid_window(grid: GridSpec, camera: StereoCamera, attitude: Attitude) -> tuple[slice, slice]:
+    """Rows and columns of the image that see the grid's volume."""
+    window = match_window(grid, camera, attitude, margin_px=0, block_size=1)
+    # a monocular rig has no disparities: the window's columns need no room for a search
+    left = window.left + window.min_disparity + window.num_disparities
+    return slice(window.top, window.bottom), slice(min(left, window.right - 1), window.right)
+
+
+def network_image(image: np.ndarray, config: AdaBinsConfig) -> np.ndarray:
+    """RGB (or grey) uint8 [H, W(, 3)] -> uint8 [3, h, w] at the network's input size (area resize)."""
+    image = np.asarray(image)
+    if image.dtype != np.uint8:
+        raise FrameError(f"adabins needs 8-bit images, got {image.dtype}")
+    if image.ndim == 2:
+        image = np.repeat(image[:, :, None], 3, axis=2)
+    size = (config.input_width, config.input_height)
+    if image.shape[1::-1] != size:
+        image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+    return np.ascontiguousarray(image[:, :, :3].transpose(2, 0, 1))
+
+
+def depth_pixels(config: AdaBinsConfig, camera: StereoCamera) -> tuple[np.ndarray, np.ndarray]:
+    """The image coordinates (rows [h], columns [w]) of the network's output pixels' centres."""
+    h, w = config.input_height // 2, config.input_width // 2
+    rows = (np.arange(h) + 0.5) * (camera.height / h) - 0.5
+    cols = (np.arange(w) + 0.5) * (camera.width / w) - 0.5
+    return rows, cols
+
+
+class AdaBinsBackend:
+    """AdaBins-lite behind the backend protocol (see the module docstring)."""
+
+    name = "adabins"
+    needs_stereo = False
+
+    def __init__(self, grid: GridSpec, *, checkpoint: str | Path | None = None, threads: int | None = None,
+                 min_points: int = 1) -> None:
+        path = Path(checkpoint) if checkpoint else default_checkpoint()
+        if not path.is_file():
+            raise BackendError(f"adabins backend: checkpoint {path} not found (train one with "
+                               "`roadbev train --kind adabins` or pass checkpoint=PATH)")
+        if int(min_points) < 1:
+            raise BackendError(f"adabins backend: min_points must be >= 1, got {min_points}")
+        try:
+            model, payload = load_baseline(path, "adabins")
+            self.envelope = training_envelope(payload)
+        except CheckpointError as exc:
+            raise BackendError(f"adabins backend: {exc}") from exc
+        problems = self.envelope.grid_problems(grid)
+        if problems:
+            raise BackendError(f"adabins backend: the grid is outside what {path.name} was trained for: "
+                               f"{'; '.join(problems)}")
+        if threads:
+            torch.set_num_threads(int(threads))
+        self.grid = grid
+        self.model = cast("AdaBinsLite", model)
+        self.checkpoint = path
+        self.min_points = int(min_points)
+        self.meta: dict[str, Any] = dict(payload.get("meta", {}))
+
+    @torch.inference_mode()
+    def estimate(self, frame: Frame) -> Estimate:
+        """Elevation and uncertainty of ``self.grid`` from the left image."""
+        camera = frame.camera
+        problems = self.envelope.rig_problems(camera, False)
+        if problems:
+            raise FrameError(f"adabins backend: the rig is outside what {self.checkpoint.name} was trained for: "
+                             f"{'; '.join(problems)}")
+        torch.set_flush_denormal(True)
+        clock = StageClock()
+        image = torch.from_numpy(network_image(frame.left, self.model.config))[None]
+        clock.lap("preprocess")
+        depth, sigma, _ = self.model(image)  # [1, h, w] each
+        clock.lap("network")
+        rows, cols = grid_window(self.grid, camera, frame.attitude)
+        # the half-input-size maps resampled to the image's pixels (pixel centres aligned)
+        full = (camera.width, camera.height)
+        z = cv2.resize(depth[0].numpy(), full, interpolation=cv2.INTER_LINEAR)[rows, cols]  # [h, w]
+        s = cv2.resize(sigma[0].numpy(), full, interpolation=cv2.INTER_LINEAR)[rows, cols]
+        points = road_points(z, np.arange(rows.start, rows.stop), np.arange(cols.start, cols.stop), camera,
+                             frame.attitude, self.grid.base_height)
+        # a depth error moves a point along its ray: its vertical share is (camera height above it) / depth
+        point_sigma = (s / z).ravel() * (self.grid.base_height - points[:, 2])
+        elevation, uncertainty = cell_elevations(points, point_sigma, self.grid, self.min_points, clock)
+        return Estimate(elevation=elevation, uncertainty=uncertainty, timings_ms=clock.timings)
+
+    def describe(self) -> dict[str, Any]:
+        """Settings as a JSON-able dict (for benchmark records)."""
+        return {"backend": self.name, "checkpoint": str(self.checkpoint), "min_points": self.min_points,
+                "model_config": self.model.config.to_dict()}
+
+
+def create_adabins(grid: GridSpec, **options: Any) -> AdaBinsBackend:
+    """Backend factory of AdaBins-lite (options: see the module docstring)."""
+    unknown = set(options) - {"checkpoint", "threads", "min_points"}
+    if unknown:
+        raise BackendError(f"adabins backend: unknown option(s) {', '.join(sorted(unknown))}")
+    return AdaBinsBackend(grid, **options)

@@ -1,0 +1,157 @@
+"""``gwcnet``: a learned image-view stereo matcher (GwcNet-lite) converted to the grid.
+
+The image-view protocol of the paper's Table I with a learned matcher in place of OpenCV's: the
+network (:class:`roadbev_core.models.gwcnet.GwcNetLite`) matches the window of the image pair
+that sees the grid over the disparities its volume can produce (:func:`search_window`, the
+``sgbm`` / ``bm`` window), and its disparities become an elevation map exactly as theirs do
+(:func:`roadbev_core.backends.image_view.disparity_road_points`, then
+:func:`~roadbev_core.backends.image_view.cell_elevations`: mean height per cell, the label
+code's binning), with each pixel's disparity 1-sigma the spread of the network's disparity
+distribution. The registry's calibration step then fits the sigma like every backend's.
+
+Options:
+    checkpoint: a GwcNet-lite checkpoint (``roadbev train --kind gwcnet``); default the shipped
+        ``checkpoints/gwcnet_lite.pt``.
+    threads: torch intra-op threads (default: torch's current setting).
+    min_points: cells with fewer points are NaN (default 1).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, cast
+
+import numpy as np
+import torch
+
+from roadbev_core.backend_plugins import BackendError
+from roadbev_core.backends.common import StageClock
+from roadbev_core.backends.image_view import (
+    MatchWindow,
+    cell_elevations,
+    disparity_height_sigma,
+    disparity_road_points,
+    match_window,
+)
+from roadbev_core.checkpoint import CheckpointError, load_baseline, training_envelope
+from roadbev_core.config import GridSpec, StereoCamera
+from roadbev_core.frame import Estimate, Frame, FrameError
+from roadbev_core.geometry import Attitude
+from roadbev_core.models.gwcnet import GwcNetLite, shift_right
+from roadbev_core.share import find_shared, shared_candidates
+
+__all__ = ["GwcNetBackend", "create_gwcnet", "default_checkpoint", "gwcnet_inputs", "search_window"]
+
+# Disparities searched beyond the grid volume's own range, on either side (the image-view
+# matchers' default margin).
+DISPARITY_MARGIN_PX = 4
+
+
+def default_checkpoint() -> Path:
+    """The shipped GwcNet-lite checkpoint (the source tree's, else an install's share)."""
+    folder = find_shared("checkpoints") or shared_candidates("checkpoints")[0]
+    return folder / "gwcnet_lite.pt"
+
+
+def search_window(grid: GridSpec, camera: StereoCamera, attitude: Attitude) -> MatchWindow:
+    """The image window that sees the grid's volume and the disparities it can produce (the
+    image-view matchers' window, without their block margin)."""
+    return match_window(grid, camera, attitude, margin_px=DISPARITY_MARGIN_PX, block_size=1)
+
+
+def gwcnet_inputs(frame: Frame, window: MatchWindow) -> tuple[np.ndarray, np.ndarray]:
+    """The network's inputs [H, W, 3] uint8 (H, W the window's sides rounded up to the network's
+    stride, zero-padded): the left image's window and the right image's, shifted by the window's
+    first disparity. Grey images are repeated into three channels."""
+    if frame.right is None:
+        raise FrameError("gwcnet needs a stereo frame (the right image is missing)")
+    s = GwcNetLite.stride
+    h, w = window.bottom - window.top, window.right - window.left
+    shape = (-(-h // s) * s, -(-w // s) * s, 3)
+
+    def rgb(image: np.ndarray) -> np.ndarray:
+        image = np.asarray(image)
+        if image.dtype != np.uint8:
+            raise FrameError(f"gwcnet needs 8-bit images, got {image.dtype}")
+        return image if image.ndim == 3 else np.repeat(image[..., None], 3, axis=2)
+
+    left = np.zeros(shape, np.uint8)
+    right = np.zeros(shape, np.uint8)
+    rows, cols = slice(window.top, window.bottom), slice(window.left, window.right)
+    left[:h, :w] = rgb(frame.left)[rows, cols, :3]
+    right[:h, :w] = shift_right(rgb(frame.right), window.min_disparity)[rows, cols, :3]
+    return left, right
+
+
+class GwcNetBackend:
+    """GwcNet-lite behind the backend protocol (see the module docstring)."""
+
+    name = "gwcnet"
+    needs_stereo = True
+
+    def __init__(self, grid: GridSpec, *, checkpoint: str | Path | None = None, threads: int | None = None,
+                 min_points: int = 1) -> None:
+        path = Path(checkpoint) if checkpoint else default_checkpoint()
+        if not path.is_file():
+            raise BackendError(f"gwcnet backend: checkpoint {path} not found (train one with "
+                               "`roadbev train --kind gwcnet` or pass checkpoint=PATH)")
+        if int(min_points) < 1:
+            raise BackendError(f"gwcnet backend: min_points must be >= 1, got {min_points}")
+        try:
+            model, payload = load_baseline(path, "gwcnet")
+            self.envelope = training_envelope(payload)
+        except CheckpointError as exc:
+            raise BackendError(f"gwcnet backend: {exc}") from exc
+        problems = self.envelope.grid_problems(grid)
+        if problems:
+            raise BackendError(f"gwcnet backend: the grid is outside what {path.name} was trained for: "
+                               f"{'; '.join(problems)}")
+        if threads:
+            torch.set_num_threads(int(threads))
+        self.grid = grid
+        self.model = cast("GwcNetLite", model)
+        self.checkpoint = path
+        self.min_points = int(min_points)
+        self.meta: dict[str, Any] = dict(payload.get("meta", {}))
+
+    @torch.inference_mode()
+    def estimate(self, frame: Frame) -> Estimate:
+        """Elevation and uncertainty of ``self.grid`` for one stereo frame."""
+        camera = frame.camera
+        if camera.baseline <= 0:
+            raise FrameError("gwcnet needs a stereo rig with a positive baseline")
+        problems = self.envelope.rig_problems(camera, True)
+        if problems:
+            raise FrameError(f"gwcnet backend: the rig is outside what {self.checkpoint.name} was trained for: "
+                             f"{'; '.join(problems)}")
+        torch.set_flush_denormal(True)
+        clock = StageClock()
+        window = search_window(self.grid, camera, frame.attitude)
+        left, right = gwcnet_inputs(frame, window)  # [H, W, 3]
+        clock.lap("preprocess")
+        disparity, sigma = self.model(torch.from_numpy(left).permute(2, 0, 1)[None],
+                                      torch.from_numpy(right).permute(2, 0, 1)[None])
+        clock.lap("network")
+        h, w = window.bottom - window.top, window.right - window.left
+        d = disparity[0, :h, :w].numpy() + np.float32(window.min_disparity)  # [h, w] pixels
+        s = sigma[0, :h, :w].numpy()
+        # a match must lie inside the right image
+        cols = np.arange(window.left, window.right, dtype=np.float32)[None, :]
+        valid = np.isfinite(d) & (d > 0.5) & (cols - d >= 0)
+        points, depth = disparity_road_points(d, valid, window, camera, frame.attitude, self.grid.base_height)
+        sigma_h = disparity_height_sigma(points, depth, s.ravel(), camera, self.grid.base_height)
+        elevation, uncertainty = cell_elevations(points, sigma_h, self.grid, self.min_points, clock)
+        return Estimate(elevation=elevation, uncertainty=uncertainty, timings_ms=clock.timings)
+
+    def describe(self) -> dict[str, Any]:
+        """Settings as a JSON-able dict (for benchmark records)."""
+        return {"backend": self.name, "checkpoint": str(self.checkpoint), "min_points": self.min_points,
+                "model_config": self.model.config.to_dict()}
+
+
+def create_gwcnet(grid: GridSpec, **options: Any) -> GwcNetBackend:
+    """Backend factory of GwcNet-lite (options: see the module docstring)."""
+    unknown = set(options) - {"checkpoint", "threads", "min_points"}
+    if unknown:
+        raise BackendError(f"gwcnet backend: unknown option(s) {', '.join(sorted(unknown))}")
+    return GwcNetBackend(grid, **options)
