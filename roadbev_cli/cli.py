@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import math
+import shlex
 import string
 import sys
 from collections.abc import Collection, Sequence
@@ -202,6 +203,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if getattr(args, "_missing", None):
         print(error_line(args.command, args._missing), file=sys.stderr)
         return 2
+    args.command_line = shlex.join(["roadbev", *args_list])  # what a command records of how it was run
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:

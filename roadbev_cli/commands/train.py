@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
         if args.resume or args.model_option:
             raise CommandError(f"--kind {args.kind} takes --init to continue, not --resume or --model-option")
         done = train_image_view(args.kind, data, config, args.out, init=args.init, pretrained=args.pretrained,
-                                log=log, meta={"command": " ".join(["roadbev", "train", *sys.argv[2:]])})
+                                log=log, meta={"command": args.command_line})
         print(f"wrote {done['checkpoint']}: {done['steps']} steps, {done['epochs_done']} epochs"
               + (" (stopped at the time cap)" if done["stopped_early"] else ""))
         return 0

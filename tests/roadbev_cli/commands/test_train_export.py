@@ -95,3 +95,32 @@ def test_export_int8_writes_a_quantised_graph_and_refuses_bad_options(tmp_path: 
                  "--calibration-scenes", "0"]) == 2
     assert "--calibration-scenes must be >= 1" in capsys.readouterr().err
     assert not (tmp_path / "y.onnx").exists()
+
+
+def test_the_image_view_baselines_train_and_export_from_the_cli(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    import onnx
+
+    from roadbev_core.checkpoint import TrainingEnvelope, load_baseline, save_baseline
+    from roadbev_core.config import StereoCamera
+    from roadbev_core.models.gwcnet import GwcNetConfig, GwcNetLite
+
+    out = tmp_path / "gwcnet.pt"
+    args = ["train", "--kind", "gwcnet", "--out", str(out), "--synth", "2", "--synth-seed", "0", "--cache",
+            str(tmp_path / "scenes"), "--epochs", "1", "--batch-size", "2", "--threads", "1"]
+    assert main([*args, "--resume", str(out)]) == 2
+    assert "takes --init" in capsys.readouterr().err
+    assert main(args) == 0
+    assert "wrote" in capsys.readouterr().out
+    _, payload = load_baseline(out, "gwcnet")
+    assert "--kind gwcnet" in payload["meta"]["command"] and len(payload["meta"]["history"]) == 1
+    camera = StereoCamera.rsrd_half()
+    small = save_baseline(tmp_path / "small.pt", "gwcnet", GwcNetLite(GwcNetConfig(features=16, groups=4)).eval(),
+                          TrainingEnvelope(GridSpec(), (camera.fx, camera.fx), camera.width,
+                                           (camera.baseline, camera.baseline)))
+    graph = tmp_path / "gwcnet.onnx"
+    assert main(["export", str(small), str(graph), "--format", "onnx"]) == 0
+    assert "exported gwcnet" in capsys.readouterr().out
+    assert {i.name for i in onnx.load(str(graph)).graph.input} == {"left", "right"}
+    assert main(["export", str(small), str(graph), "--format", "onnx", "--int8"]) == 2
+    assert "not gwcnet" in capsys.readouterr().err
