@@ -59,7 +59,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", default=None, metavar="OUT",
                         help="write the metrics as JSON here (its folder is created)")
     parser.add_argument("--frames", type=int, default=None, metavar="N", help="evaluate only the first N frames")
-    parser.add_argument("--checkpoint", default=None, help="checkpoint for the learned backends (stereo, mono, gwcnet, adabins)")
+    parser.add_argument("--checkpoint", default=None,
+                        help="checkpoint for the learned backends (stereo, mono, gwcnet, adabins)")
     add_output_flags(parser, summary=False)
     parser.add_argument("--out", default=None, metavar="OUT.mcap",
                         help="also write every output message (/roadbev/elevation, /roadbev/preview) to this bag (its "

@@ -181,7 +181,7 @@ def test_a_plugin_that_does_not_work_is_refused_by_name(toy: Path, name: str, re
 
 
 def test_an_unknown_name_in_the_config_lists_the_plugins_too(toy: Path) -> None:
-    with pytest.raises(ParamError, match=r"backend must be one of adabins, bev_sweep, bm, .*, stereo, toy; got 'magic'"):
+    with pytest.raises(ParamError, match=r"backend must be one of adabins, bev_sweep, .*, stereo, toy; got 'magic'"):
         RoadbevConfig.from_params({"backend": "magic"})
     with pytest.raises(ParamError, match=r"unknown parameter 'magic\.height'"):
         RoadbevConfig.from_params({"magic.height": 1.0})

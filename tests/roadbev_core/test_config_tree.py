@@ -93,7 +93,8 @@ def test_every_parameter_has_a_description_a_valid_default_and_one_name() -> Non
         spec.check(spec.default)
     assert {"base_height", "x_min", "resolution", "class_resolution", "vehicle.wheelbase_m"} <= set(names)
     backend = next(s for s in parameter_specs() if s.name == "backend")
-    assert backend.choices == ("adabins", "bev_sweep", "bm", "ensemble", "gwcnet", "mono", "sgbm", "stereo")  # from the backend registry
+    # from the backend registry
+    assert backend.choices == ("adabins", "bev_sweep", "bm", "ensemble", "gwcnet", "mono", "sgbm", "stereo")
 
 
 def test_round_trip_and_typed_sections() -> None:
