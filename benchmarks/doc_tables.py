@@ -757,6 +757,23 @@ def models(*runs: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def baseline_training(data: Mapping[str, Any]) -> str:
+    """baseline_training: each shipped image-view baseline's training phases and their budget."""
+    lines = _head("baseline", "parameters (M)", "phase", "frames", "epochs", "batch", "peak lr", "steps",
+                  "minutes", "last epoch's loss", "last epoch's abs. error")
+    for b in data["baselines"]:
+        for number, p in enumerate(b["phases"], start=1):
+            last = p["history"][-1] if p["history"] else {}
+            lines.append(_row([b["kind"], _fmt(b["parameters"] / 1e6, 2), str(number), str(p["frames"]),
+                               f"{len(p['history'])} of {p['epochs']}", str(p["batch_size"]), f"{p['lr']:g}",
+                               str(p["steps"]), _fmt(p["seconds"] / 60.0, 1), _fmt(last.get("loss"), 3),
+                               f"{_fmt(last.get('abs_err'), 3)} {b['error_unit']}"]))
+    lines.append("")
+    lines.append("Each phase's command: " + "; ".join(f"`{p['command']}`" for b in data["baselines"]
+                                                       for p in b["phases"]) + ".")
+    return "\n".join(lines)
+
+
 def drive_frames(data: Mapping[str, Any]) -> str:
     """bench_drive_frames: stereo checkpoints on held-out drive frames and on Table I."""
     drives = data["rows"][0]["drives"]
@@ -1015,6 +1032,7 @@ TABLES: dict[str, Table] = {
                     ".venv/bin/python -m benchmarks.bench_models --frames 20 --cache .cache/scenes "
                     "(and with --appearance clean --out benchmarks/results/clean/models.json)"),
     "drive_frames": Table(("drive_frames.json",), drive_frames),
+    "baseline_training": Table(("baseline_training.json",), baseline_training),
     "runtimes": Table(("runtimes.json",), runtimes),
     "node": Table(("node.json",), node_rows, f"{_NODE} --frames 40"),
     "node_map": Table(("node_map.json",), node_rows, f"{_NODE} --drive --rate 10 --frames 40 --backends bev_sweep "

@@ -14,10 +14,13 @@ Options:
         ``checkpoints/gwcnet_lite.pt``.
     threads: torch intra-op threads (default: torch's current setting).
     min_points: cells with fewer points are NaN (default 1).
+    max_sigma_px: pixels whose disparity distribution is wider than this (1-sigma, pixels) are
+        left out, as a matcher's uniqueness test leaves out an ambiguous match (default 0: none).
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any, cast
 
@@ -90,13 +93,16 @@ class GwcNetBackend:
     needs_stereo = True
 
     def __init__(self, grid: GridSpec, *, checkpoint: str | Path | None = None, threads: int | None = None,
-                 min_points: int = 1) -> None:
+                 min_points: int = 1, max_sigma_px: float = 0.0) -> None:
         path = Path(checkpoint) if checkpoint else default_checkpoint()
         if not path.is_file():
             raise BackendError(f"gwcnet backend: checkpoint {path} not found (train one with "
                                "`roadbev train --kind gwcnet` or pass checkpoint=PATH)")
         if int(min_points) < 1:
             raise BackendError(f"gwcnet backend: min_points must be >= 1, got {min_points}")
+        if not (math.isfinite(float(max_sigma_px)) and float(max_sigma_px) >= 0):
+            raise BackendError(f"gwcnet backend: max_sigma_px must be >= 0 (0: off), got {max_sigma_px}")
+        self.max_sigma_px = float(max_sigma_px)
         try:
             model, payload = load_baseline(path, "gwcnet")
             self.envelope = training_envelope(payload)
@@ -138,6 +144,8 @@ class GwcNetBackend:
         # a match must lie inside the right image
         cols = np.arange(window.left, window.right, dtype=np.float32)[None, :]
         valid = np.isfinite(d) & (d > 0.5) & (cols - d >= 0)
+        if self.max_sigma_px:
+            valid &= s <= self.max_sigma_px
         points, depth = disparity_road_points(d, valid, window, camera, frame.attitude, self.grid.base_height)
         sigma_h = disparity_height_sigma(points, depth, s.ravel(), camera, self.grid.base_height)
         elevation, uncertainty = cell_elevations(points, sigma_h, self.grid, self.min_points, clock)
@@ -146,12 +154,12 @@ class GwcNetBackend:
     def describe(self) -> dict[str, Any]:
         """Settings as a JSON-able dict (for benchmark records)."""
         return {"backend": self.name, "checkpoint": str(self.checkpoint), "min_points": self.min_points,
-                "model_config": self.model.config.to_dict()}
+                "max_sigma_px": self.max_sigma_px, "model_config": self.model.config.to_dict()}
 
 
 def create_gwcnet(grid: GridSpec, **options: Any) -> GwcNetBackend:
     """Backend factory of GwcNet-lite (options: see the module docstring)."""
-    unknown = set(options) - {"checkpoint", "threads", "min_points"}
+    unknown = set(options) - {"checkpoint", "threads", "min_points", "max_sigma_px"}
     if unknown:
         raise BackendError(f"gwcnet backend: unknown option(s) {', '.join(sorted(unknown))}")
     return GwcNetBackend(grid, **options)

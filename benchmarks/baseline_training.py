@@ -1,0 +1,93 @@
+"""How the shipped image-view baselines were trained: their phases, budget and loss curves.
+
+Reads the training record each shipped baseline checkpoint carries (``meta``: every phase's
+command, frames, epochs, learning rate, batch, seconds and per-epoch history; written by
+``roadbev train --kind gwcnet|adabins``) and writes ``benchmarks/results/baseline_training.json``
+and ``baseline_training.png`` (training loss and abs. error per epoch, per baseline).
+
+Run: ``.venv/bin/python -m benchmarks.baseline_training [--checkpoints checkpoints/gwcnet_lite.pt
+checkpoints/adabins_lite.pt]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from benchmarks.common import RESULTS, machine_info, write_json
+from roadbev_core.checkpoint import baseline_kind, load_baseline
+from roadbev_lab.training.train_image_view import training_phases
+
+DEFAULT_CHECKPOINTS = ("checkpoints/gwcnet_lite.pt", "checkpoints/adabins_lite.pt")
+# what each baseline's training abs. error measures
+ERROR_UNIT = {"gwcnet": "px of disparity", "adabins": "m of depth"}
+
+
+def summary(path: Path) -> dict[str, Any]:
+    """One checkpoint's training record: its phases and their totals."""
+    kind = baseline_kind(path)
+    if kind is None:
+        raise ValueError(f"{path} is not an image-view baseline's checkpoint")
+    model, payload = load_baseline(path, kind)
+    phases = training_phases(payload.get("meta", {}))
+    steps = sum(int(p.get("steps", 0)) for p in phases)
+    passes = sum(int(p.get("steps", 0)) * int(p.get("batch_size", 0)) for p in phases)
+    return {
+        "kind": kind, "checkpoint": str(path), "parameters": sum(p.numel() for p in model.parameters()),
+        "model_config": model.config.to_dict(), "error_unit": ERROR_UNIT[kind],
+        "phases": [{k: p.get(k) for k in ("command", "frames", "epochs", "lr", "batch_size", "crop", "steps",
+                                          "seconds", "history")} for p in phases],
+        "steps": steps, "sample_passes": passes,
+        "minutes": sum(float(p.get("seconds", 0.0)) for p in phases) / 60.0,
+    }
+
+
+def plot(records: Sequence[dict[str, Any]], path: Path) -> None:
+    """Training loss and abs. error per epoch, one column per baseline (phases one after another)."""
+    from roadbev_lab.reports.figures import new_figure
+
+    fig, axes = new_figure(2, len(records), figsize=(5.5 * len(records), 6.0), dpi=100, squeeze=False)
+    for col, record in enumerate(records):
+        epoch = 0
+        for number, phase in enumerate(record["phases"], start=1):
+            history = phase["history"] or []
+            x = [epoch + int(h["epoch"]) for h in history]
+            axes[0][col].plot(x, [h["loss"] for h in history], marker="o", ms=3, label=f"phase {number}")
+            error = [h.get("abs_err", h.get("abs_err_px")) for h in history]
+            axes[1][col].plot(x, error, marker="o", ms=3, label=f"phase {number}")
+            epoch = x[-1] if x else epoch
+        axes[0][col].set_title(f"{record['kind']} ({record['parameters'] / 1e6:.2f} M parameters)", fontsize=10)
+        axes[0][col].set_ylabel("training loss")
+        axes[1][col].set_ylabel(f"training abs. error ({record['error_unit']})")
+        axes[1][col].set_xlabel("epoch")
+        for ax in (axes[0][col], axes[1][col]):
+            ax.set_yscale("log")
+            ax.grid(True, alpha=0.3)
+            ax.legend(fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.baseline_training", description=__doc__.splitlines()[0])
+    parser.add_argument("--checkpoints", nargs="+", default=list(DEFAULT_CHECKPOINTS), metavar="PT")
+    parser.add_argument("--out", default=str(RESULTS), help="results folder")
+    args = parser.parse_args(argv)
+    records = [summary(Path(p)) for p in args.checkpoints]
+    out = Path(args.out)
+    write_json(out / "baseline_training.json", {
+        "command": " ".join(["python -m benchmarks.baseline_training", *(argv if argv is not None else sys.argv[1:])]),
+        "machine": machine_info(), "baselines": records,
+    })
+    plot(records, out / "baseline_training.png")
+    for r in records:
+        print(f"{r['kind']}: {len(r['phases'])} phase(s), {r['steps']} steps, {r['minutes']:.1f} min")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
