@@ -110,3 +110,16 @@ def test_bad_checkpoints_options_and_frames_are_refused(checkpoint: Path, tmp_pa
     backend = create("gwcnet", GRID, checkpoint=str(checkpoint))
     with pytest.raises(FrameError, match="right image"):
         backend.estimate(_frame(right=False))
+
+
+def test_max_sigma_leaves_out_the_wide_matches(checkpoint: Path) -> None:
+    window = search_window(GRID, CAMERA, ATTITUDE)
+    rows, cols = np.arange(window.top, window.bottom), np.arange(window.left, window.right)
+    answered = {}
+    for limit in (0.0, 0.2, 0.05):  # off; wider than the stand-in's 0.1 px; narrower
+        backend = GwcNetBackend(GRID, checkpoint=checkpoint, max_sigma_px=limit)
+        backend.model = _PlaneDisparity(0.0, window.min_disparity, rows, cols)  # type: ignore[assignment]
+        answered[limit] = int(np.isfinite(backend.estimate(_frame()).elevation).sum())
+    assert answered[0.0] == answered[0.2] > 0 and answered[0.05] == 0
+    with pytest.raises(BackendError, match="max_sigma_px"):
+        create("gwcnet", GRID, checkpoint=str(checkpoint), max_sigma_px=-1.0)
