@@ -221,21 +221,25 @@ def main(argv: list[str] | None = None) -> int:
         table = {}
     models = dict(table.get("models", {}))
     details = dict(table.get("details", {}))
+    command = " ".join(["python -m benchmarks.calibrate_sigma", *(argv if argv is not None else sys.argv[1:])])
     for name in wanted:
         if status.get(name):
             print(f"skipping {name}: {status[name]}", file=sys.stderr)
             continue
         entry = calibrate(name, sets, grid, args)
         models[name] = entry.pop("model")
-        details[name] = entry
+        details[name] = {**entry, "command": command}
+    # a run that fits some of the backends keeps the record of the run that fitted the rest (each
+    # backend's own command is in its details)
+    earlier = table if set(models) - set(wanted) else {}
     record: dict[str, Any] = {
-        "command": " ".join(["python -m benchmarks.calibrate_sigma", *(argv if argv is not None else sys.argv[1:])]),
+        "command": earlier.get("command", command),
         "seeds": [TUNING_SEED_BASE, TUNING_SEED_BASE + args.frames - 1],
         "drives": args.drives,
         "drive_duration_s": args.drive_duration,
         "frames": {k: len(v) for k, v in sets.items()},
-        "machine": machine_info(),
-        "seconds": time.perf_counter() - start,
+        "machine": earlier.get("machine", machine_info()),
+        "seconds": earlier.get("seconds", time.perf_counter() - start),
         "models": models,
         "details": details,
     }

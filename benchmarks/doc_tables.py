@@ -484,6 +484,12 @@ def sigma_calibration(data: Mapping[str, Any]) -> str:
     lines.append(f"Tuning set: {data['frames']['scenes']} scenes (seeds {data['seeds'][0]}–{data['seeds'][1]}) and "
                  f"{data['frames']['drives']} frames of the drives {drives} (speed:rate:seed), "
                  "`roadbev_core/data/sigma_calibration.json`.")
+    separate: dict[str, list[str]] = {}
+    for name, d in data["details"].items():
+        if d.get("command", data["command"]) != data["command"]:
+            separate.setdefault(d["command"], []).append(name)
+    for command, names in separate.items():
+        lines.append(f"{', '.join(names)} fitted on the same tuning set by a later run: `{command}`.")
     return "\n".join(lines)
 
 

@@ -45,3 +45,17 @@ def test_the_far_field_calibration_fits_the_footprint_and_judges_the_worst_band(
     assert scores["worst_band_confident_wrong_pct"] == max(b["confident_wrong_pct"] for b in scores["bands"]
                                                            if b["sigma_cells"])
     assert [b["x_from_m"] for b in scores["bands"]] == [7.08, *range(8, 15)]
+
+
+def test_a_run_that_fits_some_backends_keeps_the_record_of_the_others(tmp_path: Path) -> None:
+    from benchmarks.calibrate_sigma import main
+
+    out = tmp_path / "table.json"
+    earlier = {"command": "python -m benchmarks.calibrate_sigma", "machine": {"cpu": "earlier"}, "seconds": 1.0,
+               "models": {"stereo": {"base": 0.001}}, "details": {"stereo": {"factor": 1.0}}}
+    out.write_text(json.dumps(earlier))
+    assert main(["--far-field", "--frames", "1", "--backends", "bm", "--out", str(out)]) == 0
+    table = json.loads(out.read_text())
+    assert set(table["models"]) == {"stereo", "bm"} and table["models"]["stereo"] == {"base": 0.001}
+    assert table["command"] == earlier["command"] and table["machine"] == earlier["machine"]
+    assert table["details"]["bm"]["command"].endswith(f"--backends bm --out {out}")
