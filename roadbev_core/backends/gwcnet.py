@@ -15,7 +15,8 @@ Options:
     threads: torch intra-op threads (default: torch's current setting).
     min_points: cells with fewer points are NaN (default 1).
     max_sigma_px: pixels whose disparity distribution is wider than this (1-sigma, pixels) are
-        left out, as a matcher's uniqueness test leaves out an ambiguous match (default 0: none).
+        left out, as a matcher's uniqueness test leaves out an ambiguous match (0: none); default
+        :data:`DEFAULT_MAX_SIGMA_PX`.
 """
 
 from __future__ import annotations
@@ -48,6 +49,10 @@ __all__ = ["GwcNetBackend", "create_gwcnet", "default_checkpoint", "gwcnet_input
 # Disparities searched beyond the grid volume's own range, on either side (the image-view
 # matchers' default margin).
 DISPARITY_MARGIN_PX = 4
+# The widest disparity distribution kept, chosen on the tuning scenes (benchmarks/tune_gwcnet.py):
+# the network's distributions are wide where it cannot match (the far rows, texture-less
+# patches), and a limit keeps the image-view comparison of a matcher that declines such pixels.
+DEFAULT_MAX_SIGMA_PX = 2.0
 
 
 def default_checkpoint() -> Path:
@@ -93,7 +98,7 @@ class GwcNetBackend:
     needs_stereo = True
 
     def __init__(self, grid: GridSpec, *, checkpoint: str | Path | None = None, threads: int | None = None,
-                 min_points: int = 1, max_sigma_px: float = 0.0) -> None:
+                 min_points: int = 1, max_sigma_px: float = DEFAULT_MAX_SIGMA_PX) -> None:
         path = Path(checkpoint) if checkpoint else default_checkpoint()
         if not path.is_file():
             raise BackendError(f"gwcnet backend: checkpoint {path} not found (train one with "
