@@ -32,7 +32,8 @@ def summary(path: Path) -> dict[str, Any]:
     if kind is None:
         raise ValueError(f"{path} is not an image-view baseline's checkpoint")
     model, payload = load_baseline(path, kind)
-    phases = training_phases(payload.get("meta", {}))
+    phases = [{**p, "seconds": p.get("seconds") or sum(float(h.get("seconds", 0.0)) for h in p.get("history") or [])}
+              for p in training_phases(payload.get("meta", {}))]  # a phase without its total: its epochs'
     steps = sum(int(p.get("steps", 0)) for p in phases)
     passes = sum(int(p.get("steps", 0)) * int(p.get("batch_size", 0)) for p in phases)
     return {
