@@ -52,6 +52,9 @@ from roadbev_lab.reports.figures import FigureError, reliability_figure
 from roadbev_lab.synth.appearance import DEFAULT_APPEARANCE
 
 DEFAULT_FRAMES = 24
+# Table I's rows: the BEV methods (bev_sweep, RoadBEV-stereo / -mono) and the image-view ones
+# (OpenCV's matchers, the learned baselines)
+TABLE1_BACKENDS = ("bev_sweep", "sgbm", "bm", "gwcnet", "stereo", "adabins", "mono")
 QUICK_FRAMES = 3
 
 
@@ -283,7 +286,7 @@ def main(argv: list[str] | None = None) -> int:
     frames = args.frames or (QUICK_FRAMES if args.quick else DEFAULT_FRAMES)
     if frames < 2:
         parser.error("--frames must be >= 2 (the first frame is the timing warm-up)")
-    wanted = args.backends.split(",") if args.backends else ["bev_sweep", "sgbm", "bm", "stereo", "mono"]
+    wanted = args.backends.split(",") if args.backends else list(TABLE1_BACKENDS)
     status = available_backends(wanted)
     names = [n for n in wanted if not status[n]]
     for n in wanted:
