@@ -780,6 +780,19 @@ def baseline_training(data: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def tune_gwcnet(data: Mapping[str, Any]) -> str:
+    """tune_gwcnet: GwcNet-lite's abs. error and coverage per max_sigma_px on the tuning scenes, the
+    classical matchers beside it."""
+    lines = _head("backend", "max_sigma_px", "abs. err. (cm)", "RMSE (cm)", "coverage (%)")
+    for r in data["rows"]:
+        limit = r.get("max_sigma_px")
+        lines.append(_row([r["backend"], "–" if limit is None else ("none" if limit == 0 else f"{limit:g}"),
+                           _fmt(r["abs_err_cm"], 3), _fmt(r["rmse_cm"], 3), _fmt(r["coverage_pct"], 1)]))
+    lines.append("")
+    lines.append(f"{data['frames']} tuning scenes, seeds {data['seeds'][0]}–{data['seeds'][1]}.")
+    return "\n".join(lines)
+
+
 def drive_frames(data: Mapping[str, Any]) -> str:
     """bench_drive_frames: stereo checkpoints on held-out drive frames and on Table I."""
     drives = data["rows"][0]["drives"]
@@ -1039,6 +1052,7 @@ TABLES: dict[str, Table] = {
                     "(and with --appearance clean --out benchmarks/results/clean/models.json)"),
     "drive_frames": Table(("drive_frames.json",), drive_frames),
     "baseline_training": Table(("baseline_training.json",), baseline_training),
+    "tune_gwcnet": Table(("tune_gwcnet.json",), tune_gwcnet),
     "runtimes": Table(("runtimes.json",), runtimes),
     "node": Table(("node.json",), node_rows, f"{_NODE} --frames 40"),
     "node_map": Table(("node_map.json",), node_rows, f"{_NODE} --drive --rate 10 --frames 40 --backends bev_sweep "

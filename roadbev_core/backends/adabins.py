@@ -9,10 +9,11 @@ the spread of the network's depth distribution. The registry's calibration step 
 sigma like every backend's.
 
 Options:
-    checkpoint: an AdaBins-lite checkpoint (``roadbev train --kind adabins``); default the shipped
-        ``checkpoints/adabins_lite.pt``.
-    threads: torch intra-op threads (default: torch's current setting).
-    min_points: cells with fewer points are NaN (default 1).
+
+* ``checkpoint``: an AdaBins-lite checkpoint (``roadbev train --kind adabins``); default the shipped
+  ``checkpoints/adabins_lite.pt``.
+* ``threads``: torch intra-op threads (default: torch's current setting).
+* ``min_points``: cells with fewer points are NaN (default 1).
 """
 
 from __future__ import annotations

@@ -10,13 +10,14 @@ code's binning), with each pixel's disparity 1-sigma the spread of the network's
 distribution. The registry's calibration step then fits the sigma like every backend's.
 
 Options:
-    checkpoint: a GwcNet-lite checkpoint (``roadbev train --kind gwcnet``); default the shipped
-        ``checkpoints/gwcnet_lite.pt``.
-    threads: torch intra-op threads (default: torch's current setting).
-    min_points: cells with fewer points are NaN (default 1).
-    max_sigma_px: pixels whose disparity distribution is wider than this (1-sigma, pixels) are
-        left out, as a matcher's uniqueness test leaves out an ambiguous match (0: none); default
-        :data:`DEFAULT_MAX_SIGMA_PX`.
+
+* ``checkpoint``: a GwcNet-lite checkpoint (``roadbev train --kind gwcnet``); default the shipped
+  ``checkpoints/gwcnet_lite.pt``.
+* ``threads``: torch intra-op threads (default: torch's current setting).
+* ``min_points``: cells with fewer points are NaN (default 1).
+* ``max_sigma_px``: pixels whose disparity distribution is wider than this (1-sigma, pixels)
+  are left out, as a matcher's uniqueness test leaves out an ambiguous match (0: none; the
+  default is :data:`DEFAULT_MAX_SIGMA_PX`).
 """
 
 from __future__ import annotations
