@@ -25,23 +25,15 @@ import cv2
 import numpy as np
 import torch
 
-from roadbev_core.backend_plugins import BackendError
+from roadbev_core.backends.baseline import BaselineBackend, check_options
 from roadbev_core.backends.common import StageClock
 from roadbev_core.backends.image_view import cell_elevations, match_window, road_points
-from roadbev_core.checkpoint import CheckpointError, load_baseline, training_envelope
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.frame import Estimate, Frame, FrameError
 from roadbev_core.geometry import Attitude
 from roadbev_core.models.adabins import AdaBinsConfig, AdaBinsLite
-from roadbev_core.share import find_shared, shared_candidates
 
-__all__ = ["AdaBinsBackend", "create_adabins", "default_checkpoint", "depth_pixels", "grid_window", "network_image"]
-
-
-def default_checkpoint() -> Path:
-    """The shipped AdaBins-lite checkpoint (the source tree's, else an install's share)."""
-    folder = find_shared("checkpoints") or shared_candidates("checkpoints")[0]
-    return folder / "adabins_lite.pt"
+__all__ = ["AdaBinsBackend", "create_adabins", "depth_pixels", "grid_window", "network_image"]
 
 
 def grid_window(grid: GridSpec, camera: StereoCamera, attitude: Attitude) -> tuple[slice, slice]:
@@ -73,7 +65,7 @@ def depth_pixels(config: AdaBinsConfig, camera: StereoCamera) -> tuple[np.ndarra
     return rows, cols
 
 
-class AdaBinsBackend:
+class AdaBinsBackend(BaselineBackend):
     """AdaBins-lite behind the backend protocol (see the module docstring)."""
 
     name = "adabins"
@@ -81,37 +73,14 @@ class AdaBinsBackend:
 
     def __init__(self, grid: GridSpec, *, checkpoint: str | Path | None = None, threads: int | None = None,
                  min_points: int = 1) -> None:
-        path = Path(checkpoint) if checkpoint else default_checkpoint()
-        if not path.is_file():
-            raise BackendError(f"adabins backend: checkpoint {path} not found (train one with "
-                               "`roadbev train --kind adabins` or pass checkpoint=PATH)")
-        if int(min_points) < 1:
-            raise BackendError(f"adabins backend: min_points must be >= 1, got {min_points}")
-        try:
-            model, payload = load_baseline(path, "adabins")
-            self.envelope = training_envelope(payload)
-        except CheckpointError as exc:
-            raise BackendError(f"adabins backend: {exc}") from exc
-        problems = self.envelope.grid_problems(grid)
-        if problems:
-            raise BackendError(f"adabins backend: the grid is outside what {path.name} was trained for: "
-                               f"{'; '.join(problems)}")
-        if threads:
-            torch.set_num_threads(int(threads))
-        self.grid = grid
-        self.model = cast("AdaBinsLite", model)
-        self.checkpoint = path
-        self.min_points = int(min_points)
-        self.meta: dict[str, Any] = dict(payload.get("meta", {}))
+        super().__init__(grid, checkpoint=checkpoint, threads=threads, min_points=min_points)
+        self.model = cast("AdaBinsLite", self.network)
 
     @torch.inference_mode()
     def estimate(self, frame: Frame) -> Estimate:
         """Elevation and uncertainty of ``self.grid`` from the left image."""
         camera = frame.camera
-        problems = self.envelope.rig_problems(camera, False)
-        if problems:
-            raise FrameError(f"adabins backend: the rig is outside what {self.checkpoint.name} was trained for: "
-                             f"{'; '.join(problems)}")
+        self.check_rig(camera)
         torch.set_flush_denormal(True)
         clock = StageClock()
         image = torch.from_numpy(network_image(frame.left, self.model.config))[None]
@@ -130,15 +99,8 @@ class AdaBinsBackend:
         elevation, uncertainty = cell_elevations(points, point_sigma, self.grid, self.min_points, clock)
         return Estimate(elevation=elevation, uncertainty=uncertainty, timings_ms=clock.timings)
 
-    def describe(self) -> dict[str, Any]:
-        """Settings as a JSON-able dict (for benchmark records)."""
-        return {"backend": self.name, "checkpoint": str(self.checkpoint), "min_points": self.min_points,
-                "model_config": self.model.config.to_dict()}
-
 
 def create_adabins(grid: GridSpec, **options: Any) -> AdaBinsBackend:
     """Backend factory of AdaBins-lite (options: see the module docstring)."""
-    unknown = set(options) - {"checkpoint", "threads", "min_points"}
-    if unknown:
-        raise BackendError(f"adabins backend: unknown option(s) {', '.join(sorted(unknown))}")
+    check_options("adabins", options)
     return AdaBinsBackend(grid, **options)

@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from roadbev_core.backend_plugins import BackendError
+from roadbev_core.backends.baseline import BaselineBackend, check_options
 from roadbev_core.backends.common import StageClock
 from roadbev_core.backends.image_view import (
     MatchWindow,
@@ -38,14 +39,12 @@ from roadbev_core.backends.image_view import (
     disparity_road_points,
     match_window,
 )
-from roadbev_core.checkpoint import CheckpointError, load_baseline, training_envelope
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.frame import Estimate, Frame, FrameError
 from roadbev_core.geometry import Attitude
 from roadbev_core.models.gwcnet import GwcNetLite, shift_right
-from roadbev_core.share import find_shared, shared_candidates
 
-__all__ = ["GwcNetBackend", "create_gwcnet", "default_checkpoint", "gwcnet_inputs", "search_window"]
+__all__ = ["GwcNetBackend", "create_gwcnet", "gwcnet_inputs", "search_window"]
 
 # Disparities searched beyond the grid volume's own range, on either side (the image-view
 # matchers' default margin).
@@ -54,12 +53,6 @@ DISPARITY_MARGIN_PX = 4
 # the network's distributions are wide where it cannot match (the far rows, texture-less
 # patches), and a limit keeps the image-view comparison of a matcher that declines such pixels.
 DEFAULT_MAX_SIGMA_PX = 2.0
-
-
-def default_checkpoint() -> Path:
-    """The shipped GwcNet-lite checkpoint (the source tree's, else an install's share)."""
-    folder = find_shared("checkpoints") or shared_candidates("checkpoints")[0]
-    return folder / "gwcnet_lite.pt"
 
 
 def search_window(grid: GridSpec, camera: StereoCamera, attitude: Attitude) -> MatchWindow:
@@ -92,7 +85,7 @@ def gwcnet_inputs(frame: Frame, window: MatchWindow) -> tuple[np.ndarray, np.nda
     return left, right
 
 
-class GwcNetBackend:
+class GwcNetBackend(BaselineBackend):
     """GwcNet-lite behind the backend protocol (see the module docstring)."""
 
     name = "gwcnet"
@@ -100,31 +93,11 @@ class GwcNetBackend:
 
     def __init__(self, grid: GridSpec, *, checkpoint: str | Path | None = None, threads: int | None = None,
                  min_points: int = 1, max_sigma_px: float = DEFAULT_MAX_SIGMA_PX) -> None:
-        path = Path(checkpoint) if checkpoint else default_checkpoint()
-        if not path.is_file():
-            raise BackendError(f"gwcnet backend: checkpoint {path} not found (train one with "
-                               "`roadbev train --kind gwcnet` or pass checkpoint=PATH)")
-        if int(min_points) < 1:
-            raise BackendError(f"gwcnet backend: min_points must be >= 1, got {min_points}")
         if not (math.isfinite(float(max_sigma_px)) and float(max_sigma_px) >= 0):
             raise BackendError(f"gwcnet backend: max_sigma_px must be >= 0 (0: off), got {max_sigma_px}")
+        super().__init__(grid, checkpoint=checkpoint, threads=threads, min_points=min_points)
         self.max_sigma_px = float(max_sigma_px)
-        try:
-            model, payload = load_baseline(path, "gwcnet")
-            self.envelope = training_envelope(payload)
-        except CheckpointError as exc:
-            raise BackendError(f"gwcnet backend: {exc}") from exc
-        problems = self.envelope.grid_problems(grid)
-        if problems:
-            raise BackendError(f"gwcnet backend: the grid is outside what {path.name} was trained for: "
-                               f"{'; '.join(problems)}")
-        if threads:
-            torch.set_num_threads(int(threads))
-        self.grid = grid
-        self.model = cast("GwcNetLite", model)
-        self.checkpoint = path
-        self.min_points = int(min_points)
-        self.meta: dict[str, Any] = dict(payload.get("meta", {}))
+        self.model = cast("GwcNetLite", self.network)
 
     @torch.inference_mode()
     def estimate(self, frame: Frame) -> Estimate:
@@ -132,10 +105,7 @@ class GwcNetBackend:
         camera = frame.camera
         if camera.baseline <= 0:
             raise FrameError("gwcnet needs a stereo rig with a positive baseline")
-        problems = self.envelope.rig_problems(camera, True)
-        if problems:
-            raise FrameError(f"gwcnet backend: the rig is outside what {self.checkpoint.name} was trained for: "
-                             f"{'; '.join(problems)}")
+        self.check_rig(camera)
         torch.set_flush_denormal(True)
         clock = StageClock()
         window = search_window(self.grid, camera, frame.attitude)
@@ -159,13 +129,10 @@ class GwcNetBackend:
 
     def describe(self) -> dict[str, Any]:
         """Settings as a JSON-able dict (for benchmark records)."""
-        return {"backend": self.name, "checkpoint": str(self.checkpoint), "min_points": self.min_points,
-                "max_sigma_px": self.max_sigma_px, "model_config": self.model.config.to_dict()}
+        return {**super().describe(), "max_sigma_px": self.max_sigma_px}
 
 
 def create_gwcnet(grid: GridSpec, **options: Any) -> GwcNetBackend:
     """Backend factory of GwcNet-lite (options: see the module docstring)."""
-    unknown = set(options) - {"checkpoint", "threads", "min_points", "max_sigma_px"}
-    if unknown:
-        raise BackendError(f"gwcnet backend: unknown option(s) {', '.join(sorted(unknown))}")
+    check_options("gwcnet", options, frozenset({"max_sigma_px"}))
     return GwcNetBackend(grid, **options)
