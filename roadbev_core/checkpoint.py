@@ -161,6 +161,11 @@ def save_checkpoint(
     }
     if train_state is not None:
         payload["train_state"] = train_state
+    return _write(payload, path)
+
+
+def _write(payload: dict[str, Any], path: Path) -> Path:
+    """Save ``payload`` to ``path`` atomically (a partial file never has the final name)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     torch.save(payload, tmp)
@@ -277,11 +282,7 @@ def save_baseline(path: str | Path, kind: str, model: BaselineNetwork, envelope:
         "meta": dict(meta or {}),
         "envelope": envelope.to_dict(),
     }
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(payload, tmp)
-    tmp.replace(path)
-    return path
+    return _write(payload, path)
 
 
 def load_baseline(path: str | Path, kind: str) -> tuple[BaselineNetwork, dict[str, Any]]:

@@ -202,9 +202,6 @@ def export_onnx(
     Returns:
         The serialised model.
     """
-    # lazy: an optional extra (pip install .[onnx] / .[openvino]), loaded only to export or run that runtime
-    import onnx
-
     if opset < 16:
         raise DeployError(f"opset {opset} lacks GridSample: use 16 or later")
     folded = copy.deepcopy(model).float().eval()
@@ -216,14 +213,7 @@ def export_onnx(
     dynamic: dict[str, dict[int, str]] = {name: {0: "batch"} for name in [*names, *OUTPUTS]}
     if "grey" in dynamic:
         dynamic["grey"] = {0: "batch", 2: "height", 3: "width"}
-    with torch.no_grad(), warnings.catch_warnings(), tempfile.TemporaryDirectory(prefix="roadbev_onnx_") as tmp:
-        # the tracer warns about every Python-level shape check; the graph's shapes are fixed by
-        # the config except the documented dynamic axes, which the equality tests exercise
-        warnings.simplefilter("ignore", category=torch.jit.TracerWarning)
-        traced = Path(tmp) / "model.onnx"
-        torch.onnx.export(net, example, str(traced), dynamo=False, input_names=names, output_names=list(OUTPUTS),
-                          dynamic_axes=dynamic, opset_version=opset, do_constant_folding=True)
-        proto = onnx.load_from_string(traced.read_bytes())
+    proto = _traced(net, example, names, list(OUTPUTS), dynamic, opset)
     shapes: dict[str, list[str | int]] = {
         name: ["B" if i == 0 else int(n) for i, n in enumerate(t.shape)] for name, t in zip(names, example, strict=True)
     }
@@ -238,6 +228,30 @@ def export_onnx(
         "opset": str(opset),
         "meta": json.dumps(meta or {}, default=str),
     }
+    return _finished(proto, props, out)
+
+
+def _traced(net: nn.Module, example: tuple[torch.Tensor, ...], inputs: Sequence[str], outputs: Sequence[str],
+            dynamic: dict[str, dict[int, str]], opset: int) -> Any:
+    """The ONNX model proto of ``net`` traced on ``example`` (fp32, constants folded)."""
+    # lazy: an optional extra (pip install .[onnx] / .[openvino]), loaded only to export or run that runtime
+    import onnx
+
+    with torch.no_grad(), warnings.catch_warnings(), tempfile.TemporaryDirectory(prefix="roadbev_onnx_") as tmp:
+        # the tracer warns about every Python-level shape check; the graph's shapes are fixed by
+        # the config except the documented dynamic axes, which the equality tests exercise
+        warnings.simplefilter("ignore", category=torch.jit.TracerWarning)
+        traced = Path(tmp) / "model.onnx"
+        torch.onnx.export(net, example, str(traced), dynamo=False, input_names=list(inputs),
+                          output_names=list(outputs), dynamic_axes=dynamic, opset_version=opset,
+                          do_constant_folding=True)
+        return onnx.load_from_string(traced.read_bytes())
+
+
+def _finished(proto: Any, props: dict[str, str], out: str | Path | None) -> bytes:
+    """``proto`` with its metadata ``props``, serialised, and written to ``out`` when given."""
+    import onnx
+
     onnx.helper.set_model_props(proto, props)
     proto.producer_name = "roadbev"
     data = proto.SerializeToString()
@@ -257,8 +271,6 @@ def export_baseline_onnx(model: GwcNetLite | AdaBinsLite, kind: str, out: str | 
     uint8 of any size that is a multiple of 8, outputs ``disparity``, ``sigma`` [B, H, W];
     ``adabins``: input ``image`` [B, 3, h, w] uint8 at its input size, outputs ``depth``, ``sigma``
     [B, h / 2, w / 2] and ``centres`` [B, n_bins]), fp32, written to ``out`` when given."""
-    import onnx
-
     if kind not in BASELINE_IO:
         raise DeployError(f"unknown baseline {kind!r}; one of {', '.join(BASELINE_IO)}")
     inputs, outputs = BASELINE_IO[kind]
@@ -271,20 +283,9 @@ def export_baseline_onnx(model: GwcNetLite | AdaBinsLite, kind: str, out: str | 
     else:
         example = (torch.zeros(1, 3, config.input_height, config.input_width, dtype=torch.uint8),)
         dynamic = {name: {0: "batch"} for name in (*inputs, *outputs)}
-    with torch.no_grad(), warnings.catch_warnings(), tempfile.TemporaryDirectory(prefix="roadbev_onnx_") as tmp:
-        warnings.simplefilter("ignore", category=torch.jit.TracerWarning)
-        traced = Path(tmp) / "model.onnx"
-        torch.onnx.export(net, example, str(traced), dynamo=False, input_names=list(inputs),
-                          output_names=list(outputs), dynamic_axes=dynamic, opset_version=opset,
-                          do_constant_folding=True)
-        proto = onnx.load_from_string(traced.read_bytes())
-    onnx.helper.set_model_props(proto, {"roadbev_baseline": kind, "model_config": json.dumps(config.to_dict()),
-                                        "opset": str(opset), "meta": json.dumps(meta or {}, default=str)})
-    proto.producer_name = "roadbev"
-    data = proto.SerializeToString()
-    if out is not None:
-        write_graph(data, out)
-    return cast("bytes", data)
+    proto = _traced(net, example, inputs, outputs, dynamic, opset)
+    return _finished(proto, {"roadbev_baseline": kind, "model_config": json.dumps(config.to_dict()),
+                             "opset": str(opset), "meta": json.dumps(meta or {}, default=str)}, out)
 
 
 def write_graph(data: bytes, out: str | Path) -> Path:
