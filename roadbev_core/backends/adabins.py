@@ -32,6 +32,7 @@ from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.frame import Estimate, Frame, FrameError
 from roadbev_core.geometry import Attitude
 from roadbev_core.models.adabins import AdaBinsConfig, AdaBinsLite
+from roadbev_core.models.roadbev import prepare_image
 
 __all__ = ["AdaBinsBackend", "create_adabins", "depth_pixels", "grid_window", "network_image"]
 
@@ -49,12 +50,7 @@ def network_image(image: np.ndarray, config: AdaBinsConfig) -> np.ndarray:
     image = np.asarray(image)
     if image.dtype != np.uint8:
         raise FrameError(f"adabins needs 8-bit images, got {image.dtype}")
-    if image.ndim == 2:
-        image = np.repeat(image[:, :, None], 3, axis=2)
-    size = (config.input_width, config.input_height)
-    if image.shape[1::-1] != size:
-        image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
-    return np.ascontiguousarray(image[:, :, :3].transpose(2, 0, 1))
+    return prepare_image(np.ascontiguousarray(image[:, :, :3]) if image.ndim == 3 else image, config)
 
 
 def depth_pixels(config: AdaBinsConfig, camera: StereoCamera) -> tuple[np.ndarray, np.ndarray]:

@@ -9,10 +9,10 @@ from typing import Any
 import torch
 
 from roadbev_core.backend_plugins import BackendError
+from roadbev_core.backends.learned import checkpoint_dir
 from roadbev_core.checkpoint import BaselineNetwork, CheckpointError, load_baseline, training_envelope
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.frame import FrameError
-from roadbev_core.share import find_shared, shared_candidates
 
 __all__ = ["BaselineBackend", "check_options", "default_checkpoint"]
 
@@ -21,9 +21,8 @@ COMMON_OPTIONS = frozenset({"checkpoint", "threads", "min_points"})
 
 
 def default_checkpoint(kind: str) -> Path:
-    """The shipped checkpoint of baseline ``kind`` (the source tree's, else an install's share)."""
-    folder = find_shared("checkpoints") or shared_candidates("checkpoints")[0]
-    return folder / f"{kind}_lite.pt"
+    """The shipped checkpoint of baseline ``kind`` (in :func:`roadbev_core.backends.learned.checkpoint_dir`)."""
+    return checkpoint_dir() / f"{kind}_lite.pt"
 
 
 def check_options(kind: str, options: dict[str, Any], extra: frozenset[str] = frozenset()) -> None:

@@ -15,7 +15,7 @@ grid, so callers always see the :class:`GridSpec` they asked for.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import NamedTuple
+from typing import NamedTuple, Protocol
 
 import cv2
 import numpy as np
@@ -57,7 +57,17 @@ class Prediction(NamedTuple):
     observed: torch.Tensor
 
 
-def prepare_image(image: np.ndarray, config: ModelConfig) -> np.ndarray:
+class InputSize(Protocol):
+    """A network's input size (a RoadBEV :class:`ModelConfig`, an image-view baseline's configuration)."""
+
+    @property
+    def input_width(self) -> int: ...
+
+    @property
+    def input_height(self) -> int: ...
+
+
+def prepare_image(image: np.ndarray, config: InputSize) -> np.ndarray:
     """RGB (or grey) uint8 [H, W(, 3)] -> uint8 [3, h, w] at the model's input size (area resize)."""
     if image.ndim == 2:
         image = np.repeat(image[:, :, None], 3, axis=2)
