@@ -13,7 +13,8 @@ The node, ``roadbev eval``, the online evaluation, the demo and the benchmarks a
 
 With ``far_field.enabled`` a second backend of the same kind answers the far-field grid beyond
 the grid on the same frame (:func:`build_far_backend`; ``PipelineOutput.far``) where the backend
-has a far field; with one that has none (``far_field_unsupported``) the pipeline runs as with the
+has a far field and the grid leaves it a window; otherwise (``far_field_off_reason``: a backend
+with none, or a grid that already reaches ``far_field.x_max``) the pipeline runs as with the
 far field off and says why in :attr:`Pipeline.far_field_off` (the node's diagnostics, ``roadbev
 eval``'s ``far_field`` key). The grid's
 own estimate is the same with it on or off. With the map on it is fused too, on the map's cells
@@ -83,7 +84,7 @@ __all__ = [
     "build_backend",
     "build_far_backend",
     "check_config",
-    "far_field_unsupported",
+    "far_field_off_reason",
     "replay",
 ]
 
@@ -192,10 +193,17 @@ class FarFieldUnsupported(BackendError):
     """``far_field.enabled`` with a backend that does not answer the far-field grid."""
 
 
-def far_field_unsupported(config: RoadbevConfig, backend: Backend) -> str:
-    """Why the far field ``config`` asks for is not estimated with ``backend`` (one without a true
-    ``far_field`` attribute), or "" (asked for and estimated, or not asked for)."""
-    if config.far_field.enabled and not getattr(backend, "far_field", False):
+def far_field_off_reason(config: RoadbevConfig, backend: Backend) -> str:
+    """Why the far field ``config`` asks for is not estimated, or "" (asked for and estimated, or
+    not asked for): the grid already reaches its far edge
+    (:meth:`~roadbev_core.config.FarFieldConfig.off_reason`), or ``backend`` has none (no true
+    ``far_field`` attribute)."""
+    if not config.far_field.enabled:
+        return ""
+    beyond = config.far_field.off_reason(config.grid)
+    if beyond:
+        return beyond
+    if not getattr(backend, "far_field", False):
         return f"backend {backend.name!r} does not estimate the far field (far_field.enabled): bm, sgbm and their " \
                "ensemble do"
     return ""
@@ -214,7 +222,7 @@ def build_far_backend(config: RoadbevConfig, backend: Backend, factory: BackendF
     far_grid = config.far_grid
     if far_grid is None:
         return None
-    unsupported = far_field_unsupported(config, backend)
+    unsupported = far_field_off_reason(config, backend)
     if unsupported:
         raise FarFieldUnsupported(unsupported)
     far = build_backend(config, factory, grid=far_grid)
@@ -240,10 +248,10 @@ class Pipeline:
             command line do; a library user embedding the pipeline may keep its own settings).
 
     Attributes:
-        config: the config it runs: the one given, with the far field off when the backend has
-            none (``far_field_off`` says so).
+        config: the config it runs: the one given, with the far field off where it is not
+            estimated (``far_field_off`` says why).
         far_field_off: why the far field the config asks for is not estimated
-            (:func:`far_field_unsupported`), or "".
+            (:func:`far_field_off_reason`), or "".
 
     Raises:
         BackendError: the backend (or the far-field one) cannot be built.
@@ -262,7 +270,7 @@ class Pipeline:
         self._configure_process = configure_process
         self._lock = threading.Lock()
         self.backend = build_backend(config, backend_factory)
-        self.far_field_off = far_field_unsupported(config, self.backend)
+        self.far_field_off = far_field_off_reason(config, self.backend)
         self.config = config = self._runnable(config, self.far_field_off)
         self.far_backend = build_far_backend(config, self.backend, backend_factory)
         self.imu = imu_buffer(config.imu)
@@ -284,7 +292,7 @@ class Pipeline:
     # --- configuration -------------------------------------------------------------------------
     @staticmethod
     def _runnable(config: RoadbevConfig, far_field_off: str) -> RoadbevConfig:
-        """``config``, with the far field off where the backend has none (``far_field_off``): the
+        """``config``, with the far field off where it is not estimated (``far_field_off``): the
         map's corridor and the previews then end at the grid's far edge, as with it off."""
         return config.with_params({"far_field.enabled": False}) if far_field_off else config
 
@@ -312,7 +320,7 @@ class Pipeline:
             or config.backend.options_of() != old.backend.options_of()
         )
         backend = build_backend(config, self._factory) if rebuild else self.backend
-        far_field_off = far_field_unsupported(config, backend)
+        far_field_off = far_field_off_reason(config, backend)
         config = self._runnable(config, far_field_off)
         far_backend = (build_far_backend(config, backend, self._factory)
                        if rebuild or config.far_grid != old.far_grid else self.far_backend)

@@ -19,13 +19,26 @@ import numpy as np
 
 from roadbev_core.errors import RoadbevError
 
-__all__ = ["GRID_PRESETS", "ConfigError", "GridSpec", "grid_preset"]
+__all__ = ["GRID_PRESETS", "ConfigError", "GridSpec", "grid_preset", "whole_cells_end"]
 
 _EPS = 1e-6
 
 
 class ConfigError(RoadbevError, ValueError):
     """A grid, rig or model configuration that cannot work, with the reason."""
+
+
+# How far from a whole number (in cells) a range may be and still count as whole cells.
+_WHOLE_TOLERANCE = 1e-4
+
+
+def whole_cells_end(start: float, end: float, step: float) -> float:
+    """``end``, or where it is not a whole number of ``step`` cells from ``start``, the first
+    whole cell's edge beyond it (m): ``end`` itself whenever it fits, to the bit."""
+    count = (end - start) / step
+    if abs(count - round(count)) <= _WHOLE_TOLERANCE:
+        return end
+    return round(start + math.ceil(count) * step, 9)
 
 
 def _whole_count(span: float, step: float, what: str) -> int:
@@ -37,7 +50,7 @@ def _whole_count(span: float, step: float, what: str) -> int:
     if span <= 0:
         raise ConfigError(f"{what}: empty or inverted range (span {span:.6g} m)")
     count = span / step
-    if abs(count - round(count)) > 1e-4:
+    if abs(count - round(count)) > _WHOLE_TOLERANCE:
         raise ConfigError(
             f"{what}: range of {span:.6g} m is not a whole number of {step:.6g} m cells "
             f"({count:.4f})"

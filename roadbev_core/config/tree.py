@@ -35,7 +35,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from roadbev_core.backend_plugins import available, is_backend_name, option_backend, takes_checkpoint
-from roadbev_core.config.grid import ConfigError, GridSpec
+from roadbev_core.config.grid import ConfigError, GridSpec, whole_cells_end
 from roadbev_core.config.params_file import ParamError
 
 __all__ = [
@@ -439,7 +439,10 @@ class FarFieldConfig:
     It starts at the grid's far edge (``x_max``), reaches ``far_field.x_max`` and spans the
     grid's lateral range, in square cells of ``far_field.resolution``; the vertical range is its
     own (the road 15 m ahead on a grade lies further from the reference plane than the road 5 m
-    ahead). Off by default: nothing the node publishes or estimates changes until it is on.
+    ahead). It follows whatever grid it is given: a window that is not a whole number of cells is
+    widened to the next whole cell (:meth:`grid`), and a grid that already reaches
+    ``far_field.x_max`` leaves it nothing to estimate (:meth:`off_reason`). Off by default:
+    nothing the node publishes or estimates changes until it is on.
     """
 
     enabled: bool = param("far_field.enabled", False, "also estimate the far-field grid beyond the grid's far "
@@ -449,29 +452,47 @@ class FarFieldConfig:
                           read_only=True)
     topic: str = param("elevation_far_topic", "/roadbev/elevation_far", "far-field GridMap output (with "
                        "far_field.enabled)", read_only=True)
-    x_max: float = param("far_field.x_max", 15.0, "far edge of the far-field grid (m ahead of the camera); its "
-                         "near edge is the grid's far edge x_max", 0.0, 100.0)
+    x_max: float = param("far_field.x_max", 15.0, "far edge of the far-field grid (m ahead of the camera, moved "
+                         "out to the next whole cell where the window is not a whole number of cells); its near "
+                         "edge is the grid's far edge x_max, and a grid that reaches this far turns the far field "
+                         "off (diagnostic far_field says so)", 0.0, 100.0)
     resolution: float = param("far_field.resolution", 0.12, "far-field cell size (m): one image row of the RSRD "
                               "rig at the window's middle, rounded up to whole cells (docs/concepts/grid.md)",
                               0.01, 1.0)
     z_min: float = param("far_field.z_min", -0.5, "lowest far-field elevation (m)", -5.0, 0.0)
     z_max: float = param("far_field.z_max", 0.5, "highest far-field elevation (m)", 0.0, 5.0)
 
+    def off_reason(self, near: GridSpec) -> str:
+        """Why there is no far-field grid beyond ``near`` (its far edge already at or beyond
+        ``far_field.x_max``), or "" when there is one. Says nothing of ``enabled``."""
+        if near.x_max < self.x_max:
+            return ""
+        return (f"the grid already reaches far_field.x_max ({self.x_max:g} m): its far edge x_max is "
+                f"{near.x_max:g} m")
+
     def grid(self, near: GridSpec) -> GridSpec:
         """The far-field grid beyond ``near`` (its lateral range, ``base_height`` and vertical
         steps; validated by :class:`GridSpec`).
 
+        The window runs from ``near.x_max`` to ``far_field.x_max`` and across ``near``'s width;
+        where either is not a whole number of ``far_field.resolution`` cells it is widened to the
+        next whole cell (the far edge moved out, the sides out by half the remainder each), so any
+        grid the node accepts has a far field.
+
         Raises:
-            ConfigError: the settings do not make a grid (not a whole number of cells, a far
-                edge not beyond ``near``'s...).
+            ConfigError: no window beyond ``near`` (:meth:`off_reason`), or a vertical range that
+                is not a whole number of ``near``'s steps.
         """
-        if not self.x_max > near.x_max:
-            raise ConfigError(f"far_field.x_max ({self.x_max:g} m) must lie beyond the grid's far edge x_max "
-                              f"({near.x_max:g} m)")
-        return GridSpec(x_min=near.x_max, x_max=self.x_max, y_min=near.y_min, y_max=near.y_max,
-                        resolution=self.resolution, z_min=self.z_min, z_max=self.z_max,
-                        z_resolution=near.z_resolution, class_resolution=near.class_resolution,
-                        base_height=near.base_height)
+        reason = self.off_reason(near)
+        if reason:
+            raise ConfigError(reason)
+        # the lateral widening is shared by both sides, so the far field stays centred on the grid
+        side = 0.5 * (whole_cells_end(near.y_min, near.y_max, self.resolution) - near.y_max)
+        y_min, y_max = (round(near.y_min - side, 9), round(near.y_max + side, 9)) if side else (near.y_min, near.y_max)
+        return GridSpec(x_min=near.x_max, x_max=whole_cells_end(near.x_max, self.x_max, self.resolution),
+                        y_min=y_min, y_max=y_max, resolution=self.resolution,
+                        z_min=self.z_min, z_max=self.z_max, z_resolution=near.z_resolution,
+                        class_resolution=near.class_resolution, base_height=near.base_height)
 
 
 # Grid parameters are GridSpec's fields under their own names (GridSpec validates the whole).
@@ -512,8 +533,10 @@ class RoadbevConfig:
     @property
     def far_grid(self) -> GridSpec | None:
         """The far-field grid (:meth:`FarFieldConfig.grid` beyond :attr:`grid`) when
-        ``far_field.enabled``, else None."""
-        return self.far_field.grid(self.grid) if self.far_field.enabled else None
+        ``far_field.enabled`` and the grid leaves it a window, else None."""
+        if not self.far_field.enabled or self.far_field.off_reason(self.grid):
+            return None
+        return self.far_field.grid(self.grid)
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any], *, base: RoadbevConfig | None = None) -> RoadbevConfig:
@@ -553,7 +576,7 @@ class RoadbevConfig:
             grid = GridSpec().with_overrides(**{spec.name: values[spec.name] for spec in GRID_PARAMS})
         except ConfigError as exc:
             raise ParamError(f"grid parameters do not form a valid grid: {exc}") from None
-        if sections["far_field"].enabled:
+        if sections["far_field"].enabled and not sections["far_field"].off_reason(grid):
             try:
                 sections["far_field"].grid(grid)
             except ConfigError as exc:

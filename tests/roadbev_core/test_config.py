@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from roadbev_core.config import ConfigError, GridSpec, StereoCamera, grid_preset
+from roadbev_core.config.grid import whole_cells_end
 
 
 def test_default_grid_matches_contract() -> None:
@@ -90,3 +91,10 @@ def test_camera_validation() -> None:
         StereoCamera(1.0, 1.0, 1.0, 1.0, -0.1, 10, 10)
     with pytest.raises(ConfigError, match="does not fit"):
         StereoCamera.rsrd_half().cropped(0, 0, 961, 528)
+
+
+def test_whole_cells_end_keeps_a_fitting_end_and_moves_another_to_the_next_whole_cell() -> None:
+    assert whole_cells_end(7.08, 15.0, 0.12) == 15.0  # 66 cells: kept to the bit
+    assert whole_cells_end(7.08, 15.0, 0.1) == 15.08  # 79.2 cells -> 80
+    assert whole_cells_end(0.0, 1.00001, 0.5) == 1.00001  # within the grid's tolerance of whole
+    assert whole_cells_end(-0.92, 1.0, 0.5) == 1.08

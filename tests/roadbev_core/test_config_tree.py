@@ -191,13 +191,50 @@ def test_the_far_field_is_off_by_default_and_a_coarser_grid_beyond_the_grid_when
 
 
 @pytest.mark.parametrize(
+    "params, window",
+    [
+        # a far edge or a cell that does not cut the window into whole cells: the far edge moves out
+        ({"far_field.resolution": 0.1}, (7.08, 15.08, -0.96, 1.04)),
+        ({"x_min": 2.1, "x_max": 3.06}, (3.06, 15.06, -0.92, 1.0)),
+        ({"far_field.x_max": 12.1}, (7.08, 12.12, -0.92, 1.0)),
+        ({"x_max": 7.11}, (7.11, 15.03, -0.92, 1.0)),
+        # a grid as wide as no whole number of far cells: both sides move out by half the remainder
+        ({"y_min": -0.9, "y_max": 0.96}, (7.08, 15.0, -0.93, 0.99)),
+    ],
+)
+def test_the_far_field_follows_any_grid_in_whole_cells(params: dict[str, Any],
+                                                       window: tuple[float, float, float, float]) -> None:
+    config = RoadbevConfig.from_params({"far_field.enabled": True, **params})
+    far = config.far_grid
+    assert far is not None and (far.x_min, far.x_max, far.y_min, far.y_max) == pytest.approx(window, abs=1e-9)
+    assert far.x_min == config.grid.x_max  # edge to edge with the grid
+    assert far.x_max >= config.far_field.x_max and far.x_max - config.far_field.x_max < far.resolution
+    assert far.y_min <= config.grid.y_min and far.y_max >= config.grid.y_max
+    assert 0.5 * (far.y_min + far.y_max) == pytest.approx(0.5 * (config.grid.y_min + config.grid.y_max))
+    assert config.far_field.off_reason(config.grid) == ""
+
+
+def test_a_window_of_whole_cells_keeps_its_edges_to_the_bit() -> None:
+    far = RoadbevConfig.from_params({"far_field.enabled": True}).far_grid
+    assert far is not None and (far.x_min, far.x_max, far.y_min, far.y_max) == (7.08, 15.0, -0.92, 1.0)
+
+
+def test_a_grid_that_reaches_the_far_edge_leaves_the_far_field_nothing_and_says_so() -> None:
+    for params in ({"far_field.x_max": 7.0}, {"far_field.x_max": 7.08}, {"x_min": 2.1, "x_max": 20.1}):
+        config = RoadbevConfig.from_params({"far_field.enabled": True, **params})  # accepted, not refused
+        assert config.far_grid is None
+        assert config.far_field.off_reason(config.grid).startswith("the grid already reaches far_field.x_max")
+        with pytest.raises(ConfigError, match="already reaches"):
+            config.far_field.grid(config.grid)
+    assert RoadbevConfig().far_field.off_reason(GridSpec()) == ""  # the default grid leaves it 7.08-15 m
+
+
+@pytest.mark.parametrize(
     "params, reason",
     [
-        ({"far_field.resolution": 0.1}, "far-field parameters do not form a valid grid: longitudinal x: range of "
-                                        "7.92 m is not a whole number of 0.1 m cells"),
-        ({"far_field.x_max": 7.0}, "far_field.x_max \\(7 m\\) must lie beyond the grid's far edge x_max \\(7.08 m\\)"),
         ({"far_field.z_max": 1.5}, "below the camera"),
-        ({"x_max": 7.11}, "not a whole number"),
+        ({"far_field.z_max": 0.505}, "far-field parameters do not form a valid grid: vertical z"),
+        ({"x_max": 7.12}, "grid parameters do not form a valid grid: longitudinal x"),
         ({"far_field.resolution": 0.01, "far_field.x_max": 100.0}, "the far-field grid .* voxels, more than the limit"),
     ],
 )

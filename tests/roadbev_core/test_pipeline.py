@@ -323,6 +323,18 @@ def test_a_backend_without_a_far_field_runs_as_with_it_off_and_says_why() -> Non
     assert "does not estimate the far field" in off.far_field_off and off.config.far_grid is None
 
 
+def test_a_grid_that_reaches_the_far_edge_runs_alone_and_says_why() -> None:
+    pipeline = _far_pipeline(**{"far_field.enabled": True, "far_field.x_max": 7.0})
+    assert pipeline.far_field_off.startswith("the grid already reaches far_field.x_max (7 m)")
+    assert pipeline.far_backend is None and pipeline.config.far_grid is None
+    out = pipeline.process_frame(_frame(0))
+    assert out.far is None and np.isfinite(out.estimate.elevation).all()
+    # moved back out of the grid's reach, the far field is estimated again
+    pipeline.reconfigure(pipeline.config.with_params({"far_field.enabled": True, "far_field.x_max": 15.0}))
+    assert pipeline.far_field_off == "" and pipeline.far_backend is not None
+    assert pipeline.process_frame(_frame(1)).far is not None
+
+
 def test_reconfiguring_the_far_field_rebuilds_its_backend_only() -> None:
     pipeline = _far_pipeline(**{"far_field.enabled": True})
     near, far = pipeline.backend, pipeline.far_backend
