@@ -46,11 +46,14 @@ from benchmarks.preview_budget import (
     Candidate,
     DriveFrames,
     add_candidate_arguments,
+    budgeted,
     candidate_previews,
     candidates_from_node,
+    far_label_grid,
     make_backend,
     node_rows,
 )
+from roadbev_core.config import GridSpec
 from roadbev_core.fusion import MapWindow
 from roadbev_lab.evaluation.arrival import TimedPreview, map_accuracy, preview_at_arrival
 from roadbev_lab.evaluation.metrics import MetricAccumulator
@@ -60,9 +63,10 @@ SEED_BASE = 310_000  # disjoint from training (< 1e5), test (1e5+), tuning (2e5+
 FEATURES = ("speed_bump", "pothole")  # added to each drive's random features: the feature points a controller needs
 
 
-def make_drive(speed: float, rate: float, duration: float, seed: int) -> Any:
+def make_drive(speed: float, rate: float, duration: float, seed: int, far_grid: Any = None) -> Any:
     """The benchmark's drive (a :class:`roadbev_lab.synth.RidingDrive`, not yet rendered): a
-    random road of the test-scene distribution plus FEATURES, a feature every 3 m."""
+    random road of the test-scene distribution plus FEATURES, a feature every 3 m (its frames also
+    labelled on ``far_grid`` when given)."""
     from roadbev_lab.synth import DriveConfig, RidingConfig, RidingDrive
     from roadbev_lab.synth.drive import random_road
 
@@ -70,7 +74,7 @@ def make_drive(speed: float, rate: float, duration: float, seed: int) -> Any:
     road = replace(road, features=tuple(dict.fromkeys((*FEATURES, *road.features))), feature_spacing_m=3.0)
     frames = max(2, int(round(duration * rate)))
     return RidingDrive(RidingConfig(drive=DriveConfig(frames=frames, speed_mps=speed, frame_rate_hz=rate,
-                                                      seed=seed, road=road)))
+                                                      seed=seed, road=road, far_grid=far_grid)))
 
 
 class DriveTruth(NamedTuple):
@@ -119,7 +123,7 @@ def evaluate_on_drive(drive: Any, samples: list[Any], backend: str, fused: bool,
 def run_drive(speed: float, rate: float, duration: float, seed: int, candidates: Sequence[Candidate],
               budget: Sequence[str] | None, lead: float, frame_cache: DriveFrames) -> dict[str, Any]:
     """Render one drive (or read it back), run every candidate on it, score its rows at arrival."""
-    drive = make_drive(speed, rate, duration, seed)
+    drive = make_drive(speed, rate, duration, seed, far_label_grid(candidates, budget, GridSpec()))
     road, frames = drive.config.road, drive.config.frames
     start = time.perf_counter()
     samples = frame_cache.samples(drive)
@@ -147,7 +151,7 @@ def run_drive(speed: float, rate: float, duration: float, seed: int, candidates:
         per_frame = candidate_previews(drive, samples, candidate, cached, "shipped", ride_settings=ride_settings,
                                        map_on=False)
         out["rows"][f"{candidate.name}{STAGE_SEPARATOR}per_frame"] = score(per_frame)
-        for stage in STAGES[1:] if budget is not None and (not budget or candidate.name in budget) else ():
+        for stage in STAGES[1:] if budgeted(candidate.name, budget) else ():
             previews = candidate_previews(drive, samples, candidate, cached, stage, ride_settings=ride_settings)
             out["rows"][f"{candidate.name}{STAGE_SEPARATOR}{stage}"] = score(previews)
         grid = MetricAccumulator(drive.config.grid)

@@ -26,9 +26,10 @@ the true state and one preview source (rows):
   measured time per frame lets it fuse, each used from when it is received (its measured
   latency, ``--node-results``: a ``bench_node --drive`` JSON), read with the contact plane each
   message carries (as the reference node does); with ``--budget`` also one row per stage of the
-  error budget (``NAME:true_answered``, ...; a far-field candidate has no ``true_answered`` /
-  ``true_all`` rows: the rendered drives keep the grid's labels only). Rendered drives only: ``--render-seeds`` drives,
-  ``--render-duration`` s long, their frames kept in ``--frame-cache`` for the next run.
+  error budget (``NAME:true_answered``, ...; for a far-field candidate the drives also carry the
+  far-field grid's labels, and its label stages put the truth on both grids). Rendered drives
+  only: ``--render-seeds`` drives, ``--render-duration`` s long, their frames kept in
+  ``--frame-cache`` for the next run.
 
 Each preview row's ``share`` is the share of the ceiling's gain over the no-preview controller
 in Wk-weighted RMS body acceleration it delivers (:func:`roadbev_core.ride.gain_share`). Another
@@ -58,14 +59,15 @@ import numpy as np
 
 from benchmarks.common import CACHE, RESULTS, add_executor_arguments, executor_from, machine_info, write_json
 from benchmarks.preview_budget import (
-    LABEL_STAGES,
     STAGE_SEPARATOR,
     STAGES,
     Candidate,
     DriveFrames,
     add_candidate_arguments,
+    budgeted,
     candidate_previews,
     candidates_from_node,
+    far_label_grid,
     make_backend,
     node_rows,
 )
@@ -137,11 +139,7 @@ def candidate_makers(candidates: Sequence[Candidate], budget: Sequence[str] | No
     shared: dict[tuple[int, str, str], Any] = {}
     for candidate in candidates:
         rows = CandidateRows(candidate, shared)
-        budgeted = budget is not None and (not budget or candidate.name in budget)
-        far = candidate.config(GridSpec()).far_grid is not None  # rendered drives keep no far-field labels
-        for stage in STAGES if budgeted else ("shipped",):
-            if far and stage in LABEL_STAGES:
-                continue
+        for stage in STAGES if budgeted(candidate.name, budget) else ("shipped",):
             name = candidate.name if stage == "shipped" else f"{candidate.name}{STAGE_SEPARATOR}{stage}"
             makers[name] = rows.maker(stage)
     makers.update({name: factory(name) for name, factory in PREVIEW_MAKERS.items()})
@@ -160,10 +158,12 @@ def scores(rows: dict[str, dict[str, Any]]) -> dict[str, float]:
 
 def run_cell(kind: str, speed: float, seed: int, duration: float, rates: Sequence[float], lead: float,
              makers: dict[str, PreviewMaker], frame_cache: Any = None, preview_gain: bool = True,
-             far_x_max: float | None = None) -> dict[str, Any]:
+             far_x_max: float | None = None, far_labels: GridSpec | None = None) -> dict[str, Any]:
     """One drive: every source ridden at every camera rate (rendered only when ``makers``; its
     frames from ``frame_cache``, a :class:`benchmarks.preview_budget.DriveFrames`, when given);
-    with ``far_x_max`` (m ahead of the camera) also the perfect rows reaching that far."""
+    with ``far_x_max`` (m ahead of the camera) also the perfect rows reaching that far; with
+    ``far_labels`` the rendered frames also carry that far-field grid's labels (the budget's label
+    stages of a far-field candidate, :func:`benchmarks.preview_budget.far_label_grid`)."""
     from roadbev_lab.evaluation.arrival import ArrivalSettings, Trajectory, preview_at_arrival
     from roadbev_lab.ride import (
         RideSettings,
@@ -178,7 +178,8 @@ def run_cell(kind: str, speed: float, seed: int, duration: float, rates: Sequenc
     rng = np.random.default_rng(seed)
     frames = max(2, int(round(drive_duration(duration, speed) * CAMERA_RATE_HZ)))
     drive = RidingDrive(RidingConfig(drive=DriveConfig(frames=frames, speed_mps=speed, frame_rate_hz=CAMERA_RATE_HZ,
-                                                       seed=seed, road=road_config(kind, rng)), tail_s=TAIL_S))
+                                                       seed=seed, road=road_config(kind, rng),
+                                                       far_grid=far_labels if makers else None), tail_s=TAIL_S))
     gt = drive.ground_truth_poses()
     truth = Trajectory(gt.stamp_ns, gt.position, gt.orientation_xyzw)
     road_map = drive.road_map()
@@ -373,7 +374,8 @@ def _run_job(job: CellJob, *, rates: Sequence[float], latency: float, candidates
           flush=True)
     makers = candidate_makers(candidates, budget) if job.rendered else {}
     return run_cell(job.kind, job.speed, job.seed, job.duration, rates, latency, makers,
-                    DriveFrames(frame_cache) if job.rendered else None, preview_gain, far_x_max)
+                    DriveFrames(frame_cache) if job.rendered else None, preview_gain, far_x_max,
+                    far_label_grid(candidates, budget, GridSpec()))
 
 
 def _cell_order(args: argparse.Namespace, base: int, rendered: bool,

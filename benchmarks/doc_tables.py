@@ -201,7 +201,8 @@ def default_candidate(data: Mapping[str, Any]) -> str:
 
 def _stage_rows(name: str, cells: Sequence[Mapping[str, Any]]) -> list[tuple[str, str]]:
     """(stage, row name) of the error budget's stages of candidate ``name`` that the run took
-    (a far-field candidate has no label stages; an older run lacks the newer stages)."""
+    (a run may lack some: a far-field candidate's label stages where its drives were rendered
+    without the far field's labels, the newer stages in an older run)."""
     rows = [(stage, name if stage == "shipped" else f"{name}{STAGE_SEPARATOR}{stage}") for stage in STAGES]
     return [(stage, row) for stage, row in rows if any(row in cell["rows"] for cell in cells)]
 

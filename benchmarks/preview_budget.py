@@ -77,8 +77,10 @@ __all__ = [
     "Candidate",
     "DriveFrames",
     "TrueDatumMap",
+    "budgeted",
     "candidate_previews",
     "candidates_from_node",
+    "far_label_grid",
     "label_features",
     "node_rows",
     "node_schedule",
@@ -88,7 +90,7 @@ __all__ = [
 
 STAGES: tuple[str, ...] = ("shipped", "true_answered", "true_features", "true_surface", "true_short", "true_all",
                            "true_odometry", "true_datum", "true_plane", "no_latency")
-# The stages that take the frame's labels: rendered drives keep the grid's, not the far field's.
+# The stages that take the frame's labels (the far field's too, for a candidate with one).
 LABEL_STAGES: tuple[str, ...] = ("true_answered", "true_features", "true_surface", "true_short", "true_all")
 # A label cell is a feature's when it stands FEATURE_THRESHOLD_M off the road's mean over
 # FEATURE_WINDOW_M along x (the preview-at-arrival metric's threshold), with FEATURE_MARGIN_M around it.
@@ -445,14 +447,21 @@ def candidate_previews(drive: RidingDrive, samples: Sequence[DriveSample], candi
         extra["map.align"] = False
         map_factory = lambda settings: TrueDatumMap(settings, truth)  # noqa: E731
     config = candidate.config(drive.config.grid, extra)
+    far_backend: Backend | None = None
     if stage in LABEL_STAGES:
-        if config.far_grid is not None:
-            raise ValueError(f"budget stage {stage!r} needs the far field's labels, which rendered drives do not keep")
         labels = {int(s.frame.stamp_ns): s.truth.elevation for s in samples}
         backend = _TruthBackend(cached, labels, stage)
+        if config.far_grid is not None:  # the truth in the same stage on the far field
+            far_labels = {int(s.frame.stamp_ns): s.far_truth.elevation for s in samples if s.far_truth is not None}
+            if len(far_labels) != len(labels) or any(v.shape != config.far_grid.shape for v in far_labels.values()):
+                raise ValueError(f"budget stage {stage!r} needs the far field's labels on {config.far_grid}: "
+                                 "render the drive with that far_grid (DriveConfig.far_grid)")
+            far_backend = _TruthBackend(cached.on_grid(config.far_grid), far_labels, stage)
 
     def backend_on(_name: str, grid: GridSpec, **_options: Any) -> Backend:
-        return backend if grid == config.grid else cached.on_grid(grid)  # the far field on its own grid
+        if grid == config.grid:
+            return backend
+        return far_backend if far_backend is not None else cached.on_grid(grid)  # the far field on its own grid
 
     pipeline = Pipeline(config, backend_factory=backend_on, map_factory=map_factory, configure_process=False)
     pipeline.set_camera_mount(*drive.base_to_camera)
@@ -471,6 +480,26 @@ def candidate_previews(drive: RidingDrive, samples: Sequence[DriveSample], candi
     return previews
 
 
+def budgeted(name: str, budget: Sequence[str] | None) -> bool:
+    """Whether the candidate ``name`` gets the error budget's rows: ``budget`` names it, or is
+    empty (every candidate); None: no budget."""
+    return budget is not None and (not budget or name in budget)
+
+
+def far_label_grid(candidates: Sequence[Candidate], budget: Sequence[str] | None, grid: GridSpec) -> GridSpec | None:
+    """The far-field grid a drive on ``grid`` must label for the budget's label stages
+    (:data:`LABEL_STAGES`): the one of the budgeted candidates with a far field, or None.
+
+    Raises:
+        ValueError: budgeted candidates on different far-field grids (a drive labels one).
+    """
+    grids = {c.config(grid).far_grid for c in candidates if budgeted(c.name, budget)} - {None}
+    if len(grids) > 1:
+        raise ValueError("the budgeted candidates ask for different far-field grids; a drive labels one: budget them "
+                         "in separate runs")
+    return next(iter(grids), None)
+
+
 def make_backend(candidate: Candidate, grid: GridSpec) -> CachedEstimates:
     """The candidate's backend on ``grid`` (and on the far-field grid when asked), its estimates
     cached by stamp."""
@@ -482,39 +511,78 @@ def make_backend(candidate: Candidate, grid: GridSpec) -> CachedEstimates:
 class DriveFrames:
     """The rendered frames of riding drives kept on disk, so that a benchmark renders a drive once
     and every later run (other candidates, other stages) reads it back (keyed by the drive's whole
-    configuration and the renderer's versions)."""
+    configuration and the renderer's versions).
+
+    A drive with a far-field grid (``DriveConfig.far_grid``) also gets that grid's labels
+    (``DriveSample.far_truth``), kept beside the frame's with the grid they are on. The far labels
+    are drawn after everything else a frame draws, so a frame stored without them is rendered once
+    more to add them: its images and grid labels come out the same (checked), and it is stored
+    again with the far labels.
+    """
 
     def __init__(self, root: str | Path) -> None:
         self.root = Path(root)
 
     def folder(self, drive: RidingDrive) -> Path:
-        # A far-field grid only adds labels the store does not keep, drawn after everything a frame
-        # draws: the frames are the same with it or without, so it is no part of the key (which
-        # also keeps the keys of frames stored before the drive's config had the field).
+        # A far-field grid only adds labels drawn after everything a frame draws: the frames are the
+        # same with it or without, so it is no part of the key (which also keeps the keys of frames
+        # stored before the drive's config had the field).
         riding = replace(drive.riding, drive=replace(drive.riding.drive, far_grid=None))
         key = f"{riding!r}".replace(", far_grid=None", "") + f"/scene-v{SCENE_VERSION}/drive-v{DRIVE_VERSION}"
         return self.root / hashlib.sha1(key.encode()).hexdigest()[:16]
 
     def samples(self, drive: RidingDrive) -> list[DriveSample]:
-        """Every frame of ``drive`` (rendered and stored when not on disk yet)."""
+        """Every frame of ``drive`` (rendered and stored when not on disk yet, or when the drive
+        asks for far-field labels the stored frame lacks).
+
+        Raises:
+            ValueError: a drive that does not render stereo frames, or a stored frame the renderer
+                no longer reproduces (a stale store: remove its folder).
+        """
         folder = self.folder(drive)
         folder.mkdir(parents=True, exist_ok=True)
+        far_grid = drive.config.far_grid
         out = []
         for index in range(len(drive)):
             path = folder / f"{index:05d}.npz"
-            if path.exists():
-                with np.load(path) as data:
-                    left, right, labels = data["left"], data["right"], data["truth"]
+            stored = _read_frame(path, far_grid) if path.exists() else None
+            if stored is not None and (far_grid is None or stored[3] is not None):
+                left, right, labels, far_labels = stored
                 _, attitude = drive.pose(index)
                 frame = Frame(left, right, drive.config.camera, attitude, drive.frame_stamps_ns[index])
-                truth = ElevationLabel(labels, np.isfinite(labels), np.isfinite(labels).astype(np.int32))
-                out.append(DriveSample(frame, truth, np.zeros((0, 3), np.float32)))
+                out.append(DriveSample(frame, _label(labels), np.zeros((0, 3), np.float32),
+                                       None if far_labels is None else _label(far_labels)))
                 continue
             sample = drive[index]
             if sample.frame.right is None:
                 raise ValueError("a riding drive renders stereo frames")
+            if stored is not None and not (np.array_equal(stored[0], sample.frame.left)
+                                           and np.array_equal(stored[1], sample.frame.right)
+                                           and np.array_equal(stored[2], sample.truth.elevation, equal_nan=True)):
+                raise ValueError(f"{path}: the stored frame is not the one the renderer draws now (remove {folder})")
+            arrays: dict[str, Any] = {"left": sample.frame.left, "right": sample.frame.right,
+                                      "truth": sample.truth.elevation}
+            if sample.far_truth is not None and far_grid is not None:
+                arrays.update(far_truth=sample.far_truth.elevation, far_grid=np.array(repr(far_grid)))
             tmp = path.with_suffix(".tmp.npz")
-            np.savez(tmp, left=sample.frame.left, right=sample.frame.right, truth=sample.truth.elevation)
+            np.savez(tmp, **arrays)
             tmp.replace(path)  # atomic: a killed run never leaves half a frame
-            out.append(DriveSample(sample.frame, sample.truth, np.zeros((0, 3), np.float32)))
+            out.append(DriveSample(sample.frame, sample.truth, np.zeros((0, 3), np.float32), sample.far_truth))
         return out
+
+
+def _label(elevation: np.ndarray) -> ElevationLabel:
+    """A stored label map (NaN = unlabelled) as an :class:`ElevationLabel`."""
+    known = np.isfinite(elevation)
+    return ElevationLabel(elevation, known, known.astype(np.int32))
+
+
+def _read_frame(path: Path, far_grid: GridSpec | None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """A stored frame: left, right, the grid's labels and the far-field labels on ``far_grid``
+    (None when not asked for, or stored on another far grid or not at all)."""
+    with np.load(path) as data:
+        far = None
+        if far_grid is not None and "far_truth" in data.files and str(data["far_grid"]) == repr(far_grid):
+            far = data["far_truth"]
+        return data["left"], data["right"], data["truth"], far

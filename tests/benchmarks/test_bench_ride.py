@@ -8,7 +8,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from benchmarks.bench_ride import road_config, scores, summarise
+from benchmarks.bench_ride import candidate_makers, road_config, scores, summarise
+from benchmarks.preview_budget import LABEL_STAGES, STAGES, Candidate
 
 
 def _rows(**wk: float) -> dict[str, dict[str, Any]]:
@@ -97,3 +98,12 @@ def test_a_drive_is_at_most_what_one_road_strip_holds() -> None:
     assert drive_duration(20.0, 30.0) == pytest.approx(17.1)
     cell = run_cell("rough", 40.0, 8, 20.0, (10.0,), 0.1, {})  # 20 s at 40 m/s would leave the strip
     assert cell["duration_s"] == pytest.approx(drive_duration(20.0, 40.0))
+
+
+def test_a_budgeted_far_field_candidate_gets_every_stage_of_the_budget() -> None:
+    far = Candidate("far", "ensemble", {"far_field.enabled": True}, latency_s=0.1)
+    near = Candidate("near", "bm", latency_s=0.1)
+    makers = candidate_makers([far, near], ["far"])
+    assert {f"far:{stage}" for stage in STAGES[1:]} <= set(makers)
+    assert {f"far:{stage}" for stage in LABEL_STAGES} <= set(makers)  # the truth on the far grid as well
+    assert "far" in makers and "near" in makers and not any(name.startswith("near:") for name in makers)

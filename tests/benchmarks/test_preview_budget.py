@@ -15,8 +15,10 @@ from benchmarks.preview_budget import (
     CachedEstimates,
     Candidate,
     DriveFrames,
+    budgeted,
     candidate_previews,
     candidates_from_node,
+    far_label_grid,
     label_features,
     node_rows,
     node_schedule,
@@ -77,6 +79,20 @@ def test_far_field_candidates_take_the_row_of_a_run_with_the_far_field() -> None
     assert gapless.latency_s == pytest.approx(0.075)
     with pytest.raises(ValueError, match="no bench_node row"):
         candidates_from_node(["far=ensemble:far_field.enabled=true"], node_rows([{"rows": [near]}]))
+
+
+def test_drives_label_the_far_grid_of_the_budgeted_far_field_candidates_only() -> None:
+    grid = GridSpec()
+    far = Candidate("far", "ensemble", {"far_field.enabled": True}, latency_s=0.1)
+    near = Candidate("near", "bm", latency_s=0.1)
+    assert budgeted("far", []) and budgeted("far", ["far"]) and not budgeted("far", ["near"])
+    assert not budgeted("far", None)
+    assert far_label_grid([near, far], [], grid) == FarFieldConfig().grid(grid)
+    assert far_label_grid([near, far], ["near"], grid) is None  # the far candidate is not budgeted
+    assert far_label_grid([near, far], None, grid) is None
+    other = Candidate("far12", "bm", {"far_field.enabled": True, "far_field.x_max": 12.12}, latency_s=0.1)
+    with pytest.raises(ValueError, match="different far-field grids"):
+        far_label_grid([far, other], [], grid)
 
 
 def test_cached_estimates_build_the_same_backend_on_another_grid_once() -> None:
@@ -252,7 +268,15 @@ def test_the_short_band_is_the_relief_shorter_than_a_metre() -> None:
     np.testing.assert_allclose(band[inner], np.repeat(ripple, 4, axis=1)[inner], atol=0.0012)
 
 
-def test_a_far_field_candidate_previews_to_the_far_edge_and_refuses_the_label_stages(tmp_path: Any) -> None:
+def _with_far_grid(drive: RidingDrive) -> RidingDrive:
+    from dataclasses import replace
+
+    far_grid = FarFieldConfig().grid(drive.config.grid)
+    return RidingDrive(replace(drive.riding, drive=replace(drive.riding.drive, far_grid=far_grid)))
+
+
+def test_a_far_field_candidate_previews_to_the_far_edge_and_its_label_stages_take_the_far_truth(tmp_path: Any
+                                                                                                ) -> None:
     drive = _small_drive(4)
     samples = DriveFrames(tmp_path).samples(drive)
     grid = drive.config.grid
@@ -272,9 +296,52 @@ def test_a_far_field_candidate_previews_to_the_far_edge_and_refuses_the_label_st
     assert reach(without) <= camera_x + grid.x_max + 1e-6
     assert reach(with_far) > camera_x + grid.x_max + 1.0 and reach(with_far) <= camera_x + far_edge + 1e-6
     assert len(cached.on_grid(FarFieldConfig().grid(grid)).estimates) == len(drive)  # the far grid's own cache
-    for stage in LABEL_STAGES:
+    for stage in LABEL_STAGES:  # frames rendered without the far grid's labels
         with pytest.raises(ValueError, match="far field's labels"):
             candidate_previews(drive, samples, far, cached, stage, ride_settings=settings)
+    # rendered with them, the far field's truth enters its label stages: beyond the grid the flat
+    # estimate gives way to the true road's relief
+    far_samples = DriveFrames(tmp_path).samples(_with_far_grid(drive))
+    assert all(s.far_truth is not None for s in far_samples)
+    true_all = candidate_previews(drive, far_samples, far, cached, "true_all", ride_settings=settings)
+
+    def beyond_grid(previews: list[Any]) -> np.ndarray:
+        parts = []
+        for p in previews:
+            x = p.profiles.distances()
+            parts.append(p.profiles.track("front_left").elevation[(x > camera_x + grid.x_max + 0.5)])
+        return np.concatenate(parts)
+
+    shipped_far, true_far = beyond_grid(with_far), beyond_grid(true_all)
+    both = np.isfinite(shipped_far) & np.isfinite(true_far)
+    assert both.sum() > 20 and np.abs(shipped_far - true_far)[both].max() > 1e-3
+
+
+def test_stored_frames_gain_far_field_labels_without_changing_and_keep_them(tmp_path: Any) -> None:
+    drive = _small_drive(2)
+    store = DriveFrames(tmp_path)
+    plain = store.samples(drive)
+    assert all(s.far_truth is None for s in plain)
+    with_far = _with_far_grid(drive)
+    added = store.samples(with_far)  # rendered again for the far labels, stored with them
+    again = store.samples(with_far)  # read back
+    far_grid = with_far.config.far_grid
+    assert far_grid is not None
+    for a, b, c in zip(plain, added, again, strict=True):
+        np.testing.assert_array_equal(a.frame.left, b.frame.left)
+        np.testing.assert_array_equal(a.truth.elevation, c.truth.elevation)
+        assert b.far_truth is not None and c.far_truth is not None and c.far_truth.elevation.shape == far_grid.shape
+        np.testing.assert_array_equal(b.far_truth.elevation, c.far_truth.elevation)
+        assert np.isfinite(c.far_truth.elevation).any()
+    assert all(s.far_truth is None for s in store.samples(drive))  # not asked for, not given
+    # a stored frame the renderer no longer draws is refused, not mixed with new labels
+    first = store.folder(drive) / "00000.npz"
+    with np.load(first) as data:
+        arrays = {k: data[k] for k in ("left", "right", "truth")}
+    arrays["left"] = arrays["left"] + 1
+    np.savez(first, **arrays)
+    with pytest.raises(ValueError, match="not the one the renderer draws now"):
+        store.samples(with_far)
 
 
 def test_stored_frames_are_the_same_with_a_far_field_grid(tmp_path: Any) -> None:
