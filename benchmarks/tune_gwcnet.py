@@ -5,7 +5,8 @@ disjoint from the training seeds and from the Table I frames. Each limit's abs. 
 coverage, and ``sgbm``'s and ``bm``'s, go to ``benchmarks/results/tune_gwcnet.json``; the default
 (:data:`roadbev_core.backends.gwcnet.DEFAULT_MAX_SIGMA_PX`) is chosen from it.
 
-Run: ``.venv/bin/python -m benchmarks.tune_gwcnet [--frames 16] [--limits 0 2.5 2 1.7 1.5 1.3]``.
+Run: ``.venv/bin/python -m benchmarks.tune_gwcnet [--frames 16] [--limits 0 2.5 2 1.7 1.5 1.3]
+[--checkpoint PATH]`` (default: the shipped checkpoint).
 """
 
 from __future__ import annotations
@@ -27,6 +28,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=16, help="tuning scenes (default 16)")
     parser.add_argument("--limits", type=float, nargs="+", default=[0.0, 2.5, 2.0, 1.7, 1.5, 1.3],
                         help="max_sigma_px values (0: no limit)")
+    parser.add_argument("--checkpoint", default=None, metavar="PATH",
+                        help="GwcNet-lite checkpoint to tune (default: the shipped one)")
     parser.add_argument("--scene-cache", default=".cache/scenes", metavar="DIR")
     parser.add_argument("--out", default=str(RESULTS / "tune_gwcnet.json"))
     args = parser.parse_args(argv)
@@ -34,15 +37,16 @@ def main(argv: list[str] | None = None) -> int:
     samples = scene_samples(range(TUNING_SEED_BASE, TUNING_SEED_BASE + args.frames), grid, args.scene_cache)
     rows: list[dict[str, Any]] = []
     runs: list[tuple[str, dict[str, Any]]] = [("sgbm", {}), ("bm", {})]
+    checkpoint = {"checkpoint": args.checkpoint} if args.checkpoint else {}
     runs += [("gwcnet", {"max_sigma_px": limit}) for limit in args.limits]
     for name, options in runs:
-        result = evaluate(create(name, grid, **options), samples).to_dict()
+        result = evaluate(create(name, grid, **options, **(checkpoint if name == "gwcnet" else {})), samples).to_dict()
         rows.append({"backend": name, **options, "abs_err_cm": result["abs_err_cm"],
                      "coverage_pct": result["coverage_pct"], "rmse_cm": result["rmse_cm"]})
         print(rows[-1], flush=True)
     write_json(Path(args.out), {
         "command": " ".join(["python -m benchmarks.tune_gwcnet", *(argv if argv is not None else sys.argv[1:])]),
-        "machine": machine_info(), "frames": args.frames,
+        "machine": machine_info(), "frames": args.frames, "checkpoint": args.checkpoint or "shipped",
         "seeds": [TUNING_SEED_BASE, TUNING_SEED_BASE + args.frames - 1], "rows": rows,
     })
     return 0
