@@ -784,13 +784,22 @@ def baseline_training(data: Mapping[str, Any]) -> str:
 def tune_gwcnet(data: Mapping[str, Any]) -> str:
     """tune_gwcnet: GwcNet-lite's abs. error and coverage per max_sigma_px on the tuning scenes, the
     classical matchers beside it."""
-    lines = _head("backend", "max_sigma_px", "abs. err. (cm)", "RMSE (cm)", "coverage (%)")
+    lines = _head("backend", "max_sigma_px", "abs. err. (cm)", "RMSE (cm)", "coverage (%)",
+                  "on sgbm's cells: gwcnet / sgbm (cm)", "on bm's cells: gwcnet / bm (cm)")
+
+    def against(row: Mapping[str, Any], other: str) -> str:
+        pair = row.get(f"vs_{other}")
+        return "–" if not pair else f"{_fmt(pair['abs_err_cm'], 3)} / {_fmt(pair[f'{other}_abs_err_cm'], 3)}"
+
     for r in data["rows"]:
         limit = r.get("max_sigma_px")
         lines.append(_row([r["backend"], "–" if limit is None else ("none" if limit == 0 else f"{limit:g}"),
-                           _fmt(r["abs_err_cm"], 3), _fmt(r["rmse_cm"], 3), _fmt(r["coverage_pct"], 1)]))
+                           _fmt(r["abs_err_cm"], 3), _fmt(r["rmse_cm"], 3), _fmt(r["coverage_pct"], 1),
+                           against(r, "sgbm"), against(r, "bm")]))
     lines.append("")
-    lines.append(f"{data['frames']} tuning scenes, seeds {data['seeds'][0]}–{data['seeds'][1]}.")
+    checkpoint = data.get("checkpoint", "shipped")
+    lines.append(f"{data['frames']} tuning scenes, seeds {data['seeds'][0]}–{data['seeds'][1]}; checkpoint "
+                 f"{'the shipped one' if checkpoint == 'shipped' else f'`{checkpoint}`'}.")
     return "\n".join(lines)
 
 

@@ -1,5 +1,8 @@
 """GwcNet-lite's ``max_sigma_px`` on the tuning scenes, with the classical matchers beside it.
 
+Each limit's row also holds GwcNet-lite against ``sgbm`` and ``bm`` on the cells both answered
+(``vs_sgbm``, ``vs_bm``): its error where the classical matcher has one, whatever else it answers.
+
 The tuning scenes (seeds 200,000+, :data:`benchmarks.tune_bev_sweep.TUNING_SEED_BASE`) are
 disjoint from the training seeds and from the Table I frames. Each limit's abs. error and
 coverage, and ``sgbm``'s and ``bm``'s, go to ``benchmarks/results/tune_gwcnet.json``; the default
@@ -20,7 +23,7 @@ from benchmarks.common import RESULTS, machine_info, scene_samples, write_json
 from benchmarks.tune_bev_sweep import TUNING_SEED_BASE
 from roadbev_core.backends import create
 from roadbev_core.config import GridSpec
-from roadbev_lab.evaluation.frames import evaluate
+from roadbev_lab.evaluation.frames import common_cell_errors, evaluate
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -39,10 +42,22 @@ def main(argv: list[str] | None = None) -> int:
     runs: list[tuple[str, dict[str, Any]]] = [("sgbm", {}), ("bm", {})]
     checkpoint = {"checkpoint": args.checkpoint} if args.checkpoint else {}
     runs += [("gwcnet", {"max_sigma_px": limit}) for limit in args.limits]
+    truths = [truth for _, truth in samples]
+    classical: dict[str, list[Any]] = {}
     for name, options in runs:
-        result = evaluate(create(name, grid, **options, **(checkpoint if name == "gwcnet" else {})), samples).to_dict()
-        rows.append({"backend": name, **options, "abs_err_cm": result["abs_err_cm"],
-                     "coverage_pct": result["coverage_pct"], "rmse_cm": result["rmse_cm"]})
+        evaluated = evaluate(create(name, grid, **options, **(checkpoint if name == "gwcnet" else {})), samples,
+                             keep_estimates=True)
+        elevations = [e.elevation for e in evaluated.estimates or []]
+        result = evaluated.to_dict()
+        row = {"backend": name, **options, "abs_err_cm": result["abs_err_cm"], "coverage_pct": result["coverage_pct"],
+               "rmse_cm": result["rmse_cm"]}
+        if name == "gwcnet":  # against each classical matcher on the cells that matcher answered too
+            for other, theirs in classical.items():
+                cells, ours_cm, theirs_cm = common_cell_errors(elevations, theirs, truths)
+                row[f"vs_{other}"] = {"cells": cells, "abs_err_cm": ours_cm, f"{other}_abs_err_cm": theirs_cm}
+        else:
+            classical[name] = elevations
+        rows.append(row)
         print(rows[-1], flush=True)
     write_json(Path(args.out), {
         "command": " ".join(["python -m benchmarks.tune_gwcnet", *(argv if argv is not None else sys.argv[1:])]),
