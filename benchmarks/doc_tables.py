@@ -31,7 +31,7 @@ import numpy as np
 from benchmarks.bench_runtimes import markdown as runtimes_markdown
 from benchmarks.common import RESULTS
 from benchmarks.preview_budget import STAGE_SEPARATOR, STAGES
-from benchmarks.run_all import common_cell_markdown
+from benchmarks.run_all import common_cell_markdown, flat_reference_line
 from benchmarks.run_all import markdown_table as table1_markdown
 from roadbev_core.config import DEFAULT_BACKEND
 
@@ -431,7 +431,8 @@ def table1(data: Mapping[str, Any]) -> str:
     """The paper's Table I protocol on the synthetic test frames, and bev_sweep against each
     image-view backend on the cells both estimated (the benchmark's own markdown)."""
     common = common_cell_markdown(data["targets"].get("common_cells", {}))
-    text = table1_markdown(data["results"]) + (f"\n\n{common}" if common else "")
+    flat = flat_reference_line(data["targets"].get("flat_reference"))
+    text = table1_markdown(data["results"]) + (f"\n\n{common}" if common else "") + (f"\n\n{flat}" if flat else "")
     return (text + f"\n\n{data['frames']} frames, seeds {data['seeds'][0]}–{data['seeds'][1]}, "
             f"appearance `{data['appearance']}`.")
 

@@ -28,6 +28,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from tqdm import tqdm
 
@@ -46,7 +47,7 @@ from benchmarks.common import (
 from roadbev_core.backends import create
 from roadbev_core.config import GridSpec
 from roadbev_lab.evaluation.frames import common_cell_errors, evaluate, format_table
-from roadbev_lab.evaluation.metrics import N_BANDS
+from roadbev_lab.evaluation.metrics import N_BANDS, MetricAccumulator
 from roadbev_lab.fleet.executors import Executor, SerialPool
 from roadbev_lab.reports.figures import FigureError, reliability_figure
 from roadbev_lab.synth.appearance import DEFAULT_APPEARANCE
@@ -177,6 +178,24 @@ def common_cell_markdown(comparison: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def flat_reference(truths: list[Any], grid: GridSpec) -> dict[str, float]:
+    """The error of assuming a flat road (the reference plane, elevation 0, on every labelled cell):
+    what a method adds over inverse perspective mapping's flat ground (the same metrics as the rows)."""
+    metrics = MetricAccumulator(grid)
+    for truth in truths:
+        metrics.add(np.zeros(np.shape(truth), np.float32), truth)
+    result = metrics.result().to_dict()
+    return {key: float(result[key]) for key in ("abs_err_cm", "rmse_cm", "gt_0p5cm_pct")}
+
+
+def flat_reference_line(reference: dict[str, float] | None) -> str:
+    """The flat-road reference as a sentence for the table's text ("" without one)."""
+    if not reference:
+        return ""
+    return (f"Assuming a flat road (elevation 0 on every labelled cell): {reference['abs_err_cm']:.3f} cm abs. err., "
+            f"{reference['rmse_cm']:.3f} cm RMSE.")
+
+
 def plot_bands(rows: list[dict[str, Any]], grid_x: tuple[float, float], path: Path, title: str) -> None:
     """Abs. error per distance band, one line per backend (the paper's Fig. 9)."""
     from roadbev_lab.reports.figures import new_figure
@@ -238,6 +257,7 @@ def run_table(
     truths = [s[1] if isinstance(s, tuple) else s.truth.elevation for s in samples]
     targets["uncertainty"] = uncertainty_targets(rows)
     targets["common_cells"] = common_cell_comparison(elevations, truths)
+    targets["flat_reference"] = flat_reference(truths, grid)
     record = {
         "command": " ".join(["python -m benchmarks.run_all", *sys.argv[1:]]),
         "machine": machine_info(),
@@ -251,7 +271,9 @@ def run_table(
     }
     write_json(out_dir / "table1.json", record)
     common = common_cell_markdown(targets["common_cells"])
-    (out_dir / "table1.md").write_text(markdown_table(rows) + "\n" + (f"\n{common}\n" if common else ""))
+    flat = flat_reference_line(targets["flat_reference"])
+    (out_dir / "table1.md").write_text(markdown_table(rows) + "\n" + (f"\n{common}\n" if common else "")
+                                       + f"\n{flat}\n")
     title = f"Abs. error vs distance, {frames} synthetic frames"
     plot_bands(rows, (grid.x_min, grid.x_max), out_dir / "band_error.png", title)
     try:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks.run_all import common_cell_comparison, common_cell_markdown
+from benchmarks.run_all import common_cell_comparison, common_cell_markdown, flat_reference, flat_reference_line
+from roadbev_core.config import GridSpec
 
 
 def test_each_pair_that_ran_is_compared_on_the_cells_both_estimated_only() -> None:
@@ -25,3 +26,16 @@ def test_each_pair_that_ran_is_compared_on_the_cells_both_estimated_only() -> No
     assert "| gwcnet vs sgbm | 4 | 0.200 | 0.400 | 50.0 |" in table
     assert common_cell_markdown({}) == ""
 
+
+
+def test_the_flat_road_reference_is_the_error_of_elevation_zero_on_the_labelled_cells() -> None:
+    grid = GridSpec()
+    truth = np.full(grid.shape, np.nan)
+    truth[:10] = 0.02  # 2 cm above the reference plane on ten rows, unlabelled elsewhere
+    truth[10:20] = -0.004
+    reference = flat_reference([truth, truth], grid)
+    assert reference["abs_err_cm"] == pytest.approx((2.0 + 0.4) / 2)
+    assert reference["rmse_cm"] == pytest.approx(np.sqrt((4.0 + 0.16) / 2))
+    assert reference["gt_0p5cm_pct"] == pytest.approx(50.0)
+    assert "labelled cell): 1.200 cm abs. err." in flat_reference_line(reference)
+    assert flat_reference_line(None) == ""
