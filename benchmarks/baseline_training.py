@@ -5,8 +5,12 @@ command, frames, epochs, learning rate, batch, seconds and per-epoch history; wr
 ``roadbev train --kind gwcnet|adabins``) and writes ``benchmarks/results/baseline_training.json``
 and ``baseline_training.png`` (training loss and abs. error per epoch, per baseline).
 
+With ``--held-out N`` (default 16) each network's own output is also scored against its labels
+(disparity or depth; :func:`network_errors`) on N of its training scenes and on the N tuning
+scenes (seeds 200,000+, never trained on): how far its training error carries to new scenes.
+
 Run: ``.venv/bin/python -m benchmarks.baseline_training [--checkpoints checkpoints/gwcnet_lite.pt
-checkpoints/adabins_lite.pt]``.
+checkpoints/adabins_lite.pt] [--held-out 16]``.
 """
 
 from __future__ import annotations
@@ -17,9 +21,16 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from benchmarks.common import RESULTS, machine_info, write_json
+import numpy as np
+import torch
+from torch import nn
+
+from benchmarks.common import RESULTS, machine_info, scene_samples, write_json
+from benchmarks.tune_bev_sweep import TUNING_SEED_BASE
+from roadbev_core.backends.gwcnet import gwcnet_inputs, search_window
 from roadbev_core.checkpoint import baseline_kind, load_baseline
-from roadbev_lab.training.train_image_view import training_phases
+from roadbev_core.config import GridSpec
+from roadbev_lab.training.train_image_view import adabins_sample, gwcnet_sample, training_phases
 
 DEFAULT_CHECKPOINTS = ("checkpoints/gwcnet_lite.pt", "checkpoints/adabins_lite.pt")
 # what each baseline's training abs. error measures
@@ -44,6 +55,47 @@ def summary(path: Path) -> dict[str, Any]:
         "steps": steps, "sample_passes": passes,
         "minutes": sum(float(p.get("seconds", 0.0)) for p in phases) / 60.0,
     }
+
+
+@torch.inference_mode()
+def network_errors(kind: str, model: nn.Module, samples: Sequence[tuple[Any, np.ndarray]], grid: GridSpec
+                   ) -> dict[str, float]:
+    """A baseline network's own output against its training labels on ``samples`` ((frame, truth
+    [n_rows, n_cols]) pairs): the mean abs. error in its unit (px of disparity, m of depth) and the
+    mean relative error (of the disparity or the depth), over every labelled pixel."""
+    errors, relative = [], []
+    for frame, truth in samples:
+        if kind == "gwcnet":
+            sample = gwcnet_sample(frame, truth, grid, model.config)  # type: ignore[arg-type]
+            window = search_window(grid, frame.camera, frame.attitude)
+            left, right = gwcnet_inputs(frame, window)  # [H, W, 3], padded to the network's stride
+            out, _ = model(torch.from_numpy(left).permute(2, 0, 1)[None],
+                           torch.from_numpy(right).permute(2, 0, 1)[None])
+            h, w = sample.target.shape
+            estimate, target, offset = out[0, :h, :w].numpy(), sample.target, float(window.min_disparity)
+        else:
+            depth_sample = adabins_sample(frame, truth, grid, model.config)  # type: ignore[arg-type]
+            out, _, _ = model(torch.from_numpy(depth_sample.image)[None])
+            estimate, target, offset = out[0].numpy(), depth_sample.target, 0.0
+        labelled = np.isfinite(target)
+        diff = np.abs(estimate[labelled] - target[labelled])
+        errors.append(diff)
+        relative.append(diff / (target[labelled] + offset))
+    every, every_relative = np.concatenate(errors), np.concatenate(relative)
+    return {"abs_err": float(every.mean()), "relative_err": float(every_relative.mean()), "pixels": int(every.size)}
+
+
+def held_out(path: Path, frames: int, training_cache: str, tuning_cache: str) -> dict[str, Any]:
+    """:func:`network_errors` of one checkpoint on its first ``frames`` training scenes (seeds 0+)
+    and on as many tuning scenes."""
+    kind = baseline_kind(path)
+    assert kind is not None
+    model, _ = load_baseline(path, kind)
+    grid = GridSpec()
+    training = scene_samples(range(frames), grid, training_cache)
+    tuning = scene_samples(range(TUNING_SEED_BASE, TUNING_SEED_BASE + frames), grid, tuning_cache)
+    return {"frames": frames, "training": network_errors(kind, model, training, grid),
+            "tuning": network_errors(kind, model, tuning, grid)}
 
 
 def plot(records: Sequence[dict[str, Any]], path: Path) -> None:
@@ -76,9 +128,19 @@ def plot(records: Sequence[dict[str, Any]], path: Path) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.baseline_training", description=__doc__.splitlines()[0])
     parser.add_argument("--checkpoints", nargs="+", default=list(DEFAULT_CHECKPOINTS), metavar="PT")
+    parser.add_argument("--held-out", type=int, default=16, metavar="N",
+                        help="score each network on N training and N tuning scenes (default 16; 0: not)")
+    parser.add_argument("--training-cache", default=".cache/roadbev", metavar="DIR",
+                        help="the training scenes' cache (default .cache/roadbev)")
+    parser.add_argument("--scene-cache", default=".cache/scenes", metavar="DIR",
+                        help="the tuning scenes' cache (default .cache/scenes)")
     parser.add_argument("--out", default=str(RESULTS), help="results folder")
     args = parser.parse_args(argv)
     records = [summary(Path(p)) for p in args.checkpoints]
+    if args.held_out > 0:
+        for record in records:
+            record["held_out"] = held_out(Path(record["checkpoint"]), args.held_out, args.training_cache,
+                                          args.scene_cache)
     out = Path(args.out)
     write_json(out / "baseline_training.json", {
         "command": " ".join(["python -m benchmarks.baseline_training", *(argv if argv is not None else sys.argv[1:])]),

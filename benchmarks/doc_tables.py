@@ -779,6 +779,20 @@ def baseline_training(data: Mapping[str, Any]) -> str:
     lines.append("")
     lines.append("Each phase's command: " + "; ".join(f"`{p['command']}`" for b in data["baselines"]
                                                        for p in b["phases"]) + ".")
+    scored = [b for b in data["baselines"] if b.get("held_out")]
+    if scored:
+        lines.append("")
+        lines += _head("baseline", "its own output against its labels", "training scenes", "tuning scenes")
+        for b in scored:
+            h = b["held_out"]
+            for key, what in (("abs_err", f"abs. error ({b['error_unit']})"), ("relative_err", "relative error (%)")):
+                scale, digits = (100.0, 2) if key == "relative_err" else (1.0, 3)
+                lines.append(_row([b["kind"], what, _fmt(scale * h["training"][key], digits),
+                                   _fmt(scale * h["tuning"][key], digits)]))
+        frames = scored[0]["held_out"]["frames"]
+        lines.append("")
+        lines.append(f"Over every labelled pixel of {frames} training scenes (seeds 0–{frames - 1}) and {frames} "
+                     "tuning scenes (never trained on), the network in evaluation mode.")
     return "\n".join(lines)
 
 

@@ -184,8 +184,8 @@ def flat_reference(truths: list[Any], grid: GridSpec) -> dict[str, float]:
     metrics = MetricAccumulator(grid)
     for truth in truths:
         metrics.add(np.zeros(np.shape(truth), np.float32), truth)
-    result = metrics.result().to_dict()
-    return {key: float(result[key]) for key in ("abs_err_cm", "rmse_cm", "gt_0p5cm_pct")}
+    result = metrics.result()
+    return {"abs_err_cm": result.abs_err_cm, "rmse_cm": result.rmse_cm, "gt_0p5cm_pct": result.gt_0p5cm_pct}
 
 
 def flat_reference_line(reference: dict[str, float] | None) -> str:

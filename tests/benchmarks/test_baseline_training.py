@@ -5,10 +5,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
-from benchmarks.baseline_training import main, summary
+from benchmarks.baseline_training import main, network_errors, summary
 from roadbev_core.checkpoint import TrainingEnvelope, save_baseline
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.models.gwcnet import GwcNetConfig, GwcNetLite
@@ -35,7 +36,7 @@ def test_the_record_sums_the_phases_and_the_figure_is_drawn(tmp_path: Path) -> N
     record = summary(path)
     assert record["kind"] == "gwcnet" and [p["command"] for p in record["phases"]] == ["first", "second"]
     assert record["steps"] == 50 and record["sample_passes"] == 100 and record["minutes"] == pytest.approx(3.0)
-    assert main(["--checkpoints", str(path), "--out", str(tmp_path / "out")]) == 0
+    assert main(["--checkpoints", str(path), "--out", str(tmp_path / "out"), "--held-out", "0"]) == 0
     data = json.loads((tmp_path / "out" / "baseline_training.json").read_text())
     assert data["baselines"][0]["phases"][1]["history"][-1]["loss"] == pytest.approx(0.5)
     assert (tmp_path / "out" / "baseline_training.png").stat().st_size > 0
@@ -46,3 +47,33 @@ def test_a_checkpoint_that_is_no_baseline_is_refused(tmp_path: Path) -> None:
     torch.save({"format": "roadbev-checkpoint/1"}, other)
     with pytest.raises(ValueError, match="not an image-view baseline"):
         summary(other)
+
+
+class _ConstantDisparity(torch.nn.Module):
+    """Answers the same disparity (from the search's first) at every pixel."""
+
+    def __init__(self, value: float) -> None:
+        super().__init__()
+        self.value = value
+        self.config = GwcNetConfig()
+
+    def forward(self, left: torch.Tensor, right: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        b, _, h, w = left.shape
+        return torch.full((b, h, w), self.value), torch.ones(b, h, w)
+
+
+def test_a_networks_own_error_is_scored_against_its_labels_in_its_unit() -> None:
+    from roadbev_core.backends.gwcnet import search_window
+    from roadbev_lab.synth import make_sample
+    from roadbev_lab.training.train_image_view import gwcnet_sample
+
+    grid = GridSpec()
+    scene = make_sample(3, grid=grid)
+    samples = [(scene.frame, scene.truth.elevation)]
+    target = gwcnet_sample(scene.frame, scene.truth.elevation, grid, GwcNetConfig()).target
+    labelled = target[np.isfinite(target)]
+    offset = search_window(grid, scene.frame.camera, scene.frame.attitude).min_disparity
+    errors = network_errors("gwcnet", _ConstantDisparity(20.0), samples, grid)
+    assert errors["pixels"] == labelled.size > 1000
+    assert errors["abs_err"] == pytest.approx(np.abs(20.0 - labelled).mean(), rel=1e-5)
+    assert errors["relative_err"] == pytest.approx((np.abs(20.0 - labelled) / (labelled + offset)).mean(), rel=1e-5)
