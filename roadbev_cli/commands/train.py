@@ -39,6 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     model.add_argument("--pretrained", type=Path, help="ImageNet EfficientNet weights (torchvision/lukemelas)")
     model.add_argument("--resume", type=Path, help="continue from this checkpoint")
     model.add_argument("--init", type=Path, help="start from this checkpoint's weights with a fresh schedule")
+    model.add_argument("--augment", action="store_true",
+                       help="--kind adabins: AdaBins' own augmentation (mirror, gamma, brightness, colour)")
     model.add_argument("--model-option", action="append", default=[], metavar="FIELD=VALUE",
                        help="change a ModelConfig field of the preset or of the --init checkpoint's model, "
                             "e.g. zncc_subsamples=2 (repeatable; values are JSON: true, 3, 0.5, or text)")
@@ -73,6 +75,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
 
     overrides = parse_assignments(args.model_option, "--model-option")  # before any data is read
+    if args.augment and args.kind != "adabins":
+        raise CommandError("--augment is AdaBins' augmentation (--kind adabins)")
     sources: list[FrameSource] = []
     if args.synth:
         last = args.synth_seed + args.synth
@@ -105,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
         if args.resume or args.model_option:
             raise CommandError(f"--kind {args.kind} takes --init to continue, not --resume or --model-option")
         done = train_image_view(args.kind, data, config, args.out, init=args.init, pretrained=args.pretrained,
-                                log=log, meta={"command": args.command_line})
+                                augment=args.augment, log=log, meta={"command": args.command_line})
         print(f"wrote {done['checkpoint']}: {done['steps']} steps, {done['epochs_done']} epochs"
               + (" (stopped at the time cap)" if done["stopped_early"] else ""))
         return 0

@@ -137,6 +137,22 @@ def adabins_sample(frame: Any, truth: np.ndarray, grid: GridSpec, config: AdaBin
     return AdaBinsSample(network_image(frame.left, config), np.where(inside, target, np.nan).astype(np.float32))
 
 
+def augment_adabins(sample: AdaBinsSample, rng: np.random.Generator) -> AdaBinsSample:
+    """AdaBins' own training augmentation (Bhat et al., CVPR 2021, its outdoor settings): the image
+    and its label mirrored left to right half of the time, and half of the time the image's gamma,
+    brightness and each colour channel scaled by a factor drawn from [0.9, 1.1] (no rotation: the
+    label is tied to the rig's rows)."""
+    image, target = sample.image, sample.target  # [3, h, w] uint8, [h / 2, w / 2]
+    if rng.random() < 0.5:
+        image, target = image[:, :, ::-1], target[:, ::-1]
+    if rng.random() < 0.5:
+        gamma, brightness = rng.uniform(0.9, 1.1, size=2)
+        colours = rng.uniform(0.9, 1.1, size=(3, 1, 1))
+        scaled = (image.astype(np.float32) / 255.0) ** gamma * brightness * colours
+        image = np.round(np.clip(scaled, 0.0, 1.0) * 255.0).astype(np.uint8)
+    return AdaBinsSample(np.ascontiguousarray(image), np.ascontiguousarray(target))
+
+
 def _gwcnet_loss(model: nn.Module, samples: Sequence[GwcSample], crop: tuple[int, int], rng: np.random.Generator
                  ) -> tuple[torch.Tensor, float] | None:
     """GwcNet's smooth L1 over a batch of random crops, and the mean abs. error (pixels)."""
@@ -152,9 +168,12 @@ def _gwcnet_loss(model: nn.Module, samples: Sequence[GwcSample], crop: tuple[int
     return loss, float((disparity.detach()[labelled] - target[labelled]).abs().mean())
 
 
-def _adabins_loss(model: nn.Module, samples: Sequence[AdaBinsSample], rng: np.random.Generator
+def _adabins_loss(model: nn.Module, samples: Sequence[AdaBinsSample], rng: np.random.Generator, augment: bool = False
                   ) -> tuple[torch.Tensor, float] | None:
-    """AdaBins' loss over a batch, and the mean abs. depth error (m)."""
+    """AdaBins' loss over a batch (each sample augmented with ``augment``: :func:`augment_adabins`),
+    and the mean abs. depth error (m)."""
+    if augment:
+        samples = [augment_adabins(sample, rng) for sample in samples]
     image = torch.from_numpy(np.stack([s.image for s in samples]))  # [B, 3, h, w]
     target = torch.from_numpy(np.stack([s.target for s in samples]))  # [B, h / 2, w / 2]
     labelled = torch.isfinite(target)
@@ -178,8 +197,8 @@ def training_phases(meta: dict[str, Any]) -> list[dict[str, Any]]:
 def train_image_view(kind: str, data: FrameSource, config: TrainConfig, out: str | Path, *,
                      model_config: GwcNetConfig | AdaBinsConfig | None = None,
                      init: str | Path | None = None, pretrained: str | Path | None = None,
-                     crop: tuple[int, int] = DEFAULT_CROP, log: Callable[[str], None] | None = None,
-                     meta: dict[str, Any] | None = None) -> dict[str, Any]:
+                     crop: tuple[int, int] = DEFAULT_CROP, augment: bool = False,
+                     log: Callable[[str], None] | None = None, meta: dict[str, Any] | None = None) -> dict[str, Any]:
     """Train baseline ``kind`` (``gwcnet`` or ``adabins``) on ``data`` and write its checkpoint to
     ``out`` after every epoch.
 
@@ -188,6 +207,8 @@ def train_image_view(kind: str, data: FrameSource, config: TrainConfig, out: str
         init: start from this checkpoint's weights (a fresh schedule).
         pretrained: ImageNet EfficientNet weights for AdaBins-lite's encoder (a fresh network).
         crop: GwcNet-lite's training crop (rows, columns).
+        augment: AdaBins' own augmentation of each training sample (:func:`augment_adabins`;
+            AdaBins-lite only).
 
     Returns:
         ``{"checkpoint", "steps", "epochs_done", "history", "stopped_early"}``; the history's
@@ -197,6 +218,8 @@ def train_image_view(kind: str, data: FrameSource, config: TrainConfig, out: str
         raise TrainError(f"unknown image-view baseline {kind!r}; one of {', '.join(BASELINES)}")
     if crop[0] % GwcNetLite.stride or crop[1] % GwcNetLite.stride:
         raise TrainError(f"the crop's sides must be multiples of {GwcNetLite.stride}, got {crop}")
+    if augment and kind != "adabins":
+        raise TrainError("the augmentation is AdaBins' (mirrored stereo pairs would swap the cameras)")
     if pretrained is not None and (kind != "adabins" or init is not None):
         raise TrainError("ImageNet weights start a fresh AdaBins-lite only")
     expected = GwcNetConfig if kind == "gwcnet" else AdaBinsConfig
@@ -247,7 +270,8 @@ def train_image_view(kind: str, data: FrameSource, config: TrainConfig, out: str
         losses, errors, t_epoch = [], [], time.perf_counter()
         for b in range(batches):
             batch = [sample(int(i)) for i in order[b * config.batch_size:(b + 1) * config.batch_size]]
-            result = _gwcnet_loss(model, batch, crop, rng) if kind == "gwcnet" else _adabins_loss(model, batch, rng)
+            result = (_gwcnet_loss(model, batch, crop, rng) if kind == "gwcnet"
+                      else _adabins_loss(model, batch, rng, augment))
             if result is None:
                 continue
             loss, error = result
@@ -268,7 +292,8 @@ def train_image_view(kind: str, data: FrameSource, config: TrainConfig, out: str
         if log is not None:
             log(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in summary.items()))
         phase = {**(meta or {}), "history": history, "steps": step, "frames": len(data),
-                 "crop": list(crop) if kind == "gwcnet" else None, "lr": lr, "batch_size": config.batch_size,
+                 "crop": list(crop) if kind == "gwcnet" else None, "augment": augment, "lr": lr,
+                 "batch_size": config.batch_size,
                  "epochs": config.epochs, "seconds": time.perf_counter() - start}
         save_baseline(out, kind, model.eval(), envelope, meta={**phase, "phases": [*earlier, phase]})
         model.train()
