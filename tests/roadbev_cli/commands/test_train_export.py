@@ -26,6 +26,8 @@ def test_train_refuses_missing_data_and_test_seeds(tmp_path: Path, capsys: pytes
             "--cache", str(tmp_path)]
     assert main(args) == 2
     assert "unknown appearance" in capsys.readouterr().err
+    assert main(["train", "--kind", "gwcnet", "--augment", "--out", str(tmp_path / "g.pt"), "--synth", "1"]) == 2
+    assert "--augment is AdaBins' augmentation" in capsys.readouterr().err
 
 
 def test_export_drops_training_state_and_can_halve(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -13,7 +13,14 @@ from roadbev_core.models.adabins import AdaBinsConfig
 from roadbev_core.models.gwcnet import GwcNetConfig
 from roadbev_lab.training.datasets import SyntheticSet
 from roadbev_lab.training.train import TrainConfig, TrainError
-from roadbev_lab.training.train_image_view import adabins_sample, gwcnet_sample, train_image_view, training_phases
+from roadbev_lab.training.train_image_view import (
+    AdaBinsSample,
+    adabins_sample,
+    augment_adabins,
+    gwcnet_sample,
+    train_image_view,
+    training_phases,
+)
 
 CAMERA = StereoCamera.rsrd_half().scaled(0.25)  # 240 x 132 renders in about a second
 GRID = GridSpec(resolution=0.12)
@@ -74,7 +81,31 @@ def test_adabins_learns_and_its_checkpoint_loads(frames: SyntheticSet, tmp_path:
     assert training_envelope(payload).baseline_m == (0.0, 0.0)  # a monocular network
 
 
+def test_adabins_augmentation_mirrors_image_and_label_together_and_scales_colours_mildly() -> None:
+    rng = np.random.default_rng(0)
+    image = rng.integers(30, 220, size=(3, 8, 12), dtype=np.uint8)
+    target = np.tile(np.arange(6, dtype=np.float32), (4, 1))  # [4, 6], rising to the right
+    target[0, 0] = np.nan
+    sample = AdaBinsSample(image, target)
+    flips = recoloured = 0
+    for _ in range(400):
+        out = augment_adabins(sample, rng)
+        assert out.image.dtype == np.uint8 and out.image.shape == image.shape and out.target.shape == target.shape
+        flipped = bool(np.isnan(out.target[0, -1]))
+        np.testing.assert_array_equal(out.target, target[:, ::-1] if flipped else target)
+        base = image[:, :, ::-1] if flipped else image
+        if not np.array_equal(out.image, base):
+            recoloured += 1
+            ratio = out.image.astype(np.float64).mean() / base.astype(np.float64).mean()
+            assert 0.75 < ratio < 1.35
+        flips += flipped
+    assert 150 < flips < 250 and 150 < recoloured < 250  # each half of the time
+    np.testing.assert_array_equal(sample.image, image)  # the cached sample is left as it was
+
+
 def test_bad_settings_are_refused(frames: SyntheticSet, tmp_path: Path) -> None:
+    with pytest.raises(TrainError, match="AdaBins' "):
+        train_image_view("gwcnet", frames, TrainConfig(), tmp_path / "x.pt", augment=True)
     with pytest.raises(TrainError, match="unknown image-view baseline"):
         train_image_view("psmnet", frames, TrainConfig(), tmp_path / "x.pt")
     with pytest.raises(TrainError, match="multiples of 8"):
