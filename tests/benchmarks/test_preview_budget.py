@@ -84,7 +84,7 @@ def test_far_field_candidates_take_the_row_of_a_run_with_the_far_field() -> None
 def test_drives_label_the_far_grid_of_the_budgeted_far_field_candidates_only() -> None:
     grid = GridSpec()
     far = Candidate("far", "ensemble", {"far_field.enabled": True}, latency_s=0.1)
-    near = Candidate("near", "bm", latency_s=0.1)
+    near = Candidate("near", "bm", {"far_field.enabled": False}, latency_s=0.1)
     assert budgeted("far", []) and budgeted("far", ["far"]) and not budgeted("far", ["near"])
     assert not budgeted("far", None)
     assert far_label_grid([near, far], [], grid) == FarFieldConfig().grid(grid)
@@ -171,7 +171,7 @@ def test_stored_frames_read_back_and_truth_goes_into_one_stage(tmp_path: Any) ->
         assert a.frame.attitude == b.frame.attitude and a.frame.stamp_ns == b.frame.stamp_ns
     labels = {int(s.frame.stamp_ns): s.truth.elevation.copy() for s in samples}
     cached = CachedEstimates(Noisy(drive.config.grid, labels))
-    candidate = Candidate("noisy", "bm", latency_s=0.1, period_s=0.0)
+    candidate = Candidate("noisy", "bm", {"far_field.enabled": False}, latency_s=0.1, period_s=0.0)
     grid = drive.config.grid
     settings = RideSettings(arrival=ArrivalSettings(base_height=grid.base_height, camera_in_base=drive.base_to_camera))
     out = {stage: candidate_previews(drive, samples, candidate, cached, stage, ride_settings=settings)
@@ -283,7 +283,7 @@ def test_a_far_field_candidate_previews_to_the_far_edge_and_its_label_stages_tak
     cached = CachedEstimates(Flat(grid), Flat)
     settings = RideSettings(arrival=ArrivalSettings(base_height=grid.base_height, camera_in_base=drive.base_to_camera))
     far = Candidate("far", "bm", {"far_field.enabled": True}, latency_s=0.1)
-    near = Candidate("near", "bm", latency_s=0.1)
+    near = Candidate("near", "bm", {"far_field.enabled": False}, latency_s=0.1)
 
     def reach(previews: list[Any]) -> float:  # farthest answered distance ahead of base_link (m)
         return max(float(p.profiles.distances()[np.isfinite(p.profiles.track("front_left").elevation)].max())

@@ -34,7 +34,8 @@ Road = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 def _settings(**changes: object) -> MapSettings:
-    return map_settings(RoadbevConfig.from_params({f"map.{k}": v for k, v in changes.items()}))
+    params = {f"map.{k}": v for k, v in changes.items()}
+    return map_settings(RoadbevConfig.from_params({"far_field.enabled": False, **params}))  # the grid alone
 
 
 def _frame(road: Road, base: PlanarPose, base_z: float, pitch: float = 0.0) -> np.ndarray:
@@ -319,7 +320,7 @@ def test_settings_refuse_an_empty_or_costly_corridor() -> None:
 
 
 def test_map_settings_lay_the_corridor_around_the_camera_on_base_link() -> None:
-    config = RoadbevConfig.from_params({"map.behind_m": 2.0, "map.slope_prior_deg": 0.5})
+    config = RoadbevConfig.from_params({"map.behind_m": 2.0, "map.slope_prior_deg": 0.5, "far_field.enabled": False})
     g = config.grid
     settings = map_settings(config)  # the camera at vehicle.camera_position_m
     assert settings.ahead_m == pytest.approx(config.vehicle.camera_position_m[0] + g.x_max)
@@ -358,7 +359,7 @@ FAR_GRID = FAR_CONFIG.far_field.grid(GRID)
 
 
 def test_with_the_far_field_on_the_corridor_reaches_its_far_edge_and_nothing_else_changes() -> None:
-    off, on = map_settings(RoadbevConfig()), map_settings(FAR_CONFIG)
+    off, on = map_settings(RoadbevConfig.from_params({"far_field.enabled": False})), map_settings(FAR_CONFIG)
     assert off.ahead_m == pytest.approx(CAMERA[0] + GRID.x_max)
     assert on.ahead_m == pytest.approx(CAMERA[0] + FAR_GRID.x_max) and FAR_GRID.x_max == 15.0
     assert replace(on, ahead_m=off.ahead_m) == off  # one resolution, the grid's; the same width

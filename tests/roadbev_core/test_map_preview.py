@@ -98,5 +98,5 @@ def test_with_the_far_field_the_map_preview_reaches_15_m_ahead_of_the_camera_wit
         assert x[at] - camera[0] == pytest.approx(13.0, abs=0.15)  # the bump, where it is (base_link x)
         assert track.elevation[at] == pytest.approx(0.06, abs=0.01)
         assert arrival[at] == pytest.approx((x[at] - vehicle.wheelbase_m) / 10.0, rel=1e-5)
-    off = FusedMap(map_settings(RoadbevConfig()))
+    off = FusedMap(map_settings(RoadbevConfig.from_params({"far_field.enabled": False})))
     assert off.settings.ahead_m == pytest.approx(camera[0] + grid.x_max)  # the far field off: the grid's edge

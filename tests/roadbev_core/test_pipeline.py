@@ -264,7 +264,7 @@ def _far_pipeline(view_m: float = 100.0, **params: Any) -> Pipeline:
 
 
 def test_the_far_field_is_estimated_beside_the_grid_and_leaves_its_estimate_alone() -> None:
-    off = _far_pipeline().process_frame(_frame(0))
+    off = _far_pipeline(**{"far_field.enabled": False}).process_frame(_frame(0))
     assert off.far is None and "estimate_far" not in off.timings_ms
     pipeline = _far_pipeline(**{"far_field.enabled": True})
     on = pipeline.process_frame(_frame(0))
@@ -312,11 +312,12 @@ def test_a_backend_without_a_far_field_runs_as_with_it_off_and_says_why() -> Non
     # asked for directly, the far-field backend of such a backend is refused
     with pytest.raises(FarFieldUnsupported, match="backend 'flat' does not estimate the far field"):
         build_far_backend(asked, FlatRoad(GridSpec()))
-    assert build_far_backend(RoadbevConfig(), FlatRoad(GridSpec())) is None  # off: nothing to build
+    off_config = RoadbevConfig.from_params({"far_field.enabled": False})
+    assert build_far_backend(off_config, FlatRoad(GridSpec())) is None  # off: nothing to build
     # a parameter change to a backend that has one turns it on, and back
     far_capable = _far_pipeline(**{"far_field.enabled": True})
     assert far_capable.far_field_off == "" and far_capable.far_backend is not None
-    off = Pipeline(RoadbevConfig.from_params({"require_imu": False}),
+    off = Pipeline(RoadbevConfig.from_params({"require_imu": False, "far_field.enabled": False}),
                    backend_factory=lambda name, grid, **o: FlatRoad(grid), configure_process=False)
     assert off.far_field_off == "" and off.far_backend is None
     off.reconfigure(asked)
@@ -359,7 +360,7 @@ def _far_drive(pipeline: Pipeline, frames: int) -> list[Any]:
 
 
 def test_with_the_far_field_and_the_map_on_the_map_and_its_preview_reach_the_far_edge() -> None:
-    off = _far_drive(_far_pipeline(), 3)[-1]
+    off = _far_drive(_far_pipeline(**{"far_field.enabled": False}), 3)[-1]
     on_pipeline = _far_pipeline(**{"far_field.enabled": True})
     on = _far_drive(on_pipeline, 3)[-1]
     far_grid = on_pipeline.config.far_grid

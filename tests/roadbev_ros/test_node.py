@@ -906,7 +906,7 @@ def test_the_far_field_is_published_on_its_own_topic_only_when_on(ros: Any) -> N
         assert h.node._status.health.far_field == "on"
     finally:
         h.close()
-    off = Harness(ros)
+    off = Harness(ros, params={"far_field.enabled": False})
     try:
         assert off.node._out._far is None and off.node._status.health.far_field == "off"
     finally:
