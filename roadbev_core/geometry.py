@@ -30,6 +30,7 @@ __all__ = [
     "Attitude",
     "GeometryError",
     "ProjectedVoxels",
+    "RayTerms",
     "attitude_from_quaternion",
     "attitude_from_rotation",
     "camera_to_road",
@@ -37,6 +38,7 @@ __all__ = [
     "project_points",
     "project_voxels",
     "quaternion_to_rotation",
+    "ray_terms",
     "road_frame_in_camera",
     "road_to_camera",
     "rotation_from_rpy",
@@ -169,6 +171,36 @@ def optical_from_road_rotation(attitude: Attitude) -> np.ndarray:
     """[3, 3] rotation taking road-frame directions to camera optical-frame directions."""
     R_level_body = rotation_from_rpy(attitude.roll, attitude.pitch)  # body -> level (road axes)
     return cast("np.ndarray", (R_level_body @ R_BODY_FROM_OPTICAL).T)
+
+
+class RayTerms(NamedTuple):
+    """The road-frame direction of pixel rays, split into a per-column and a per-row term: the ray
+    of the pixel at row v, column u is ``per_col[u] + per_row[v]``, scaled so that the point at
+    optical depth Z lies at ``(0, 0, base_height) + Z * ray``.
+
+    Attributes:
+        per_col: [w, 3] float64, ``R[0] * (u - cx) / fx + R[2]`` (the optical x and z parts).
+        per_row: [h, 3] float64, ``R[1] * (v - cy) / fy`` (the optical y part).
+    """
+
+    per_col: np.ndarray
+    per_row: np.ndarray
+
+    def rays(self) -> np.ndarray:
+        """[h, w, 3] float64: every pixel's ray."""
+        return cast("np.ndarray", self.per_col[None, :, :] + self.per_row[:, None, :])
+
+
+def ray_terms(camera: StereoCamera, attitude: Attitude, rows: np.ndarray, cols: np.ndarray) -> RayTerms:
+    """The rays of the pixels at ``rows`` [h] x ``cols`` [w] of the left image (:class:`RayTerms`):
+    a road-frame direction is ``sum_j R[j, k] * optical_j`` with ``optical = (x_n, y_n, 1)``, so
+    it separates into a column's and a row's part."""
+    R = optical_from_road_rotation(attitude)  # road -> optical; its rows map optical axes to road
+    x_norm = (np.asarray(cols) - camera.cx) / camera.fx  # [w]
+    y_norm = (np.asarray(rows) - camera.cy) / camera.fy  # [h]
+    per_col = x_norm[:, None] * R[0][None, :] + R[2][None, :]  # [w, 3]
+    per_row = y_norm[:, None] * R[1][None, :]  # [h, 3]
+    return RayTerms(per_col.astype(np.float64), per_row.astype(np.float64))
 
 
 def road_frame_in_camera(attitude: Attitude, base_height: float) -> tuple[np.ndarray, np.ndarray]:

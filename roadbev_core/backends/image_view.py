@@ -23,7 +23,7 @@ import numpy as np
 from roadbev_core.backends.common import StageClock, grey_u8
 from roadbev_core.config import ConfigError, GridSpec, StereoCamera
 from roadbev_core.frame import Estimate, Frame, FrameError
-from roadbev_core.geometry import Attitude, optical_from_road_rotation, project_points, road_to_camera
+from roadbev_core.geometry import Attitude, project_points, ray_terms, road_to_camera
 from roadbev_core.labels import cell_index, cell_means
 
 __all__ = ["ImageViewParams", "ImageViewStereo", "MatchWindow", "cell_elevations", "create_bm", "create_sgbm",
@@ -220,15 +220,11 @@ def road_points(depth: np.ndarray, rows: np.ndarray, cols: np.ndarray, camera: S
     kept as NaN (the binning leaves them out) rather than compressed out: picking the valid ones
     costs more than the arithmetic on them.
     """
-    R = optical_from_road_rotation(attitude)  # road -> optical; rows of R.T map optical -> road
-    x_norm = (cols - camera.cx) / camera.fx  # [w]
-    y_norm = (rows - camera.cy) / camera.fy  # [h]
+    terms = ray_terms(camera, attitude, rows, cols)
+    per_col, per_row = terms.per_col.astype(np.float32), terms.per_row.astype(np.float32)  # [w, 3], [h, 3]
     points = np.empty((depth.size, 3), dtype=np.float32)
     for k in range(3):
-        # road_k = sum_j R[j, k] * optical_j with optical = Z * (x_norm, y_norm, 1)
-        per_col = (R[0, k] * x_norm + R[2, k]).astype(np.float32)
-        per_row = (R[1, k] * y_norm).astype(np.float32)
-        points[:, k] = (depth * (per_col[None, :] + per_row[:, None])).ravel()
+        points[:, k] = (depth * (per_col[None, :, k] + per_row[:, None, k])).ravel()
     points[:, 2] += base_height
     return points
 

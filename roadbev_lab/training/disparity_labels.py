@@ -18,23 +18,13 @@ from typing import cast
 import numpy as np
 
 from roadbev_core.config import GridSpec, StereoCamera
-from roadbev_core.geometry import Attitude, optical_from_road_rotation
+from roadbev_core.geometry import Attitude, ray_terms
 
-__all__ = ["pixel_rays", "surface_depth", "surface_height"]
+__all__ = ["surface_depth", "surface_height"]
 
 # Steps of the march through the grid's height range, then of the bisection of the first crossing.
 MARCH_STEPS = 48
 BISECTION_STEPS = 8
-
-
-def pixel_rays(camera: StereoCamera, attitude: Attitude, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """[h, w, 3] road-frame direction of each pixel's ray, scaled so that a point at optical depth
-    Z lies at ``(0, 0, base_height) + Z * ray``."""
-    R = optical_from_road_rotation(attitude)  # road -> optical
-    x_norm = (np.asarray(cols, np.float64) - camera.cx) / camera.fx  # [w]
-    y_norm = (np.asarray(rows, np.float64) - camera.cy) / camera.fy  # [h]
-    optical = np.stack(np.broadcast_arrays(x_norm[None, :], y_norm[:, None], np.ones((1, 1))), axis=-1)  # [h, w, 3]
-    return cast("np.ndarray", optical @ R)  # road_k = sum_j R[j, k] optical_j
 
 
 def surface_height(elevation: np.ndarray, grid: GridSpec, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -59,7 +49,7 @@ def surface_depth(elevation: np.ndarray, grid: GridSpec, camera: StereoCamera, a
     """Optical depth [h, w] float32 at which each pixel's ray (rows [h] x cols [w] of the left
     image) first meets the label's surface (elevation [n_rows, n_cols] metres on ``grid``); NaN
     where it does not meet it inside the grid. Disparity = ``fx * baseline / depth``."""
-    ray = pixel_rays(camera, attitude, rows, cols)  # [h, w, 3]
+    ray = ray_terms(camera, attitude, rows, cols).rays()  # [h, w, 3]
     down = ray[..., 2] < -1e-6  # rays that descend
     rz = np.where(down, ray[..., 2], -1.0)
     z_top, z_bottom = grid.z_max - grid.base_height, grid.z_min - grid.base_height

@@ -18,6 +18,7 @@ from roadbev_core.geometry import (
     project_points,
     project_voxels,
     quaternion_to_rotation,
+    ray_terms,
     road_to_camera,
     rotation_from_rpy,
     rsrd_camera_attitude,
@@ -195,3 +196,16 @@ def test_real_rsrd_rig_sees_the_whole_grid(rsrd_dir: Path) -> None:
         assert project_voxels(g, cam, att, right=True).inside.all()
     # The camera looks ~2 deg further down than the LiDAR: 16-22 deg.
     assert min(pitches) > 15.5 and max(pitches) < 22.5
+
+
+def test_a_pixels_ray_meets_the_road_point_that_projects_onto_it() -> None:
+    attitude = Attitude(0.02, 0.3)
+    base_height = 1.2
+    road = np.array([[3.0, 0.4, 0.05], [6.5, -0.7, -0.02], [10.0, 0.0, 0.0]])  # [N, 3]
+    u, v, depth = project_points(road_to_camera(road, attitude, base_height), CAM)
+    terms = ray_terms(CAM, attitude, v, u)
+    rays = terms.rays()  # [N, N, 3]: row i's term with column j's
+    assert terms.per_col.shape == (3, 3) and terms.per_row.shape == (3, 3) and rays.shape == (3, 3, 3)
+    for i in range(len(road)):
+        point = np.array([0.0, 0.0, base_height]) + depth[i] * rays[i, i]
+        np.testing.assert_allclose(point, road[i], atol=1e-9)

@@ -17,9 +17,8 @@ from roadbev_core.backends.adabins import AdaBinsBackend, depth_pixels, grid_win
 from roadbev_core.checkpoint import TrainingEnvelope, save_baseline
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.frame import Frame, FrameError
-from roadbev_core.geometry import Attitude
+from roadbev_core.geometry import Attitude, ray_terms
 from roadbev_core.models.adabins import AdaBinsConfig, AdaBinsLite
-from roadbev_lab.training.disparity_labels import pixel_rays
 
 CAMERA = StereoCamera.rsrd_half()
 GRID = GridSpec()
@@ -46,7 +45,7 @@ class _PlaneDepth(nn.Module):
         super().__init__()
         self.config = SMALL
         rows, cols = depth_pixels(SMALL, CAMERA)
-        ray = pixel_rays(CAMERA, ATTITUDE, rows, cols)  # [h, w, 3]
+        ray = ray_terms(CAMERA, ATTITUDE, rows, cols).rays()  # [h, w, 3]
         with np.errstate(divide="ignore"):
             depth = (height - GRID.base_height) / ray[..., 2]
         self.depth = torch.from_numpy(np.where(depth > 0, depth, 50.0).astype(np.float32))

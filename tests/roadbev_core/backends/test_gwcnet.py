@@ -16,9 +16,8 @@ from roadbev_core.backends.gwcnet import GwcNetBackend, gwcnet_inputs, search_wi
 from roadbev_core.checkpoint import TrainingEnvelope, save_baseline
 from roadbev_core.config import GridSpec, StereoCamera
 from roadbev_core.frame import Frame, FrameError
-from roadbev_core.geometry import Attitude
+from roadbev_core.geometry import Attitude, ray_terms
 from roadbev_core.models.gwcnet import GwcNetConfig, GwcNetLite
-from roadbev_lab.training.disparity_labels import pixel_rays
 
 CAMERA = StereoCamera.rsrd_half()
 GRID = GridSpec()
@@ -45,7 +44,7 @@ class _PlaneDisparity(nn.Module):
 
     def __init__(self, height: float, first: int, rows: np.ndarray, cols: np.ndarray) -> None:
         super().__init__()
-        ray = pixel_rays(CAMERA, ATTITUDE, rows, cols)  # [h, w, 3]
+        ray = ray_terms(CAMERA, ATTITUDE, rows, cols).rays()  # [h, w, 3]
         with np.errstate(divide="ignore"):
             depth = (height - GRID.base_height) / ray[..., 2]
         disparity = np.where(depth > 0, CAMERA.fx * CAMERA.baseline / depth, 0.0) - first

@@ -7,8 +7,8 @@ import math
 import numpy as np
 
 from roadbev_core.config import GridSpec, StereoCamera
-from roadbev_core.geometry import Attitude
-from roadbev_lab.training.disparity_labels import pixel_rays, surface_depth, surface_height
+from roadbev_core.geometry import Attitude, ray_terms
+from roadbev_lab.training.disparity_labels import surface_depth, surface_height
 
 CAMERA = StereoCamera.rsrd_half()
 GRID = GridSpec()
@@ -25,7 +25,7 @@ def _plane(height: float, grade: float = 0.0, cross: float = 0.0) -> np.ndarray:
 def test_rays_meet_a_labelled_plane_where_it_is() -> None:
     height, grade, cross = 0.03, 0.01, -0.015
     depth = surface_depth(_plane(height, grade, cross), GRID, CAMERA, ATTITUDE, ROWS, COLS)  # [h, w]
-    ray = pixel_rays(CAMERA, ATTITUDE, ROWS, COLS)  # [h, w, 3]
+    ray = ray_terms(CAMERA, ATTITUDE, ROWS, COLS).rays()  # [h, w, 3]
     # analytic: h + Z r_z = height + grade Z r_x + cross Z r_y
     exact = (height - GRID.base_height) / (ray[..., 2] - grade * ray[..., 0] - cross * ray[..., 1])
     x, y = exact * ray[..., 0], exact * ray[..., 1]
@@ -45,7 +45,7 @@ def test_a_bump_hides_the_road_behind_it() -> None:
     col = np.array([480])
     rows = np.arange(200, 520)
     depth = surface_depth(label, GRID, CAMERA, ATTITUDE, rows, col)[:, 0]
-    ray = pixel_rays(CAMERA, ATTITUDE, rows, col)[:, 0]
+    ray = ray_terms(CAMERA, ATTITUDE, rows, col).rays()[:, 0]
     x = depth * ray[:, 0]
     ok = np.isfinite(x)
     # no ray lands on the road just behind the bump: it meets the bump's front or top first
