@@ -18,8 +18,8 @@ at the input size, normalised inside as the trunk's ImageNet weights expect.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-from typing import Any
+from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
 import torch.nn.functional as F
@@ -28,6 +28,7 @@ from torch import nn
 from roadbev_core.config import ConfigError
 from roadbev_core.models.efficientnet import SCALING, EfficientNetFeatures, input_normalisation
 from roadbev_core.models.fpn import PyramidFusion
+from roadbev_core.models.settings import StoredSettings
 
 __all__ = ["AdaBinsConfig", "AdaBinsLite", "chamfer_loss", "silog_loss"]
 
@@ -36,7 +37,7 @@ _MAX_TOKENS = 1024
 
 
 @dataclass(frozen=True)
-class AdaBinsConfig:
+class AdaBinsConfig(StoredSettings):
     """What defines an AdaBins-lite network (stored in its checkpoint).
 
     Attributes:
@@ -49,6 +50,8 @@ class AdaBinsConfig:
         embedding, heads, layers: the mini-ViT's token width, attention heads and encoder layers.
         queries: range-attention maps (tokens after the first).
     """
+
+    SETTINGS: ClassVar[str] = "AdaBins"
 
     backbone: str = "lite0"
     input_width: int = 480
@@ -78,15 +81,6 @@ class AdaBinsConfig:
             if int(getattr(self, name)) < 1:
                 raise ConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
 
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> AdaBinsConfig:
-        unknown = set(data) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ConfigError(f"unknown AdaBins setting(s): {', '.join(sorted(unknown))}")
-        return cls(**data)
 
 
 class _EncoderLayer(nn.Module):

@@ -22,8 +22,8 @@ comparing the left image with the right one shifted ``min_disparity`` pixels (th
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-from typing import Any
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import torch
@@ -31,12 +31,13 @@ import torch.nn.functional as F
 from torch import nn
 
 from roadbev_core.config import ConfigError
+from roadbev_core.models.settings import StoredSettings
 
 __all__ = ["GwcNetConfig", "GwcNetLite", "VolumeConv", "VolumeNorm", "group_correlation", "shift_right", "soft_argmin"]
 
 
 @dataclass(frozen=True)
-class GwcNetConfig:
+class GwcNetConfig(StoredSettings):
     """What defines a GwcNet-lite network (stored in its checkpoint).
 
     Attributes:
@@ -47,6 +48,8 @@ class GwcNetConfig:
         groups: correlation groups (the cost volume's channels).
         volume_channels: width of the 3-D aggregation.
     """
+
+    SETTINGS: ClassVar[str] = "GwcNet"
 
     max_disparity: int = 56
     features: int = 64
@@ -61,15 +64,6 @@ class GwcNetConfig:
         if self.volume_channels < 1:
             raise ConfigError(f"volume_channels must be >= 1, got {self.volume_channels}")
 
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> GwcNetConfig:
-        unknown = set(data) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ConfigError(f"unknown GwcNet setting(s): {', '.join(sorted(unknown))}")
-        return cls(**data)
 
 
 def _conv_bn(cin: int, cout: int, stride: int = 1) -> nn.Sequential:

@@ -9,11 +9,12 @@ logits to the output grid.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 from roadbev_core.config import ConfigError, GridSpec
 from roadbev_core.models.efficientnet import SCALING
+from roadbev_core.models.settings import StoredSettings
 
 __all__ = ["KINDS", "PRESETS", "ModelConfig", "model_config"]
 
@@ -21,7 +22,7 @@ KINDS = ("stereo", "mono")
 
 
 @dataclass(frozen=True)
-class ModelConfig:
+class ModelConfig(StoredSettings):
     """Everything that defines a RoadBEV network (not its weights).
 
     Attributes:
@@ -107,15 +108,6 @@ class ModelConfig:
                          y_max=grid.y_max + pad_cols * grid.resolution)
         return replace(padded.scaled(self.grid_factor), z_resolution=grid.z_resolution * self.z_factor)
 
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> ModelConfig:
-        unknown = set(data) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ConfigError(f"unknown model setting(s): {', '.join(sorted(unknown))}")
-        return cls(**data)
 
 
 # name -> settings shared by both kinds, then per kind. Feature strides follow the paper (1/2 for
