@@ -42,7 +42,6 @@ import numpy as np
 from benchmarks.common import CACHE, RESULTS, add_executor_arguments, executor_from, machine_info, write_json
 from benchmarks.preview_budget import (
     STAGE_SEPARATOR,
-    STAGES,
     Candidate,
     DriveFrames,
     add_candidate_arguments,
@@ -52,6 +51,7 @@ from benchmarks.preview_budget import (
     far_label_grid,
     make_backend,
     node_rows,
+    stages_of,
 )
 from roadbev_core.config import GridSpec
 from roadbev_core.fusion import MapWindow
@@ -151,7 +151,7 @@ def run_drive(speed: float, rate: float, duration: float, seed: int, candidates:
         per_frame = candidate_previews(drive, samples, candidate, cached, "shipped", ride_settings=ride_settings,
                                        map_on=False)
         out["rows"][f"{candidate.name}{STAGE_SEPARATOR}per_frame"] = score(per_frame)
-        for stage in STAGES[1:] if budgeted(candidate.name, budget) else ():
+        for stage in stages_of(candidate, drive.config.grid)[1:] if budgeted(candidate.name, budget) else ():
             previews = candidate_previews(drive, samples, candidate, cached, stage, ride_settings=ride_settings)
             out["rows"][f"{candidate.name}{STAGE_SEPARATOR}{stage}"] = score(previews)
         grid = MetricAccumulator(drive.config.grid)

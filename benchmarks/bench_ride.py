@@ -60,7 +60,6 @@ import numpy as np
 from benchmarks.common import CACHE, RESULTS, add_executor_arguments, executor_from, machine_info, write_json
 from benchmarks.preview_budget import (
     STAGE_SEPARATOR,
-    STAGES,
     Candidate,
     DriveFrames,
     add_candidate_arguments,
@@ -70,6 +69,7 @@ from benchmarks.preview_budget import (
     far_label_grid,
     make_backend,
     node_rows,
+    stages_of,
 )
 from roadbev_core.config import FarFieldConfig, GridSpec
 
@@ -131,15 +131,17 @@ class CandidateRows:
         return make
 
 
-def candidate_makers(candidates: Sequence[Candidate], budget: Sequence[str] | None) -> dict[str, PreviewMaker]:
-    """The rows of one rendered drive: per candidate its fused-map previews as the node fuses them
-    (``<name>``), and for the candidates named in ``budget`` (all when it is empty, none when None)
-    one row per stage of the error budget (``<name>:<stage>``), plus :data:`PREVIEW_MAKERS`."""
+def candidate_makers(candidates: Sequence[Candidate], budget: Sequence[str] | None,
+                     grid: GridSpec) -> dict[str, PreviewMaker]:
+    """The rows of one rendered drive on ``grid``: per candidate its fused-map previews as the node
+    fuses them (``<name>``), and for the candidates named in ``budget`` (all when it is empty, none
+    when None) one row per stage of its error budget (``<name>:<stage>``,
+    :func:`benchmarks.preview_budget.stages_of`), plus :data:`PREVIEW_MAKERS`."""
     makers: dict[str, PreviewMaker] = {}
     shared: dict[tuple[int, str, str], Any] = {}
     for candidate in candidates:
         rows = CandidateRows(candidate, shared)
-        for stage in STAGES if budgeted(candidate.name, budget) else ("shipped",):
+        for stage in stages_of(candidate, grid) if budgeted(candidate.name, budget) else ("shipped",):
             name = candidate.name if stage == "shipped" else f"{candidate.name}{STAGE_SEPARATOR}{stage}"
             makers[name] = rows.maker(stage)
     makers.update({name: factory(name) for name, factory in PREVIEW_MAKERS.items()})
@@ -372,10 +374,11 @@ def _run_job(job: CellJob, *, rates: Sequence[float], latency: float, candidates
     what = "rendered" if job.rendered else "truth-only"
     print(f"{what} drive {job.kind} {job.speed:g} m/s seed {job.seed}, {job.duration:g} s", file=sys.stderr,
           flush=True)
-    makers = candidate_makers(candidates, budget) if job.rendered else {}
+    grid = GridSpec()  # the drives' grid
+    makers = candidate_makers(candidates, budget, grid) if job.rendered else {}
     return run_cell(job.kind, job.speed, job.seed, job.duration, rates, latency, makers,
                     DriveFrames(frame_cache) if job.rendered else None, preview_gain, far_x_max,
-                    far_label_grid(candidates, budget, GridSpec()))
+                    far_label_grid(candidates, budget, grid))
 
 
 def _cell_order(args: argparse.Namespace, base: int, rendered: bool,

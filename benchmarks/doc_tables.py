@@ -47,6 +47,8 @@ _STAGE_TITLES = {
     "true_surface": "true heights on the other answered cells",
     "true_short": "the true relief shorter than 1 m on the answered cells",
     "true_all": "true heights on every cell",
+    "true_far": "true heights on the far field's answered cells",
+    "far_error_halved": "the far field's error halved",
     "true_odometry": "true odometry",
     "true_datum": "true datum (map z)",
     "true_plane": "true contact plane",

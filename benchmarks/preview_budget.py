@@ -19,6 +19,11 @@ shipped (:data:`STAGES`):
   along x with the estimate's longer one (:func:`short_band`): whether the error is in the road's
   fine shape or in its slopes and level;
 * ``true_all``: the true heights on every cell the camera sees (what declined cells cost as well);
+* ``true_far``: a far-field candidate's far field alone with the true heights on its answered cells
+  (the grid as shipped): what the far field's estimation error costs;
+* ``far_error_halved``: its far field's error (and sigma) halved on the answered cells, the grid
+  as shipped: what a far-field matcher twice as precise would give (the far field's error is
+  1.5-3 times the physical limit of a tenth of a pixel, ``benchmarks.bench_far_field``);
 * ``true_odometry``: the true planar pose of ``base_link`` instead of the drive's drifting odometry;
 * ``true_datum``: each frame placed at the true height of ``base_link`` with no vertical alignment;
 * ``true_plane``: the previews read against the contact plane of the true road at the four tyre
@@ -70,6 +75,7 @@ from roadbev_lab.training.datasets import SCENE_VERSION
 
 __all__ = [
     "DEFAULT_CANDIDATES",
+    "FAR_STAGES",
     "LABEL_STAGES",
     "STAGES",
     "STAGE_SEPARATOR",
@@ -86,12 +92,18 @@ __all__ = [
     "node_schedule",
     "parse_candidate",
     "short_band",
+    "stages_of",
 ]
 
 STAGES: tuple[str, ...] = ("shipped", "true_answered", "true_features", "true_surface", "true_short", "true_all",
-                           "true_odometry", "true_datum", "true_plane", "no_latency")
+                           "true_far", "far_error_halved", "true_odometry", "true_datum", "true_plane", "no_latency")
 # The stages that take the frame's labels (the far field's too, for a candidate with one).
-LABEL_STAGES: tuple[str, ...] = ("true_answered", "true_features", "true_surface", "true_short", "true_all")
+LABEL_STAGES: tuple[str, ...] = ("true_answered", "true_features", "true_surface", "true_short", "true_all",
+                                 "true_far", "far_error_halved")
+# The stages only a candidate with a far field has: each changes its far field alone.
+FAR_STAGES: tuple[str, ...] = ("true_far", "far_error_halved")
+# What each far stage does on the far field (a mode of _TruthBackend); the grid stays as shipped.
+_FAR_ONLY: dict[str, str] = {"true_far": "true_answered", "far_error_halved": "half_error"}
 # A label cell is a feature's when it stands FEATURE_THRESHOLD_M off the road's mean over
 # FEATURE_WINDOW_M along x (the preview-at-arrival metric's threshold), with FEATURE_MARGIN_M around it.
 FEATURE_THRESHOLD_M = 0.015
@@ -322,16 +334,26 @@ def short_band(elevation: np.ndarray, resolution: float) -> np.ndarray:
     return np.asarray(elevation - _window_mean(elevation, _odd_cells(SHORT_BAND_M, resolution), 1))
 
 
+def stages_of(candidate: Candidate, grid: GridSpec) -> tuple[str, ...]:
+    """The error budget's stages of ``candidate`` on ``grid``: :data:`STAGES`, less
+    :data:`FAR_STAGES` where it has no far field."""
+    if candidate.config(grid).far_grid is not None:
+        return STAGES
+    return tuple(s for s in STAGES if s not in FAR_STAGES)
+
+
 class _TruthBackend:
-    """The cached estimates with the truth in one label stage (:data:`LABEL_STAGES`): the frame's
-    labels on the cells the backend answered (``true_answered``), on those of the road's features
-    or the others (``true_features``, ``true_surface``), the labels' short band with the estimate's
-    long one (``true_short``), or the labels on every labelled cell (``true_all``; sigma there: the
-    frame's median)."""
+    """The cached estimates with the truth in one label mode: the frame's labels on the cells
+    the backend answered (``true_answered``), on those of the road's features or the others
+    (``true_features``, ``true_surface``), the labels' short band with the estimate's long one
+    (``true_short``), the labels on every labelled cell (``true_all``; sigma there: the frame's
+    median), or the estimate's error and sigma halved on the answered cells (``half_error``)."""
+
+    MODES = ("true_answered", "true_features", "true_surface", "true_short", "true_all", "half_error")
 
     def __init__(self, cached: CachedEstimates, labels: Mapping[int, np.ndarray], stage: str) -> None:
-        if stage not in LABEL_STAGES:
-            raise ValueError(f"{stage!r} is not a label stage (one of {', '.join(LABEL_STAGES)})")
+        if stage not in self.MODES:
+            raise ValueError(f"{stage!r} is not a label mode (one of {', '.join(self.MODES)})")
         self.cached, self.labels, self.stage = cached, labels, stage
         self.name, self.grid, self.needs_stereo = cached.name, cached.grid, cached.needs_stereo
         self.far_field = cached.far_field
@@ -349,6 +371,9 @@ class _TruthBackend:
             sigma = np.where(np.isfinite(est.uncertainty), est.uncertainty, fill)
         elif self.stage == "true_answered":
             elevation = np.where(np.isfinite(est.elevation), truth, np.nan)
+        elif self.stage == "half_error":
+            elevation = np.where(answered, 0.5 * (est.elevation + truth), est.elevation)
+            sigma = np.where(answered, 0.5 * sigma, sigma)
         elif self.stage == "true_short":
             mixed = est.elevation - short_band(est.elevation, resolution) + short_band(truth, resolution)
             elevation = np.where(answered & np.isfinite(mixed), mixed, est.elevation)
@@ -426,7 +451,8 @@ def candidate_previews(drive: RidingDrive, samples: Sequence[DriveSample], candi
         on_map: called with every published map window (map on).
 
     Raises:
-        ValueError: an unknown stage.
+        ValueError: an unknown stage, or a far stage (:data:`FAR_STAGES`) of a candidate without a far
+            field.
     """
     if stage not in STAGES:
         raise ValueError(f"unknown budget stage {stage!r} (one of {', '.join(STAGES)})")
@@ -448,15 +474,18 @@ def candidate_previews(drive: RidingDrive, samples: Sequence[DriveSample], candi
         map_factory = lambda settings: TrueDatumMap(settings, truth)  # noqa: E731
     config = candidate.config(drive.config.grid, extra)
     far_backend: Backend | None = None
+    if stage in FAR_STAGES and config.far_grid is None:
+        raise ValueError(f"budget stage {stage!r} changes the far field, and {candidate.name!r} has none")
     if stage in LABEL_STAGES:
         labels = {int(s.frame.stamp_ns): s.truth.elevation for s in samples}
-        backend = _TruthBackend(cached, labels, stage)
-        if config.far_grid is not None:  # the truth in the same stage on the far field
+        if stage not in FAR_STAGES:
+            backend = _TruthBackend(cached, labels, stage)
+        if config.far_grid is not None:  # the truth in the same stage on the far field (or a far stage's)
             far_labels = {int(s.frame.stamp_ns): s.far_truth.elevation for s in samples if s.far_truth is not None}
             if len(far_labels) != len(labels) or any(v.shape != config.far_grid.shape for v in far_labels.values()):
                 raise ValueError(f"budget stage {stage!r} needs the far field's labels on {config.far_grid}: "
                                  "render the drive with that far_grid (DriveConfig.far_grid)")
-            far_backend = _TruthBackend(cached.on_grid(config.far_grid), far_labels, stage)
+            far_backend = _TruthBackend(cached.on_grid(config.far_grid), far_labels, _FAR_ONLY.get(stage, stage))
 
     def backend_on(_name: str, grid: GridSpec, **_options: Any) -> Backend:
         if grid == config.grid:

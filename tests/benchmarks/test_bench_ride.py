@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from benchmarks.bench_ride import candidate_makers, road_config, scores, summarise
-from benchmarks.preview_budget import LABEL_STAGES, STAGES, Candidate
+from benchmarks.preview_budget import FAR_STAGES, LABEL_STAGES, STAGES, Candidate
+from roadbev_core.config import GridSpec
 
 
 def _rows(**wk: float) -> dict[str, dict[str, Any]]:
@@ -103,7 +104,11 @@ def test_a_drive_is_at_most_what_one_road_strip_holds() -> None:
 def test_a_budgeted_far_field_candidate_gets_every_stage_of_the_budget() -> None:
     far = Candidate("far", "ensemble", {"far_field.enabled": True}, latency_s=0.1)
     near = Candidate("near", "bm", latency_s=0.1)
-    makers = candidate_makers([far, near], ["far"])
+    makers = candidate_makers([far, near], ["far"], GridSpec())
     assert {f"far:{stage}" for stage in STAGES[1:]} <= set(makers)
     assert {f"far:{stage}" for stage in LABEL_STAGES} <= set(makers)  # the truth on the far grid as well
     assert "far" in makers and "near" in makers and not any(name.startswith("near:") for name in makers)
+    # a budgeted candidate without a far field has every stage but those that change a far field
+    both = candidate_makers([far, near], [], GridSpec())
+    assert {f"near:{stage}" for stage in STAGES[1:] if stage not in FAR_STAGES} <= set(both)
+    assert not {f"near:{stage}" for stage in FAR_STAGES} & set(both)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from benchmarks.preview_budget import (
+    FAR_STAGES,
     LABEL_STAGES,
     STAGES,
     CachedEstimates,
@@ -24,6 +25,7 @@ from benchmarks.preview_budget import (
     node_schedule,
     parse_candidate,
     short_band,
+    stages_of,
     with_true_plane,
 )
 from roadbev_core.config import FarFieldConfig, GridSpec
@@ -174,8 +176,9 @@ def test_stored_frames_read_back_and_truth_goes_into_one_stage(tmp_path: Any) ->
     candidate = Candidate("noisy", "bm", {"far_field.enabled": False}, latency_s=0.1, period_s=0.0)
     grid = drive.config.grid
     settings = RideSettings(arrival=ArrivalSettings(base_height=grid.base_height, camera_in_base=drive.base_to_camera))
+    assert stages_of(candidate, grid) == tuple(s for s in STAGES if s not in FAR_STAGES)
     out = {stage: candidate_previews(drive, samples, candidate, cached, stage, ride_settings=settings)
-           for stage in STAGES}
+           for stage in stages_of(candidate, grid)}
     assert len(cached.estimates) == len(drive)  # every stage used the same estimate of a frame
     for stage, previews in out.items():
         assert len(previews) == len(drive), stage
@@ -202,6 +205,9 @@ def test_stored_frames_read_back_and_truth_goes_into_one_stage(tmp_path: Any) ->
     assert left_apart("true_surface", "true_answered") < left_apart("true_features", "true_answered")
     with pytest.raises(ValueError, match="unknown budget stage"):
         candidate_previews(drive, samples, candidate, cached, "true_everything", ride_settings=settings)
+    for stage in FAR_STAGES:  # they change a far field, which this candidate has not
+        with pytest.raises(ValueError, match="has none"):
+            candidate_previews(drive, samples, candidate, cached, stage, ride_settings=settings)
 
 
 def test_perfect_map_previews_are_unchanged_against_the_true_plane() -> None:
@@ -315,6 +321,18 @@ def test_a_far_field_candidate_previews_to_the_far_edge_and_its_label_stages_tak
     shipped_far, true_far = beyond_grid(with_far), beyond_grid(true_all)
     both = np.isfinite(shipped_far) & np.isfinite(true_far)
     assert both.sum() > 20 and np.abs(shipped_far - true_far)[both].max() > 1e-3
+    # the far stages change the far field's estimates alone, the grid's stay the shipped ones:
+    # beyond the grid true_far takes the truth's relief (as true_all's there) and far_error_halved
+    # lies about halfway between it and the shipped previews
+    assert stages_of(far, grid) == STAGES
+    far_only = {stage: candidate_previews(drive, far_samples, far, cached, stage, ride_settings=settings)
+                for stage in FAR_STAGES}
+    assert len(cached.estimates) == len(drive)  # the grid's estimates made once, as shipped
+    beyond_true, beyond_half = beyond_grid(far_only["true_far"]), beyond_grid(far_only["far_error_halved"])
+    assert np.abs(beyond_true - shipped_far)[both].max() > 1e-3
+    # (about halfway: the map's alignment and weights see the halved sigmas as well)
+    off = np.median(np.abs(beyond_half - beyond_true)[both]) / np.median(np.abs(shipped_far - beyond_true)[both])
+    assert 0.35 < off < 0.65
 
 
 def test_stored_frames_gain_far_field_labels_without_changing_and_keep_them(tmp_path: Any) -> None:
