@@ -1120,6 +1120,7 @@ TABLES: dict[str, Table] = {
     "ride_far_budget": Table(("ride_far_field.json",), functools.partial(ride_budget, candidate="ensemble_far"),
                              with_provenance=False),
     "ride_far_arrival": Table(("ride_far_field.json",), ride_arrival, with_provenance=False),
+    "ride_far_stages": Table(("ride_far_stages.json",), functools.partial(ride_budget, candidate="ensemble_far")),
     "ride_refined_shares": Table(("ride_refined.json",), ride_shares),
     "ride_refined_arrival": Table(("ride_refined.json",), ride_arrival, with_provenance=False),
     "ride_refined_far_shares": Table(("ride_refined_far.json",), ride_shares),

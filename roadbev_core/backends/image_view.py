@@ -23,11 +23,12 @@ import numpy as np
 from roadbev_core.backends.common import StageClock, grey_u8
 from roadbev_core.config import ConfigError, GridSpec, StereoCamera
 from roadbev_core.frame import Estimate, Frame, FrameError
-from roadbev_core.geometry import Attitude, project_points, ray_terms, road_to_camera
+from roadbev_core.geometry import Attitude, optical_from_road_rotation, project_points, ray_terms, road_to_camera
 from roadbev_core.labels import cell_index, cell_means
 
-__all__ = ["ImageViewParams", "ImageViewStereo", "MatchWindow", "cell_elevations", "create_bm", "create_sgbm",
-           "disparity_height_sigma", "disparity_road_points", "match_window", "refine_disparity", "road_points"]
+__all__ = ["ImageViewParams", "ImageViewStereo", "MatchWindow", "PlaneParallaxPair", "cell_elevations", "create_bm",
+           "create_sgbm", "disparity_height_sigma", "disparity_road_points", "match_window", "parallax_disparity",
+           "plane_disparity", "plane_parallax_pair", "refine_disparity", "road_points"]
 
 _SGBM_MODES = {
     "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
@@ -58,6 +59,9 @@ class ImageViewParams:
         refine_width, refine_height: window (pixels, odd) of one Lucas-Kanade step that
             re-estimates each disparity's sub-pixel part (:func:`refine_disparity`); 0 = the
             matcher's own sub-pixel fit.
+        plane_parallax_px: match the disparity relative to the reference plane's, searching this
+            many pixels either side of it (a positive multiple of 8; :func:`plane_parallax_pair`);
+            0 = match the disparity itself over the grid volume's range.
     """
 
     block_size: int = 5
@@ -75,10 +79,11 @@ class ImageViewParams:
     disparity_sigma_px: float = 0.25
     refine_width: int = 0
     refine_height: int = 3
+    plane_parallax_px: int = 0
 
     def __post_init__(self) -> None:
         for name in ("block_size", "speckle_window", "speckle_range", "pre_filter_cap", "min_points", "refine_width",
-                     "refine_height"):
+                     "refine_height", "plane_parallax_px"):
             value = getattr(self, name)
             if not isinstance(value, int) or value < 0:
                 raise ConfigError(f"{name} must be a non-negative integer, got {value!r}")
@@ -92,6 +97,9 @@ class ImageViewParams:
             raise ConfigError(f"disparity_sigma_px must be positive, got {self.disparity_sigma_px}")
         if self.min_points < 1:
             raise ConfigError(f"min_points must be >= 1, got {self.min_points}")
+        if self.plane_parallax_px % 8:
+            raise ConfigError(f"plane_parallax_px must be a multiple of 8 (the matchers search multiples of 16 "
+                              f"disparities), got {self.plane_parallax_px}")
         if self.refine_width and (self.refine_width % 2 == 0 or self.refine_height % 2 == 0):
             raise ConfigError(f"the refinement window must have odd sides, got {self.refine_width} x "
                               f"{self.refine_height}")
@@ -177,8 +185,10 @@ class MatchWindow(NamedTuple):
 
     def valid(self, disparity: np.ndarray) -> np.ndarray:
         """[h, w] bool: the matcher's disparities [h, w] of this window that are matches."""
-        # cv2 marks invalid pixels with (min_disparity - 1); zero disparity is at infinity.
-        return cast("np.ndarray", disparity > max(self.min_disparity - 0.5, 0.5))
+        # cv2 marks invalid pixels with (min_disparity - 1); zero disparity is at infinity. A search
+        # below zero is one relative to a reference (plane_parallax_pair): its matches may be negative.
+        low = self.min_disparity - 0.5 if self.min_disparity < 0 else max(self.min_disparity - 0.5, 0.5)
+        return cast("np.ndarray", disparity > low)
 
 
 def match_window(
@@ -210,32 +220,114 @@ def match_window(
     return MatchWindow(top, bottom, left, right, d_min, num)
 
 
+def plane_disparity(camera: StereoCamera, attitude: Attitude, base_height: float, rows: np.ndarray,
+                    cols: np.ndarray) -> np.ndarray:
+    """[h, w] float32: the disparity of the reference plane (the road frame's z = 0, ``base_height``
+    below the camera) at the pixels ``rows`` [h] x ``cols`` [w]; 0 where the ray does not descend.
+
+    A ray's road-frame direction per unit of optical depth has the height component ``r_z``; it
+    meets the plane at depth ``-base_height / r_z``, so the disparity is ``-fx * B * r_z / base_height``:
+    a column's term plus a row's (:func:`roadbev_core.geometry.ray_terms`)."""
+    terms = ray_terms(camera, attitude, rows, cols)
+    rz = terms.per_col[None, :, 2] + terms.per_row[:, None, 2]  # [h, w]
+    focal_baseline = camera.fx * camera.baseline
+    return np.where(rz < -1e-9, -focal_baseline * rz / base_height, 0.0).astype(np.float32)
+
+
+class PlaneParallaxPair(NamedTuple):
+    """A window's images warped so that the reference plane has no disparity (:func:`plane_parallax_pair`).
+
+    Attributes:
+        left, right: [h, w] uint8, the warped left and right images of the window's crop.
+        plane: [h, w] float32, the reference plane's disparity at each warped pixel.
+        slope: d(plane)/du, the plane's disparity change per column (px per px; a roll's).
+    """
+
+    left: np.ndarray
+    right: np.ndarray
+    plane: np.ndarray
+    slope: float
+
+
+def plane_parallax_pair(left: np.ndarray, right: np.ndarray, window: MatchWindow, camera: StereoCamera,
+                        attitude: Attitude, base_height: float) -> PlaneParallaxPair:
+    """The window's crop of a rectified pair (``left``, ``right``: [H, W] uint8, whole images)
+    warped along its rows so that the reference plane has zero disparity (plane + parallax:
+    Irani and Anandan, "Parallax geometry of pairs of points for 3D scene analysis", ECCV 1996).
+
+    The road's disparity grows down the image by about ``B / h`` pixels per row, so a matching
+    window on the road sees a slanted surface: its disparity differs across the window's rows, and
+    a matcher that assumes one disparity per window is biased by however the texture weighs those
+    rows. Shifting each pixel of the left image by half the plane's disparity ``p`` and each of the
+    right by minus half (``L'(u) = L(u + p/2)``, ``R'(u) = R(u - p/2)``) leaves only the parallax of
+    the road's relief to match, near zero everywhere; both images are resampled by the same
+    fractional amounts (mirrored), so neither is smoothed more than the other.
+    """
+    rows = np.arange(window.top, window.bottom)
+    cols = np.arange(window.left, window.right)
+    plane = plane_disparity(camera, attitude, base_height, rows, cols)  # [h, w]
+    u = np.broadcast_to(cols.astype(np.float32)[None, :], plane.shape)
+    v = np.ascontiguousarray(np.broadcast_to(rows.astype(np.float32)[:, None], plane.shape))
+    half = np.float32(0.5) * plane
+    warped_left = cv2.remap(left, np.ascontiguousarray(u + half), v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    warped_right = cv2.remap(right, np.ascontiguousarray(u - half), v, cv2.INTER_LINEAR,
+                             borderMode=cv2.BORDER_REPLICATE)
+    R = optical_from_road_rotation(attitude)
+    slope = float(-camera.baseline * R[0][2] / base_height) if base_height > 0 else 0.0
+    return PlaneParallaxPair(warped_left, warped_right, plane, slope)
+
+
+def parallax_disparity(residual: np.ndarray, pair: PlaneParallaxPair, cols: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """The disparities [h, w] and left-image columns [h, w] of a warped pair's matches.
+
+    A match ``r`` at warped pixel ``u`` pairs the left image at ``u + p(u) / 2`` with the right at
+    ``u - r - p(u - r) / 2``: the disparity is ``r + (p(u) + p(u - r)) / 2`` with
+    ``p(u - r) = p(u) - slope * r``.
+
+    Args:
+        residual: [h, w] float32, the matcher's disparities of the warped pair.
+        pair: the warped pair.
+        cols: [w] the warped crop's columns.
+    """
+    disparity = residual + pair.plane - np.float32(0.5 * pair.slope) * residual
+    left_cols = cols.astype(np.float32)[None, :] + np.float32(0.5) * pair.plane
+    return disparity.astype(np.float32), left_cols.astype(np.float32)
+
+
 def road_points(depth: np.ndarray, rows: np.ndarray, cols: np.ndarray, camera: StereoCamera, attitude: Attitude,
                 base_height: float) -> np.ndarray:
-    """Road-frame points [h * w, 3] (row-major) of the pixels at ``rows`` [h] x ``cols`` [w] of the
-    left image with optical depths ``depth`` [h, w] (NaN: no point, a NaN row).
+    """Road-frame points [h * w, 3] (row-major) of the pixels at ``rows`` [h] x ``cols`` [w] (or
+    each row's own columns, [h, w]) of the left image with optical depths ``depth`` [h, w] (NaN: no
+    point, a NaN row).
 
     A pixel (u, v) with depth Z is at Z * ray(u, v) in the optical frame; in the road frame
     the ray's components are sums of a per-column and a per-row term. Pixels without a depth are
     kept as NaN (the binning leaves them out) rather than compressed out: picking the valid ones
     costs more than the arithmetic on them.
     """
-    terms = ray_terms(camera, attitude, rows, cols)
-    per_col, per_row = terms.per_col.astype(np.float32), terms.per_row.astype(np.float32)  # [w, 3], [h, 3]
+    columns = np.asarray(cols)
+    terms = ray_terms(camera, attitude, rows, columns.ravel())
+    per_row = terms.per_row.astype(np.float32)  # [h, 3]
+    per_col = terms.per_col.astype(np.float32).reshape(*columns.shape, 3)  # [w, 3] or [h, w, 3]
+    if per_col.ndim == 2:
+        per_col = per_col[None]  # [1, w, 3]
     points = np.empty((depth.size, 3), dtype=np.float32)
     for k in range(3):
-        points[:, k] = (depth * (per_col[None, :, k] + per_row[:, None, k])).ravel()
+        points[:, k] = (depth * (per_col[..., k] + per_row[:, None, k])).ravel()
     points[:, 2] += base_height
     return points
 
 
 def disparity_road_points(disparity: np.ndarray, valid: np.ndarray, window: MatchWindow, camera: StereoCamera,
-                          attitude: Attitude, base_height: float) -> tuple[np.ndarray, np.ndarray]:
+                          attitude: Attitude, base_height: float, cols: np.ndarray | None = None
+                          ) -> tuple[np.ndarray, np.ndarray]:
     """Road-frame points [h * w, 3] of the disparities [h, w] of a window's crop (row-major), and
-    their depths [h * w]; NaN for a pixel whose disparity is not ``valid`` [h, w]."""
+    their depths [h * w]; NaN for a pixel whose disparity is not ``valid`` [h, w]. ``cols`` [h, w]:
+    each disparity's left-image column where it is not the crop's own (a warped pair's)."""
     depth = (camera.fx * camera.baseline) / np.where(valid, disparity, np.float32(np.nan))  # [h, w] float32
-    points = road_points(depth, np.arange(window.top, window.bottom), np.arange(window.left, window.right), camera,
-                         attitude, base_height)
+    columns = np.arange(window.left, window.right) if cols is None else cols
+    points = road_points(depth, np.arange(window.top, window.bottom), columns, camera, attitude, base_height)
     return points, depth.ravel()
 
 
@@ -338,19 +430,31 @@ class ImageViewStereo:
         window = match_window(
             grid, camera, frame.attitude, margin_px=p.disparity_margin_px, block_size=p.block_size
         )
-        crop = (slice(window.top, window.bottom), slice(window.left, window.right))
-        left = np.ascontiguousarray(grey_u8(frame.left)[crop])
-        right = np.ascontiguousarray(grey_u8(frame.right)[crop])
+        pair: PlaneParallaxPair | None = None
+        if p.plane_parallax_px:
+            pair = plane_parallax_pair(grey_u8(frame.left), grey_u8(frame.right), window, camera, frame.attitude,
+                                       grid.base_height)
+            left, right = pair.left, pair.right
+            search = window._replace(min_disparity=-p.plane_parallax_px, num_disparities=2 * p.plane_parallax_px)
+        else:
+            crop = (slice(window.top, window.bottom), slice(window.left, window.right))
+            left = np.ascontiguousarray(grey_u8(frame.left)[crop])
+            right = np.ascontiguousarray(grey_u8(frame.right)[crop])
+            search = window
         clock.lap("preprocess")
-        raw = self._matcher(window.min_disparity, window.num_disparities).compute(left, right)
+        raw = self._matcher(search.min_disparity, search.num_disparities).compute(left, right)
         disparity = raw.astype(np.float32) * (1.0 / 16.0)  # fixed point, 4 fractional bits
+        valid = search.valid(disparity)
         clock.lap("matching")
         if p.refine_width:
-            disparity = refine_disparity(left, right, disparity, window.valid(disparity),
-                                         (p.refine_width, p.refine_height))
+            disparity = refine_disparity(left, right, disparity, valid, (p.refine_width, p.refine_height))
             clock.lap("refinement")
-        points, depth = disparity_road_points(disparity, window.valid(disparity), window, camera, frame.attitude,
-                                              grid.base_height)
+        cols = None
+        if pair is not None:
+            disparity, cols = parallax_disparity(disparity, pair, np.arange(window.left, window.right))
+            valid &= disparity > 0.5  # ahead of the camera
+        points, depth = disparity_road_points(disparity, valid, window, camera, frame.attitude, grid.base_height,
+                                              cols)
         sigma = disparity_height_sigma(points, depth, p.disparity_sigma_px, camera, grid.base_height)
         elevation, uncertainty = cell_elevations(points, sigma, grid, p.min_points, clock)
         return Estimate(elevation=elevation, uncertainty=uncertainty, timings_ms=clock.timings)

@@ -9,10 +9,18 @@ import numpy as np
 import pytest
 
 from roadbev_core.backends import BackendError, RefinedBackend, create
-from roadbev_core.backends.image_view import ImageViewStereo, match_window, refine_disparity
+from roadbev_core.backends.image_view import (
+    ImageViewStereo,
+    PlaneParallaxPair,
+    match_window,
+    parallax_disparity,
+    plane_disparity,
+    plane_parallax_pair,
+    refine_disparity,
+)
 from roadbev_core.config import FarFieldConfig, GridSpec, StereoCamera
 from roadbev_core.frame import Frame, FrameError
-from roadbev_core.geometry import Attitude, project_voxels
+from roadbev_core.geometry import Attitude, project_points, project_voxels, road_to_camera
 from roadbev_lab.evaluation.frames import evaluate
 
 from ._frames import right_of
@@ -122,6 +130,65 @@ def test_the_refinement_lowers_sgbm_error_on_rendered_frames(samples: list[tuple
     assert refined["coverage_pct"] >= plain["coverage_pct"] - 1.0
 
 
+@pytest.mark.parametrize(("roll_deg", "pitch_deg"), [(0.0, 17.0), (1.5, 19.0), (-2.0, 14.0)])
+def test_the_plane_disparity_is_the_reference_planes(roll_deg: float, pitch_deg: float) -> None:
+    camera, attitude, height = StereoCamera.rsrd_half(), Attitude.from_degrees(roll_deg, pitch_deg), 1.1
+    x, y = np.meshgrid(np.linspace(2.0, 15.0, 9), np.linspace(-1.5, 1.5, 7), indexing="ij")
+    road = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=-1)  # [N, 3] on z = 0
+    u, v, depth = project_points(road_to_camera(road, attitude, height), camera)
+    plane = np.array([plane_disparity(camera, attitude, height, np.array([vi]), np.array([ui]))[0, 0]
+                      for ui, vi in zip(u, v, strict=True)])
+    np.testing.assert_allclose(plane, camera.fx * camera.baseline / depth, rtol=1e-5)
+    # a column's and a row's term: along a row the plane's disparity changes by the pair's slope
+    rows, cols = np.arange(300, 303), np.arange(100, 110)
+    grid = plane_disparity(camera, attitude, height, rows, cols)
+    window = match_window(GridSpec(), camera, attitude, margin_px=4, block_size=7)
+    blank = np.zeros((camera.height, camera.width), np.uint8)
+    pair = plane_parallax_pair(blank, blank, window, camera, attitude, height)
+    np.testing.assert_allclose(np.diff(grid, axis=1), pair.slope, atol=1e-4)
+    level = Attitude.from_degrees(0.0, 2.0)  # the top rows look above the horizon: no plane there
+    assert plane_disparity(camera, level, height, np.array([0]), np.array([480]))[0, 0] == 0.0
+
+
+def test_a_warped_pairs_matches_map_back_to_the_left_image() -> None:
+    plane = np.array([[8.0, 8.2], [12.0, 12.4]], np.float32)
+    pair = PlaneParallaxPair(np.zeros((2, 2), np.uint8), np.zeros((2, 2), np.uint8), plane, 0.2)
+    residual = np.array([[0.0, 1.0], [-2.0, 0.5]], np.float32)
+    disparity, cols = parallax_disparity(residual, pair, np.array([100, 101]))
+    # r + (p(u) + p(u - r)) / 2 with p(u - r) = p(u) - slope r; the left pixel at u + p(u) / 2
+    np.testing.assert_allclose(disparity, residual + plane - 0.1 * residual, rtol=1e-6)
+    np.testing.assert_allclose(cols, np.array([[104.0, 105.1], [106.0, 107.2]]), rtol=1e-6)
+
+
+def test_a_plane_warped_pair_has_no_disparity_on_the_plane() -> None:
+    """A textured level road: the pair warped by the plane's disparity lines up (no parallax left)."""
+    camera, attitude, height = StereoCamera.rsrd_half(), Attitude.from_degrees(0.5, 18.0), 1.1
+    window = match_window(GridSpec(), camera, attitude, margin_px=4, block_size=7)
+    rng = np.random.default_rng(3)
+    texture = cv2.GaussianBlur(rng.uniform(0, 255, (camera.height, 4 * camera.width)).astype(np.float32), (0, 0), 2.0)
+    rows, cols = np.arange(camera.height), np.arange(camera.width)
+    plane = plane_disparity(camera, attitude, height, rows, cols)  # [H, W]
+    u = np.broadcast_to(cols.astype(np.float32), plane.shape) + camera.width
+    v = np.ascontiguousarray(np.broadcast_to(rows.astype(np.float32)[:, None], plane.shape))
+    # the right image sees the road a plane's disparity to the left
+    left = cv2.remap(texture, np.ascontiguousarray(u), v, cv2.INTER_CUBIC).clip(0, 255).astype(np.uint8)
+    right = cv2.remap(texture, np.ascontiguousarray(u + plane), v, cv2.INTER_CUBIC).clip(0, 255).astype(np.uint8)
+    pair = plane_parallax_pair(left, right, window, camera, attitude, height)
+    inner = (slice(5, -5), slice(window.min_disparity + window.num_disparities, -5))
+    diff = pair.left.astype(np.float32)[inner] - pair.right.astype(np.float32)[inner]
+    unwarped = left[window.top:window.bottom, window.left:window.right].astype(np.float32)[inner] - \
+        right[window.top:window.bottom, window.left:window.right].astype(np.float32)[inner]
+    assert np.abs(diff).mean() < 0.1 * np.abs(unwarped).mean()
+
+
+def test_plane_parallax_matching_answers_more_of_the_road(samples: list[tuple[Frame, np.ndarray]]) -> None:
+    for name in ("bm", "sgbm"):
+        plain = evaluate(create(name, GRID), samples).metrics
+        parallax = evaluate(create(name, GRID, plane_parallax_px=16), samples).metrics
+        assert parallax["coverage_pct"] > plain["coverage_pct"], name
+        assert parallax["abs_err_cm"] < 1.25 * plain["abs_err_cm"], (name, plain["abs_err_cm"], parallax["abs_err_cm"])
+
+
 def test_errors() -> None:
     with pytest.raises(BackendError, match="unknown option"):
         create("bm", GRID, window=9)
@@ -133,6 +200,10 @@ def test_errors() -> None:
         create("sgbm", GRID, refine_width=20)
     with pytest.raises(BackendError, match="refine_height"):
         create("sgbm", GRID, refine_width=21, refine_height=-1)
+    with pytest.raises(BackendError, match="multiple of 8"):
+        create("bm", GRID, plane_parallax_px=12)
+    with pytest.raises(BackendError, match="plane_parallax_px"):
+        create("bm", GRID, plane_parallax_px=-8)
     frame = Frame(np.zeros((CAMERA.height, CAMERA.width), np.uint8), None, CAMERA, Attitude())
     with pytest.raises(FrameError, match="right image"):
         create("sgbm", GRID).estimate(frame)
