@@ -9,6 +9,8 @@ this reports
 
 * the mean absolute error (cm), the coverage (labelled cells answered, %), the share of errors
   within 2 sigma and the confidently wrong share (error > 3 sigma and > 1 cm, %), the mean sigma;
+* a backend run with options (``bm:plane_parallax_px=16``) beside the same backend without
+  (``bm``) is also compared with it on the cells both answered, band by band (``against``);
 * the physical limit (:mod:`roadbev_core.far_field`): the mean absolute height error a disparity
   error of :data:`~roadbev_core.far_field.SUBPIXEL_PRECISION_PX` px makes at the band's centre on
   the RSRD rig at its mean pitch (``sqrt(2 / pi) * h * Z * sigma_d / (fx * B)``), and the ratio of
@@ -28,7 +30,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -69,17 +71,28 @@ def band_physics(grid: GridSpec, camera: StereoCamera, pitch_rad: float, pitches
     return out
 
 
+class Estimates(NamedTuple):
+    """One backend's per-frame estimates: (elevation, sigma) on the grid and on the far-field grid."""
+
+    near: list[tuple[np.ndarray, np.ndarray]]
+    far: list[tuple[np.ndarray, np.ndarray]]
+
+
 def run_backend(spec: str, config: RoadbevConfig, samples: list[Any], physics: list[dict[str, Any]]
-                ) -> dict[str, Any]:
+                ) -> tuple[dict[str, Any], Estimates]:
     """One backend (``NAME[:OPTION=VALUE,...]``) over the samples: the near and far metrics and the
-    bands (aligned with ``physics``)."""
+    bands (aligned with ``physics``), and its estimates."""
     name, options = backend_spec(spec)
     pipeline = Pipeline(config.with_params({"backend": name, **options}), configure_process=False)
     result = evaluate(pipeline, samples, keep_estimates=True)
     outputs = result.outputs or []
     near = BandAccumulator(config.grid, BAND_M)
+    estimates = Estimates([], [])
     for output, sample in zip(outputs, samples, strict=True):
         near.add(output.estimate.elevation, output.estimate.uncertainty, sample.truth.elevation)
+        estimates.near.append((output.estimate.elevation, output.estimate.uncertainty))
+        if output.far is not None:
+            estimates.far.append((output.far.elevation, output.far.uncertainty))
     far = result.metrics["far_field"]
     bands = []
     for band, limit in zip(near.result() + far["bands"], physics, strict=True):
@@ -93,7 +106,27 @@ def run_backend(spec: str, config: RoadbevConfig, samples: list[Any], physics: l
         "bands": bands,
         "near_ms": float(np.mean([o.timings_ms["estimate"] for o in timed])),
         "far_ms": float(np.mean([o.timings_ms["estimate_far"] for o in timed])),
-    }
+    }, estimates
+
+
+def common_cell_bands(config: RoadbevConfig, samples: list[Any], estimates: Estimates, reference: Estimates
+                      ) -> list[dict[str, Any]]:
+    """Per band (the grid's, then the far field's) on the labelled cells both ``estimates`` and
+    ``reference`` answered: their count and each one's mean absolute error (cm)."""
+    far_grid = config.far_grid
+    assert far_grid is not None
+    out = []
+    for grid, mine, theirs, truths in ((config.grid, estimates.near, reference.near, [s.truth for s in samples]),
+                                       (far_grid, estimates.far, reference.far, [s.far_truth for s in samples])):
+        own, other = BandAccumulator(grid, BAND_M), BandAccumulator(grid, BAND_M)
+        for (e, es), (r, rs), truth in zip(mine, theirs, truths, strict=True):
+            both = np.isfinite(e) & np.isfinite(r)
+            own.add(np.where(both, e, np.nan), es, truth.elevation)
+            other.add(np.where(both, r, np.nan), rs, truth.elevation)
+        for a, b in zip(own.result(), other.result(), strict=True):
+            out.append({"x_from_m": a["x_from_m"], "x_to_m": a["x_to_m"], "cells": a["cells"],
+                        "abs_err_cm": a["abs_err_cm"], "against_abs_err_cm": b["abs_err_cm"]})
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -121,9 +154,14 @@ def main(argv: list[str] | None = None) -> int:
     pitches = [s.frame.attitude.pitch for s in samples]
     physics = (band_physics(config.grid, camera, pitch, pitches, "near")
                + band_physics(far_grid, camera, pitch, pitches, "far"))
-    backends = {}
+    backends: dict[str, Any] = {}
+    estimates: dict[str, Estimates] = {}
     for name in args.backends:
-        backends[name] = run_backend(name, config, samples, physics)
+        backends[name], estimates[name] = run_backend(name, config, samples, physics)
+        plain = name.partition(":")[0]
+        if plain != name and plain in estimates:  # the same backend without the options ran before
+            backends[name]["against"] = {"backend": plain, "bands": common_cell_bands(config, samples, estimates[name],
+                                                                                     estimates[plain])}
         far = backends[name]["far"]
         print(f"{name:<9} far field: abs. error {far['abs_err_cm']:.3f} cm, coverage {far['coverage_pct']:.1f} %, "
               f"confidently wrong {far['confident_wrong_pct']:.2f} %", flush=True)

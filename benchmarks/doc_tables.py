@@ -572,6 +572,28 @@ def far_field(data: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def far_field_against(data: Mapping[str, Any]) -> str:
+    """bench_far_field, each backend run with options against the same backend without: per band of
+    1 m its coverage and the plain one's, and on the cells both answered the two errors."""
+    pairs = [(n, b) for n, b in data["backends"].items() if "against" in b]
+    lines = _head("band (m)", *(f"`{b['against']['backend']}` → `{n}`: coverage (%) · error on the cells both "
+                                "answered (cm)" for n, b in pairs))
+    for i, band in enumerate(data["bands"]):
+        row = [f"{band['x_from_m']:g}–{band['x_to_m']:g}"]
+        for _, b in pairs:
+            plain, mine, common = data["backends"][b["against"]["backend"]]["bands"][i], b["bands"][i], \
+                b["against"]["bands"][i]
+            row.append(f"{_fmt(plain['coverage_pct'], 0)} → {_fmt(mine['coverage_pct'], 0)} · "
+                       f"{_fmt(common['against_abs_err_cm'])} → {_fmt(common['abs_err_cm'])}")
+        lines.append(_row(row))
+    lines.append("")
+    lines.append(f"{data['frames']} rendered frames (seeds {data['seeds'][0]}–{data['seeds'][1]}, appearance "
+                 f"`{data['appearance']}`), every backend through the pipeline with the far field on. Time per frame "
+                 "(grid / far field, ms): " + "; ".join(f"`{n}` {_fmt(b['near_ms'], 0)} / {_fmt(b['far_ms'], 0)}"
+                                                         for n, b in data["backends"].items()) + ".")
+    return "\n".join(lines)
+
+
 def datum_calibration(data: Mapping[str, Any]) -> str:
     """calibrate_datum: each backend's datum sigma and drift, and how the fit scores the drives."""
     lines = _head("backend", "datum σ (mm)", "drift (mm per m driven)", "steepest drive (mm/m)", "frames",
@@ -1064,6 +1086,7 @@ TABLES: dict[str, Table] = {
     "far_sigma_calibration": Table(("roadbev_core/data/far_sigma_calibration.json",), far_sigma_calibration),
     "far_field": Table(("far_field.json",), far_field),
     "far_field_physics": Table(("far_field.json",), far_field_physics, with_provenance=False),
+    "far_field_parallax": Table(("far_field_parallax.json",), far_field_against),
     "datum_calibration": Table(("datum_calibration.json",), datum_calibration),
     "preview_sigma": Table(("preview_sigma.json",), preview_sigma),
     "robustness": Table(("robustness.json",), robustness),

@@ -44,3 +44,14 @@ def test_a_backend_with_options_is_scored_under_its_spec(tmp_path: Path) -> None
     assert list(scored) == ["bm", "bm:block_size=15"]
     # another block size answers other cells: the option reached the backend
     assert scored["bm"]["near"]["coverage_pct"] != scored["bm:block_size=15"]["near"]["coverage_pct"]
+    # and it is compared with the plain backend on the cells both answered, band by band
+    assert "against" not in scored["bm"]
+    against = scored["bm:block_size=15"]["against"]
+    assert against["backend"] == "bm" and len(against["bands"]) == len(scored["bm"]["bands"])
+    for common, mine, plain in zip(against["bands"], scored["bm:block_size=15"]["bands"], scored["bm"]["bands"],
+                                   strict=True):
+        assert common["cells"] <= min(mine["cells"], plain["cells"])
+        assert common["x_from_m"] == mine["x_from_m"]
+    assert sum(b["cells"] for b in against["bands"]) > 0
+    table = doc_tables.far_field_against(json.loads(out.read_text()))
+    assert table.count("\n| ") == len(against["bands"]) and "`bm:block_size=15`" in table
