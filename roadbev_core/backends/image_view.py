@@ -229,9 +229,11 @@ def plane_disparity(camera: StereoCamera, attitude: Attitude, base_height: float
     meets the plane at depth ``-base_height / r_z``, so the disparity is ``-fx * B * r_z / base_height``:
     a column's term plus a row's (:func:`roadbev_core.geometry.ray_terms`)."""
     terms = ray_terms(camera, attitude, rows, cols)
-    rz = terms.per_col[None, :, 2] + terms.per_row[:, None, 2]  # [h, w]
-    focal_baseline = camera.fx * camera.baseline
-    return np.where(rz < -1e-9, -focal_baseline * rz / base_height, 0.0).astype(np.float32)
+    scale = -camera.fx * camera.baseline / base_height
+    by_col = (scale * terms.per_col[:, 2]).astype(np.float32)  # [w]
+    by_row = (scale * terms.per_row[:, 2]).astype(np.float32)  # [h]
+    plane = by_col[None, :] + by_row[:, None]  # [h, w]: scale * r_z, positive where the ray descends
+    return np.asarray(np.maximum(plane, np.float32(0.0)), np.float32)
 
 
 class PlaneParallaxPair(NamedTuple):
@@ -266,12 +268,11 @@ def plane_parallax_pair(left: np.ndarray, right: np.ndarray, window: MatchWindow
     rows = np.arange(window.top, window.bottom)
     cols = np.arange(window.left, window.right)
     plane = plane_disparity(camera, attitude, base_height, rows, cols)  # [h, w]
-    u = np.broadcast_to(cols.astype(np.float32)[None, :], plane.shape)
-    v = np.ascontiguousarray(np.broadcast_to(rows.astype(np.float32)[:, None], plane.shape))
+    u = cols.astype(np.float32)[None, :]  # [1, w]
+    v = np.repeat(rows.astype(np.float32)[:, None], cols.size, axis=1)  # [h, w]
     half = np.float32(0.5) * plane
-    warped_left = cv2.remap(left, np.ascontiguousarray(u + half), v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    warped_right = cv2.remap(right, np.ascontiguousarray(u - half), v, cv2.INTER_LINEAR,
-                             borderMode=cv2.BORDER_REPLICATE)
+    warped_left = cv2.remap(left, u + half, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    warped_right = cv2.remap(right, u - half, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     R = optical_from_road_rotation(attitude)
     slope = float(-camera.baseline * R[0][2] / base_height) if base_height > 0 else 0.0
     return PlaneParallaxPair(warped_left, warped_right, plane, slope)
@@ -307,14 +308,18 @@ def road_points(depth: np.ndarray, rows: np.ndarray, cols: np.ndarray, camera: S
     costs more than the arithmetic on them.
     """
     columns = np.asarray(cols)
-    terms = ray_terms(camera, attitude, rows, columns.ravel())
-    per_row = terms.per_row.astype(np.float32)  # [h, 3]
-    per_col = terms.per_col.astype(np.float32).reshape(*columns.shape, 3)  # [w, 3] or [h, w, 3]
-    if per_col.ndim == 2:
-        per_col = per_col[None]  # [1, w, 3]
     points = np.empty((depth.size, 3), dtype=np.float32)
-    for k in range(3):
-        points[:, k] = (depth * (per_col[..., k] + per_row[:, None, k])).ravel()
+    if columns.ndim == 2:  # [h, w]: a column's term is affine in the column, from the terms at 0 and 1
+        ends = ray_terms(camera, attitude, rows, np.array([0.0, 1.0]))
+        base, step = ends.per_col[0].astype(np.float32), (ends.per_col[1] - ends.per_col[0]).astype(np.float32)
+        per_row = ends.per_row.astype(np.float32)  # [h, 3]
+        for k in range(3):
+            points[:, k] = (depth * (base[k] + step[k] * columns + per_row[:, None, k])).ravel()
+    else:
+        terms = ray_terms(camera, attitude, rows, columns)
+        per_col, per_row = terms.per_col.astype(np.float32), terms.per_row.astype(np.float32)  # [w, 3], [h, 3]
+        for k in range(3):
+            points[:, k] = (depth * (per_col[None, :, k] + per_row[:, None, k])).ravel()
     points[:, 2] += base_height
     return points
 
