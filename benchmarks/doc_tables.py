@@ -588,9 +588,8 @@ def far_field_against(data: Mapping[str, Any]) -> str:
         lines.append(_row(row))
     lines.append("")
     lines.append(f"{data['frames']} rendered frames (seeds {data['seeds'][0]}–{data['seeds'][1]}, appearance "
-                 f"`{data['appearance']}`), every backend through the pipeline with the far field on. Time per frame "
-                 "(grid / far field, ms): " + "; ".join(f"`{n}` {_fmt(b['near_ms'], 0)} / {_fmt(b['far_ms'], 0)}"
-                                                         for n, b in data["backends"].items()) + ".")
+                 f"`{data['appearance']}`), every backend through the pipeline with the far field on (the grid's "
+                 "bands first, then the far field's).")
     return "\n".join(lines)
 
 
