@@ -1114,6 +1114,8 @@ TABLES: dict[str, Table] = {
     "node_refined": _node_drive("node_refined", "ensemble ensemble:sgbm.refine_width=21"),
     "node_refined_far": _node_drive("node_refined_far", "ensemble ensemble:sgbm.refine_width=21",
                                     "far_field.enabled=true"),
+    "node_parallax_far": _node_drive("node_parallax_far", "ensemble ensemble:bm.plane_parallax_px=16",
+                                     "far_field.enabled=true"),
     "node_stereo": Table(("node_stereo.json",), node_rows, f"{_NODE} --backends stereo stereo:runtime=openvino "
                                                            "--frames 40 --out benchmarks/results/node_stereo.json"),
     "node_stereo_threads2": Table(("node_stereo_threads2.json",), node_rows,
@@ -1147,6 +1149,8 @@ TABLES: dict[str, Table] = {
     "ride_refined_arrival": Table(("ride_refined.json",), ride_arrival, with_provenance=False),
     "ride_refined_far_shares": Table(("ride_refined_far.json",), ride_shares),
     "ride_refined_far_arrival": Table(("ride_refined_far.json",), ride_arrival, with_provenance=False),
+    "ride_parallax_far_shares": Table(("ride_parallax_far.json",), ride_shares),
+    "ride_parallax_far_arrival": Table(("ride_parallax_far.json",), ride_arrival, with_provenance=False),
     "hazards": Table(("hazards.json",), hazards),
     "hazards_map": Table(("hazards_map.json",), hazards_map),
     "hazards_map_far_field": Table(("hazards_map_far_field.json",), hazards_map),
