@@ -97,13 +97,13 @@ __all__ = [
 
 STAGES: tuple[str, ...] = ("shipped", "true_answered", "true_features", "true_surface", "true_short", "true_all",
                            "true_far", "far_error_halved", "true_odometry", "true_datum", "true_plane", "no_latency")
+# The stages only a candidate with a far field has, each changing its far field alone: what each
+# does there (a mode of _TruthBackend); the grid stays as shipped.
+_FAR_ONLY: dict[str, str] = {"true_far": "true_answered", "far_error_halved": "half_error"}
+FAR_STAGES: tuple[str, ...] = tuple(_FAR_ONLY)
 # The stages that take the frame's labels (the far field's too, for a candidate with one).
 LABEL_STAGES: tuple[str, ...] = ("true_answered", "true_features", "true_surface", "true_short", "true_all",
-                                 "true_far", "far_error_halved")
-# The stages only a candidate with a far field has: each changes its far field alone.
-FAR_STAGES: tuple[str, ...] = ("true_far", "far_error_halved")
-# What each far stage does on the far field (a mode of _TruthBackend); the grid stays as shipped.
-_FAR_ONLY: dict[str, str] = {"true_far": "true_answered", "far_error_halved": "half_error"}
+                                 *FAR_STAGES)
 # A label cell is a feature's when it stands FEATURE_THRESHOLD_M off the road's mean over
 # FEATURE_WINDOW_M along x (the preview-at-arrival metric's threshold), with FEATURE_MARGIN_M around it.
 FEATURE_THRESHOLD_M = 0.015

@@ -274,7 +274,7 @@ def plane_parallax_pair(left: np.ndarray, right: np.ndarray, window: MatchWindow
     warped_left = cv2.remap(left, u + half, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     warped_right = cv2.remap(right, u - half, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     R = optical_from_road_rotation(attitude)
-    slope = float(-camera.baseline * R[0][2] / base_height) if base_height > 0 else 0.0
+    slope = float(-camera.baseline * R[0][2] / base_height)
     return PlaneParallaxPair(warped_left, warped_right, plane, slope)
 
 
@@ -449,11 +449,12 @@ class ImageViewStereo:
         clock.lap("preprocess")
         raw = self._matcher(search.min_disparity, search.num_disparities).compute(left, right)
         disparity = raw.astype(np.float32) * (1.0 / 16.0)  # fixed point, 4 fractional bits
-        valid = search.valid(disparity)
         clock.lap("matching")
         if p.refine_width:
-            disparity = refine_disparity(left, right, disparity, valid, (p.refine_width, p.refine_height))
+            disparity = refine_disparity(left, right, disparity, search.valid(disparity),
+                                         (p.refine_width, p.refine_height))
             clock.lap("refinement")
+        valid = search.valid(disparity)  # of the refined disparities, when refined
         cols = None
         if pair is not None:
             disparity, cols = parallax_disparity(disparity, pair, np.arange(window.left, window.right))
