@@ -466,7 +466,10 @@ class FusedMap:
         settings: the map's settings.
     """
 
-    MARGIN_M = 1.0  # the buffer reaches this far beyond the corridor, so it moves every ~1 m
+    MARGIN_M = 1.0  # the buffer reaches this far beyond the corridor on every side
+    # ... and this much further ahead, so that it moves (a copy of every layer) about every LEAD_M
+    # driven rather than every MARGIN_M, without widening it sideways
+    LEAD_M = 4.0
 
     def __init__(self, settings: MapSettings) -> None:
         self.settings = settings
@@ -511,13 +514,19 @@ class FusedMap:
         hi = np.ceil((corners.max(0) + margin) / r).astype(int)
         return int(lo[0]), int(hi[0]), int(lo[1]), int(hi[1])
 
-    def _ensure(self, corners: np.ndarray) -> None:
-        """Move/resize the buffer so it holds the box around ``corners`` (whole cells: no resampling)."""
+    def _ensure(self, corners: np.ndarray, yaw: float) -> None:
+        """Move/resize the buffer so it holds the box around ``corners`` (whole cells: no
+        resampling), reaching :attr:`LEAD_M` further on the side the car heads to (``yaw``)."""
         n_i, n_j = self._n.shape
         i_lo, i_hi, j_lo, j_hi = self._index_box(corners, 0.0)
         if n_i and i_lo >= self._i0 and j_lo >= self._j0 and i_hi <= self._i0 + n_i and j_hi <= self._j0 + n_j:
             return
         i_lo, i_hi, j_lo, j_hi = self._index_box(corners, self.MARGIN_M)
+        # the lead, split over the axes by the heading: the buffer moves about every LEAD_M driven
+        lead_i, lead_j = (int(math.ceil(self.LEAD_M * abs(c) / self.settings.resolution))
+                          for c in (math.cos(yaw), math.sin(yaw)))
+        i_lo, i_hi = (i_lo, i_hi + lead_i) if math.cos(yaw) >= 0 else (i_lo - lead_i, i_hi)
+        j_lo, j_hi = (j_lo, j_hi + lead_j) if math.sin(yaw) >= 0 else (j_lo - lead_j, j_hi)
         shape = (i_hi - i_lo, j_hi - j_lo)
         # the overlap of the old and the new buffer, in lattice indices
         a_lo, a_hi = max(i_lo, self._i0), min(i_hi, self._i0 + n_i)
@@ -651,7 +660,7 @@ class FusedMap:
         if elevation.shape != grid.shape or sigma.shape != grid.shape:
             raise FusionError(f"estimate {elevation.shape} / {sigma.shape} is not on the grid {grid.shape}")
         base = placement.base
-        self._ensure(np.concatenate([self._corridor_corners(base), self._frame_corners(grid, placement)]))
+        self._ensure(np.concatenate([self._corridor_corners(base), self._frame_corners(grid, placement)]), base.yaw)
         self._forget_outside(base)
         if self.empty or self._last_xy is None:
             self._driven = 0.0  # this frame fixes the datum
@@ -733,7 +742,8 @@ class FusedMap:
         s = self.settings
         # the buffer holds the corridor and the far field's footprint together (moved to hold the
         # footprint alone, it would drop the corridor behind it)
-        self._ensure(np.concatenate([self._corridor_corners(placement.base), self._frame_corners(far_grid, placement)]))
+        self._ensure(np.concatenate([self._corridor_corners(placement.base), self._frame_corners(far_grid, placement)]),
+                     placement.base.yaw)
         flat, u, v = self._cells_under(far_grid, placement)
         n_rows, n_cols = far_grid.shape
         # the far-field cell holding each map cell's centre (rows from the far edge, columns from the left)

@@ -42,6 +42,7 @@ __all__ = [
 ]
 
 SAMPLES = 48  # points per line of sight (over the stretch that can hide the cell)
+_SAMPLE_CHUNK = 4  # samples of every line of sight taken at once (line_of_sight)
 # Samples stop this many cells before their target (its own neighbourhood is not an occluder).
 _GAP_CELLS = 1.5
 # Least clearance ratio of a visible line of sight (bev_sweep's occlusion_clearance defaults to it).
@@ -191,18 +192,25 @@ def line_of_sight(
     plane = np.ascontiguousarray(surface, dtype=np.float32)
     clearance = np.full((n_rows, n_cols), np.inf, np.float32)
     lowest = np.full((n_rows, n_cols), -np.inf, np.float32)
-    for origin_y in camera_y:
-        rays = _rays(grid, float(origin_y))
-        f = rays.fractions  # [F, R, 1]
-        ground = cv2.remap(plane, rays.map_cols, rays.map_rows, cv2.INTER_LINEAR,
-                           borderMode=cv2.BORDER_REPLICATE).reshape(SAMPLES, n_rows, n_cols)  # [F, R, C]
-        ray_z = height + f * (e - height)  # [F, R, C]
-        flat = np.maximum((height - e) * (1.0 - f), 1e-6)  # [F, R, C]
-        ratio = (ray_z - ground) / flat + rays.untested
-        clearance = np.minimum(clearance, ratio.min(axis=0))
-        # A ray to (x, y, h) clears a sample at fraction f iff h > H - (H - ground) / f.
-        shadow = height - (height - ground) * rays.inverse - rays.untested  # [F, R, C]
-        lowest = np.maximum(lowest, shadow.max(axis=0))
+    cameras = [_rays(grid, float(origin_y)) for origin_y in camera_y]
+    if not cameras:
+        return Sight(clearance, lowest)
+    # The samples go in chunks small enough to stay in cache; the ray's height and its height
+    # over a flat road depend on the fraction only, not on the camera.
+    for start in range(0, SAMPLES, _SAMPLE_CHUNK):
+        samples = slice(start, min(start + _SAMPLE_CHUNK, SAMPLES))
+        f = cameras[0].fractions[samples]  # [F', R, 1]
+        ray_z = height + f * (e - height)  # [F', R, C]
+        flat = np.maximum((height - e) * (1.0 - f), 1e-6)  # [F', R, C]
+        for rays in cameras:
+            sampled = slice(samples.start * n_rows, samples.stop * n_rows)
+            ground = cv2.remap(plane, rays.map_cols[sampled], rays.map_rows[sampled], cv2.INTER_LINEAR,
+                               borderMode=cv2.BORDER_REPLICATE).reshape(-1, n_rows, n_cols)  # [F', R, C]
+            ratio = (ray_z - ground) / flat + rays.untested[samples]
+            np.minimum(clearance, ratio.min(axis=0), out=clearance)
+            # A ray to (x, y, h) clears a sample at fraction f iff h > H - (H - ground) / f.
+            shadow = height - (height - ground) * rays.inverse[samples] - rays.untested[samples]  # [F', R, C]
+            np.maximum(lowest, shadow.max(axis=0), out=lowest)
     return Sight(clearance, lowest)
 
 

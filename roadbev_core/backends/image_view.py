@@ -8,11 +8,15 @@ about the cell's mean combined with the disparity precision. Cells without point
 
 Speed: only the image window that can see the grid is matched (rows and columns from the
 projection of the grid's volume, plus the matcher's margins), and the disparity search covers
-exactly the disparities that volume can produce at the frame's attitude.
+exactly the disparities that volume can produce at the frame's attitude. Of the matched window
+only the pixels whose rays can meet the grid's volume are turned into points
+(:func:`grid_bands`: the volume's image is a convex polygon, narrower than the window where the
+grid is far); the others could only land outside the grid.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import asdict, dataclass, fields
 from typing import Any, NamedTuple, cast
@@ -27,8 +31,12 @@ from roadbev_core.geometry import Attitude, optical_from_road_rotation, project_
 from roadbev_core.labels import cell_index, cell_means
 
 __all__ = ["ImageViewParams", "ImageViewStereo", "MatchWindow", "PlaneParallaxPair", "cell_elevations", "create_bm",
-           "create_sgbm", "disparity_height_sigma", "disparity_road_points", "match_window", "parallax_disparity",
-           "plane_disparity", "plane_parallax_pair", "refine_disparity", "road_points"]
+           "create_sgbm", "disparity_height_sigma", "disparity_road_points", "grid_bands", "match_window",
+           "parallax_disparity", "plane_disparity", "plane_parallax_pair", "refine_disparity", "road_points"]
+
+# grid_bands: row bands of the matched window, and the rounding margin (px) of the grid's image
+_GRID_BANDS = 8
+_GRID_BAND_MARGIN_PX = 2
 
 _SGBM_MODES = {
     "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
@@ -183,12 +191,33 @@ class MatchWindow(NamedTuple):
     min_disparity: int
     num_disparities: int
 
+    def crop(self, rows: slice, cols: slice) -> MatchWindow:
+        """The part of this window at crop-relative ``rows`` and ``cols`` (bounded slices, step 1),
+        with this window's disparity search."""
+        return self._replace(top=self.top + rows.start, bottom=self.top + rows.stop,
+                             left=self.left + cols.start, right=self.left + cols.stop)
+
     def valid(self, disparity: np.ndarray) -> np.ndarray:
         """[h, w] bool: the matcher's disparities [h, w] of this window that are matches."""
         # cv2 marks invalid pixels with (min_disparity - 1); zero disparity is at infinity. A search
         # below zero is one relative to a reference (plane_parallax_pair): its matches may be negative.
         low = self.min_disparity - 0.5 if self.min_disparity < 0 else max(self.min_disparity - 0.5, 0.5)
         return cast("np.ndarray", disparity > low)
+
+
+def _volume_corners(grid: GridSpec, camera: StereoCamera, attitude: Attitude
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Image columns, rows and optical depths (each [8]) of the eight corners of the grid's volume.
+
+    Raises:
+        FrameError: a corner behind (or nearly at) the camera.
+    """
+    xs, ys, zs = (grid.x_min, grid.x_max), (grid.y_min, grid.y_max), (grid.z_min, grid.z_max)
+    corners = np.array([[x, y, z] for x in xs for y in ys for z in zs])  # [8, 3]
+    cam = road_to_camera(corners, attitude, grid.base_height)
+    if np.any(cam[:, 2] <= 0.05):
+        raise FrameError("the grid reaches behind the camera at this attitude")
+    return project_points(cam, camera)
 
 
 def match_window(
@@ -199,12 +228,7 @@ def match_window(
     The grid volume is a box in the road frame; its image and its depths are bounded by its eight
     corners (all ahead of the camera), so the extremes are exact for a pinhole camera.
     """
-    xs, ys, zs = (grid.x_min, grid.x_max), (grid.y_min, grid.y_max), (grid.z_min, grid.z_max)
-    corners = np.array([[x, y, z] for x in xs for y in ys for z in zs])  # [8, 3]
-    cam = road_to_camera(corners, attitude, grid.base_height)
-    if np.any(cam[:, 2] <= 0.05):
-        raise FrameError("the grid reaches behind the camera at this attitude")
-    u, v, depth = project_points(cam, camera)
+    u, v, depth = _volume_corners(grid, camera, attitude)
     disparity = camera.fx * camera.baseline / depth
     d_min = max(0, int(math.floor(disparity.min())) - margin_px)
     d_max = int(math.ceil(disparity.max())) + margin_px
@@ -218,6 +242,35 @@ def match_window(
     if bottom - top < block_size or right - left <= d_min + num:
         raise FrameError("the grid does not fall inside the image at this attitude")
     return MatchWindow(top, bottom, left, right, d_min, num)
+
+
+def grid_bands(window: MatchWindow, grid: GridSpec, camera: StereoCamera, attitude: Attitude, *,
+               bands: int = _GRID_BANDS, margin_px: int = _GRID_BAND_MARGIN_PX) -> list[tuple[slice, slice]]:
+    """Crop-relative (rows, cols) rectangles of ``window``, top to bottom, that hold every pixel of
+    its crop whose ray can meet the grid's volume.
+
+    A point of the volume (a box in the road frame, every corner ahead of the camera: see
+    :func:`match_window`) projects inside the convex hull of the box's eight projected corners, so
+    a pixel outside that polygon (by more than ``margin_px``, for rounding) only ever yields a
+    point outside the grid, which the binning leaves out. The crop's rows are cut into ``bands``
+    equal bands and each keeps the polygon's column extent over its rows; a band the polygon
+    misses is left out. Points of the rectangles in this order are the crop's in row-major order,
+    less the ones that cannot be in the grid, so per-cell sums come out the same.
+    """
+    h, w = window.bottom - window.top, window.right - window.left
+    u, v, _ = _volume_corners(grid, camera, attitude)
+    polygon = cv2.convexHull(np.stack([u - window.left, v - window.top], axis=1).astype(np.float32))  # [K, 1, 2]
+    inside = np.zeros((h, w), np.uint8)  # [h, w] 1 inside the polygon
+    cv2.fillConvexPoly(inside, np.round(polygon).astype(np.int32), 1)
+    kernel = np.ones((2 * margin_px + 1, 2 * margin_px + 1), np.uint8)
+    sees = np.asarray(cv2.dilate(inside, kernel) if margin_px else inside)  # [h, w] widened by the margin
+    out: list[tuple[slice, slice]] = []
+    edges = np.linspace(0, h, bands + 1).round().astype(int)
+    for top, bottom in itertools.pairwise(edges):
+        seen = np.flatnonzero(sees[top:bottom].any(axis=0))  # [n] columns the polygon covers in the band
+        if bottom > top and seen.size:
+            out.append((slice(int(top), int(bottom)), slice(int(seen[0]), int(seen[-1]) + 1)))
+    return out
 
 
 def plane_disparity(camera: StereoCamera, attitude: Attitude, base_height: float, rows: np.ndarray,
@@ -459,11 +512,24 @@ class ImageViewStereo:
         if pair is not None:
             disparity, cols = parallax_disparity(disparity, pair, np.arange(window.left, window.right))
             valid &= disparity > 0.5  # ahead of the camera
-        points, depth = disparity_road_points(disparity, valid, window, camera, frame.attitude, grid.base_height,
-                                              cols)
-        sigma = disparity_height_sigma(points, depth, p.disparity_sigma_px, camera, grid.base_height)
+        if cols is None:  # only the pixels that can see the grid
+            parts = [self._points(disparity[rows, band], valid[rows, band], window.crop(rows, band), frame)
+                     for rows, band in grid_bands(window, grid, camera, frame.attitude)]
+            points = np.concatenate([part[0] for part in parts]) if parts else np.empty((0, 3), np.float32)
+            sigma = np.concatenate([part[1] for part in parts]) if parts else np.empty(0, np.float32)
+        else:  # a warped pair's pixels are not at their own columns
+            points, sigma = self._points(disparity, valid, window, frame, cols)
         elevation, uncertainty = cell_elevations(points, sigma, grid, p.min_points, clock)
         return Estimate(elevation=elevation, uncertainty=uncertainty, timings_ms=clock.timings)
+
+    def _points(self, disparity: np.ndarray, valid: np.ndarray, window: MatchWindow, frame: Frame,
+                cols: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Road-frame points [h * w, 3] of a window's disparities [h, w] (NaN where not ``valid``)
+        and their height 1-sigma [h * w]."""
+        points, depth = disparity_road_points(disparity, valid, window, frame.camera, frame.attitude,
+                                              self.grid.base_height, cols)
+        return points, disparity_height_sigma(points, depth, self.params.disparity_sigma_px, frame.camera,
+                                              self.grid.base_height)
 
     def describe(self) -> dict[str, Any]:
         """Parameters as a JSON-able dict (for benchmark records)."""

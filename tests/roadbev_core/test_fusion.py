@@ -508,3 +508,39 @@ def test_a_cell_the_grid_looks_at_and_declines_holds_no_far_field_value() -> Non
     assert np.isnan(fused.heights(x[looked], y[looked])[0]).all()
     beyond = ahead > GRID.x_max + 0.2  # never looked at by the grid: the far field's value stays
     assert np.isfinite(fused.heights(x[beyond], y[beyond])[0]).all()
+
+
+class _LeadlessMap(FusedMap):
+    LEAD_M = 0.0
+
+
+def test_the_buffer_moves_about_every_lead_driven_and_holds_what_a_leadless_one_holds() -> None:
+    rng = np.random.default_rng(5)
+    lead, leadless = FusedMap(_settings()), _LeadlessMap(_settings())
+    moves = {id(lead): 0, id(leadless): 0}
+    x, y, yaw = 0.0, 0.0, 0.3
+    for k in range(60):  # 60 frames 0.5 m apart on a bend, heading north-east and turning
+        base = PlanarPose(k + 1, x, y, yaw, 10.0, 0.0)
+        x, y, yaw = x + 0.5 * math.cos(yaw), y + 0.5 * math.sin(yaw), yaw + 0.01
+        placement = place_frame(base, Attitude(0.0, 0.0), CAMERA, LEVEL_MOUNT)
+        estimate = rng.normal(0.0, 0.004, GRID.shape)
+        for fused in (lead, leadless):
+            origin = (fused._i0, fused._j0)
+            fused.integrate(estimate, np.full(GRID.shape, 0.004), GRID, placement, k + 1,
+                            base_z_prediction=fused.predicted_base_z(None))
+            moves[id(fused)] += origin != (fused._i0, fused._j0)
+    # 30 m driven: the leadless buffer moves about every MARGIN_M, the one with the lead about every LEAD_M
+    assert moves[id(leadless)] >= 20 and moves[id(lead)] <= 30 / FusedMap.LEAD_M + 3
+    lead_i, lead_j = lead._n.shape
+    reach = math.ceil(FusedMap.LEAD_M / GRID.resolution)  # the lead adds at most this many cells per axis
+    assert lead_i <= leadless._n.shape[0] + reach + 2 and lead_j <= leadless._n.shape[1] + reach + 2
+    window, reference = lead.window(base, 0), leadless.window(base, 0)  # the same map either way, cell by cell
+    np.testing.assert_array_equal(window.elevation, reference.elevation)
+    np.testing.assert_array_equal(window.uncertainty, reference.uncertainty)
+    r = GRID.resolution
+    xs, ys = np.meshgrid((np.arange(0, 1200) + 0.5) * r, (np.arange(-100, 700) + 0.5) * r, indexing="ij")
+    z0, s0 = leadless.heights(xs.ravel(), ys.ravel())
+    z1, s1 = lead.heights(xs.ravel(), ys.ravel())
+    assert np.isfinite(z0).sum() > 1000
+    np.testing.assert_array_equal(z1, z0)
+    np.testing.assert_array_equal(s1, s0)

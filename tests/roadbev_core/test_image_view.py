@@ -12,6 +12,8 @@ from roadbev_core.backends import BackendError, RefinedBackend, create
 from roadbev_core.backends.image_view import (
     ImageViewStereo,
     PlaneParallaxPair,
+    disparity_road_points,
+    grid_bands,
     match_window,
     parallax_disparity,
     plane_disparity,
@@ -21,6 +23,7 @@ from roadbev_core.backends.image_view import (
 from roadbev_core.config import FarFieldConfig, GridSpec, StereoCamera
 from roadbev_core.frame import Frame, FrameError
 from roadbev_core.geometry import Attitude, project_points, project_voxels, road_to_camera
+from roadbev_core.labels import cell_index
 from roadbev_lab.evaluation.frames import evaluate
 
 from ._frames import right_of
@@ -39,6 +42,32 @@ def samples() -> list[tuple[Frame, np.ndarray]]:
         (s.frame, s.truth.elevation)
         for s in (make_sample(seed, camera=CAMERA, grid=GRID, road=road) for seed in (11, 12))
     ]
+
+
+@pytest.mark.parametrize(("roll_deg", "pitch_deg", "far"), [(0.0, 19.0, False), (2.5, 15.0, False),
+                                                            (-3.0, 23.0, False), (1.0, 17.0, True)])
+def test_the_grid_bands_hold_every_pixel_whose_point_can_land_in_the_grid(roll_deg: float, pitch_deg: float,
+                                                                          far: bool) -> None:
+    """Every pixel of the matched crop whose point, at any disparity the search can give, lands in
+    the grid (heights within its range) lies in a band; the bands leave a good share of the crop out."""
+    camera, attitude = StereoCamera.rsrd_half(), Attitude.from_degrees(roll_deg, pitch_deg)
+    grid = FarFieldConfig().grid(GridSpec()) if far else GridSpec()
+    window = match_window(grid, camera, attitude, margin_px=4, block_size=11)
+    h, w = window.bottom - window.top, window.right - window.left
+    kept = np.zeros((h, w), bool)
+    bands = grid_bands(window, grid, camera, attitude)
+    for rows, cols in bands:
+        assert not kept[rows, cols].any()  # no pixel twice
+        kept[rows, cols] = True
+    assert [b[0].start for b in bands] == sorted(b[0].start for b in bands)  # top to bottom
+    lands = np.zeros((h, w), bool)
+    for d in np.linspace(window.min_disparity, window.min_disparity + window.num_disparities, 400):
+        points, _ = disparity_road_points(np.full((h, w), d, np.float32), np.ones((h, w), bool), window, camera,
+                                          attitude, grid.base_height)
+        lands |= (cell_index(points, grid, clip_z=True) < grid.n_rows * grid.n_cols).reshape(h, w)
+    assert lands.sum() > 1000
+    assert not (lands & ~kept).any()
+    assert kept.mean() < 0.85
 
 
 @pytest.mark.parametrize("pitch_deg", [15.0, 19.0, 23.0])

@@ -1,10 +1,11 @@
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
 from roadbev_core.config import GridSpec
-from roadbev_core.visibility import fill_holes, fit_road_plane, hidden_cells, line_of_sight
+from roadbev_core.visibility import SAMPLES, _rays, fill_holes, fit_road_plane, hidden_cells, line_of_sight
 from roadbev_lab.synth.heightfield import SpeedBump
 
 GRID = GridSpec()
@@ -110,3 +111,32 @@ def test_fill_holes_uses_neighbours_then_the_fallback() -> None:
     filled = fill_holes(surface, known, fallback=-1.0)
     assert np.allclose(filled[:40], 0.05)
     assert np.allclose(filled[-50:], -1.0)
+
+
+def _whole_line_of_sight(surface: np.ndarray, camera_y: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """line_of_sight's clearance and lowest visible height with every sample of every ray at once."""
+    n_rows, n_cols = GRID.shape
+    height = np.float32(GRID.base_height)
+    e = surface.astype(np.float32)[None]
+    clearance = np.full(GRID.shape, np.inf, np.float32)
+    lowest = np.full(GRID.shape, -np.inf, np.float32)
+    for origin_y in camera_y:
+        rays = _rays(GRID, float(origin_y))
+        ground = cv2.remap(surface.astype(np.float32), rays.map_cols, rays.map_rows, cv2.INTER_LINEAR,
+                           borderMode=cv2.BORDER_REPLICATE).reshape(SAMPLES, n_rows, n_cols)
+        ratio = (height + rays.fractions * (e - height) - ground) / np.maximum(
+            (height - e) * (1.0 - rays.fractions), 1e-6) + rays.untested
+        clearance = np.minimum(clearance, ratio.min(axis=0))
+        lowest = np.maximum(lowest, (height - (height - ground) * rays.inverse - rays.untested).max(axis=0))
+    return clearance, lowest
+
+
+@pytest.mark.parametrize("camera_y", [(0.0,), CAMERAS, (0.3, 0.0, -0.2)])
+def test_the_rays_sampled_in_chunks_give_what_all_samples_at_once_give(camera_y: tuple[float, ...]) -> None:
+    rng = np.random.default_rng(3)
+    surface = (bump_road(0.08, 4.0) + 0.01 * rng.standard_normal(GRID.shape)).astype(np.float32)
+    sight = line_of_sight(surface, surface, GRID, camera_y)
+    clearance, lowest = _whole_line_of_sight(surface, camera_y)
+    assert np.isfinite(clearance).any() and (clearance < 0.3).any()  # a bump that hides cells
+    np.testing.assert_array_equal(sight.clearance, clearance)
+    np.testing.assert_array_equal(sight.lowest_visible, lowest)
