@@ -1116,6 +1116,8 @@ TABLES: dict[str, Table] = {
                                     "far_field.enabled=true"),
     "node_parallax_far": _node_drive("node_parallax_far", "ensemble ensemble:bm.plane_parallax_px=16",
                                      "far_field.enabled=true"),
+    "node_speed": _node_drive("node_speed", "ensemble"),
+    "node_speed_far": _node_drive("node_speed_far", "ensemble", "far_field.enabled=true"),
     "node_stereo": Table(("node_stereo.json",), node_rows, f"{_NODE} --backends stereo stereo:runtime=openvino "
                                                            "--frames 40 --out benchmarks/results/node_stereo.json"),
     "node_stereo_threads2": Table(("node_stereo_threads2.json",), node_rows,
