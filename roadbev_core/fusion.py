@@ -523,10 +523,10 @@ class FusedMap:
             return
         i_lo, i_hi, j_lo, j_hi = self._index_box(corners, self.MARGIN_M)
         # the lead, split over the axes by the heading: the buffer moves about every LEAD_M driven
-        lead_i, lead_j = (int(math.ceil(self.LEAD_M * abs(c) / self.settings.resolution))
-                          for c in (math.cos(yaw), math.sin(yaw)))
-        i_lo, i_hi = (i_lo, i_hi + lead_i) if math.cos(yaw) >= 0 else (i_lo - lead_i, i_hi)
-        j_lo, j_hi = (j_lo, j_hi + lead_j) if math.sin(yaw) >= 0 else (j_lo - lead_j, j_hi)
+        along_i, along_j = math.cos(yaw), math.sin(yaw)
+        lead_i, lead_j = (int(math.ceil(self.LEAD_M * abs(a) / self.settings.resolution)) for a in (along_i, along_j))
+        i_lo, i_hi = (i_lo, i_hi + lead_i) if along_i >= 0 else (i_lo - lead_i, i_hi)
+        j_lo, j_hi = (j_lo, j_hi + lead_j) if along_j >= 0 else (j_lo - lead_j, j_hi)
         shape = (i_hi - i_lo, j_hi - j_lo)
         # the overlap of the old and the new buffer, in lattice indices
         a_lo, a_hi = max(i_lo, self._i0), min(i_hi, self._i0 + n_i)

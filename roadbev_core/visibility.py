@@ -202,8 +202,8 @@ def line_of_sight(
         f = cameras[0].fractions[samples]  # [F', R, 1]
         ray_z = height + f * (e - height)  # [F', R, C]
         flat = np.maximum((height - e) * (1.0 - f), 1e-6)  # [F', R, C]
+        sampled = slice(samples.start * n_rows, samples.stop * n_rows)  # the samples' rows of the remap tables
         for rays in cameras:
-            sampled = slice(samples.start * n_rows, samples.stop * n_rows)
             ground = cv2.remap(plane, rays.map_cols[sampled], rays.map_rows[sampled], cv2.INTER_LINEAR,
                                borderMode=cv2.BORDER_REPLICATE).reshape(-1, n_rows, n_cols)  # [F', R, C]
             ratio = (ray_z - ground) / flat + rays.untested[samples]

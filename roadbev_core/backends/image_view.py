@@ -262,14 +262,14 @@ def grid_bands(window: MatchWindow, grid: GridSpec, camera: StereoCamera, attitu
     polygon = cv2.convexHull(np.stack([u - window.left, v - window.top], axis=1).astype(np.float32))  # [K, 1, 2]
     inside = np.zeros((h, w), np.uint8)  # [h, w] 1 inside the polygon
     cv2.fillConvexPoly(inside, np.round(polygon).astype(np.int32), 1)
-    kernel = np.ones((2 * margin_px + 1, 2 * margin_px + 1), np.uint8)
-    sees = np.asarray(cv2.dilate(inside, kernel) if margin_px else inside)  # [h, w] widened by the margin
     out: list[tuple[slice, slice]] = []
     edges = np.linspace(0, h, bands + 1).round().astype(int)
     for top, bottom in itertools.pairwise(edges):
-        seen = np.flatnonzero(sees[top:bottom].any(axis=0))  # [n] columns the polygon covers in the band
+        # the polygon's columns over the band's rows, both widened by the margin
+        seen = np.flatnonzero(inside[max(top - margin_px, 0):bottom + margin_px].any(axis=0))  # [n]
         if bottom > top and seen.size:
-            out.append((slice(int(top), int(bottom)), slice(int(seen[0]), int(seen[-1]) + 1)))
+            cols = slice(max(int(seen[0]) - margin_px, 0), min(int(seen[-1]) + 1 + margin_px, w))
+            out.append((slice(int(top), int(bottom)), cols))
     return out
 
 

@@ -82,7 +82,6 @@ class AdaBinsConfig(StoredSettings):
                 raise ConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
 
 
-
 class _EncoderLayer(nn.Module):
     """A transformer encoder layer (post-norm, as AdaBins' ``nn.TransformerEncoderLayer``), written
     out so that every runtime's graph has it: [B, N, E] -> [B, N, E]."""

@@ -65,7 +65,6 @@ class GwcNetConfig(StoredSettings):
             raise ConfigError(f"volume_channels must be >= 1, got {self.volume_channels}")
 
 
-
 def _conv_bn(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
     return nn.Sequential(nn.Conv2d(cin, cout, 3, stride, 1, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True))
 

@@ -109,7 +109,6 @@ class ModelConfig(StoredSettings):
         return replace(padded.scaled(self.grid_factor), z_resolution=grid.z_resolution * self.z_factor)
 
 
-
 # name -> settings shared by both kinds, then per kind. Feature strides follow the paper (1/2 for
 # stereo, 1/4 for mono); head_width is the mono 2-D head's width and the stereo 3-D head's width.
 PRESETS: dict[str, dict[str, dict[str, Any]]] = {
