@@ -190,8 +190,11 @@ def candidates_from_node(specs: Sequence[str], node_results: Sequence[Mapping[st
     """Candidates (``NAME=BACKEND[:PARAM=VALUE,...]``) with the latency and period their node row measured.
 
     A node row (``benchmarks.bench_node`` JSON, ``rows``) matches a candidate when its backend and
-    options are the candidate's; the latency is its end-to-end p50 in real time, the period its
-    inference p50 plus the node's own overhead (mean).
+    options are the candidate's; the latency is its p50 on arrival in real time (``latency_on_arrival_ms``:
+    the end-to-end latency less each frame's wait for the node, which :func:`node_schedule` adds
+    itself; a row measured before that key existed gives its end-to-end p50, which counts the waits
+    of a node slower than the camera twice), the period its inference p50 plus the node's own
+    overhead (mean).
 
     Raises:
         ValueError: a candidate without a node row (measure it first).
@@ -203,7 +206,8 @@ def candidates_from_node(specs: Sequence[str], node_results: Sequence[Mapping[st
         if row is None:
             raise ValueError(f"candidate {spec!r}: no bench_node row with backend {backend} and these options")
         period = (float(row["inference_p50_ms"]) + float(row["overhead_mean_ms"])) * 1e-3
-        out.append(Candidate(name, backend, params, float(row["latency_ms"]["p50"]) * 1e-3, period))
+        latency = row.get("latency_on_arrival_ms", row["latency_ms"])
+        out.append(Candidate(name, backend, params, float(latency["p50"]) * 1e-3, period))
     return out
 
 

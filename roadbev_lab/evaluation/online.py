@@ -54,7 +54,8 @@ from roadbev_ros.diagnostics import DROP_KINDS
 from roadbev_ros.record import Recorder
 from roadbev_ros.replay import header_stamp_ns, replay_bag
 
-__all__ = ["OnlineEvalError", "OnlineResult", "evaluate_online", "format_online", "node_command", "stop_process"]
+__all__ = ["OnlineEvalError", "OnlineResult", "evaluate_online", "format_online", "latencies_on_arrival",
+           "node_command", "stop_process"]
 
 ELEVATION_TOPIC = "/roadbev/elevation"
 PREVIEW_TOPIC = "/roadbev/preview"
@@ -76,7 +77,8 @@ class OnlineResult:
         accuracy: the accuracy metrics, typed (as the offline :class:`roadbev_lab.evaluation.frames.EvalResult`'s).
         metrics: the interface's keys (as ``roadbev eval``) plus ``mode`` and ``online`` details:
             outputs, frames without output, ``latency_ms`` (left image published -> elevation
-            map received, over DDS both ways) and the node's last diagnostics.
+            map received, over DDS both ways), ``latency_on_arrival_ms`` (the same less each
+            frame's wait for the node: :func:`latencies_on_arrival`) and the node's last diagnostics.
         recorded: path of the recorded outputs (MCAP).
         node_log: the node process's output.
     """
@@ -389,6 +391,7 @@ def evaluate_online(
         "latency_ms": _summary(latencies),
         # without the first answer, which carries the backend's one-time warm-up
         "latency_after_first_ms": _summary(latencies[1:]),
+        "latency_on_arrival_ms": _summary(latencies_on_arrival(sent, watcher.received)),
         "frames_published": images_sent,
         "outputs_matched": answered,
         "frames_without_output": missing,
@@ -424,6 +427,34 @@ def drive_scores(bag_path: Path, recorded: Path, frame_stamps: Sequence[int], co
         out["preview_at_arrival"] = json_safe(arrival)
     if windows:
         out["map"] = json_safe(map_accuracy(windows, truth.road_map, truth.trajectory, config.vehicle))
+    return out
+
+
+def latencies_on_arrival(sent: Mapping[int, float], received: Mapping[int, float]) -> list[float]:
+    """The latency (ms) of every answered frame, in stamp order, less the time it waited for the
+    node to finish the frame it answered before: what a frame costs when the node takes it as it
+    arrives.
+
+    A node slower than the camera answers a frame only once it is free (its mailbox holds the
+    newest set), so the end-to-end latency of such a frame is that wait plus the node's own time.
+    The node is free about when the previous answer is received (a few milliseconds of DDS and
+    bookkeeping later: the wait is slightly underestimated, the latency on arrival overstated by
+    as much). Where a model of the node schedules the waits itself
+    (:func:`benchmarks.preview_budget.node_schedule`), this is the latency to charge: the
+    end-to-end one would count the waits twice.
+
+    Args:
+        sent: stamp -> monotonic time (s) the left image was published.
+        received: stamp -> monotonic time (s) its answer was received (answered frames only).
+    """
+    out: list[float] = []
+    free = -math.inf
+    for stamp in sorted(sent):
+        if stamp not in received:
+            continue
+        wait = max(0.0, free - sent[stamp])
+        out.append(1e3 * (received[stamp] - sent[stamp] - wait))
+        free = received[stamp]
     return out
 
 

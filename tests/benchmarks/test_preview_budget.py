@@ -68,6 +68,19 @@ def test_candidates_take_their_latency_and_period_from_the_node_row() -> None:
         candidates_from_node(["bm"], rows)
 
 
+def test_a_candidate_is_charged_its_latency_on_arrival_the_schedule_adding_the_waits() -> None:
+    """A node slower than the camera: its end-to-end p50 holds the frames' waits for the node,
+    which node_schedule adds itself; the row's latency on arrival is charged instead."""
+    slow = {"backend": "ensemble", "mode": "5hz", "latency_ms": {"p50": 180.0}, "latency_on_arrival_ms": {"p50": 130.0},
+            "inference_p50_ms": 100.0, "overhead_mean_ms": 25.0}
+    (c,) = candidates_from_node(["ensemble"], node_rows([{"rows": [slow]}]))
+    assert c.latency_s == pytest.approx(0.130) and c.period_s == pytest.approx(0.125)
+    stamps = [k * 100 * MS for k in range(4)]
+    # frame 1 arrives at 100 ms while the node is busy until 125 ms: received 25 ms later than on arrival
+    schedule = node_schedule(stamps, c.period_s, c.latency_s)
+    assert schedule[:2] == [(0, 130 * MS), (1, 255 * MS)]
+
+
 def test_far_field_candidates_take_the_row_of_a_run_with_the_far_field() -> None:
     near = {"backend": "ensemble", "mode": "5hz", "latency_ms": {"p50": 75.0}, "inference_p50_ms": 55.0,
             "overhead_mean_ms": 5.0}
