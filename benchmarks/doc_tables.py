@@ -1161,6 +1161,8 @@ TABLES: dict[str, Table] = {
     "ride_refined_far_arrival": Table(("ride_refined_far.json",), ride_arrival, with_provenance=False),
     "ride_parallax_far_shares": Table(("ride_parallax_far.json",), ride_shares),
     "ride_parallax_far_arrival": Table(("ride_parallax_far.json",), ride_arrival, with_provenance=False),
+    "ride_speed_shares": Table(("ride_speed.json",), ride_shares),
+    "ride_speed_arrival": Table(("ride_speed.json",), ride_arrival, with_provenance=False),
     "hazards": Table(("hazards.json",), hazards),
     "hazards_map": Table(("hazards_map.json",), hazards_map),
     "hazards_map_far_field": Table(("hazards_map_far_field.json",), hazards_map),
