@@ -51,6 +51,7 @@ from benchmarks.preview_budget import (
     far_label_grid,
     make_backend,
     node_rows,
+    parse_charges,
     stages_of,
 )
 from roadbev_core.config import GridSpec
@@ -248,8 +249,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default=str(RESULTS / "arrival.json"))
     args = parser.parse_args(argv)
     try:
+        charges = parse_charges(args.charge)
+    except ValueError as exc:
+        parser.error(str(exc))
+    try:
         rows = node_rows([json.loads(Path(path).read_text()) for path in args.node_results])
-        candidates = candidates_from_node(args.candidates, rows)
+        candidates = candidates_from_node(args.candidates, rows, charges)
     except (OSError, ValueError, KeyError) as exc:
         parser.error(f"--node-results {args.node_results}: {exc}")
     unknown = set(args.budget or ()) - {c.name for c in candidates}

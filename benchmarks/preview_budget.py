@@ -160,6 +160,10 @@ def add_candidate_arguments(parser: argparse.ArgumentParser, frame_cache: Path, 
     parser.add_argument("--node-results", nargs="+", default=[str(RESULTS / "node_candidates.json")], metavar="JSON",
                         help="bench_node --drive results (one or more): each candidate's latency and time per "
                              "frame in the node")
+    parser.add_argument("--charge", nargs="+", default=[], metavar="NAME=LATENCY_MS/PERIOD_MS",
+                        help="charge these candidates a stated latency on arrival and time per frame (ms) instead "
+                             "of their node rows: what another machine measured, or one cost for every "
+                             "candidate so that only their estimates differ")
     parser.add_argument("--budget", nargs="*", default=None, metavar="NAME",
                         help="add the error budget of these candidates (all when none is named): one row per "
                              "stage taken from the truth (preview_budget.STAGES)")
@@ -186,8 +190,32 @@ def parse_candidate(spec: str) -> tuple[str, str, dict[str, Any]]:
     return name, backend, params
 
 
-def candidates_from_node(specs: Sequence[str], node_results: Sequence[Mapping[str, Any]]) -> list[Candidate]:
-    """Candidates (``NAME=BACKEND[:PARAM=VALUE,...]``) with the latency and period their node row measured.
+def parse_charges(specs: Sequence[str]) -> dict[str, tuple[float, float]]:
+    """``NAME=LATENCY_MS/PERIOD_MS`` (``--charge``) -> {name: (latency s, period s)}.
+
+    Raises:
+        ValueError: a spec not of that form, a cost that is not a positive number, or a name twice.
+    """
+    out: dict[str, tuple[float, float]] = {}
+    for spec in specs:
+        name, eq, costs = spec.partition("=")
+        latency, slash, period = costs.partition("/")
+        try:
+            values = (float(latency), float(period))
+        except ValueError:
+            values = (math.nan, math.nan)
+        if not (name and eq and slash) or not all(math.isfinite(v) and v > 0 for v in values):
+            raise ValueError(f"--charge {spec!r}: not NAME=LATENCY_MS/PERIOD_MS with positive milliseconds")
+        if name in out:
+            raise ValueError(f"--charge: {name!r} is charged twice")
+        out[name] = (values[0] * 1e-3, values[1] * 1e-3)
+    return out
+
+
+def candidates_from_node(specs: Sequence[str], node_results: Sequence[Mapping[str, Any]],
+                         charges: Mapping[str, tuple[float, float]] | None = None) -> list[Candidate]:
+    """Candidates (``NAME=BACKEND[:PARAM=VALUE,...]``) with the latency and period their node row
+    measured, or those ``charges`` states for them (:func:`parse_charges`: no node row needed).
 
     A node row (``benchmarks.bench_node`` JSON, ``rows``) matches a candidate when its backend and
     options are the candidate's; the latency is its p50 on arrival in real time (``latency_on_arrival_ms``:
@@ -197,17 +225,25 @@ def candidates_from_node(specs: Sequence[str], node_results: Sequence[Mapping[st
     overhead (mean).
 
     Raises:
-        ValueError: a candidate without a node row (measure it first).
+        ValueError: a candidate without a node row (measure it first) or a charge, or a charge for
+            no candidate.
     """
+    charges = dict(charges or {})
     out = []
     for spec in specs:
         name, backend, params = parse_candidate(spec)
+        if name in charges:
+            latency_s, period_s = charges.pop(name)
+            out.append(Candidate(name, backend, params, latency_s, period_s))
+            continue
         row = _node_row(backend, params, node_results)
         if row is None:
             raise ValueError(f"candidate {spec!r}: no bench_node row with backend {backend} and these options")
         period = (float(row["inference_p50_ms"]) + float(row["overhead_mean_ms"])) * 1e-3
         latency = row.get("latency_on_arrival_ms", row["latency_ms"])
         out.append(Candidate(name, backend, params, float(latency["p50"]) * 1e-3, period))
+    if charges:
+        raise ValueError(f"--charge: no candidate named {', '.join(sorted(charges))}")
     return out
 
 

@@ -24,6 +24,7 @@ from benchmarks.preview_budget import (
     node_rows,
     node_schedule,
     parse_candidate,
+    parse_charges,
     short_band,
     stages_of,
     with_true_plane,
@@ -79,6 +80,23 @@ def test_a_candidate_is_charged_its_latency_on_arrival_the_schedule_adding_the_w
     # frame 1 arrives at 100 ms while the node is busy until 125 ms: received 25 ms later than on arrival
     schedule = node_schedule(stamps, c.period_s, c.latency_s)
     assert schedule[:2] == [(0, 130 * MS), (1, 255 * MS)]
+
+
+def test_a_stated_charge_replaces_the_node_row() -> None:
+    charges = parse_charges(["far=61/61.5", "bm_far=61/61"])
+    assert charges == {"far": (pytest.approx(0.061), pytest.approx(0.0615)), "bm_far": (pytest.approx(0.061),
+                                                                                        pytest.approx(0.061))}
+    far, bm_far = candidates_from_node(["far=ensemble:far_field.enabled=true", "bm_far=bm:far_field.enabled=true"],
+                                       node_rows([]), charges)  # no node row needed
+    assert (far.backend, far.latency_s, far.period_s) == ("ensemble", pytest.approx(0.061), pytest.approx(0.0615))
+    assert (bm_far.backend, dict(bm_far.params)) == ("bm", {"far_field.enabled": True})
+    with pytest.raises(ValueError, match="no candidate named other"):
+        candidates_from_node(["far=ensemble"], node_rows([]), parse_charges(["far=1/1", "other=1/1"]))
+    for bad in ("far", "far=61", "far=61/x", "far=0/61", "=61/61", "far=nan/61"):
+        with pytest.raises(ValueError, match="NAME=LATENCY_MS/PERIOD_MS"):
+            parse_charges([bad])
+    with pytest.raises(ValueError, match="charged twice"):
+        parse_charges(["far=1/1", "far=2/2"])
 
 
 def test_far_field_candidates_take_the_row_of_a_run_with_the_far_field() -> None:
