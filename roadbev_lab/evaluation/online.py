@@ -437,9 +437,9 @@ def latencies_on_arrival(sent: Mapping[int, float], received: Mapping[int, float
 
     A node slower than the camera answers a frame only once it is free (its mailbox holds the
     newest set), so the end-to-end latency of such a frame is that wait plus the node's own time.
-    The node is free about when the previous answer is received (a few milliseconds of DDS and
-    bookkeeping later: the wait is slightly underestimated, the latency on arrival overstated by
-    as much). Where a model of the node schedules the waits itself
+    The node is taken to be free when the previous answer is received; it is in fact free a few
+    milliseconds earlier or later (the answer's transport against the node's own bookkeeping after
+    publishing), and the wait is off by as much. Where a model of the node schedules the waits itself
     (:func:`benchmarks.preview_budget.node_schedule`), this is the latency to charge: the
     end-to-end one would count the waits twice.
 
