@@ -27,7 +27,6 @@ Run: ``.venv/bin/python -m benchmarks.bench_arrival [--duration 10] [--seeds 1] 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -47,11 +46,9 @@ from benchmarks.preview_budget import (
     add_candidate_arguments,
     budgeted,
     candidate_previews,
-    candidates_from_node,
+    candidates_from_args,
     far_label_grid,
     make_backend,
-    node_rows,
-    parse_charges,
     stages_of,
 )
 from roadbev_core.config import GridSpec
@@ -249,14 +246,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default=str(RESULTS / "arrival.json"))
     args = parser.parse_args(argv)
     try:
-        charges = parse_charges(args.charge)
+        candidates = candidates_from_args(args)
     except ValueError as exc:
         parser.error(str(exc))
-    try:
-        rows = node_rows([json.loads(Path(path).read_text()) for path in args.node_results])
-        candidates = candidates_from_node(args.candidates, rows, charges)
-    except (OSError, ValueError, KeyError) as exc:
-        parser.error(f"--node-results {args.node_results}: {exc}")
     unknown = set(args.budget or ()) - {c.name for c in candidates}
     if unknown:
         parser.error(f"--budget: no candidate named {', '.join(sorted(unknown))}")

@@ -65,11 +65,9 @@ from benchmarks.preview_budget import (
     add_candidate_arguments,
     budgeted,
     candidate_previews,
-    candidates_from_node,
+    candidates_from_args,
     far_label_grid,
     make_backend,
-    node_rows,
-    parse_charges,
     stages_of,
 )
 from roadbev_core.config import FarFieldConfig, GridSpec
@@ -468,17 +466,10 @@ def main(argv: list[str] | None = None) -> int:
                              "settings only, not on any backend: every one asked for must be there with the same "
                              "duration, rates and latency) instead of riding them again")
     args = parser.parse_args(argv)
-    candidates: list[Candidate] = []
     try:
-        charges = parse_charges(args.charge)
+        candidates = candidates_from_args(args)
     except ValueError as exc:
         parser.error(str(exc))
-    if args.candidates:
-        try:
-            rows = node_rows([json.loads(Path(path).read_text()) for path in args.node_results])
-            candidates = candidates_from_node(args.candidates, rows, charges)
-        except (OSError, ValueError, KeyError) as exc:
-            parser.error(f"--node-results {args.node_results}: {exc}")
     unknown = set(args.budget or ()) - {c.name for c in candidates}
     if unknown:
         parser.error(f"--budget: no candidate named {', '.join(sorted(unknown))}")

@@ -1079,6 +1079,14 @@ def _node_drive(name: str, backends: str, node_param: str = "") -> Table:
     return Table((f"{name}.json",), node_candidates, f"{_NODE} --drive --rate 10 --frames 60 --modes 5hz --backends "
                                                      f"{backends}{param} --out benchmarks/results/{name}.json")
 
+
+def _ride(name: str) -> dict[str, Table]:
+    """The shares table (``<name>_shares``) and the preview-at-arrival table (``<name>_arrival``)
+    of a ``bench_ride`` run written to ``<name>.json``."""
+    return {f"{name}_shares": Table((f"{name}.json",), ride_shares),
+            f"{name}_arrival": Table((f"{name}.json",), ride_arrival, with_provenance=False)}
+
+
 TABLES: dict[str, Table] = {
     "demo": Table(("demo.json",), demo),
     "demo_stages": Table(("demo.json",), demo_stages, with_provenance=False),
@@ -1157,18 +1165,12 @@ TABLES: dict[str, Table] = {
                              with_provenance=False),
     "ride_far_arrival": Table(("ride_far_field.json",), ride_arrival, with_provenance=False),
     "ride_far_stages": Table(("ride_far_stages.json",), functools.partial(ride_budget, candidate="ensemble_far")),
-    "ride_refined_shares": Table(("ride_refined.json",), ride_shares),
-    "ride_refined_arrival": Table(("ride_refined.json",), ride_arrival, with_provenance=False),
-    "ride_refined_far_shares": Table(("ride_refined_far.json",), ride_shares),
-    "ride_refined_far_arrival": Table(("ride_refined_far.json",), ride_arrival, with_provenance=False),
-    "ride_parallax_far_shares": Table(("ride_parallax_far.json",), ride_shares),
-    "ride_parallax_far_arrival": Table(("ride_parallax_far.json",), ride_arrival, with_provenance=False),
-    "ride_speed_shares": Table(("ride_speed.json",), ride_shares),
-    "ride_speed_arrival": Table(("ride_speed.json",), ride_arrival, with_provenance=False),
-    "ride_speed_bm_shares": Table(("ride_speed_bm.json",), ride_shares),
-    "ride_speed_bm_arrival": Table(("ride_speed_bm.json",), ride_arrival, with_provenance=False),
-    "ride_equal_cost_shares": Table(("ride_equal_cost.json",), ride_shares),
-    "ride_equal_cost_arrival": Table(("ride_equal_cost.json",), ride_arrival, with_provenance=False),
+    **_ride("ride_refined"),
+    **_ride("ride_refined_far"),
+    **_ride("ride_parallax_far"),
+    **_ride("ride_speed"),
+    **_ride("ride_speed_bm"),
+    **_ride("ride_equal_cost"),
     "hazards": Table(("hazards.json",), hazards),
     "hazards_map": Table(("hazards_map.json",), hazards_map),
     "hazards_map_far_field": Table(("hazards_map_far_field.json",), hazards_map),

@@ -171,6 +171,24 @@ def add_candidate_arguments(parser: argparse.ArgumentParser, frame_cache: Path, 
                         help="rendered drive frames are kept here and read back by later runs")
 
 
+def candidates_from_args(args: argparse.Namespace) -> list[Candidate]:
+    """The candidates :func:`add_candidate_arguments`' options ask for (none without ``--candidates``),
+    each charged its node row's cost or its ``--charge``.
+
+    Raises:
+        ValueError: a bad ``--charge``; an unreadable ``--node-results``, or a candidate without a
+            row there or a charge (the message names the files).
+    """
+    charges = parse_charges(args.charge)
+    if not args.candidates:
+        return []
+    try:
+        rows = node_rows([json.loads(Path(path).read_text()) for path in args.node_results])
+        return candidates_from_node(args.candidates, rows, charges)
+    except (OSError, ValueError, KeyError) as exc:
+        raise ValueError(f"--node-results {args.node_results}: {exc}") from None
+
+
 def parse_candidate(spec: str) -> tuple[str, str, dict[str, Any]]:
     """``NAME=BACKEND[:PARAM=VALUE,...]`` -> (name, backend, node params); a bare ``BACKEND`` names itself.
     Values are read as JSON where they parse (numbers, true/false), else kept as strings."""
