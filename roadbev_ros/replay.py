@@ -15,6 +15,7 @@ was left out and why.
 
 from __future__ import annotations
 
+import math
 import struct
 import threading
 import time
@@ -31,12 +32,23 @@ from roadbev_core.errors import RoadbevError
 from roadbev_ros.dds import DdsError, message_class
 
 __all__ = [
-    "IMAGE_TYPES", "ReplayError", "ReplayStats", "header_stamp_ns", "replay_bag", "restamp_cdr", "starts_with_header",
+    "IMAGE_TYPES", "ReplayError", "ReplayStats", "header_stamp_ns", "history_depth", "replay_bag", "restamp_cdr",
+    "starts_with_header",
 ]
 
 # Message types a perception node subscribes to first: ``roadbev replay`` waits for subscribers
 # on the bag's topics of these types by default.
 IMAGE_TYPES = frozenset({"sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage"})
+
+
+def history_depth(count: int, span_s: float, min_depth: int, history_s: float) -> int:
+    """A publisher's keep-last depth for a topic of ``count`` messages over ``span_s`` seconds of
+    bag: at least ``min_depth``, and ``history_s`` seconds of the topic at its mean rate, so that a
+    reliable subscriber that falls that far behind (a recorder while its disk flushes, a loaded
+    CPU) still receives every sample instead of the writer overwriting the ones it has not acked."""
+    if count <= 1 or span_s <= 0:
+        return min_depth
+    return max(min_depth, math.ceil(count / span_s * history_s))
 
 
 class ReplayError(RoadbevError, RuntimeError):
@@ -171,6 +183,7 @@ def replay_bag(
     wait_topics: Sequence[str] | None = None,
     on_wait_timeout: Callable[[list[str]], object] | None = None,
     qos_depth: int = 10,
+    history_s: float = 1.0,
     stop: threading.Event | None = None,
     progress: Callable[[int], object] | None = None,
     before_publish: Callable[[str, int, bytes], None] | None = None,
@@ -195,7 +208,9 @@ def replay_bag(
             it as it starts, before its own subscriptions.
         on_wait_timeout: called with the topics still without a subscriber when the wait timed
             out, before the first message goes out.
-        qos_depth: reliable keep-last depth of the publishers.
+        qos_depth: reliable keep-last depth of the publishers, at least.
+        history_s: a topic's publisher keeps this many seconds of it at its rate in the bag, when
+            that is more than ``qos_depth`` (:func:`history_depth`: a 100 Hz IMU keeps 100).
         stop: set it to end the replay early.
         progress: called with the number of messages published so far, every message.
         before_publish: called ``(topic, log_time_ns, data)`` just before each publication; it
@@ -214,9 +229,10 @@ def replay_bag(
 
     path = Path(path)
     try:
-        available = bag.bag_topics(path)
+        info = bag.bag_info(path, verify=False)
     except bag.BagError as exc:
         raise ReplayError(str(exc)) from None
+    available, span_s = info.topics, (info.end_ns - info.start_ns) * 1e-9
     stats = ReplayStats()
     wanted = list(available) if topics is None else list(topics)
     for topic in wanted:
@@ -230,10 +246,13 @@ def replay_bag(
     for topic in wanted:
         if topic not in available:
             continue
-        info = available[topic]
+        topic_info = available[topic]
         try:
             publishers[topic] = node.create_publisher(
-                message_class(info.msgtype), topic, latched if info.count == 1 else qos
+                message_class(topic_info.msgtype), topic,
+                latched if topic_info.count == 1 else
+                QoSProfile(depth=history_depth(topic_info.count, span_s, qos_depth, history_s),
+                           reliability=ReliabilityPolicy.RELIABLE),
             )
         except DdsError as exc:
             stats.skipped_topics[topic] = str(exc)

@@ -1,7 +1,10 @@
 """``roadbev replay BAG``: publish a bag's topics over ROS 2 with their original timing.
 
 Messages go out as the bag's raw CDR bytes (no re-serialisation), paced by their log times and
-the rate factor; the Fast DDS profile for large images is applied (``config/fastdds.xml``).
+the rate factor; the Fast DDS profile for large images is applied (``config/fastdds.xml``). The
+publishers are reliable, keep-last: 10 samples, or a second of the topic at its rate in the bag
+where that is more (a 100 Hz IMU keeps 100), so a subscriber that falls behind for up to a second
+misses nothing.
 
 Before the first message the replay waits (``--wait-for-subscribers S``, default 10 s;
 ``--no-wait`` to start at once) until every replayed image topic has a subscriber (every replayed

@@ -13,7 +13,7 @@ import pytest
 from msg_bridge import TypestoreFactory
 from msg_bridge.bag import BagWriter, typestore
 from msg_bridge.imu import imu_message
-from roadbev_ros.replay import ReplayError, header_stamp_ns, replay_bag, restamp_cdr
+from roadbev_ros.replay import ReplayError, header_stamp_ns, history_depth, replay_bag, restamp_cdr
 
 from ._ros_harness import wait_for
 
@@ -228,3 +228,12 @@ def test_the_replay_command_reports_an_interruption(imu_bag: Path) -> None:
     assert proc.returncode == 0, err
     assert "roadbev replay: warning: interrupted after " in err, err
     assert f" of {N}" in err and "/note " in err
+
+
+def test_history_depth_keeps_a_second_of_a_fast_topic_and_never_less_than_the_minimum() -> None:
+    assert history_depth(1000, 10.0, 10, 1.0) == 100  # a 100 Hz IMU keeps a second
+    assert history_depth(1001, 10.0, 10, 1.0) == 101  # rounded up
+    assert history_depth(100, 10.0, 10, 1.0) == 10  # a 10 Hz camera: the minimum
+    assert history_depth(1000, 10.0, 10, 0.5) == 50
+    assert history_depth(1, 0.0, 10, 1.0) == 10  # one message, or no span: the minimum
+    assert history_depth(500, 0.0, 10, 1.0) == 10
