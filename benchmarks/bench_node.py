@@ -125,6 +125,9 @@ def run_one(
         "overhead_mean_ms": _float(node, "overhead_mean_ms"),
         "overhead_p95_ms": _float(node, "overhead_p95_ms"),
         "imu_wait_mean_ms": _float(node, "imu_wait_mean_ms"),
+        # frames the pace backend answered (the chosen one slower than the camera: roadbev_core.pacing)
+        "paced_frames": int(node.get("paced_frames", "0")),
+        "pace": node.get("pace", ""),
         "e2e_minus_inference_p50_ms": online["latency_ms"]["p50"] - _float(node, "inference_p50_ms"),
         "abs_err_cm": m["abs_err_cm"],
         "coverage_pct": m["coverage_pct"],
@@ -270,7 +273,8 @@ def main(argv: list[str] | None = None) -> int:
                     f"frames, latency p50 {lat['p50']:7.1f} / p95 {lat['p95']:7.1f} ms (p95 after the first "
                     f"{steady['p95']:7.1f}; on arrival p50 {row['latency_on_arrival_ms']['p50']:7.1f}), inference p50 "
                     f"{row['inference_p50_ms']:7.1f} ms, node overhead {row['overhead_mean_ms']:5.2f} ms "
-                    f"(p95 {row['overhead_p95_ms']:5.2f}), IMU wait {row['imu_wait_mean_ms']:5.2f} ms",
+                    f"(p95 {row['overhead_p95_ms']:5.2f}), IMU wait {row['imu_wait_mean_ms']:5.2f} ms, "
+                    f"paced {row['paced_frames']} frames",
                     file=sys.stderr,
                 )
     overhead = pipeline_overhead(args.scale)

@@ -22,6 +22,11 @@ with the frame's alignment (:meth:`roadbev_core.fusion.FusedMap.integrate_far`),
 its contact-plane previews reach the far-field grid's far edge; the per-frame (map off) preview
 stays on the grid.
 
+With ``pace_backend`` (default ``bm``) a second, cheaper backend is built beside the chosen one
+(:func:`build_pace_backends`, and its far-field twin): :meth:`Pipeline.process` runs it on a frame
+when asked (``paced``; the node asks while the chosen backend cannot keep pace with the camera:
+:mod:`roadbev_core.pacing`). ``roadbev eval`` and the benchmarks never ask.
+
 The map stage (roadbev_core.fusion) runs when ``map.enabled`` and an ego-motion source exists:
 odometry samples (``add_odometry``) or, without them, a speed (dead reckoned with the IMU's
 yaw). With the map on every preview is a contact-plane one in ``base_link``: a frame whose pose
@@ -45,7 +50,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -79,10 +84,12 @@ __all__ = [
     "ImuFeed",
     "MapFactory",
     "OdometryFeed",
+    "PaceBackends",
     "Pipeline",
     "PipelineOutput",
     "build_backend",
     "build_far_backend",
+    "build_pace_backends",
     "check_config",
     "far_field_off_reason",
     "replay",
@@ -131,6 +138,7 @@ class PipelineOutput:
         far: elevation and 1-sigma on the far-field grid (``config.far_grid``) with
             ``far_field.enabled``, else None; all NaN when that grid is out of view. With the map on
             it is fused into ``map`` too.
+        paced: the pace backend answered the frame (``Pipeline.process(paced=True)``).
     """
 
     frame: Frame
@@ -141,6 +149,7 @@ class PipelineOutput:
     fusion: FrameFusion | None = None
     base_pose: PlanarPose | None = None
     far: Estimate | None = None
+    paced: bool = False
 
     @property
     def stamp_ns(self) -> int:
@@ -231,6 +240,49 @@ def build_far_backend(config: RoadbevConfig, backend: Backend, factory: BackendF
     return far
 
 
+class PaceBackends(NamedTuple):
+    """The pace backend (``pace_backend``: :mod:`roadbev_core.pacing`) on the grid and on the
+    far-field grid, or why there is none that can stand in for the chosen backend."""
+
+    near: Backend | None = None
+    far: Backend | None = None
+    off_reason: str = ""
+
+
+def build_pace_backends(config: RoadbevConfig, backend: Backend, factory: BackendFactory | None = None
+                        ) -> PaceBackends:
+    """The pace backend on the grid and, where ``backend`` answers the far field and it can, on the
+    far-field grid. None where ``pace_backend`` is empty or ``backend``'s own name; None with the
+    reason where it needs both images and ``backend`` is given the left one only (a monocular
+    backend).
+
+    Raises:
+        BackendError: it cannot be built (a missing checkpoint, an option it refuses).
+    """
+    name = config.backend.pace_backend
+    if not name or name == backend.name:
+        return PaceBackends()
+    try:
+        pace = config.with_params({"backend": name})
+        near = build_backend(pace, factory)
+        far = (build_backend(pace, factory, grid=config.far_grid)
+               if config.far_grid is not None and not far_field_off_reason(pace, near) else None)
+    except (BackendError, ParamError) as exc:
+        raise BackendError(f"pace_backend: {exc}") from exc
+    if near.needs_stereo and not backend.needs_stereo:
+        return PaceBackends(off_reason=f"pace_backend {name!r} needs both images and backend {backend.name!r} is "
+                                       "given the left one only")
+    return PaceBackends(near, far)
+
+
+def _pace_key(config: RoadbevConfig, backend: Backend) -> tuple[Any, ...]:
+    """What :func:`build_pace_backends` builds from: equal keys, the same pace backends."""
+    name = config.backend.pace_backend
+    if not name or name == backend.name:
+        return ()
+    return name, config.backend.options_of(name), config.grid, config.far_grid, backend.needs_stereo
+
+
 def _no_estimate(grid: GridSpec) -> Estimate:
     """An estimate without any answer on ``grid`` (all NaN)."""
     empty = np.full(grid.shape, np.nan, np.float32)
@@ -252,6 +304,7 @@ class Pipeline:
             estimated (``far_field_off`` says why).
         far_field_off: why the far field the config asks for is not estimated
             (:func:`far_field_off_reason`), or "".
+        pace: the pace backend on the grid and the far-field grid (:func:`build_pace_backends`).
 
     Raises:
         BackendError: the backend (or the far-field one) cannot be built.
@@ -273,6 +326,7 @@ class Pipeline:
         self.far_field_off = far_field_off_reason(config, self.backend)
         self.config = config = self._runnable(config, self.far_field_off)
         self.far_backend = build_far_backend(config, self.backend, backend_factory)
+        self.pace = build_pace_backends(config, self.backend, backend_factory)
         self.imu = imu_buffer(config.imu)
         self._speed: tuple[int, float] | None = None  # (stamp ns, m/s)
         self._with_preview = self._tracks_fit(config)
@@ -324,10 +378,13 @@ class Pipeline:
         config = self._runnable(config, far_field_off)
         far_backend = (build_far_backend(config, backend, self._factory)
                        if rebuild or config.far_grid != old.far_grid else self.far_backend)
+        pace = (build_pace_backends(config, backend, self._factory)
+                if _pace_key(config, backend) != _pace_key(self.config, self.backend) else self.pace)
         with self._lock:
             self.config = config
             self.backend = backend
             self.far_backend = far_backend
+            self.pace = pace
             self.far_field_off = far_field_off
             self._with_preview = self._tracks_fit(config)
             if config.imu != old.imu:
@@ -507,7 +564,7 @@ class Pipeline:
 
     # --- processing ----------------------------------------------------------------------------
     def process(self, inputs: CameraInput, attitude: Attitude | None = None, *,
-                before_map: Callable[[], object] | None = None) -> PipelineOutput:
+                before_map: Callable[[], object] | None = None, paced: bool = False) -> PipelineOutput:
         """Estimate the elevation and the preview for one camera set.
 
         Args:
@@ -517,6 +574,8 @@ class Pipeline:
             before_map: called once the estimate is made, before the map stage reads the pose at
                 the stamp (the node waits there for the odometry sample after the stamp:
                 :meth:`wait_for_pose`).
+            paced: the pace backend answers (where there is one; ``PipelineOutput.paced`` says
+                whether it did).
 
         Raises:
             ConfigError: an image larger than the configured limit.
@@ -526,11 +585,16 @@ class Pipeline:
         """
         with self._lock:
             config, backend, far_backend = self.config, self.backend, self.far_backend
+            pace = self.pace.near if paced else None
+            if pace is not None:
+                backend, far_backend = pace, self.pace.far
         check_image_size(inputs.camera.width, inputs.camera.height)
         if attitude is None:
             attitude = self.attitude_at(inputs.stamp_ns)
         frame = Frame(inputs.left, inputs.right, inputs.camera, attitude, inputs.stamp_ns)
-        return self._run(frame, config, backend, far_backend, before_map)
+        output = self._run(frame, config, backend, far_backend, before_map)
+        output.paced = pace is not None
+        return output
 
     def process_frame(self, frame: Frame) -> PipelineOutput:
         """:meth:`process` for a frame whose attitude is already known."""
@@ -702,10 +766,10 @@ class Pipeline:
         camera = StereoCamera.rsrd_half()
         blank = np.zeros((camera.height, camera.width, 3), np.uint8)
         with self._lock:
-            backends = [b for b in (self.backend, self.far_backend) if b is not None]
-        frame = Frame(blank, blank if backends[0].needs_stereo else None, camera, Attitude.from_degrees(0.0, 19.0))
+            backends = [b for b in (self.backend, self.far_backend, self.pace.near, self.pace.far) if b is not None]
         flush_denormals()
         for backend in backends:
+            frame = Frame(blank, blank if backend.needs_stereo else None, camera, Attitude.from_degrees(0.0, 19.0))
             with contextlib.suppress(Exception):  # a warm-up failure must never stop the caller
                 backend.estimate(frame)
 

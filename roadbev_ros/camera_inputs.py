@@ -62,11 +62,14 @@ class CameraInputs:
             :data:`MONO_INPUTS`) order.
         on_time_jump: resets what the caller holds after a jump back; given the stamps of the
             new timeline seen so far (:attr:`ApproximateTimeSync.restart_span`).
+        on_set: told the left image's stamp of every set, before it goes to the mailbox (the
+            node's pacer measures the camera's period from them).
     """
 
     def __init__(self, topics: Mapping[str, str], config: SyncConfig, stereo: bool, *, health: Health,
                  report: Report, warn: Callable[[str], object], now_ns: Callable[[], int],
-                 mailbox: Mailbox[tuple[Any, ...]], on_time_jump: Callable[[tuple[int, int] | None], None]) -> None:
+                 mailbox: Mailbox[tuple[Any, ...]], on_time_jump: Callable[[tuple[int, int] | None], None],
+                 on_set: Callable[[int], object] = lambda _stamp_ns: None) -> None:
         self.topics = topics
         self.received: dict[str, int] = dict.fromkeys(topics, 0)  # messages per input so far
         self.passes = 0  # time jumps back so far: a frame of an earlier pass fails quietly
@@ -76,6 +79,7 @@ class CameraInputs:
         self._now_ns = now_ns
         self._mailbox = mailbox
         self._on_time_jump = on_time_jump
+        self._on_set_stamp = on_set
         self._config = config
         self.sync = self._new_sync(config, stereo)
 
@@ -137,6 +141,7 @@ class CameraInputs:
 
     def _on_set(self, *items: tuple[str, Any]) -> None:
         self._health.set_in()
+        self._on_set_stamp(stamp_from_header(items[0][1]))
         if self._mailbox.put(tuple(msg for _, msg in items)):
             self._health.drop("busy")  # the waiting set was replaced by a newer one
 

@@ -545,18 +545,21 @@ class OutputTally:
 
     fused: int = 0  # frames fused into the map
     preview_reference: str = ""  # reference (and contact-plane source) of the newest preview
+    paced: int = 0  # frames the pace backend answered (roadbev_core.pacing)
 
     def note(self, output: Any) -> None:
         """Take one :class:`roadbev_core.pipeline.PipelineOutput`."""
         if output.fusion is not None:
             self.fused += 1
+        if output.paced:
+            self.paced += 1
         if output.preview is not None:
             plane = output.preview.contact_plane
             self.preview_reference = output.preview.reference + (f" ({plane.source})" if plane is not None else "")
 
 
 def node_values(*, queued_set: bool, queued_left_images: int, map_state: str, tally: OutputTally,
-                motion_age_s: float | None, clock: str, camera_mount: str) -> dict[str, str]:
+                motion_age_s: float | None, clock: str, camera_mount: str, pace: str = "off") -> dict[str, str]:
     """The node's own figures, appended to :meth:`Health.snapshot`'s values (in this order).
 
     Args:
@@ -567,6 +570,8 @@ def node_values(*, queued_set: bool, queued_left_images: int, map_state: str, ta
         motion_age_s: seconds since the newest odometry or speed sample (None: never).
         clock: :meth:`ClockWatch.state`.
         camera_mount: where the camera's mount comes from (:meth:`roadbev_ros.camera_mount.CameraMount.state`).
+        pace: who answers the frames and why (:meth:`roadbev_core.pacing.PaceState.describe`, or
+            "off" where there is no pace backend).
     """
     return {
         "queued_sets": "1" if queued_set else "0",
@@ -577,6 +582,8 @@ def node_values(*, queued_set: bool, queued_left_images: int, map_state: str, ta
         "preview_reference": tally.preview_reference or "none yet",
         "clock": clock,
         "camera_mount": camera_mount,
+        "pace": pace,
+        "paced_frames": str(tally.paced),
     }
 
 
@@ -640,14 +647,15 @@ class NodeDiagnostics:
             self.report("backend error", f"{type(exc).__name__}: {exc}")
 
     def snapshot(self, *, input_hint: str, queued_set: bool, queued_left_images: int, map_state: str,
-                 motion_age_s: float | None, camera_mount: str, now_ns: int) -> HealthSnapshot:
+                 motion_age_s: float | None, camera_mount: str, now_ns: int, pace: str = "off") -> HealthSnapshot:
         """The figures now, the node's own (:func:`node_values`) after the health's; ``input_hint``:
         why no input may arrive (:func:`transport_hint`), ``now_ns``: the node's clock."""
         self.health.input_hint = input_hint
         snapshot = self.health.snapshot()
         snapshot.values.update(node_values(queued_set=queued_set, queued_left_images=queued_left_images,
                                            map_state=map_state, tally=self.tally, motion_age_s=motion_age_s,
-                                           clock=self._clock.state(now_ns), camera_mount=camera_mount))
+                                           clock=self._clock.state(now_ns), camera_mount=camera_mount,
+                                           pace=pace))
         return snapshot
 
 

@@ -46,6 +46,7 @@ from msg_bridge import RclpyFactory
 from msg_bridge.pipeline_io import camera_input, output_messages, speed_message_type
 from roadbev_core.config import ParamError, RoadbevConfig
 from roadbev_core.errors import RoadbevError
+from roadbev_core.pacing import Pacer
 from roadbev_core.pipeline import BackendFactory, Pipeline, check_config
 from roadbev_core.selfcheck import self_check
 from roadbev_ros.camera_inputs import LEFT_IMAGE, LEFT_INFO, RIGHT_IMAGE, RIGHT_INFO, CameraInputs
@@ -112,6 +113,7 @@ class RoadBevNode(Node):
                                        far_field=self._far_field_state())
         self.health, self._problem = self._status.health, self._status.report
         self._mailbox: Mailbox[tuple[Any, ...]] = Mailbox()
+        self._pacer = Pacer(self.config.backend.pace_load)
         topics = self.config.topics
         image_type = CompressedImage if topics.image_transport == "compressed" else Image
         inputs = ((LEFT_IMAGE, self._image_topic(topics.left_image), image_type),
@@ -121,7 +123,7 @@ class RoadBevNode(Node):
         self._camera = CameraInputs(self._inputs, self.config.sync, self.pipeline.backend.needs_stereo,
                                     health=self.health, report=self._problem, warn=log.warning,
                                     now_ns=lambda: self.get_clock().now().nanoseconds, mailbox=self._mailbox,
-                                    on_time_jump=self._on_time_jump)
+                                    on_time_jump=self._on_time_jump, on_set=self._pacer.note_set)
         for which, topic, kind in inputs:
             self.create_subscription(kind, topic, functools.partial(self._camera.add, which), SENSOR_QOS)
         self._motion = MotionInputs(self.pipeline, self._problem, _FACTORY,
@@ -176,6 +178,13 @@ class RoadBevNode(Node):
                                       f"and {self.config.far_field.topic} stays silent")
         return far_field_state(self.pipeline.far_backend is not None, why_not)
 
+    def _pace_state(self) -> str:
+        """The ``pace`` diagnostic: who answers the frames and why (:mod:`roadbev_core.pacing`)."""
+        pace, backend = self.pipeline.pace, self.pipeline.backend.name
+        if pace.near is None:
+            return f"off: {pace.off_reason}" if pace.off_reason else "off"
+        return self._pacer.state().describe(backend, pace.near.name, self._pacer.load)
+
     def _image_topic(self, base: str) -> str:
         """The topic of the image stream ``base``: raw, ``base`` (rcl applies the remaps); compressed,
         the remapped ``base`` + ``/compressed``: a remap of the base moves it, as in image_transport."""
@@ -192,6 +201,7 @@ class RoadBevNode(Node):
         """The stamps jumped back (a looped bag): the pipeline starts afresh, with the motion
         samples of the new timeline that arrived before the jump was believed."""
         self.pipeline.reset()
+        self._pacer.reset()
         self._tf.time_jumped()
         self._motion.replay(restart_span, self.config.imu.max_age_s)
 
@@ -206,6 +216,7 @@ class RoadBevNode(Node):
             self._problem("parameter", f"rejected: {exc}")
             return SetParametersResult(successful=False, reason=str(exc))
         old, self.config = self.config, config
+        self._pacer.load = config.backend.pace_load
         self._camera.configure(config.sync, self.pipeline.backend.needs_stereo)
         if old.diagnostics.period_s != config.diagnostics.period_s:
             self.destroy_timer(self._diag_timer)
@@ -246,11 +257,12 @@ class RoadBevNode(Node):
         def wait_for_pose() -> None:
             waited.append(self.pipeline.wait_for_pose(inputs.stamp_ns, max(0.0, deadline - time.monotonic()), stop))
 
-        output = self.pipeline.process(inputs, before_map=wait_for_pose)
+        output = self.pipeline.process(inputs, before_map=wait_for_pose, paced=self._pacer.choose())
         wait = sum(waited)
         messages = output_messages(output, config, _FACTORY, with_points=self._out.points_wanted(),
                                    with_preview_markers=self._out.preview_markers_wanted(),
                                    camera_frame=self._tf.mount.camera_frame)
+        self._pacer.note_cost(output.paced, time.perf_counter() - t0 - wait)
         if not self.context.ok():
             return  # shutting down (SIGINT): publishing on a shut-down context can crash the process
         if self._status.late(inputs.stamp_ns, time.monotonic() - arrival, config.diagnostics.max_latency_s):
@@ -275,7 +287,7 @@ class RoadBevNode(Node):
         snapshot = self._status.snapshot(
             input_hint=transport_hint(self, left) if quiet else "", queued_set=self._mailbox.waiting,
             queued_left_images=self.sync.queued()[0], map_state=self._map.state(), motion_age_s=self._motion.age_s(),
-            camera_mount=self._tf.mount.state(), now_ns=now.nanoseconds)
+            camera_mount=self._tf.mount.state(), pace=self._pace_state(), now_ns=now.nanoseconds)
         self._diag_pub.publish(to_diagnostic_array(snapshot, now.to_msg()))
 
     def counts(self) -> dict[str, int]:

@@ -40,6 +40,7 @@ from roadbev_core.config.params_file import ParamError
 
 __all__ = [
     "DEFAULT_BACKEND",
+    "DEFAULT_PACE_BACKEND",
     "MAX_CAMERA_HZ",
     "MAX_GRID_VOXELS",
     "MAX_IMAGE_PIXELS",
@@ -75,6 +76,9 @@ MAX_SYNC_SETS = 1_000_000
 # The backend of the node, `roadbev eval` and the demo when none is named: the configuration whose
 # preview the ride benchmark found worth the most (docs/results/preview.md, the ride benchmark).
 DEFAULT_BACKEND = "ensemble"
+# The backend that answers while the chosen one cannot keep pace with the camera: the default
+# ensemble's cheapest member (docs/results/preview.md, "On a slower CPU").
+DEFAULT_PACE_BACKEND = "bm"
 # The vehicle body frame (REP-105; Autoware's convention, docs/interface/frames-and-grid.md): the frame of contact-plane
 # previews and the parent the camera mount is looked up from.
 BASE_FRAME = "base_link"
@@ -186,6 +190,12 @@ class BackendConfig:
                             "adabins); empty = the shipped one")
     inference_threads: int = param("inference_threads", 0, "threads for the backend's torch/OpenCV work; "
                                    "0 = one less than the CPU cores (a core stays free for the callbacks)", 0, 256)
+    pace_backend: str = param("pace_backend", DEFAULT_PACE_BACKEND, "a cheaper backend that answers the node's "
+                              "frames while the chosen one takes more than pace_load of the camera's period per "
+                              "frame (roadbev_core/pacing.py); empty, or the chosen backend itself = none (the "
+                              "node then falls behind a faster camera and skips frames)", open_choices=True)
+    pace_load: float = param("pace_load", 0.9, "the largest share of the camera's period the chosen backend may "
+                             "take per frame before pace_backend answers", 0.1, 10.0)
     # "<backend>.<option>" parameters, as given (the backend checks them when it is built)
     options: Mapping[str, Any] = field(default_factory=dict)
 
@@ -590,6 +600,9 @@ class RoadbevConfig:
         :func:`roadbev_core.pipeline.check_config`)."""
         if not is_backend_name(self.backend.name):
             raise ParamError(f"backend must be one of {', '.join(available())}; got {self.backend.name!r}")
+        if self.backend.pace_backend and not is_backend_name(self.backend.pace_backend):
+            raise ParamError(f"pace_backend must be empty or one of {', '.join(available())}; got "
+                             f"{self.backend.pace_backend!r}")
         for what, grid in (("the grid", self.grid), ("the far-field grid", self.far_grid)):
             if grid is None:
                 continue

@@ -15,7 +15,14 @@ from roadbev_core.ego_motion import PlanarPose
 from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Estimate, Frame, FrameError
 from roadbev_core.geometry import R_BODY_FROM_OPTICAL, Attitude
-from roadbev_core.pipeline import CameraInput, FarFieldUnsupported, Pipeline, build_far_backend, check_config
+from roadbev_core.pipeline import (
+    CameraInput,
+    FarFieldUnsupported,
+    Pipeline,
+    build_far_backend,
+    build_pace_backends,
+    check_config,
+)
 from roadbev_core.preview import REFERENCE_CONTACT_PLANE, REFERENCE_ROAD
 
 S = 1_000_000_000
@@ -383,3 +390,75 @@ def test_with_the_far_field_and_the_map_on_the_map_and_its_preview_reach_the_far
     rows_off = (x_off - base_x - camera_x) < 6.5
     np.testing.assert_allclose(on.map.elevation[rows][-rows_off.sum():], off.map.elevation[rows_off], atol=1e-6,
                                equal_nan=True)
+
+
+class NamedRoad(FlatRoad):
+    """A flat road at a height of its own, named after the backend it stands for."""
+
+    def __init__(self, name: str, grid: GridSpec, height: float, *, stereo: bool = True) -> None:
+        super().__init__(grid)
+        self.name, self.height, self.needs_stereo = name, height, stereo
+        self.far_field = True
+
+    def estimate(self, frame: Frame) -> Estimate:
+        return Estimate(np.full(self.grid.shape, self.height, np.float32), np.full(self.grid.shape, 0.004, np.float32))
+
+
+def _named(name: str, grid: GridSpec, **_: Any) -> NamedRoad:
+    return NamedRoad(name, grid, {"bm": 0.02, "sgbm": 0.03}.get(name, 0.01), stereo=name != "mono")
+
+
+def test_a_paced_frame_is_answered_by_the_pace_backend_on_both_grids() -> None:
+    config = RoadbevConfig.from_params({"require_imu": False, "backend": "sgbm", "far_field.enabled": True})
+    pipeline = Pipeline(config, backend_factory=_named, configure_process=False)
+    assert pipeline.pace.near is not None and pipeline.pace.near.name == "bm"
+    assert pipeline.pace.far is not None and pipeline.pace.far.grid == config.far_grid
+    chosen = pipeline.process_frame(_frame(0))
+    paced = pipeline.process(CameraInput(_frame(1).left, None, CAMERA, _frame(1).stamp_ns), Attitude(0.0, 0.0),
+                             paced=True)
+    assert not chosen.paced and paced.paced
+    assert np.all(chosen.estimate.elevation == np.float32(0.03)) and np.all(paced.estimate.elevation == np.float32(0.02))
+    assert chosen.far is not None and paced.far is not None
+    assert np.all(chosen.far.elevation == np.float32(0.03)) and np.all(paced.far.elevation == np.float32(0.02))
+
+
+def test_without_a_pace_backend_a_paced_frame_is_answered_by_the_chosen_one() -> None:
+    for params in ({"backend": "sgbm", "pace_backend": ""}, {"backend": "bm"}):
+        pipeline = Pipeline(RoadbevConfig.from_params({"require_imu": False, **params}), backend_factory=_named,
+                            configure_process=False)
+        assert pipeline.pace.near is None and pipeline.pace.off_reason == ""
+        out = pipeline.process(CameraInput(_frame(0).left, None, CAMERA, 1), Attitude(0.0, 0.0), paced=True)
+        assert not out.paced
+
+
+def test_a_stereo_pace_backend_does_not_stand_in_for_a_monocular_one_and_says_why() -> None:
+    pipeline = Pipeline(RoadbevConfig.from_params({"require_imu": False, "backend": "mono"}), backend_factory=_named,
+                        configure_process=False)
+    assert pipeline.pace.near is None
+    assert pipeline.pace.off_reason == "pace_backend 'bm' needs both images and backend 'mono' is given the left one only"
+
+
+def test_a_pace_backend_that_cannot_run_or_is_unknown_is_refused_with_its_name() -> None:
+    def refuses(name: str, grid: GridSpec, **options: Any) -> NamedRoad:
+        if name == "bm":
+            raise RoadbevError("no such checkpoint")
+        return _named(name, grid)
+
+    with pytest.raises(RoadbevError, match="pace_backend: backend 'bm' cannot run: no such checkpoint"):
+        Pipeline(RoadbevConfig.from_params({"require_imu": False, "backend": "sgbm"}), backend_factory=refuses,
+                 configure_process=False)
+    with pytest.raises(ParamError, match="pace_backend must be empty or one of .*; got 'bmm'"):
+        RoadbevConfig.from_params({"pace_backend": "bmm"})
+
+
+def test_reconfiguring_rebuilds_the_pace_backend_only_when_its_settings_change() -> None:
+    pipeline = Pipeline(RoadbevConfig.from_params({"require_imu": False, "backend": "sgbm"}), backend_factory=_named,
+                        configure_process=False)
+    pace = pipeline.pace
+    pipeline.reconfigure(pipeline.config.with_params({"pace_load": 0.5, "map.gate_sigma": 4.0}))
+    assert pipeline.pace is pace
+    pipeline.reconfigure(pipeline.config.with_params({"bm.block_size": 9}))
+    assert pipeline.pace is not pace and pipeline.pace.near is not None
+    pipeline.reconfigure(pipeline.config.with_params({"pace_backend": ""}))
+    assert pipeline.pace.near is None
+    assert build_pace_backends(pipeline.config, pipeline.backend, _named).near is None

@@ -340,10 +340,11 @@ def test_the_clock_watch_says_how_long_the_node_clock_stood_still() -> None:
     assert watch.state(30) == "running"
 
 
-def output(fused: bool, reference: str | None, plane_source: str | None = None) -> SimpleNamespace:
+def output(fused: bool, reference: str | None, plane_source: str | None = None, *, paced: bool = False
+           ) -> SimpleNamespace:
     plane = None if plane_source is None else SimpleNamespace(source=plane_source)
     preview = None if reference is None else SimpleNamespace(reference=reference, contact_plane=plane)
-    return SimpleNamespace(fusion=object() if fused else None, preview=preview)
+    return SimpleNamespace(fusion=object() if fused else None, preview=preview, paced=paced)
 
 
 def test_the_tally_and_the_node_values_in_their_order() -> None:
@@ -352,16 +353,18 @@ def test_the_tally_and_the_node_values_in_their_order() -> None:
                          motion_age_s=None, clock="running", camera_mount="vehicle.camera_position_m [1.6, 0.0, 1.1]")
     assert values == {"queued_sets": "0", "queued_left_images": "0", "map": "off (map.enabled false)",
                       "map_frames_fused": "0", "motion_age_s": "never", "preview_reference": "none yet",
-                      "clock": "running", "camera_mount": "vehicle.camera_position_m [1.6, 0.0, 1.1]"}
+                      "clock": "running", "camera_mount": "vehicle.camera_position_m [1.6, 0.0, 1.1]",
+                      "pace": "off", "paced_frames": "0"}
     tally.note(output(True, "contact plane", "map"))
     tally.note(output(False, "camera"))
     tally.note(output(True, None))
     assert (tally.fused, tally.preview_reference) == (2, "camera")
-    tally.note(output(True, "contact plane", "map"))
+    tally.note(output(True, "contact plane", "map", paced=True))
     values = node_values(queued_set=True, queued_left_images=3, map_state="fusing", tally=tally, motion_age_s=0.256,
-                         clock="running", camera_mount="/tf base_link -> left at [1.6, 0.0, 1.1] m")
+                         clock="running", camera_mount="/tf base_link -> left at [1.6, 0.0, 1.1] m",
+                         pace="bm answers")
     assert list(values.values()) == ["1", "3", "fusing", "3", "0.26", "contact plane (map)", "running",
-                                     "/tf base_link -> left at [1.6, 0.0, 1.1] m"]
+                                     "/tf base_link -> left at [1.6, 0.0, 1.1] m", "bm answers", "1"]
 
 
 def test_node_diagnostics_count_late_and_failed_frames_and_append_the_node_values() -> None:
@@ -379,8 +382,9 @@ def test_node_diagnostics_count_late_and_failed_frames_and_append_the_node_value
     assert len(lines) == 3  # one line per kind
     snapshot = status.snapshot(input_hint="nothing publishes /left", queued_set=False, queued_left_images=2,
                                map_state="fusing", motion_age_s=None, camera_mount="", now_ns=5)
-    assert list(snapshot.values)[-8:] == ["queued_sets", "queued_left_images", "map", "map_frames_fused",
-                                          "motion_age_s", "preview_reference", "clock", "camera_mount"]
+    assert list(snapshot.values)[-10:] == ["queued_sets", "queued_left_images", "map", "map_frames_fused",
+                                           "motion_age_s", "preview_reference", "clock", "camera_mount", "pace",
+                                           "paced_frames"]
     assert snapshot.values["queued_left_images"] == "2" and snapshot.values["clock"] == "running"
     assert "nothing publishes /left" in snapshot.checks[0].message
     status.configure("sgbm", DiagnosticsConfig(log_throttle_s=0.0, window_s=2.0))

@@ -16,7 +16,7 @@ from msg_bridge import stamp_from_header
 from msg_bridge.preview import preview_from_message
 from roadbev_core.config import DEFAULT_BACKEND
 
-from ._ros_harness import MS, START_NS, Harness, wait_for
+from ._ros_harness import MS, START_NS, Harness, PitchBackend, wait_for
 
 FRAME_NS = 100 * MS  # 10 Hz
 
@@ -96,6 +96,40 @@ def test_slow_inference_keeps_the_newest_set_and_counts_drops(harness: Harness) 
     assert counts["outputs"] + counts["dropped_busy"] + counts["dropped_sync"] + counts["dropped_invalid"] == 12, counts
     assert counts["outputs"] == len(harness.output_stamps())
     assert harness.output_stamps() == sorted(harness.output_stamps())
+
+
+def _slow_chosen_fast_pace(name: str, grid: Any, **_options: Any) -> PitchBackend:
+    return PitchBackend(grid, 0.0 if name == "bm" else 0.15, name=f"stub-{name}")
+
+
+def test_a_backend_slower_than_the_camera_hands_the_frames_to_the_pace_backend(ros: Any) -> None:
+    h = Harness(ros, params={"max_latency_s": 0.0, "diagnostics_period_s": 0.1},
+                backend_factory=_slow_chosen_fast_pace)
+    try:
+        stamps = []
+        for k in range(20):  # a 10 Hz camera, a 150 ms backend
+            stamps.append(feed(h, k))
+            time.sleep(0.1)
+        h.wait_output(stamps[-1], timeout=15.0)
+        counts = h.node.counts()
+        assert counts["outputs"] >= 17, counts  # the first frames measure the chosen backend's cost
+        assert wait_for(lambda: int(h.latest_diagnostics().get("paced_frames", "0")) >= 15, 3.0), \
+            h.latest_diagnostics()
+        pace = h.latest_diagnostics()["pace"]
+        assert pace.startswith("stub-bm answers") and "stub-ensemble takes 1" in pace, pace
+        assert "the camera's period is 100 ms" in pace, pace
+    finally:
+        h.close()
+
+    fits = Harness(ros, params={"max_latency_s": 0.0, "diagnostics_period_s": 0.1, "pace_load": 2.0},
+                   backend_factory=_slow_chosen_fast_pace)
+    try:  # allowed two periods a frame, the chosen backend answers (and falls behind)
+        stamps = [feed(fits, k) for k in range(3)]
+        fits.wait_output(stamps[-1], timeout=15.0)
+        assert wait_for(lambda: fits.latest_diagnostics().get("pace", "").startswith("stub-ensemble answers"), 3.0)
+        assert fits.latest_diagnostics()["paced_frames"] == "0"
+    finally:
+        fits.close()
 
 
 @pytest.mark.parametrize("harness", [{"delay_s": 0.15, "params": {"max_latency_s": 0.1, "diagnostics_period_s": 0.1}}],
@@ -340,7 +374,8 @@ def test_backend_options_come_from_parameters(ros: Any) -> None:
     h = Harness(ros, params={"bm.block_size": 7}, backend_factory=factory)
     try:
         node = h.node
-        assert seen[-1] == {"name": DEFAULT_BACKEND}  # options of other backends are not passed
+        # options of other backends are not passed; the pace backend (bm) gets its own
+        assert seen[-2:] == [{"name": DEFAULT_BACKEND}, {"name": "bm", "block_size": 7}]
         assert node.set_parameters([Parameter("backend", value="bm")])[0].successful
         assert seen[-1] == {"name": "bm", "block_size": 7}
         result = node.set_parameters([Parameter("backend", value="bev_sweep")])[0]
@@ -522,7 +557,7 @@ def test_a_frame_without_coverage_warns_on_diagnostics_with_its_likely_cause(ros
         backends.append(Blind(grid))
         return backends[-1]
 
-    h = Harness(ros, backend_factory=factory, params={"diagnostics_period_s": 0.1})
+    h = Harness(ros, backend_factory=factory, params={"diagnostics_period_s": 0.1, "pace_backend": ""})
     try:
         h.wait_output(feed(h, 0))
         assert wait_for(lambda: h.latest_diagnostics().get("coverage_pct") == "0.0", 5.0)

@@ -1,0 +1,146 @@
+"""Keeping pace with the camera: a cheaper backend answers the frames the chosen one cannot.
+
+A node slower than its camera answers each frame late (it waits for the node) and skips frames
+(a newer set replaces the waiting one). At highway speed both cost the preview most of its worth:
+the error of the road between the features, carried by the car's motion over a longer latency,
+outweighs what a better estimate gains (docs/results/preview.md, "On a slower CPU"). So when the
+chosen backend takes more of the camera's period per frame than ``pace_load`` allows, the pace
+backend (``pace_backend``; for the default ensemble its cheapest member, ``bm``) answers instead,
+and every few seconds (:data:`PROBE_EVERY` frames) the chosen backend answers one frame again,
+so that its cost is measured afresh and it takes over again once it fits (the load on the machine
+went away, the camera slowed down).
+
+The camera's period is the median of the intervals between the stamps of the last synchronised
+sets (every set, those that a newer one replaced too); a frame's cost is the node's busy time on
+it (estimate, map, outputs; waits for the IMU or odometry left out), smoothed per backend (a probe's
+measurement replaces the chosen backend's). The :class:`Pacer` is told the times; it reads no clock.
+"""
+
+from __future__ import annotations
+
+import statistics
+import threading
+from collections import deque
+from dataclasses import dataclass
+
+__all__ = ["MAX_INTERVAL_S", "PROBE_EVERY", "PaceState", "Pacer"]
+
+# Every this many frames answered by the pace backend, the chosen one answers one (at a 10 Hz
+# camera every 5 s): long enough that its extra time is a small share, short enough to notice
+# that the load went away.
+PROBE_EVERY = 50
+# Intervals between sets longer than this are gaps in the stream (a paused bag, a camera that
+# restarted), not its period.
+MAX_INTERVAL_S = 1.0
+_INTERVALS = 9  # sets whose intervals make the period (a median: one late set does not move it)
+_SMOOTHING = 0.3  # weight of a frame's cost in its backend's running cost
+
+
+@dataclass(frozen=True)
+class PaceState:
+    """What the pacer knows now (the node's ``pace`` diagnostic).
+
+    Attributes:
+        period_s: the camera's period (None: fewer than two sets yet).
+        cost_s: the chosen backend's busy time per frame (None: not measured yet).
+        pace_cost_s: the pace backend's (None: it has not answered yet).
+        paced: whether the pace backend answers the next frame (a probe aside).
+    """
+
+    period_s: float | None
+    cost_s: float | None
+    pace_cost_s: float | None
+    paced: bool
+
+    def describe(self, backend: str, pace_backend: str, load: float) -> str:
+        """One line: who answers and why."""
+        if self.period_s is None or self.cost_s is None:
+            return f"{backend} answers (measuring its cost and the camera's period)"
+        fit = (f"{backend} takes {1e3 * self.cost_s:.0f} ms a frame, the camera's period is "
+               f"{1e3 * self.period_s:.0f} ms (pace_load {load:g})")
+        if not self.paced:
+            return f"{backend} answers: {fit}"
+        pace = "" if self.pace_cost_s is None else f", {1e3 * self.pace_cost_s:.0f} ms a frame"
+        return f"{pace_backend} answers{pace}: {fit}; {backend} answers one frame in {PROBE_EVERY + 1}"
+
+
+class Pacer:
+    """Chooses, frame by frame, whether the pace backend answers (module docstring).
+
+    Args:
+        load: the largest share of the camera's period the chosen backend may take per frame.
+        probe_every: frames answered by the pace backend between two answered by the chosen one.
+    """
+
+    def __init__(self, load: float, probe_every: int = PROBE_EVERY) -> None:
+        if not load > 0.0:
+            raise ValueError(f"pace load must be positive, got {load}")
+        self.load = load
+        self.probe_every = probe_every
+        # the camera's sets come on the node's executor thread, the costs on its worker
+        self._lock = threading.Lock()
+        self._last_stamp_ns: int | None = None
+        self._intervals: deque[float] = deque(maxlen=_INTERVALS)
+        self._cost: float | None = None
+        self._pace_cost: float | None = None
+        self._paced_in_a_row = 0
+
+    def reset(self) -> None:
+        """Forget the stream (its stamps jumped back: a new pass); the costs are kept."""
+        with self._lock:
+            self._last_stamp_ns = None
+            self._intervals.clear()
+
+    def note_set(self, stamp_ns: int) -> None:
+        """A synchronised set of the camera stamped ``stamp_ns``."""
+        with self._lock:
+            last, self._last_stamp_ns = self._last_stamp_ns, stamp_ns
+            if last is None:
+                return
+            interval = (stamp_ns - last) * 1e-9
+            if 0.0 < interval <= MAX_INTERVAL_S:
+                self._intervals.append(interval)
+
+    @property
+    def period_s(self) -> float | None:
+        """The camera's period: the median interval of the last sets (None: none yet)."""
+        with self._lock:
+            return self._period()
+
+    def _period(self) -> float | None:
+        return statistics.median(self._intervals) if self._intervals else None
+
+    def _fits(self) -> bool:
+        period = self._period()
+        return period is None or self._cost is None or self._cost <= self.load * period
+
+    def fits(self) -> bool:
+        """Whether the chosen backend's cost fits the camera's period (or either is unknown)."""
+        with self._lock:
+            return self._fits()
+
+    def choose(self) -> bool:
+        """Whether the pace backend answers the next frame."""
+        with self._lock:
+            return not self._fits() and self._paced_in_a_row < self.probe_every
+
+    def note_cost(self, paced: bool, busy_s: float) -> None:
+        """The busy time of a frame just answered, by the pace backend (``paced``) or the chosen one."""
+        with self._lock:
+            if paced:
+                self._pace_cost = _smoothed(self._pace_cost, busy_s)
+                self._paced_in_a_row += 1
+            else:
+                # a probe's cost replaces the running one: the load may have changed since the last
+                probe = self._paced_in_a_row > 0
+                self._cost = busy_s if probe else _smoothed(self._cost, busy_s)
+                self._paced_in_a_row = 0
+
+    def state(self) -> PaceState:
+        """What it knows now."""
+        with self._lock:
+            return PaceState(self._period(), self._cost, self._pace_cost, not self._fits())
+
+
+def _smoothed(running: float | None, value: float) -> float:
+    return value if running is None else (1.0 - _SMOOTHING) * running + _SMOOTHING * value
