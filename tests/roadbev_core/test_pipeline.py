@@ -417,7 +417,8 @@ def test_a_paced_frame_is_answered_by_the_pace_backend_on_both_grids() -> None:
     paced = pipeline.process(CameraInput(_frame(1).left, None, CAMERA, _frame(1).stamp_ns), Attitude(0.0, 0.0),
                              paced=True)
     assert not chosen.paced and paced.paced
-    assert np.all(chosen.estimate.elevation == np.float32(0.03)) and np.all(paced.estimate.elevation == np.float32(0.02))
+    assert np.all(chosen.estimate.elevation == np.float32(0.03))
+    assert np.all(paced.estimate.elevation == np.float32(0.02))
     assert chosen.far is not None and paced.far is not None
     assert np.all(chosen.far.elevation == np.float32(0.03)) and np.all(paced.far.elevation == np.float32(0.02))
 
@@ -435,7 +436,8 @@ def test_a_stereo_pace_backend_does_not_stand_in_for_a_monocular_one_and_says_wh
     pipeline = Pipeline(RoadbevConfig.from_params({"require_imu": False, "backend": "mono"}), backend_factory=_named,
                         configure_process=False)
     assert pipeline.pace.near is None
-    assert pipeline.pace.off_reason == "pace_backend 'bm' needs both images and backend 'mono' is given the left one only"
+    assert pipeline.pace.off_reason == (
+        "pace_backend 'bm' needs both images and backend 'mono' is given the left one only")
 
 
 def test_a_pace_backend_that_cannot_run_or_is_unknown_is_refused_with_its_name() -> None:
@@ -444,10 +446,10 @@ def test_a_pace_backend_that_cannot_run_or_is_unknown_is_refused_with_its_name()
             raise RoadbevError("no such checkpoint")
         return _named(name, grid)
 
-    with pytest.raises(RoadbevError, match="pace_backend: backend 'bm' cannot run: no such checkpoint"):
+    with pytest.raises(RoadbevError, match=r"pace_backend: backend 'bm' cannot run: no such checkpoint"):
         Pipeline(RoadbevConfig.from_params({"require_imu": False, "backend": "sgbm"}), backend_factory=refuses,
                  configure_process=False)
-    with pytest.raises(ParamError, match="pace_backend must be empty or one of .*; got 'bmm'"):
+    with pytest.raises(ParamError, match=r"pace_backend must be empty or one of .*; got 'bmm'"):
         RoadbevConfig.from_params({"pace_backend": "bmm"})
 
 
