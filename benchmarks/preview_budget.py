@@ -5,7 +5,11 @@ together with what it costs there: the end-to-end latency of its previews and th
 spends per frame, both measured in the node on this machine (``benchmarks.bench_node --drive``,
 map on). On a drive the node's mailbox policy is replayed (:func:`node_schedule`): a frame that
 arrives while the node is busy waits, a newer one replaces it, so a candidate slower than the
-camera fuses fewer frames and its previews arrive later.
+camera fuses fewer frames and its previews arrive later. A candidate whose spec names a
+``pace_backend`` is paced as the node paces it: the node model's :class:`roadbev_core.pacing.Pacer`
+hands a frame to the pace backend, charged that backend's own node row, while the chosen one takes
+more than ``pace_load`` of the camera's period (:class:`PacedEstimates`); a candidate that names
+none runs unpaced, as the node ran before it had a pace backend.
 
 The **error budget** puts the truth into one stage at a time while everything else stays as
 shipped (:data:`STAGES`):
@@ -56,6 +60,7 @@ from roadbev_core.config import GridSpec, RoadbevConfig
 from roadbev_core.frame import Estimate, Frame
 from roadbev_core.fusion import FrameFusion, FramePlacement, FusedMap, MapSettings, MapWindow
 from roadbev_core.labels import ElevationLabel
+from roadbev_core.pacing import Pacer
 from roadbev_core.pipeline import Pipeline, PipelineOutput, check_config
 from roadbev_core.preview import ContactPlane, TrackProfile
 from roadbev_core.vehicle import planar_yaw
@@ -82,6 +87,8 @@ __all__ = [
     "CachedEstimates",
     "Candidate",
     "DriveFrames",
+    "Estimates",
+    "PacedEstimates",
     "TrueDatumMap",
     "budgeted",
     "candidate_previews",
@@ -134,6 +141,8 @@ class Candidate:
         latency_s: image stamp to preview received, when the node keeps up (p50, map on).
         period_s: the node's time per frame (inference and the rest of its work): frames that arrive
             faster wait in its one-set mailbox and the newest wins.
+        pace: the pace backend's latency and period where ``params`` name a ``pace_backend``
+            other than ``backend`` (the node model paces the candidate: :func:`node_schedule`).
     """
 
     name: str
@@ -141,11 +150,36 @@ class Candidate:
     params: Mapping[str, Any] = field(default_factory=dict)
     latency_s: float = 0.1
     period_s: float = 0.0
+    pace: tuple[float, float] | None = None
 
     def config(self, grid: GridSpec, extra: Mapping[str, Any] | None = None) -> RoadbevConfig:
-        """The pipeline's config for this candidate on ``grid`` (map on)."""
-        params = {**grid.to_dict(), "backend": self.backend, "map.enabled": True, **self.params, **(extra or {})}
+        """The pipeline's config for this candidate on ``grid`` (map on). Its pipeline builds no
+        pace backend: the node model paces (:func:`node_schedule`, :class:`PacedEstimates`)."""
+        params = {**grid.to_dict(), "backend": self.backend, "map.enabled": True, **self.params, **(extra or {}),
+                  "pace_backend": ""}
         return check_config(RoadbevConfig.from_params(params))
+
+    @property
+    def pace_backend(self) -> str:
+        """The pace backend its spec names ("" where none, or the chosen backend itself)."""
+        name = str(self.params.get("pace_backend", ""))
+        return "" if name == self.backend else name
+
+    @property
+    def pace_load(self) -> float:
+        """Its ``pace_load`` (the node's default where its spec names none)."""
+        return float(self.params.get("pace_load", RoadbevConfig().backend.pace_load))
+
+    def pace_candidate(self) -> Candidate:
+        """Its pace backend as a candidate of its own (the options and far field it runs with).
+
+        Raises:
+            ValueError: it names no pace backend, or has no pace costs.
+        """
+        if not self.pace_backend or self.pace is None:
+            raise ValueError(f"candidate {self.name!r} is not paced")
+        params = {k: v for k, v in self.params.items() if not k.startswith(("pace_", f"{self.backend}."))}
+        return Candidate(f"{self.name}:{self.pace_backend}", self.pace_backend, params, *self.pace)
 
     def backend_options(self) -> dict[str, Any]:
         """The options the registry builds the backend with (as the node's config gives them)."""
@@ -254,15 +288,30 @@ def candidates_from_node(specs: Sequence[str], node_results: Sequence[Mapping[st
             latency_s, period_s = charges.pop(name)
             out.append(Candidate(name, backend, params, latency_s, period_s))
             continue
-        row = _node_row(backend, params, node_results)
-        if row is None:
-            raise ValueError(f"candidate {spec!r}: no bench_node row with backend {backend} and these options")
-        period = (float(row["inference_p50_ms"]) + float(row["overhead_mean_ms"])) * 1e-3
-        latency = row.get("latency_on_arrival_ms", row["latency_ms"])
-        out.append(Candidate(name, backend, params, float(latency["p50"]) * 1e-3, period))
+        latency_s, period_s = _row_costs(spec, backend, params, node_results)
+        candidate = Candidate(name, backend, params, latency_s, period_s)
+        if candidate.pace_backend:
+            pace = _row_costs(f"{spec} (its pace_backend)", candidate.pace_backend, params, node_results)
+            candidate = replace(candidate, pace=pace)
+        out.append(candidate)
     if charges:
         raise ValueError(f"--charge: no candidate named {', '.join(sorted(charges))}")
     return out
+
+
+def _row_costs(spec: str, backend: str, params: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]
+               ) -> tuple[float, float]:
+    """The latency (p50 on arrival) and period (inference p50 plus overhead) of ``backend``'s node row.
+
+    Raises:
+        ValueError: no such row.
+    """
+    row = _node_row(backend, params, rows)
+    if row is None:
+        raise ValueError(f"candidate {spec!r}: no bench_node row with backend {backend} and these options")
+    period = (float(row["inference_p50_ms"]) + float(row["overhead_mean_ms"])) * 1e-3
+    latency = row.get("latency_on_arrival_ms", row["latency_ms"])
+    return float(latency["p50"]) * 1e-3, period
 
 
 def node_rows(results: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
@@ -281,31 +330,41 @@ def _costs(backend: str, params: Mapping[str, Any]) -> dict[str, str]:
 def _node_row(backend: str, params: Mapping[str, Any], rows: Sequence[Mapping[str, Any]]) -> Mapping[str, Any] | None:
     """The ``5hz`` row (the bag's own timing, as a camera delivers it) of ``backend`` run with
     exactly the cost-bearing parameters (:func:`_costs`) of ``params``: its backend options and
-    the node parameters of its run (:func:`node_rows`)."""
+    the node parameters of its run (:func:`node_rows`). A row where a pace backend answered frames
+    (``paced_frames``) measured two backends at once and is never one backend's cost."""
     want = _costs(backend, params)
     for row in rows:
         name, _, options = str(row["backend"]).partition(":")
         have = {f"{name}.{item.partition('=')[0]}": item.partition("=")[2] for item in filter(None, options.split(","))}
         have.update(_costs(name, row.get("node_params") or {}))
-        if row.get("mode") == "5hz" and name == backend and have == want:
+        if row.get("mode") == "5hz" and name == backend and have == want and not row.get("paced_frames"):
             return row
     return None
 
 
-def node_schedule(stamps_ns: Sequence[int], period_s: float, latency_s: float) -> list[tuple[int, int]]:
-    """The frames a node with a one-set mailbox processes, and when each preview is received.
+def node_schedule(stamps_ns: Sequence[int], period_s: float, latency_s: float, *,
+                  pace: tuple[float, float] | None = None, pace_load: float = 1.0) -> list[tuple[int, int, bool]]:
+    """The frames a node with a one-set mailbox processes, when each preview is received, and
+    which ones its pace backend answers.
 
     A frame that arrives while the node is busy waits in the mailbox; a newer one replaces it. A
     frame processed on arrival is received ``latency_s`` after its stamp; one that waited, that
-    much plus its wait.
+    much plus its wait. With ``pace`` (the pace backend's latency and period) a
+    :class:`roadbev_core.pacing.Pacer` with ``pace_load`` chooses for each frame the node takes, as
+    the node's does: told every set by the time the frame is taken, and each frame's time (the
+    period of the backend that answered it).
 
     Returns:
-        [(index into ``stamps_ns``, received ns)] in stamp order.
+        [(index into ``stamps_ns``, received ns, answered by the pace backend)] in stamp order.
     """
-    period = int(round(period_s * 1e9))
-    latency = int(round(latency_s * 1e9))
-    out: list[tuple[int, int]] = []
+    costs = {False: (int(round(period_s * 1e9)), int(round(latency_s * 1e9)))}
+    pacer = None
+    if pace is not None:
+        costs[True] = (int(round(pace[1] * 1e9)), int(round(pace[0] * 1e9)))
+        pacer = Pacer(pace_load)
+    out: list[tuple[int, int, bool]] = []
     free_at = -(2**62)
+    told = 0  # sets the pacer has been told of
     i, n = 0, len(stamps_ns)
     while i < n:
         if stamps_ns[i] >= free_at:
@@ -315,7 +374,16 @@ def node_schedule(stamps_ns: Sequence[int], period_s: float, latency_s: float) -
             while j + 1 < n and stamps_ns[j + 1] <= free_at:
                 j += 1
             i, start = j, free_at
-        out.append((i, start + latency))
+        paced = False
+        if pacer is not None:
+            while told < n and stamps_ns[told] <= start:
+                pacer.note_set(int(stamps_ns[told]))
+                told += 1
+            paced = pacer.choose()
+        period, latency = costs[paced]
+        out.append((i, start + latency, paced))
+        if pacer is not None:
+            pacer.note_cost(paced, period * 1e-9)
         free_at = start + period
         i += 1
     return out
@@ -358,6 +426,34 @@ class CachedEstimates:
                 raise ValueError(f"{self.name}: no backend on the grid {grid} (built without a factory)")
             self._other_grids[grid] = CachedEstimates(self._build(grid))
         return self._other_grids[grid]
+
+
+class PacedEstimates:
+    """A paced candidate's estimates: its pace backend's on the frames the node model handed to it
+    (``paced``: their stamps, set by :func:`candidate_previews` for each schedule), the chosen
+    backend's on the others; each cached by stamp, and on another grid (the far field's) alike."""
+
+    def __init__(self, chosen: CachedEstimates, pace: CachedEstimates, paced: set[int] | None = None) -> None:
+        self.chosen, self.pace = chosen, pace
+        self.paced: set[int] = set() if paced is None else paced
+        self.name, self.grid, self.needs_stereo = chosen.name, chosen.grid, chosen.needs_stereo
+        self.far_field = chosen.far_field
+        self._other_grids: dict[GridSpec, PacedEstimates] = {}
+
+    def estimate(self, frame: Frame) -> Estimate:
+        return (self.pace if int(frame.stamp_ns) in self.paced else self.chosen).estimate(frame)
+
+    def on_grid(self, grid: GridSpec) -> PacedEstimates:
+        """Both backends on ``grid``, paced on the same frames."""
+        if grid == self.grid:
+            return self
+        if grid not in self._other_grids:
+            self._other_grids[grid] = PacedEstimates(self.chosen.on_grid(grid), self.pace.on_grid(grid), self.paced)
+        return self._other_grids[grid]
+
+
+# a candidate's estimates (make_backend)
+Estimates = CachedEstimates | PacedEstimates
 
 
 def _window_mean(values: np.ndarray, rows: int, cols: int) -> np.ndarray:
@@ -409,7 +505,7 @@ class _TruthBackend:
 
     MODES = ("true_answered", "true_features", "true_surface", "true_short", "true_all", "half_error")
 
-    def __init__(self, cached: CachedEstimates, labels: Mapping[int, np.ndarray], stage: str) -> None:
+    def __init__(self, cached: Estimates, labels: Mapping[int, np.ndarray], stage: str) -> None:
         if stage not in self.MODES:
             raise ValueError(f"{stage!r} is not a label mode (one of {', '.join(self.MODES)})")
         self.cached, self.labels, self.stage = cached, labels, stage
@@ -498,7 +594,7 @@ def with_true_plane(previews: Sequence[TimedPreview], truth: Trajectory, road_ma
 
 
 def candidate_previews(drive: RidingDrive, samples: Sequence[DriveSample], candidate: Candidate,
-                       cached: CachedEstimates, stage: str, *, step: int = 1, ride_settings: RideSettings,
+                       cached: Estimates, stage: str, *, step: int = 1, ride_settings: RideSettings,
                        map_on: bool = True, on_map: Callable[[MapWindow], Any] | None = None) -> list[TimedPreview]:
     """The previews of ``candidate`` with the map on, with ``stage`` of the error budget taken from
     the truth, on every ``step``-th frame of a rendered drive as the node's schedule lets it fuse
@@ -518,12 +614,16 @@ def candidate_previews(drive: RidingDrive, samples: Sequence[DriveSample], candi
     truth = Trajectory(gt.stamp_ns, gt.position, gt.orientation_xyzw)
     frames = list(samples)[::step]
     stamps = [int(s.frame.stamp_ns) for s in frames]
-    if stage == "no_latency":
-        schedule = [(i, stamp) for i, stamp in enumerate(stamps)]
+    if stage == "no_latency":  # every frame at its stamp, by the chosen backend
+        schedule = [(i, stamp, False) for i, stamp in enumerate(stamps)]
     else:
-        schedule = node_schedule(stamps, candidate.period_s, candidate.latency_s)
-    fused_frames = [frames[i] for i, _ in schedule]
-    received = {stamps[i]: at for i, at in schedule}
+        schedule = node_schedule(stamps, candidate.period_s, candidate.latency_s, pace=candidate.pace,
+                                 pace_load=candidate.pace_load)
+    if isinstance(cached, PacedEstimates):
+        cached.paced.clear()
+        cached.paced.update(stamps[i] for i, _, paced in schedule if paced)
+    fused_frames = [frames[i] for i, _, _ in schedule]
+    received = {stamps[i]: at for i, at, _ in schedule}
     backend: Backend = cached
     extra: dict[str, Any] = {} if map_on else {"map.enabled": False}
     map_factory: Callable[[MapSettings], FusedMap] = FusedMap
@@ -587,9 +687,14 @@ def far_label_grid(candidates: Sequence[Candidate], budget: Sequence[str] | None
     return next(iter(grids), None)
 
 
-def make_backend(candidate: Candidate, grid: GridSpec) -> CachedEstimates:
+def make_backend(candidate: Candidate, grid: GridSpec) -> Estimates:
     """The candidate's backend on ``grid`` (and on the far-field grid when asked), its estimates
-    cached by stamp."""
+    cached by stamp; a paced candidate's with its pace backend's (:class:`PacedEstimates`)."""
+    chosen = _cached(candidate, grid)
+    return chosen if candidate.pace is None else PacedEstimates(chosen, _cached(candidate.pace_candidate(), grid))
+
+
+def _cached(candidate: Candidate, grid: GridSpec) -> CachedEstimates:
     options = candidate.backend_options()
     return CachedEstimates(create(candidate.backend, grid, **options),
                            lambda other: create(candidate.backend, other, **options))

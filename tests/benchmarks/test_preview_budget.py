@@ -16,6 +16,7 @@ from benchmarks.preview_budget import (
     CachedEstimates,
     Candidate,
     DriveFrames,
+    PacedEstimates,
     budgeted,
     candidate_previews,
     candidates_from_node,
@@ -40,13 +41,50 @@ MS = 1_000_000
 
 def test_the_node_fuses_the_newest_waiting_frame_and_its_previews_come_later() -> None:
     stamps = [k * 100 * MS for k in range(6)]  # a 10 Hz camera
-    assert node_schedule(stamps, 0.08, 0.1) == [(k, stamps[k] + 100 * MS) for k in range(6)]  # keeps up
+    assert node_schedule(stamps, 0.08, 0.1) == [(k, stamps[k] + 100 * MS, False) for k in range(6)]  # keeps up
     # 250 ms a frame: frame 0; frame 1 waiting is replaced by frame 2, which starts when the node
     # is free at 250 ms; then frames 3 and 4 are replaced by frame 5, arriving as the node is free
     slow = node_schedule(stamps, 0.25, 0.1)
-    assert [i for i, _ in slow] == [0, 2, 5]
-    assert slow[1] == (2, 250 * MS + 100 * MS)  # waited 50 ms for the node, then the latency
-    assert slow[2] == (5, 500 * MS + 100 * MS)
+    assert [i for i, _, _ in slow] == [0, 2, 5]
+    assert slow[1] == (2, 250 * MS + 100 * MS, False)  # waited 50 ms for the node, then the latency
+    assert slow[2] == (5, 500 * MS + 100 * MS, False)
+
+
+def test_a_paced_node_hands_the_frames_to_the_pace_backend_once_the_chosen_one_is_too_slow() -> None:
+    stamps = [k * 100 * MS for k in range(8)]  # a 10 Hz camera
+    # the chosen backend takes 150 ms a frame: frame 0 measures it (frame 1 waits 50 ms, frame 2
+    # 10 ms), then the pace backend (60 ms a frame, 70 ms latency) answers every frame on arrival
+    schedule = node_schedule(stamps, 0.15, 0.16, pace=(0.07, 0.06), pace_load=0.9)
+    assert schedule[0] == (0, 160 * MS, False)
+    assert schedule[1] == (1, 150 * MS + 70 * MS, True)
+    assert schedule[2] == (2, 210 * MS + 70 * MS, True)
+    assert schedule[3:] == [(k, stamps[k] + 70 * MS, True) for k in range(3, 8)]
+    # allowed two periods a frame, the chosen backend answers (and falls behind)
+    assert not any(paced for _, _, paced in node_schedule(stamps, 0.15, 0.16, pace=(0.07, 0.06), pace_load=2.0))
+    # a fast one is never paced
+    assert not any(paced for _, _, paced in node_schedule(stamps, 0.05, 0.06, pace=(0.07, 0.06), pace_load=0.9))
+
+
+def test_a_paced_candidate_takes_its_pace_backends_row_and_never_a_paced_row() -> None:
+    chosen = {"backend": "ensemble", "mode": "5hz", "latency_ms": {"p50": 180.0},
+              "latency_on_arrival_ms": {"p50": 125.0}, "inference_p50_ms": 100.0, "overhead_mean_ms": 25.0}
+    paced = {**chosen, "latency_on_arrival_ms": {"p50": 80.0}, "paced_frames": 58}
+    bm = {"backend": "bm", "mode": "5hz", "latency_ms": {"p50": 88.0}, "inference_p50_ms": 60.0,
+          "overhead_mean_ms": 20.0}
+    rows = node_rows([{"rows": [paced, chosen, bm], "node_params": {"far_field.enabled": True}}])
+    unpaced, c = candidates_from_node(["far=ensemble:far_field.enabled=true",
+                                       "far_paced=ensemble:far_field.enabled=true,pace_backend=bm"], rows)
+    assert unpaced.pace is None and unpaced.pace_backend == ""
+    assert unpaced.latency_s == pytest.approx(0.125)  # the paced row is skipped
+    assert c.pace_backend == "bm" and c.pace == pytest.approx((0.088, 0.080))
+    assert (c.latency_s, c.period_s) == pytest.approx((0.125, 0.125)) and c.pace_load == pytest.approx(0.9)
+    pace = c.pace_candidate()
+    assert (pace.backend, dict(pace.params), pace.pace) == ("bm", {"far_field.enabled": True}, None)
+    # the pipeline of a candidate never paces itself: the node model does
+    assert c.config(GridSpec()).backend.pace_backend == ""
+    with pytest.raises(ValueError, match=r"its pace_backend.*no bench_node row with backend bm"):
+        candidates_from_node(["far_paced=ensemble:far_field.enabled=true,pace_backend=bm"],
+                             node_rows([{"rows": [chosen], "node_params": {"far_field.enabled": True}}]))
 
 
 def test_candidates_take_their_latency_and_period_from_the_node_row() -> None:
@@ -79,7 +117,7 @@ def test_a_candidate_is_charged_its_latency_on_arrival_the_schedule_adding_the_w
     stamps = [k * 100 * MS for k in range(4)]
     # frame 1 arrives at 100 ms while the node is busy until 125 ms: received 25 ms later than on arrival
     schedule = node_schedule(stamps, c.period_s, c.latency_s)
-    assert schedule[:2] == [(0, 130 * MS), (1, 255 * MS)]
+    assert schedule[:2] == [(0, 130 * MS, False), (1, 255 * MS, False)]
 
 
 def test_a_stated_charge_replaces_the_node_row() -> None:
@@ -239,6 +277,37 @@ def test_stored_frames_read_back_and_truth_goes_into_one_stage(tmp_path: Any) ->
     for stage in FAR_STAGES:  # they change a far field, which this candidate has not
         with pytest.raises(ValueError, match="has none"):
             candidate_previews(drive, samples, candidate, cached, stage, ride_settings=settings)
+
+
+def test_a_paced_candidate_fuses_the_pace_backends_estimate_on_the_frames_the_node_model_paced(tmp_path: Any
+                                                                                              ) -> None:
+    drive = _small_drive()
+    samples = DriveFrames(tmp_path).samples(drive)
+    labels = {int(s.frame.stamp_ns): s.truth.elevation.copy() for s in samples}
+    grid = drive.config.grid
+
+    class Offset(Noisy):
+        name = "sgbm"
+
+        def estimate(self, frame: Any) -> Estimate:
+            out = super().estimate(frame)
+            return Estimate(out.elevation + np.float32(0.05), out.uncertainty)
+
+    chosen, pace = CachedEstimates(Offset(grid, labels)), CachedEstimates(Noisy(grid, labels))
+    paced = PacedEstimates(chosen, pace)
+    assert paced.on_grid(grid) is paced and (paced.name, paced.grid) == ("sgbm", grid)
+    # 150 ms a frame at a 10 Hz camera: the chosen backend answers the first frame, the pace one the rest
+    candidate = Candidate("paced", "sgbm", {"far_field.enabled": False, "pace_backend": "bm"}, latency_s=0.16,
+                          period_s=0.15, pace=(0.07, 0.06))
+    settings = RideSettings(arrival=ArrivalSettings(base_height=grid.base_height, camera_in_base=drive.base_to_camera))
+    previews = candidate_previews(drive, samples, candidate, paced, "shipped", ride_settings=settings)
+    stamps = sorted(labels)
+    assert paced.paced == set(stamps[1:])
+    assert sorted(chosen.estimates) == stamps[:1] and sorted(pace.estimates) == stamps[1:]
+    assert [p.received_ns - p.stamp_ns for p in previews] == [160 * MS, 120 * MS, 80 * MS] + [70 * MS] * 3
+    # no latency: every frame at its stamp, by the chosen backend
+    candidate_previews(drive, samples, candidate, paced, "no_latency", ride_settings=settings)
+    assert paced.paced == set() and sorted(chosen.estimates) == stamps
 
 
 def test_perfect_map_previews_are_unchanged_against_the_true_plane() -> None:
