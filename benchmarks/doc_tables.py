@@ -289,17 +289,20 @@ def node_candidates(data: Mapping[str, Any]) -> str:
     """bench_node --drive: each configuration in the node with the map on, fed a camera's timing:
     frames fused, latency, inference, the node's own time per frame and its wait for the motion
     samples after each image's stamp (IMU, odometry); with the latency on arrival where the run
-    measured it (each frame's latency less its wait for the node)."""
+    measured it (each frame's latency less its wait for the node), and the frames the pace backend
+    answered where the run counted them."""
     on_arrival = all("latency_on_arrival_ms" in r for r in data["rows"])
+    paced = all("paced_frames" in r for r in data["rows"])
     lines = _head("configuration", "frames fused", "latency p50 / p95 (ms)",
                   *(("latency on arrival p50 (ms)",) if on_arrival else ()), "inference p50 (ms)",
-                  "node overhead mean (ms)", "IMU / odometry wait mean (ms)")
+                  "node overhead mean (ms)", "IMU / odometry wait mean (ms)",
+                  *(("answered by the pace backend",) if paced else ()))
     for r in data["rows"]:
         arrival = [_fmt(r["latency_on_arrival_ms"]["p50"], 0)] if on_arrival else []
         lines.append(_row([f"`{r['backend']}`", f"{r['outputs']}/{r['frames']}",
                            f"{_fmt(r['latency_ms']['p50'], 0)} / {_fmt(r['latency_ms']['p95'], 0)}", *arrival,
                            _fmt(r["inference_p50_ms"], 0), _fmt(r["overhead_mean_ms"], 1),
-                           _fmt(r["imu_wait_mean_ms"], 1)]))
+                           _fmt(r["imu_wait_mean_ms"], 1), *([str(r["paced_frames"])] if paced else [])]))
     bag = data["bag"]
     lines.append("")
     lines.append(f"A {bag['frames']}-frame drive at {bag['frame_rate_hz']:g} Hz with odometry (the map on), "
@@ -1072,12 +1075,12 @@ class Table:
 
 _NODE = ".venv/bin/python -m benchmarks.bench_node"
 
-def _node_drive(name: str, backends: str, node_param: str = "") -> Table:
-    """The table of a ``bench_node --drive`` run at 10 Hz (60 frames, the bag's timing) of
+def _node_drive(name: str, backends: str, node_param: str = "", rate: int = 10) -> Table:
+    """The table of a ``bench_node --drive`` run at ``rate`` Hz (60 frames, the bag's timing) of
     ``backends``, with ``node_param`` for every row, written to ``<name>.json``."""
     param = f" --node-param {node_param}" if node_param else ""
-    return Table((f"{name}.json",), node_candidates, f"{_NODE} --drive --rate 10 --frames 60 --modes 5hz --backends "
-                                                     f"{backends}{param} --out benchmarks/results/{name}.json")
+    return Table((f"{name}.json",), node_candidates, f"{_NODE} --drive --rate {rate} --frames 60 --modes 5hz "
+                                                     f"--backends {backends}{param} --out benchmarks/results/{name}.json")
 
 
 def _ride(name: str) -> dict[str, Table]:
@@ -1136,6 +1139,9 @@ TABLES: dict[str, Table] = {
     "node_speed_far": _node_drive("node_speed_far", "ensemble", "far_field.enabled=true"),
     "node_speed_bm": _node_drive("node_speed_bm", "bm"),
     "node_speed_bm_far": _node_drive("node_speed_bm_far", "bm", "far_field.enabled=true"),
+    "node_paced": _node_drive("node_paced", "ensemble"),
+    "node_paced_far": _node_drive("node_paced_far", "ensemble", "far_field.enabled=true"),
+    "node_paced_far_5hz": _node_drive("node_paced_far_5hz", "ensemble", "far_field.enabled=true", rate=5),
     "node_stereo": Table(("node_stereo.json",), node_rows, f"{_NODE} --backends stereo stereo:runtime=openvino "
                                                            "--frames 40 --out benchmarks/results/node_stereo.json"),
     "node_stereo_threads2": Table(("node_stereo_threads2.json",), node_rows,
@@ -1171,6 +1177,7 @@ TABLES: dict[str, Table] = {
     **_ride("ride_speed"),
     **_ride("ride_speed_bm"),
     **_ride("ride_equal_cost"),
+    **_ride("ride_paced"),
     "hazards": Table(("hazards.json",), hazards),
     "hazards_map": Table(("hazards_map.json",), hazards_map),
     "hazards_map_far_field": Table(("hazards_map_far_field.json",), hazards_map),

@@ -292,6 +292,9 @@ def evaluate_online(
         # and every frame is scored against the offline run: none may be left unpublished for
         # its latency on a busy machine (a real-time replay keeps the node's bound)
         extra.setdefault("max_latency_s", 0.0)
+        # nor answered by the pace backend: the replay waits for the node, which never falls
+        # behind its camera, whatever the frames' stamps say of the camera's period
+        extra.setdefault("pace_backend", "")
     command = node_command(backend, grid.to_dict(), Path(params_file) if params_file else None, extra)
     log_path = out_dir / "node.log"
     rclpy = init_ros()
