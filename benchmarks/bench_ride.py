@@ -514,7 +514,8 @@ def main(argv: list[str] | None = None) -> int:
         "far_field": args.far_field,
         "budget": args.budget,
         "candidates": [{"name": c.name, "backend": c.backend, "params": dict(c.params), "latency_s": c.latency_s,
-                        "period_s": c.period_s} for c in candidates],
+                        "period_s": c.period_s, **({"pace_latency_s": c.pace[0], "pace_period_s": c.pace[1]}
+                                                   if c.pace is not None else {})} for c in candidates],
         "node_results": args.node_results if candidates else None,
         "machine": info,
         "wall_s": round(time.perf_counter() - start, 1),

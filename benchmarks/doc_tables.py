@@ -144,6 +144,8 @@ def ride_shares(data: Mapping[str, Any]) -> str:
     lines.append(f"{'/'.join(str(d) for d in sorted(drives))} rendered drives per cell; latency and frames fused "
                  f"per configuration: " + ", ".join(
                      f"`{c['name']}` {1e3 * c['latency_s']:.0f} ms / {1e3 * c['period_s']:.0f} ms a frame"
+                     + (f" (its pace backend {1e3 * c['pace_latency_s']:.0f} ms / {1e3 * c['pace_period_s']:.0f} ms)"
+                        if "pace_latency_s" in c else "")
                      for c in data["candidates"]) + ".")
     return "\n".join(lines)
 
@@ -1079,8 +1081,9 @@ def _node_drive(name: str, backends: str, node_param: str = "", rate: int = 10) 
     """The table of a ``bench_node --drive`` run at ``rate`` Hz (60 frames, the bag's timing) of
     ``backends``, with ``node_param`` for every row, written to ``<name>.json``."""
     param = f" --node-param {node_param}" if node_param else ""
-    return Table((f"{name}.json",), node_candidates, f"{_NODE} --drive --rate {rate} --frames 60 --modes 5hz "
-                                                     f"--backends {backends}{param} --out benchmarks/results/{name}.json")
+    command = (f"{_NODE} --drive --rate {rate} --frames 60 --modes 5hz --backends {backends}{param} "
+               f"--out benchmarks/results/{name}.json")
+    return Table((f"{name}.json",), node_candidates, command)
 
 
 def _ride(name: str) -> dict[str, Table]:
