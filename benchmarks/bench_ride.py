@@ -108,12 +108,13 @@ def road_config(kind: str, rng: np.random.Generator) -> Any:
 
 class CandidateRows:
     """One candidate's rows on a drive: its estimates made once per drive and shared by its stages
-    (and by every candidate with the same backend and backend options, through ``shared``)."""
+    (and by every candidate with the same backend and backend options, and the same pace backend
+    with its options where it is paced, through ``shared``)."""
 
     def __init__(self, candidate: Candidate, shared: dict[tuple[int, str, str], Any]) -> None:
         self.candidate = candidate
         self._shared = shared
-        self._key = (candidate.backend, json.dumps(candidate.backend_options(), sort_keys=True, default=str))
+        self._key = (candidate.backend, json.dumps(_estimated_by(candidate), sort_keys=True, default=str))
 
     def maker(self, stage: str) -> PreviewMaker:
         """The row of ``stage`` (:data:`benchmarks.preview_budget.STAGES`)."""
@@ -128,6 +129,16 @@ class CandidateRows:
                                       ride_settings=settings)
 
         return make
+
+
+def _estimated_by(candidate: Candidate) -> dict[str, Any]:
+    """What a candidate's estimates depend on beside its backend: its backend options and, where it
+    is paced, its pace backend and that one's options (:func:`benchmarks.preview_budget.make_backend`)."""
+    out: dict[str, Any] = {"options": candidate.backend_options()}
+    if candidate.pace is not None:
+        pace = candidate.pace_candidate()
+        out["pace"] = {"backend": pace.backend, "options": pace.backend_options()}
+    return out
 
 
 def candidate_makers(candidates: Sequence[Candidate], budget: Sequence[str] | None,

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from benchmarks.bench_ride import candidate_makers, road_config, scores, summarise
+from benchmarks.bench_ride import CandidateRows, candidate_makers, road_config, scores, summarise
 from benchmarks.preview_budget import FAR_STAGES, LABEL_STAGES, STAGES, Candidate
 from roadbev_core.config import GridSpec
 
@@ -112,3 +112,15 @@ def test_a_budgeted_far_field_candidate_gets_every_stage_of_the_budget() -> None
     both = candidate_makers([far, near], [], GridSpec())
     assert {f"near:{stage}" for stage in STAGES[1:] if stage not in FAR_STAGES} <= set(both)
     assert not {f"near:{stage}" for stage in FAR_STAGES} & set(both)
+
+
+def test_a_paced_candidate_never_shares_the_estimates_of_its_backend_unpaced() -> None:
+    far = Candidate("far", "ensemble", {"far_field.enabled": True}, latency_s=0.1)
+    again = Candidate("again", "ensemble", {"far_field.enabled": True, "preview.max_gap_m": 0.0}, latency_s=0.2)
+    paced = Candidate("paced", "ensemble", {"far_field.enabled": True, "pace_backend": "bm"}, latency_s=0.1,
+                      pace=(0.08, 0.07))
+    sgbm_paced = Candidate("sgbm_paced", "ensemble", {"far_field.enabled": True, "pace_backend": "sgbm"},
+                           latency_s=0.1, pace=(0.08, 0.07))
+    keys = {c.name: CandidateRows(c, {})._key for c in (far, again, paced, sgbm_paced)}
+    assert keys["far"] == keys["again"]  # the same estimates: shared
+    assert len({keys["far"], keys["paced"], keys["sgbm_paced"]}) == 3
