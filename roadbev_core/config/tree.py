@@ -77,7 +77,7 @@ MAX_SYNC_SETS = 1_000_000
 # preview the ride benchmark found worth the most (docs/results/preview.md, the ride benchmark).
 DEFAULT_BACKEND = "ensemble"
 # The backend that answers while the chosen one cannot keep pace with the camera: the default
-# ensemble's cheapest member (docs/results/preview.md, "On a slower CPU").
+# ensemble's cheapest member (docs/results/preview.md, "Keeping pace on the ride").
 DEFAULT_PACE_BACKEND = "bm"
 # The vehicle body frame (REP-105; Autoware's convention, docs/interface/frames-and-grid.md): the frame of contact-plane
 # previews and the parent the camera mount is looked up from.
