@@ -377,7 +377,7 @@ def node_schedule(stamps_ns: Sequence[int], period_s: float, latency_s: float, *
         paced = False
         if pacer is not None:
             while told < n and stamps_ns[told] <= start:
-                pacer.note_set(int(stamps_ns[told]))
+                pacer.note_set(stamps_ns[told] * 1e-9)  # each set arrives at its stamp
                 told += 1
             paced = pacer.choose()
         period, latency = costs[paced]

@@ -10,10 +10,12 @@ and every few seconds (:data:`PROBE_EVERY` frames) the chosen backend answers on
 so that its cost is measured afresh and it takes over again once it fits (the load on the machine
 went away, the camera slowed down).
 
-The camera's period is the median of the intervals between the stamps of the last synchronised
-sets (every set, those that a newer one replaced too); a frame's cost is the node's busy time on
-it (estimate, map, outputs; waits for the IMU or odometry left out), smoothed per backend (a probe's
-measurement replaces the chosen backend's). The :class:`Pacer` is told the times; it reads no clock.
+The camera's period is the median of the intervals between the arrivals of the last synchronised
+sets (every set, those that a newer one replaced too), on the clock the node's busy time is
+measured on (a bag replayed at twice its speed brings frames twice as fast as its stamps say). A
+frame's cost is the node's busy time on it (estimate, map, outputs; waits for the IMU or odometry
+left out), smoothed per backend (a probe's measurement replaces the chosen backend's). The
+:class:`Pacer` is told the times; it reads no clock.
 """
 
 from __future__ import annotations
@@ -79,31 +81,31 @@ class Pacer:
         self.probe_every = probe_every
         # the camera's sets come on the node's executor thread, the costs on its worker
         self._lock = threading.Lock()
-        self._last_stamp_ns: int | None = None
+        self._last_arrival_s: float | None = None
         self._intervals: deque[float] = deque(maxlen=_INTERVALS)
         self._cost: float | None = None
         self._pace_cost: float | None = None
         self._paced_in_a_row = 0
 
     def reset(self) -> None:
-        """Forget the stream (its stamps jumped back: a new pass); the costs are kept."""
+        """Forget the stream (a new pass of a looped bag); the costs are kept."""
         with self._lock:
-            self._last_stamp_ns = None
+            self._last_arrival_s = None
             self._intervals.clear()
 
-    def note_set(self, stamp_ns: int) -> None:
-        """A synchronised set of the camera stamped ``stamp_ns``."""
+    def note_set(self, arrival_s: float) -> None:
+        """A synchronised set of the camera arrived at ``arrival_s`` (seconds, a monotonic clock)."""
         with self._lock:
-            last, self._last_stamp_ns = self._last_stamp_ns, stamp_ns
+            last, self._last_arrival_s = self._last_arrival_s, arrival_s
             if last is None:
                 return
-            interval = (stamp_ns - last) * 1e-9
+            interval = arrival_s - last
             if 0.0 < interval <= MAX_INTERVAL_S:
                 self._intervals.append(interval)
 
     @property
     def period_s(self) -> float | None:
-        """The camera's period: the median interval of the last sets (None: none yet)."""
+        """The camera's period: the median interval between the last sets (None: none yet)."""
         with self._lock:
             return self._period()
 

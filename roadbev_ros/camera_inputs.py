@@ -13,6 +13,7 @@ waiting set of the old pass is dropped, and the jump is counted and logged once.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -62,14 +63,14 @@ class CameraInputs:
             :data:`MONO_INPUTS`) order.
         on_time_jump: resets what the caller holds after a jump back; given the stamps of the
             new timeline seen so far (:attr:`ApproximateTimeSync.restart_span`).
-        on_set: told the left image's stamp of every set, before it goes to the mailbox (the
-            node's pacer measures the camera's period from them).
+        on_set: told when every set arrives (``time.monotonic()``), before it goes to the
+            mailbox (the node's pacer measures the camera's period from them).
     """
 
     def __init__(self, topics: Mapping[str, str], config: SyncConfig, stereo: bool, *, health: Health,
                  report: Report, warn: Callable[[str], object], now_ns: Callable[[], int],
                  mailbox: Mailbox[tuple[Any, ...]], on_time_jump: Callable[[tuple[int, int] | None], None],
-                 on_set: Callable[[int], object] = lambda _stamp_ns: None) -> None:
+                 on_set: Callable[[float], object] = lambda _arrival_s: None) -> None:
         self.topics = topics
         self.received: dict[str, int] = dict.fromkeys(topics, 0)  # messages per input so far
         self.passes = 0  # time jumps back so far: a frame of an earlier pass fails quietly
@@ -79,7 +80,7 @@ class CameraInputs:
         self._now_ns = now_ns
         self._mailbox = mailbox
         self._on_time_jump = on_time_jump
-        self._on_set_stamp = on_set
+        self._on_set_arrival = on_set
         self._config = config
         self.sync = self._new_sync(config, stereo)
 
@@ -141,7 +142,7 @@ class CameraInputs:
 
     def _on_set(self, *items: tuple[str, Any]) -> None:
         self._health.set_in()
-        self._on_set_stamp(stamp_from_header(items[0][1]))
+        self._on_set_arrival(time.monotonic())
         if self._mailbox.put(tuple(msg for _, msg in items)):
             self._health.drop("busy")  # the waiting set was replaced by a newer one
 

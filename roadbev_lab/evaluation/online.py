@@ -97,9 +97,8 @@ def node_command(backend: str, grid_params: Mapping[str, float], params_file: Pa
     if params_file is not None:
         ros_args += ["--params-file", str(params_file)]
     for name, value in {**dict(grid_params), **dict(extra_params or {}), "backend": backend}.items():
-        if value == "":
-            continue  # an empty string is the default of every string parameter
-        text = repr(float(value)) if isinstance(value, float) else str(value)
+        # an empty string in YAML's words: a bare "name:=" would be no value at all
+        text = repr(float(value)) if isinstance(value, float) else str(value) if value != "" else "''"
         if isinstance(value, bool):
             text = "true" if value else "false"
         ros_args += ["-p", f"{name}:={text}"]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from roadbev_lab.evaluation.online import latencies_on_arrival
+from roadbev_lab.evaluation.online import latencies_on_arrival, node_command
 
 
 def test_a_node_that_keeps_up_has_its_end_to_end_latencies_on_arrival() -> None:
@@ -30,3 +30,11 @@ def test_an_answer_lost_on_the_way_leaves_the_next_frame_its_whole_latency() -> 
     received = {0: 0.15, 2: 0.45}
     assert latencies_on_arrival(sent, received) == pytest.approx([150.0, 250.0])
     assert latencies_on_arrival({}, {}) == []
+
+
+def test_the_node_command_passes_an_empty_string_as_one_and_a_bool_as_yaml() -> None:
+    command = node_command("bm", {"x_max": 7.08}, None,
+                           {"pace_backend": "", "far_field.enabled": True, "imu_wait_s": 1.0})
+    args = command[command.index("--ros-args") + 1:]
+    assert args == ["-p", "x_max:=7.08", "-p", "pace_backend:=''", "-p", "far_field.enabled:=true",
+                    "-p", "imu_wait_s:=1.0", "-p", "backend:=bm"]
