@@ -307,7 +307,7 @@ class Pipeline:
         pace: the pace backend on the grid and the far-field grid (:func:`build_pace_backends`).
 
     Raises:
-        BackendError: the backend (or the far-field one) cannot be built.
+        BackendError: the backend (or the far-field one, or the pace backend) cannot be built.
     """
 
     def __init__(
