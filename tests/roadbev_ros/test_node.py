@@ -99,7 +99,7 @@ def test_slow_inference_keeps_the_newest_set_and_counts_drops(harness: Harness) 
 
 
 def _slow_chosen_fast_pace(name: str, grid: Any, **_options: Any) -> PitchBackend:
-    return PitchBackend(grid, 0.0 if name == "bm" else 0.15, name=f"stub-{name}")
+    return PitchBackend(grid, 0.0 if name == "bm" else 0.3, name=f"stub-{name}")
 
 
 def test_a_backend_slower_than_the_camera_hands_the_frames_to_the_pace_backend(ros: Any) -> None:
@@ -107,24 +107,24 @@ def test_a_backend_slower_than_the_camera_hands_the_frames_to_the_pace_backend(r
                 backend_factory=_slow_chosen_fast_pace)
     try:
         stamps = []
-        for k in range(20):  # a 10 Hz camera, a 150 ms backend
+        for k in range(20):  # a 10 Hz camera, a 300 ms backend (paced while the camera's period is under 333 ms)
             stamps.append(feed(h, k))
             time.sleep(0.1)
         h.wait_output(stamps[-1], timeout=15.0)
         counts = h.node.counts()
-        assert counts["outputs"] >= 17, counts  # the first frames measure the chosen backend's cost
+        assert counts["outputs"] >= 17, counts  # the first frame measures the chosen backend's cost
         assert wait_for(lambda: int(h.latest_diagnostics().get("paced_frames", "0")) >= 15, 3.0), \
             h.latest_diagnostics()
         pace = h.latest_diagnostics()["pace"]
-        assert pace.startswith("stub-bm answers") and "stub-ensemble takes 1" in pace, pace
+        assert pace.startswith("stub-bm answers") and "stub-ensemble takes 3" in pace, pace
         period_ms = int(pace.split("the camera's period is ")[1].split(" ms")[0])
-        assert 95 <= period_ms <= 130, pace  # the sets' arrivals: 100 ms apart, and the feeder's own time
+        assert 95 <= period_ms <= 250, pace  # the sets' arrivals: 100 ms apart, and the feeder's own time
     finally:
         h.close()
 
-    fits = Harness(ros, params={"max_latency_s": 0.0, "diagnostics_period_s": 0.1, "pace_load": 2.0},
+    fits = Harness(ros, params={"max_latency_s": 0.0, "diagnostics_period_s": 0.1, "pace_load": 10.0},
                    backend_factory=_slow_chosen_fast_pace)
-    try:  # allowed two periods a frame, the chosen backend answers (and falls behind)
+    try:  # allowed ten periods a frame, the chosen backend answers (and falls behind)
         stamps = [feed(fits, k) for k in range(3)]
         fits.wait_output(stamps[-1], timeout=15.0)
         assert wait_for(lambda: fits.latest_diagnostics().get("pace", "").startswith("stub-ensemble answers"), 3.0)
