@@ -60,7 +60,7 @@ from roadbev_core.config import GridSpec, RoadbevConfig
 from roadbev_core.frame import Estimate, Frame
 from roadbev_core.fusion import FrameFusion, FramePlacement, FusedMap, MapSettings, MapWindow
 from roadbev_core.labels import ElevationLabel
-from roadbev_core.pacing import Pacer
+from roadbev_core.pacing import Pacer, stand_in
 from roadbev_core.pipeline import Pipeline, PipelineOutput, check_config
 from roadbev_core.preview import ContactPlane, TrackProfile
 from roadbev_core.vehicle import planar_yaw
@@ -162,8 +162,7 @@ class Candidate:
     @property
     def pace_backend(self) -> str:
         """The pace backend its spec names ("" where none, or the chosen backend itself)."""
-        name = str(self.params.get("pace_backend", ""))
-        return "" if name == self.backend else name
+        return stand_in(str(self.params.get("pace_backend", "")), self.backend)
 
     @property
     def pace_load(self) -> float:

@@ -25,7 +25,7 @@ import threading
 from collections import deque
 from dataclasses import dataclass
 
-__all__ = ["MAX_INTERVAL_S", "PROBE_EVERY", "PaceState", "Pacer"]
+__all__ = ["MAX_INTERVAL_S", "PROBE_EVERY", "PaceState", "Pacer", "stand_in"]
 
 # Every this many frames answered by the pace backend, the chosen one answers one (at a 10 Hz
 # camera every 5 s): long enough that its extra time is a small share, short enough to notice
@@ -38,6 +38,12 @@ _INTERVALS = 9  # sets whose intervals make the period (a median: one late set d
 _SMOOTHING = 0.3  # weight of a frame's cost in its backend's running cost
 
 
+def stand_in(pace_backend: str, backend: str) -> str:
+    """The backend that answers for ``backend`` when it cannot keep pace: ``pace_backend``, or ""
+    where that is empty or ``backend`` itself (nothing cheaper to hand over to)."""
+    return "" if pace_backend == backend else pace_backend
+
+
 @dataclass(frozen=True)
 class PaceState:
     """What the pacer knows now (the node's ``pace`` diagnostic).
@@ -47,12 +53,14 @@ class PaceState:
         cost_s: the chosen backend's busy time per frame (None: not measured yet).
         pace_cost_s: the pace backend's (None: it has not answered yet).
         paced: whether the pace backend answers the next frame (a probe aside).
+        probe_every: frames the pace backend answers between two the chosen one answers.
     """
 
     period_s: float | None
     cost_s: float | None
     pace_cost_s: float | None
     paced: bool
+    probe_every: int = PROBE_EVERY
 
     def describe(self, backend: str, pace_backend: str, load: float) -> str:
         """One line: who answers and why."""
@@ -63,7 +71,7 @@ class PaceState:
         if not self.paced:
             return f"{backend} answers: {fit}"
         pace = "" if self.pace_cost_s is None else f", {1e3 * self.pace_cost_s:.0f} ms a frame"
-        return f"{pace_backend} answers{pace}: {fit}; {backend} answers one frame in {PROBE_EVERY + 1}"
+        return f"{pace_backend} answers{pace}: {fit}; {backend} answers one frame in {self.probe_every + 1}"
 
 
 class Pacer:
@@ -113,13 +121,9 @@ class Pacer:
         return statistics.median(self._intervals) if self._intervals else None
 
     def _fits(self) -> bool:
+        """Whether the chosen backend's cost fits the camera's period (or either is unknown)."""
         period = self._period()
         return period is None or self._cost is None or self._cost <= self.load * period
-
-    def fits(self) -> bool:
-        """Whether the chosen backend's cost fits the camera's period (or either is unknown)."""
-        with self._lock:
-            return self._fits()
 
     def choose(self) -> bool:
         """Whether the pace backend answers the next frame."""
@@ -141,7 +145,7 @@ class Pacer:
     def state(self) -> PaceState:
         """What it knows now."""
         with self._lock:
-            return PaceState(self._period(), self._cost, self._pace_cost, not self._fits())
+            return PaceState(self._period(), self._cost, self._pace_cost, not self._fits(), self.probe_every)
 
 
 def _smoothed(running: float | None, value: float) -> float:

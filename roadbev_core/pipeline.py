@@ -72,6 +72,7 @@ from roadbev_core.fusion import (
 )
 from roadbev_core.geometry import Attitude, quaternion_to_rotation
 from roadbev_core.map_preview import contact_plane_on_map, map_preview
+from roadbev_core.pacing import stand_in
 from roadbev_core.preview import PreviewError, PreviewProfiles, check_tracks, wheel_track_profiles
 from roadbev_core.runtime import configure_threads, flush_denormals
 from roadbev_core.vehicle import planar_yaw
@@ -259,8 +260,8 @@ def build_pace_backends(config: RoadbevConfig, backend: Backend, factory: Backen
     Raises:
         BackendError: it cannot be built (a missing checkpoint, an option it refuses).
     """
-    name = config.backend.pace_backend
-    if not name or name == backend.name:
+    name = stand_in(config.backend.pace_backend, backend.name)
+    if not name:
         return PaceBackends()
     try:
         pace = config.with_params({"backend": name})
@@ -277,8 +278,8 @@ def build_pace_backends(config: RoadbevConfig, backend: Backend, factory: Backen
 
 def _pace_key(config: RoadbevConfig, backend: Backend) -> tuple[Any, ...]:
     """What :func:`build_pace_backends` builds from: equal keys, the same pace backends."""
-    name = config.backend.pace_backend
-    if not name or name == backend.name:
+    name = stand_in(config.backend.pace_backend, backend.name)
+    if not name:
         return ()
     return name, config.backend.options_of(name), config.grid, config.far_grid, backend.needs_stereo
 

@@ -291,8 +291,8 @@ def evaluate_online(
         # and every frame is scored against the offline run: none may be left unpublished for
         # its latency on a busy machine (a real-time replay keeps the node's bound)
         extra.setdefault("max_latency_s", 0.0)
-        # nor answered by the pace backend: the replay waits for the node, which never falls
-        # behind its camera, whatever the frames' stamps say of the camera's period
+        # nor answered by the pace backend: the replay waits for the node, so its sets arrive as
+        # fast as it answers, which its pacer would take for a camera it cannot keep up with
         extra.setdefault("pace_backend", "")
     command = node_command(backend, grid.to_dict(), Path(params_file) if params_file else None, extra)
     log_path = out_dir / "node.log"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from roadbev_core.pacing import MAX_INTERVAL_S, PROBE_EVERY, Pacer
+from roadbev_core.pacing import MAX_INTERVAL_S, PROBE_EVERY, Pacer, stand_in
 
 
 def _camera(pacer: Pacer, period_ms: int, sets: int = 10, start_s: float = 1000.0) -> float:
@@ -93,3 +93,8 @@ def test_the_state_says_who_answers_and_why() -> None:
 def test_a_load_that_is_not_positive_is_refused() -> None:
     with pytest.raises(ValueError, match="pace load must be positive"):
         Pacer(0.0)
+
+
+def test_a_backend_stands_in_for_another_only_where_it_is_named_and_not_the_same() -> None:
+    assert stand_in("bm", "ensemble") == "bm"
+    assert stand_in("bm", "bm") == "" and stand_in("", "ensemble") == ""
