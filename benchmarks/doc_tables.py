@@ -150,6 +150,110 @@ def ride_shares(data: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _road_items(data: Mapping[str, Any]) -> dict[tuple[str, float, float], list[Mapping[str, Any]]]:
+    """The rendered drives' per-rate results by (road kind, speed, camera rate)."""
+    out: dict[tuple[str, float, float], list[Mapping[str, Any]]] = {}
+    for cell in data["cells"]:
+        if cell["rendered"]:
+            for rate, item in cell["rates"].items():
+                out.setdefault((cell["road"], float(cell["speed_mps"]), float(rate)), []).append(item)
+    return out
+
+
+def _road_share(items: Sequence[Mapping[str, Any]], name: str) -> str:
+    """Mean share of ``name`` over ``items`` and the worst drive's, or a dash where none has it."""
+    shares = [i["share"][name] for i in items if math.isfinite(i["share"].get(name, math.nan))]
+    return f"{_fmt(float(np.mean(shares)))} ({_fmt(min(shares))})" if shares else "–"
+
+
+def _road_wk(items: Sequence[Mapping[str, Any]]) -> str:
+    """Mean Wk-weighted RMS body acceleration of the controller without preview and with the true
+    road over ``items`` (m/s²)."""
+    if not items:
+        return "–"
+    return " / ".join(_fmt(float(np.mean([i["rows"][r]["mean"]["wk_rms_mps2"] for i in items])))
+                      for r in ("no_preview", "true_road"))
+
+
+def ride_budget_roads(data: Mapping[str, Any], candidate: str,
+                      stages: Sequence[str] = ("shipped", "true_answered", "true_features", "true_surface",
+                                               "true_far", "no_latency")) -> str:
+    """Road by road, the error budget of ``candidate``: its mean share with one stage at a time
+    taken from the truth, per speed and camera rate (the stages the run took)."""
+    items = _road_items(data)
+    columns = sorted({(speed, rate) for _, speed, rate in items})
+    roads = sorted({road for road, _, _ in items})
+    lines = _head(f"`{candidate}`, the truth in one stage", *(f"{speed:g} m/s, {rate:g} Hz" for speed, rate in columns))
+    for road in roads:
+        for stage in stages:
+            row_name = candidate if stage == "shipped" else f"{candidate}{STAGE_SEPARATOR}{stage}"
+            values = []
+            for speed, rate in columns:
+                shares = [i["share"][row_name] for i in items.get((road, speed, rate), [])
+                          if math.isfinite(i["share"].get(row_name, math.nan))]
+                values.append(_fmt(float(np.mean(shares))) if shares else "–")
+            if any(v != "–" for v in values):
+                lines.append(_row([f"{road}: {_STAGE_TITLES[stage]}", *values]))
+    return "\n".join(lines)
+
+
+def ride_roads(data: Mapping[str, Any], rows: Sequence[str] = ("window_far_visible",)) -> str:
+    """Road by road: the share of the true road's gain per configuration on each road kind's
+    rendered drives (mean and worst drive), and its preview at arrival on the road's features,
+    against the true contact plane; ``rows`` are perfect rows shown first where the run has them."""
+    items = _road_items(data)
+    columns = sorted({(speed, rate) for _, speed, rate in items})
+    roads = sorted({road for road, _, _ in items})
+    names = [r for r in rows if any(r in i["share"] for group in items.values() for i in group)]
+    names += [c["name"] for c in data["candidates"]]
+    lines = _head("share (mean, worst drive) · features at arrival (cm)",
+                  *(f"{speed:g} m/s, {rate:g} Hz" for speed, rate in columns))
+    for road in roads:  # what there is to gain on each road: the controller without and with the true road
+        lines.append(_row([f"Wk no preview / true road (m/s²), {road}",
+                           *(_road_wk(items.get((road, speed, rate), [])) for speed, rate in columns)]))
+    for name in names:
+        for road in roads:
+            row = [f"`{name}`, {road}"]
+            for speed, rate in columns:
+                group = items.get((road, speed, rate), [])
+                text = _road_share(group, name)
+                arrivals = [i["arrival"][name] for i in group if name in i.get("arrival", {})]
+                if arrivals and name not in rows and text != "–":
+                    text += f" · {_fmt(_pooled_features(arrivals))}"
+                row.append(text)
+            lines.append(_row(row))
+    drives = sorted({len(group) for group in items.values()})
+    lines.append("")
+    lines.append(f"{'/'.join(str(d) for d in drives)} rendered drives per road kind and cell.")
+    return "\n".join(lines)
+
+
+def ride_gain_roads(measured: Mapping[str, Any], applied: Mapping[str, Any]) -> str:
+    """Road by road, each candidate of ``measured`` (a run with the controller's measured gain)
+    against the same candidate of ``applied`` (the same drives with all of every preview applied,
+    ``bench_ride --no-preview-gain``): mean share and the worst drive's."""
+    with_gain, without = _road_items(measured), _road_items(applied)
+    columns = sorted({(speed, rate) for _, speed, rate in with_gain})
+    roads = sorted({road for road, _, _ in with_gain})
+    names = [c["name"] for c in measured["candidates"] if c["name"] in {a["name"] for a in applied["candidates"]}]
+    lines = _head("share (mean, worst drive)", *(f"{speed:g} m/s, {rate:g} Hz" for speed, rate in columns))
+    for name in names:
+        for road in roads:
+            for title, items in (("the measured gain", with_gain), ("all of it applied", without)):
+                lines.append(_row([f"`{name}`, {road}, {title}"]
+                                  + [_road_share(items.get((road, speed, rate), []), name) for speed, rate in columns]))
+    return "\n".join(lines)
+
+
+def _pooled_features(arrivals: Sequence[Mapping[str, Any]]) -> float:
+    """The feature points' preview error at arrival (cm) over several drives, weighted by their
+    feature points (the contact-plane error where a drive has one)."""
+    weights = np.array([a.get("features_points", 0) for a in arrivals], float)
+    values = np.array([a.get("features_abs_err_cm", math.nan) for a in arrivals], float)
+    ok = np.isfinite(values) & (weights > 0)
+    return float(np.sum(values[ok] * weights[ok]) / np.sum(weights[ok])) if ok.any() else math.nan
+
+
 def _perfect_rows(cells: Sequence[Mapping[str, Any]], names: Sequence[str]) -> list[str]:
     """``names`` and, where the run has them (``bench_ride --far-field``), their rows reaching the
     far-field grid's far edge (``<name>_far``) and those of only the road the camera sees from
@@ -1181,6 +1285,13 @@ TABLES: dict[str, Table] = {
     **_ride("ride_speed_bm"),
     **_ride("ride_equal_cost"),
     **_ride("ride_paced"),
+    "ride_paced_roads": Table(("ride_paced.json",), ride_roads, with_provenance=False),
+    "ride_far_roads": Table(("ride_far_field.json",), ride_roads, with_provenance=False),
+    "ride_far_budget_roads": Table(("ride_far_stages.json",),
+                                   functools.partial(ride_budget_roads, candidate="ensemble_far"),
+                                   with_provenance=False),
+    "ride_paced_no_gain": Table(("ride_paced_no_gain.json", "ride_paced.json"),
+                                lambda applied, measured: ride_gain_roads(measured, applied)),
     "hazards": Table(("hazards.json",), hazards),
     "hazards_map": Table(("hazards_map.json",), hazards_map),
     "hazards_map_far_field": Table(("hazards_map_far_field.json",), hazards_map),

@@ -5,6 +5,7 @@ the renderers read the results' structure."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -75,3 +76,35 @@ def test_the_command_checks_and_rewrites_pages(tmp_path: Path, capsys: pytest.Ca
     assert "stale" in page.read_text()  # a check writes nothing
     assert doc_tables.main(["--write", str(page)]) == 0
     assert doc_tables.main(["--check", str(page)]) == 0
+
+
+def _ride_cell(road: str, shares: dict[str, float], no_preview: float = 2.0,
+              true_road: float = 1.0) -> dict[str, Any]:
+    rows = {"no_preview": {"mean": {"wk_rms_mps2": no_preview}}, "true_road": {"mean": {"wk_rms_mps2": true_road}}}
+    arrival = {name: {"features_abs_err_cm": 1.0, "features_points": 10} for name in shares if name != "ceiling"}
+    return {"road": road, "speed_mps": 20.0, "rendered": True,
+            "rates": {"10": {"share": shares, "rows": rows, "arrival": arrival}}}
+
+
+def _ride_run(*cells: dict[str, Any]) -> dict[str, Any]:
+    return {"candidates": [{"name": "cand"}], "cells": [*cells, {**cells[0], "rendered": False}]}
+
+
+def test_road_by_road_tables_take_the_mean_and_worst_drive_of_each_road() -> None:
+    run = _ride_run(_ride_cell("bumps", {"ceiling": 0.9, "cand": 0.8, "cand:true_surface": 0.9}),
+                    _ride_cell("bumps", {"ceiling": 0.9, "cand": 0.6, "cand:true_surface": 0.7}, 3.0, 2.0),
+                    _ride_cell("potholes", {"ceiling": 0.8, "cand": -0.1, "cand:true_surface": 0.5}))
+    roads = doc_tables.ride_roads(run, rows=("ceiling",))
+    assert "| Wk no preview / true road (m/s²), bumps | 2.50 / 1.50 |" in roads
+    assert "| `ceiling`, bumps | 0.90 (0.90) |" in roads  # perfect rows carry no arrival figure
+    assert "| `cand`, bumps | 0.70 (0.60) · 1.00 |" in roads
+    assert "| `cand`, potholes | -0.10 (-0.10) · 1.00 |" in roads
+    assert roads.endswith("1/2 rendered drives per road kind and cell.")  # the truth-only drive is left out
+    budget = doc_tables.ride_budget_roads(run, "cand", stages=("shipped", "true_surface", "true_far"))
+    assert "| bumps: as shipped | 0.70 |" in budget
+    assert "| potholes: true heights on the other answered cells | 0.50 |" in budget
+    assert "true heights on the far field" not in budget  # a stage the run did not take has no row
+    applied = _ride_run(_ride_cell("bumps", {"cand": 0.5}), _ride_cell("potholes", {"cand": -1.5}))
+    gain = doc_tables.ride_gain_roads(run, applied)
+    assert "| `cand`, potholes, the measured gain | -0.10 (-0.10) |" in gain
+    assert "| `cand`, potholes, all of it applied | -1.50 (-1.50) |" in gain
