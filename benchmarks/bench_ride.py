@@ -83,7 +83,8 @@ ROAD_KINDS = ("bumps", "potholes", "rough")
 PreviewMaker = Callable[[Any, Sequence[Any], int, Any], list[Any]]
 # the preview-at-arrival keys kept per row (against the reference each message declares)
 ARRIVAL_SUMMARY = ("abs_err_cm", "features_abs_err_cm", "smooth_abs_err_cm", "coverage_pct",
-                   "contact_plane_abs_err_cm", "points", "features_points")
+                   "contact_plane_abs_err_cm", "points", "features_points", "sigma_points", "within_1sigma_pct",
+                   "within_2sigma_pct", "confident_wrong_pct", "mean_sigma_cm")
 
 def road_config(kind: str, rng: np.random.Generator) -> Any:
     """The road of one kind: speed bumps and humps on a smooth road (ISO 8608 A), potholes on a
@@ -301,18 +302,23 @@ def summarise(cells: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
 
 def _pooled_arrival(items: Sequence[dict[str, Any]]) -> dict[str, float]:
     """The preview at arrival over several drives: errors weighted by the points each drive scored
-    (feature errors by its feature points), coverage over all points."""
+    (feature errors by its feature points, the sigma's honesty by the points with a sigma),
+    coverage over all points."""
     points = np.array([i["points"] for i in items], float)
     covered = points * np.array([i["coverage_pct"] for i in items]) / 100.0
     feature_points = np.array([i["features_points"] for i in items], float)
 
     def weighted(key: str, weights: np.ndarray) -> float:
-        values = np.array([i[key] for i in items], float)
+        values = np.array([i.get(key, math.nan) for i in items], float)
         ok = np.isfinite(values) & (weights > 0)
         return float(np.sum(values[ok] * weights[ok]) / np.sum(weights[ok])) if ok.any() else math.nan
 
-    return {"abs_err_cm": weighted("abs_err_cm", covered), "features_abs_err_cm": weighted("features_abs_err_cm",
-                                                                                            feature_points),
+    sigma_points = np.array([i.get("sigma_points", 0) for i in items], float)  # a run before the preview's sigma
+    honesty = {key: weighted(key, sigma_points) for key in
+               ("within_1sigma_pct", "within_2sigma_pct", "confident_wrong_pct", "mean_sigma_cm")
+               if any(key in i for i in items)}
+    return {**honesty, "abs_err_cm": weighted("abs_err_cm", covered),
+            "features_abs_err_cm": weighted("features_abs_err_cm", feature_points),
             "smooth_abs_err_cm": weighted("smooth_abs_err_cm", covered),
             "contact_plane_abs_err_cm": weighted("contact_plane_abs_err_cm", covered),
             "coverage_pct": float(100.0 * covered.sum() / points.sum()) if points.sum() else math.nan}

@@ -350,6 +350,21 @@ def ride_arrival(data: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def ride_arrival_sigma(data: Mapping[str, Any]) -> str:
+    """The sigma each configuration's preview gave at arrival against its error there, on the
+    rendered drives: within 1 / 2 sigma (%), the mean sigma and the mean absolute error (cm)."""
+    cells = _cells(data["table"], rendered=True)
+    lines = _header(cells, "within 1σ / 2σ (%) · mean σ / abs. error (cm)")
+    for c in data["candidates"]:
+        row = [f"`{c['name']}`"]
+        for cell in cells:
+            a = cell["rows"].get(c["name"], {}).get("arrival") or {}
+            row.append(f"{_fmt(a.get('within_1sigma_pct'), 1)} / {_fmt(a.get('within_2sigma_pct'), 1)} · "
+                       f"{_fmt(a.get('mean_sigma_cm'))} / {_fmt(a.get('abs_err_cm'))}" if a else "–")
+        lines.append(_row(row))
+    return "\n".join(lines)
+
+
 def arrival_rows(data: Mapping[str, Any], rows: Sequence[str] | None = None) -> str:
     """bench_arrival: the preview at arrival per configuration (fused map, and per frame for the
     first), per speed and camera rate: all / feature points against the reference each message
@@ -1292,6 +1307,7 @@ TABLES: dict[str, Table] = {
                                    with_provenance=False),
     "ride_paced_no_gain": Table(("ride_paced_no_gain.json", "ride_paced.json"),
                                 lambda applied, measured: ride_gain_roads(measured, applied)),
+    "ride_paced_sigma": Table(("ride_paced_no_gain.json",), ride_arrival_sigma, with_provenance=False),
     "hazards": Table(("hazards.json",), hazards),
     "hazards_map": Table(("hazards_map.json",), hazards_map),
     "hazards_map_far_field": Table(("hazards_map_far_field.json",), hazards_map),

@@ -118,7 +118,9 @@ def _print_drive_keys(metrics: dict[str, Any]) -> None:
     print(f"preview at arrival, {kind} (lead {out['lead_time_s']:g} s, {out['points']} points): abs. error "
           f"{_cm(out['abs_err_cm'])} cm, coverage {_cm(out['coverage_pct'], 1)} %, features "
           f"{_cm(out['features_abs_err_cm'])} cm, smooth {_cm(out['smooth_abs_err_cm'])} cm, vs the contact plane "
-          f"{_cm(out['contact_plane_abs_err_cm'])} cm")
+          f"{_cm(out['contact_plane_abs_err_cm'])} cm; within 1 / 2 sigma {_cm(out['within_1sigma_pct'], 1)} / "
+          f"{_cm(out['within_2sigma_pct'], 1)} %, confidently wrong {_cm(out['confident_wrong_pct'], 2)} %, mean sigma "
+          f"{_cm(out['mean_sigma_cm'])} cm")
     fused = metrics.get("map")
     if fused is not None:
         print(f"fused map vs /ground_truth/road_map ({fused['windows']} windows): abs. error "

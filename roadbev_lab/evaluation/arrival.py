@@ -53,6 +53,7 @@ from roadbev_core.preview import (
     read_profile_with_sigma,
 )
 from roadbev_core.vehicle import contact_plane, planar_yaw
+from roadbev_lab.evaluation.metrics import sigma_counts, sigma_metrics
 
 if TYPE_CHECKING:  # the pipeline imports nothing from here; typing only
     from roadbev_core.pipeline import PipelineOutput
@@ -94,6 +95,12 @@ ARRIVAL_KEYS: tuple[str, ...] = (
     "features_abs_err_cm",
     "smooth_abs_err_cm",
     "contact_plane_abs_err_cm",
+    "sigma_points",
+    "within_1sigma_pct",
+    "within_2sigma_pct",
+    "within_3sigma_pct",
+    "confident_wrong_pct",
+    "mean_sigma_cm",
 )
 # The fused map's keys (docs/interface/evaluation.md, "map"), each a mean over the published windows.
 MAP_KEYS: tuple[str, ...] = ("abs_err_cm", "coverage_pct", "within_1sigma_pct", "within_2sigma_pct",
@@ -522,6 +529,7 @@ class WheelErrors(NamedTuple):
         feature: [P] bool a feature point.
         known: [P] bool the true height is known.
         covered: [P] bool known and a message covered the point.
+        sigma: [P] the 1-sigma the message gave there (m; NaN = none).
     """
 
     error: np.ndarray
@@ -529,6 +537,7 @@ class WheelErrors(NamedTuple):
     feature: np.ndarray
     known: np.ndarray
     covered: np.ndarray
+    sigma: np.ndarray
 
     def concat(self, other: WheelErrors) -> WheelErrors:
         """These points followed by ``other``'s."""
@@ -537,8 +546,8 @@ class WheelErrors(NamedTuple):
 
 def wheel_errors(points: Sequence[ArrivalPoints]) -> dict[str, WheelErrors]:
     """Front wheel name -> its :class:`WheelErrors` of :func:`arrival_points`."""
-    return {p.path.name: WheelErrors(p.error, p.error_contact_plane, p.path.feature, p.known, p.covered)
-            for p in points}
+    return {p.path.name: WheelErrors(p.error, p.error_contact_plane, p.path.feature, p.known, p.covered,
+                                     p.preview_sigma) for p in points}
 
 
 def summarise_points(points: Sequence[ArrivalPoints], lead_time_s: float) -> dict[str, Any]:
@@ -557,8 +566,10 @@ def summarise_errors(wheels: Mapping[str, WheelErrors], lead_time_s: float) -> d
 
 
 def _summary(err: np.ndarray, err_cp: np.ndarray, feature: np.ndarray, known: np.ndarray, covered: np.ndarray,
-             lead: float) -> dict[str, Any]:
+             sigma: np.ndarray, lead: float) -> dict[str, Any]:
     points = int(known.sum())
+    # the sigma the preview gave at each covered point, scored as a map cell's is (one definition)
+    honesty = sigma_metrics(sigma_counts(np.where(covered, err, np.nan), sigma, np.zeros(err.shape)))
     abs_err, rmse, p95 = _stats(err[covered])
     feat, smooth = covered & feature, covered & ~feature
     cp = err_cp[covered & np.isfinite(err_cp)]
@@ -577,6 +588,8 @@ def _summary(err: np.ndarray, err_cp: np.ndarray, feature: np.ndarray, known: np
         "features_points": n_feat,
         "smooth_points": points - n_feat,
         "features_coverage_pct": 100.0 * int(feat.sum()) / n_feat if n_feat else math.nan,
+        "sigma_points": int(honesty.pop("sigma_cells")),
+        **honesty,
     }
 
 

@@ -142,7 +142,7 @@ class BagSums:
                               float(scalars["estimate_ms_sum"]),
                               {str(k): float(v) for k, v in scalars["stage_ms_sum"].items()})
             wheels = None if scalars["wheels"] is None else {
-                name: WheelErrors(**_prefixed(arrays, f"wheel.{name}.")) for name in scalars["wheels"]}
+                name: _wheel_errors(_prefixed(arrays, f"wheel.{name}.")) for name in scalars["wheels"]}
             rows = scalars["map_rows"]
             return cls(frames, int(scalars["lost_frames"]), bool(scalars["map_enabled"]),
                        {str(k): int(v) for k, v in scalars["map_skipped"].items()},
@@ -151,6 +151,14 @@ class BagSums:
                        int(scalars["map_windows"]))
         except (KeyError, TypeError, ValueError, RoadbevError) as exc:
             raise PoolingError(f"not the sums of an evaluation: {type(exc).__name__}: {exc}") from None
+
+
+def _wheel_errors(arrays: Mapping[str, np.ndarray]) -> WheelErrors:
+    """One wheel's points as :meth:`BagSums.to_arrays` stored them (sums stored before the points
+    carried the preview's sigma have none: NaN)."""
+    fields = dict(arrays)
+    fields.setdefault("sigma", np.full(np.shape(fields["error"]), np.nan))
+    return WheelErrors(**fields)
 
 
 def _concat_wheels(first: dict[str, WheelErrors] | None,

@@ -127,6 +127,23 @@ def test_each_point_carries_the_sigma_of_the_message_that_scored_it() -> None:
         assert np.unique(np.round(points.preview_sigma[covered], 3)).size >= 8  # many messages were read
 
 
+@pytest.mark.parametrize(("sigma", "within_1", "within_2", "wrong"), [(0.024, 100.0, 100.0, 0.0),
+                                                                      (0.008, 0.0, 100.0, 0.0),
+                                                                      (0.003, 0.0, 0.0, 100.0)])
+def test_the_sigma_is_scored_against_the_error_at_arrival(sigma: float, within_1: float, within_2: float,
+                                                          wrong: float) -> None:
+    traj = _straight(5.0, 4.0)
+    road, settings = _bump_map(), ArrivalSettings()
+    stamps = [int((0.4 + 0.2 * k) * S) for k in range(13)]
+    # every point 1.2 cm off: within 1 sigma only for the wide sigma, beyond 3 sigma and 1 cm for the narrow one
+    result = preview_at_arrival(_true_previews(traj, road, stamps, REFERENCE_ROAD, settings, offset=0.012,
+                                               sigma=sigma), traj, road, settings)
+    assert result["sigma_points"] == round(result["points"] * result["coverage_pct"] / 100.0)
+    assert result["within_1sigma_pct"] == within_1 and result["within_2sigma_pct"] == within_2
+    assert result["confident_wrong_pct"] == wrong
+    assert result["mean_sigma_cm"] == pytest.approx(100.0 * sigma, rel=1e-5)
+
+
 def test_lead_time_beyond_the_preview_horizon_leaves_points_uncovered() -> None:
     traj = _straight(10.0, 5.0)
     road = _bump_map()

@@ -49,7 +49,7 @@ def test_merged_sums_are_the_sums_of_all_frames() -> None:
 
 def test_sums_survive_their_arrays_and_refuse_another_grid() -> None:
     wheels = {"front_left": WheelErrors(np.array([0.01, np.nan]), np.array([0.02, np.nan]), np.array([True, False]),
-                                        np.array([True, True]), np.array([True, False]))}
+                                        np.array([True, True]), np.array([True, False]), np.array([0.02, np.nan]))}
     sums = BagSums(_sums(_frames(3, 2)), lost_frames=1, map_enabled=True, map_skipped={"no odometry": 2},
                    lead_time_s=0.1, wheels=wheels, map_rows={"abs_err_cm": [1.0, 3.0]}, map_windows=2)
     back = BagSums.from_arrays(sums.to_arrays())
@@ -64,3 +64,8 @@ def test_sums_survive_their_arrays_and_refuse_another_grid() -> None:
         MetricAccumulator(GRID).merge(other)
     with pytest.raises(PoolingError, match="not the sums"):
         BagSums.from_arrays({"scalars": np.array("{}")})
+    # sums stored before the points carried the preview's sigma: the same errors, no sigma to score
+    older = {k: v for k, v in sums.to_arrays().items() if not k.endswith(".sigma")}
+    arrival = BagSums.from_arrays(older).metrics()["preview_at_arrival"]
+    assert arrival["abs_err_cm"] == sums.metrics()["preview_at_arrival"]["abs_err_cm"]
+    assert arrival["sigma_points"] == 0 and arrival["within_1sigma_pct"] is None
