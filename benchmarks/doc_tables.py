@@ -354,13 +354,14 @@ def ride_arrival_sigma(data: Mapping[str, Any]) -> str:
     """The sigma each configuration's preview gave at arrival against its error there, on the
     rendered drives: within 1 / 2 sigma (%), the mean sigma and the mean absolute error (cm)."""
     cells = _cells(data["table"], rendered=True)
-    lines = _header(cells, "within 1σ / 2σ (%) · mean σ / abs. error (cm)")
+    lines = _header(cells, "within 1σ / 2σ · confidently wrong (%) · mean σ / abs. error (cm)")
     for c in data["candidates"]:
         row = [f"`{c['name']}`"]
         for cell in cells:
             a = cell["rows"].get(c["name"], {}).get("arrival") or {}
             row.append(f"{_fmt(a.get('within_1sigma_pct'), 1)} / {_fmt(a.get('within_2sigma_pct'), 1)} · "
-                       f"{_fmt(a.get('mean_sigma_cm'))} / {_fmt(a.get('abs_err_cm'))}" if a else "–")
+                       f"{_fmt(a.get('confident_wrong_pct'))} · {_fmt(a.get('mean_sigma_cm'))} / "
+                       f"{_fmt(a.get('abs_err_cm'))}" if a else "–")
         lines.append(_row(row))
     return "\n".join(lines)
 

@@ -111,12 +111,13 @@ def test_road_by_road_tables_take_the_mean_and_worst_drive_of_each_road() -> Non
 
 
 def test_the_sigma_at_arrival_table_reads_each_configurations_pooled_arrival() -> None:
-    arrival = {"within_1sigma_pct": 96.04, "within_2sigma_pct": 99.2, "mean_sigma_cm": 1.488, "abs_err_cm": 0.315}
+    arrival = {"within_1sigma_pct": 96.04, "within_2sigma_pct": 99.2, "confident_wrong_pct": 0.178,
+               "mean_sigma_cm": 1.488, "abs_err_cm": 0.315}
     run = {"candidates": [{"name": "cand"}, {"name": "older"}],
            "table": [{"rendered": True, "speed_mps": 20.0, "rate_hz": 10.0,
                       "rows": {"cand": {"arrival": arrival}, "older": {"arrival": {"abs_err_cm": 0.3}}}},
                      {"rendered": False, "speed_mps": 20.0, "rate_hz": 10.0, "rows": {}}]}
     text = doc_tables.ride_arrival_sigma(run)
-    assert "| `cand` | 96.0 / 99.2 · 1.49 / 0.32 |" in text
-    assert "| `older` | – / – · – / 0.30 |" in text  # a run from before the sigma was scored
+    assert "| `cand` | 96.0 / 99.2 · 0.18 · 1.49 / 0.32 |" in text
+    assert "| `older` | – / – · – · – / 0.30 |" in text  # a run from before the sigma was scored
     assert len(text.splitlines()) == 4  # the truth-only drives carry no candidate
