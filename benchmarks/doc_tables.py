@@ -1312,6 +1312,7 @@ TABLES: dict[str, Table] = {
     "hazards": Table(("hazards.json",), hazards),
     "hazards_map": Table(("hazards_map.json",), hazards_map),
     "hazards_map_far_field": Table(("hazards_map_far_field.json",), hazards_map),
+    "hazards_map_far_field_30mps": Table(("hazards_map_far_field_30mps.json",), hazards_map),
     "labels": Table(("labels.json",), labels, ".venv/bin/python -m benchmarks.bench_labels"),
     "synth": Table(("synth.json",), synth, ".venv/bin/python -m benchmarks.bench_synth"),
     "fleet_plan": Table((*(f"sample_drive_{b}.json" for b in SAMPLE_DRIVE_BACKENDS), "labels.json"), fleet_plan,
