@@ -173,7 +173,10 @@ def eval_report(summary: Mapping[str, Any]) -> str:
         if arrival:
             lines += ["", f"Pooled preview at arrival (lead {arrival['lead_time_s']:g} s, {arrival['points']} "
                           f"points): abs. error {_fmt(arrival['abs_err_cm'], 3)} cm, coverage "
-                          f"{_fmt(arrival['coverage_pct'], 1)} %."]
+                          f"{_fmt(arrival['coverage_pct'], 1)} %, within 1 / 2 sigma "
+                          f"{_fmt(arrival.get('within_1sigma_pct'), 1)} / "
+                          f"{_fmt(arrival.get('within_2sigma_pct'), 1)} %, "
+                          f"mean sigma {_fmt(arrival.get('mean_sigma_cm'), 3)} cm."]
         if pooled.get("lost_frames"):
             lines += ["", f"{pooled['lost_frames']} frame(s) lost to damage: " + "; ".join(pooled["losses"])]
     return "\n".join(lines + _tail(summary, "evaluated")) + "\n"

@@ -70,6 +70,12 @@ def test_each_bag_is_its_one_bag_result_and_the_pool_is_all_frames(bags: list[Pa
         r["median_abs_err_cm"] for r in results)
     assert pooled["sigma_cells"] == sum(r["sigma_cells"] for r in results)
     assert "| **pooled, 3 bag(s)** | 6 |" in eval_report(summary)
+    # drive bags add the pooled preview at arrival, its sigma scored against its error
+    arrival = {"lead_time_s": 0.1, "points": 4250, "abs_err_cm": 0.315, "coverage_pct": 100.0,
+               "within_1sigma_pct": 96.1, "within_2sigma_pct": 99.2, "mean_sigma_cm": 1.488}
+    with_drives = {**summary, "pooled": {**pooled, "preview_at_arrival": arrival}}
+    assert ("Pooled preview at arrival (lead 0.1 s, 4250 points): abs. error 0.315 cm, coverage 100.0 %, "
+            "within 1 / 2 sigma 96.1 / 99.2 %, mean sigma 1.488 cm.") in eval_report(with_drives)
 
 
 def test_the_pool_of_one_bag_is_that_bag(bags: list[Path], tmp_path: Path) -> None:
