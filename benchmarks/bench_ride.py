@@ -49,7 +49,7 @@ import json
 import math
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from functools import partial
 from pathlib import Path
@@ -294,13 +294,13 @@ def summarise(cells: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
                            share_min=float(np.min(shares)), share_max=float(np.max(shares)))
             arrivals = [d["arrival"][r] for d in items if r in d.get("arrival", {})]
             if arrivals:
-                row["arrival"] = _pooled_arrival(arrivals)
+                row["arrival"] = pooled_arrival(arrivals)
             entry["rows"][r] = row
         table.append(entry)
     return table
 
 
-def _pooled_arrival(items: Sequence[dict[str, Any]]) -> dict[str, float]:
+def pooled_arrival(items: Sequence[Mapping[str, Any]]) -> dict[str, float]:
     """The preview at arrival over several drives: errors weighted by the points each drive scored
     (feature errors by its feature points, the sigma's honesty by the points with a sigma),
     coverage over all points."""

@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.bench_ride import pooled_arrival
 from benchmarks.bench_runtimes import markdown as runtimes_markdown
 from benchmarks.common import RESULTS
 from benchmarks.preview_budget import STAGE_SEPARATOR, STAGES
@@ -160,9 +161,23 @@ def _road_items(data: Mapping[str, Any]) -> dict[tuple[str, float, float], list[
     return out
 
 
+def _road_axes(items: Mapping[tuple[str, float, float], Any]) -> tuple[list[str], list[tuple[float, float]]]:
+    """The road kinds and the (speed, camera rate) columns of :func:`_road_items`."""
+    return sorted({road for road, _, _ in items}), sorted({(speed, rate) for _, speed, rate in items})
+
+
+def _road_head(first: str, columns: Sequence[tuple[float, float]]) -> list[str]:
+    return _head(first, *(f"{speed:g} m/s, {rate:g} Hz" for speed, rate in columns))
+
+
+def _road_shares(items: Sequence[Mapping[str, Any]], name: str) -> list[float]:
+    """The finite shares of row ``name`` over ``items``."""
+    return [i["share"][name] for i in items if math.isfinite(i["share"].get(name, math.nan))]
+
+
 def _road_share(items: Sequence[Mapping[str, Any]], name: str) -> str:
     """Mean share of ``name`` over ``items`` and the worst drive's, or a dash where none has it."""
-    shares = [i["share"][name] for i in items if math.isfinite(i["share"].get(name, math.nan))]
+    shares = _road_shares(items, name)
     return f"{_fmt(float(np.mean(shares)))} ({_fmt(min(shares))})" if shares else "–"
 
 
@@ -181,33 +196,29 @@ def ride_budget_roads(data: Mapping[str, Any], candidate: str,
     """Road by road, the error budget of ``candidate``: its mean share with one stage at a time
     taken from the truth, per speed and camera rate (the stages the run took)."""
     items = _road_items(data)
-    columns = sorted({(speed, rate) for _, speed, rate in items})
-    roads = sorted({road for road, _, _ in items})
-    lines = _head(f"`{candidate}`, the truth in one stage", *(f"{speed:g} m/s, {rate:g} Hz" for speed, rate in columns))
+    roads, columns = _road_axes(items)
+    lines = _road_head(f"`{candidate}`, the truth in one stage", columns)
     for road in roads:
         for stage in stages:
             row_name = candidate if stage == "shipped" else f"{candidate}{STAGE_SEPARATOR}{stage}"
-            values = []
-            for speed, rate in columns:
-                shares = [i["share"][row_name] for i in items.get((road, speed, rate), [])
-                          if math.isfinite(i["share"].get(row_name, math.nan))]
-                values.append(_fmt(float(np.mean(shares))) if shares else "–")
-            if any(v != "–" for v in values):
-                lines.append(_row([f"{road}: {_STAGE_TITLES[stage]}", *values]))
+            shares = [_road_shares(items.get((road, speed, rate), []), row_name) for speed, rate in columns]
+            if any(shares):
+                lines.append(_row([f"{road}: {_STAGE_TITLES[stage]}",
+                                   *(_fmt(float(np.mean(s))) if s else "–" for s in shares)]))
     return "\n".join(lines)
 
 
 def ride_roads(data: Mapping[str, Any], rows: Sequence[str] = ("window_far_visible",)) -> str:
     """Road by road: the share of the true road's gain per configuration on each road kind's
     rendered drives (mean and worst drive), and its preview at arrival on the road's features,
-    against the true contact plane; ``rows`` are perfect rows shown first where the run has them."""
+    against the true contact plane (pooled as the benchmark pools it:
+    :func:`benchmarks.bench_ride.pooled_arrival`); ``rows`` are perfect rows shown first where
+    the run has them."""
     items = _road_items(data)
-    columns = sorted({(speed, rate) for _, speed, rate in items})
-    roads = sorted({road for road, _, _ in items})
+    roads, columns = _road_axes(items)
     names = [r for r in rows if any(r in i["share"] for group in items.values() for i in group)]
     names += [c["name"] for c in data["candidates"]]
-    lines = _head("share (mean, worst drive) · features at arrival (cm)",
-                  *(f"{speed:g} m/s, {rate:g} Hz" for speed, rate in columns))
+    lines = _road_head("share (mean, worst drive) · features at arrival (cm)", columns)
     for road in roads:  # what there is to gain on each road: the controller without and with the true road
         lines.append(_row([f"Wk no preview / true road (m/s²), {road}",
                            *(_road_wk(items.get((road, speed, rate), [])) for speed, rate in columns)]))
@@ -219,7 +230,7 @@ def ride_roads(data: Mapping[str, Any], rows: Sequence[str] = ("window_far_visib
                 text = _road_share(group, name)
                 arrivals = [i["arrival"][name] for i in group if name in i.get("arrival", {})]
                 if arrivals and name not in rows and text != "–":
-                    text += f" · {_fmt(_pooled_features(arrivals))}"
+                    text += f" · {_fmt(pooled_arrival(arrivals)['features_abs_err_cm'])}"
                 row.append(text)
             lines.append(_row(row))
     drives = sorted({len(group) for group in items.values()})
@@ -228,30 +239,20 @@ def ride_roads(data: Mapping[str, Any], rows: Sequence[str] = ("window_far_visib
     return "\n".join(lines)
 
 
-def ride_gain_roads(measured: Mapping[str, Any], applied: Mapping[str, Any]) -> str:
+def ride_gain_roads(applied: Mapping[str, Any], measured: Mapping[str, Any]) -> str:
     """Road by road, each candidate of ``measured`` (a run with the controller's measured gain)
     against the same candidate of ``applied`` (the same drives with all of every preview applied,
     ``bench_ride --no-preview-gain``): mean share and the worst drive's."""
     with_gain, without = _road_items(measured), _road_items(applied)
-    columns = sorted({(speed, rate) for _, speed, rate in with_gain})
-    roads = sorted({road for road, _, _ in with_gain})
+    roads, columns = _road_axes(with_gain)
     names = [c["name"] for c in measured["candidates"] if c["name"] in {a["name"] for a in applied["candidates"]}]
-    lines = _head("share (mean, worst drive)", *(f"{speed:g} m/s, {rate:g} Hz" for speed, rate in columns))
+    lines = _road_head("share (mean, worst drive)", columns)
     for name in names:
         for road in roads:
             for title, items in (("the measured gain", with_gain), ("all of it applied", without)):
                 lines.append(_row([f"`{name}`, {road}, {title}"]
                                   + [_road_share(items.get((road, speed, rate), []), name) for speed, rate in columns]))
     return "\n".join(lines)
-
-
-def _pooled_features(arrivals: Sequence[Mapping[str, Any]]) -> float:
-    """The feature points' preview error at arrival (cm) over several drives, weighted by their
-    feature points (the contact-plane error where a drive has one)."""
-    weights = np.array([a.get("features_points", 0) for a in arrivals], float)
-    values = np.array([a.get("features_abs_err_cm", math.nan) for a in arrivals], float)
-    ok = np.isfinite(values) & (weights > 0)
-    return float(np.sum(values[ok] * weights[ok]) / np.sum(weights[ok])) if ok.any() else math.nan
 
 
 def _perfect_rows(cells: Sequence[Mapping[str, Any]], names: Sequence[str]) -> list[str]:
@@ -1310,8 +1311,7 @@ TABLES: dict[str, Table] = {
     "ride_far_budget_roads": Table(("ride_far_stages.json",),
                                    functools.partial(ride_budget_roads, candidate="ensemble_far"),
                                    with_provenance=False),
-    "ride_paced_no_gain": Table(("ride_paced_no_gain.json", "ride_paced.json"),
-                                lambda applied, measured: ride_gain_roads(measured, applied)),
+    "ride_paced_no_gain": Table(("ride_paced_no_gain.json", "ride_paced.json"), ride_gain_roads),
     "ride_paced_sigma": Table(("ride_paced_no_gain.json",), ride_arrival_sigma, with_provenance=False),
     "hazards": Table(("hazards.json",), hazards),
     "hazards_map": Table(("hazards_map.json",), hazards_map),

@@ -81,7 +81,8 @@ def test_the_command_checks_and_rewrites_pages(tmp_path: Path, capsys: pytest.Ca
 def _ride_cell(road: str, shares: dict[str, float], no_preview: float = 2.0,
               true_road: float = 1.0) -> dict[str, Any]:
     rows = {"no_preview": {"mean": {"wk_rms_mps2": no_preview}}, "true_road": {"mean": {"wk_rms_mps2": true_road}}}
-    arrival = {name: {"features_abs_err_cm": 1.0, "features_points": 10} for name in shares if name != "ceiling"}
+    arrival = {name: {"points": 100, "coverage_pct": 100.0, "features_abs_err_cm": 1.0, "features_points": 10}
+               for name in shares if name != "ceiling"}
     return {"road": road, "speed_mps": 20.0, "rendered": True,
             "rates": {"10": {"share": shares, "rows": rows, "arrival": arrival}}}
 
@@ -105,7 +106,7 @@ def test_road_by_road_tables_take_the_mean_and_worst_drive_of_each_road() -> Non
     assert "| potholes: true heights on the other answered cells | 0.50 |" in budget
     assert "true heights on the far field" not in budget  # a stage the run did not take has no row
     applied = _ride_run(_ride_cell("bumps", {"cand": 0.5}), _ride_cell("potholes", {"cand": -1.5}))
-    gain = doc_tables.ride_gain_roads(run, applied)
+    gain = doc_tables.ride_gain_roads(applied, run)
     assert "| `cand`, potholes, the measured gain | -0.10 (-0.10) |" in gain
     assert "| `cand`, potholes, all of it applied | -1.50 (-1.50) |" in gain
 
