@@ -83,12 +83,14 @@ class DriveTruth(NamedTuple):
         road_map: the true road (``/ground_truth/road_map``).
         settings: the preview-at-arrival settings for the drive's rig and lead time.
         odometry: the drive's own (noisy, drifting) planar odometry (``/odom``).
+        odometry_poses: the same as a trajectory (the frame the map is kept in).
     """
 
     trajectory: Any
     road_map: Any
     settings: Any
     odometry: list[Any]
+    odometry_poses: Any
 
 
 def drive_truth(drive: Any, lead: float) -> DriveTruth:
@@ -99,8 +101,10 @@ def drive_truth(drive: Any, lead: float) -> DriveTruth:
     gt = drive.ground_truth_poses()
     grid = drive.config.grid
     settings = ArrivalSettings(lead_time_s=lead, base_height=grid.base_height, camera_in_base=drive.base_to_camera)
+    odometry = drive.odometry()
     return DriveTruth(Trajectory(gt.stamp_ns, gt.position, gt.orientation_xyzw), drive.road_map(), settings,
-                      list(planar_odometry(drive.odometry())))
+                      list(planar_odometry(odometry)),
+                      Trajectory(odometry.stamp_ns, odometry.position, odometry.orientation_xyzw))
 
 
 def evaluate_on_drive(drive: Any, samples: list[Any], backend: str, fused: bool, odometry: list[Any]) -> Any:
@@ -126,7 +130,7 @@ def run_drive(speed: float, rate: float, duration: float, seed: int, candidates:
     start = time.perf_counter()
     samples = frame_cache.samples(drive)
     render_s = time.perf_counter() - start
-    truth, road_map, settings, _ = drive_truth(drive, lead)
+    truth, road_map, settings, _, odometry = drive_truth(drive, lead)
     ride_settings = RideSettings(latency_s=lead, arrival=settings)
     stamps = drive.frame_stamps_ns
     out: dict[str, Any] = {"speed_mps": speed, "rate_hz": rate, "frames": frames, "seed": seed,
@@ -145,7 +149,7 @@ def run_drive(speed: float, rate: float, duration: float, seed: int, candidates:
                                      on_map=windows.append)
         out["rows"][candidate.name] = score(shipped)
         out["fused_frames"][candidate.name] = f"{len(shipped)}/{frames}"
-        out["map"][candidate.name] = map_accuracy(windows, road_map, truth) if windows else None
+        out["map"][candidate.name] = map_accuracy(windows, road_map, truth, odometry=odometry) if windows else None
         per_frame = candidate_previews(drive, samples, candidate, cached, "shipped", ride_settings=ride_settings,
                                        map_on=False)
         out["rows"][f"{candidate.name}{STAGE_SEPARATOR}per_frame"] = score(per_frame)

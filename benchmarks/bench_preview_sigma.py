@@ -74,7 +74,7 @@ def run(backends: list[str], lead: float) -> dict[str, Any]:
     start = time.perf_counter()
     samples = list(drive)
     render_s = time.perf_counter() - start
-    truth, road_map, settings, odometry = drive_truth(drive, lead)
+    truth, road_map, settings, odometry, _ = drive_truth(drive, lead)
     bumps_x = np.array([x for name, x, _, _ in drive.features_in_odom() if name in BUMPS])
     out: dict[str, Any] = {"seed": DRIVE_SEED, "frames": len(samples), "render_s": round(render_s, 1),
                            "bumps": int(bumps_x.size), "backends": {}}

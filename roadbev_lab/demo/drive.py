@@ -398,7 +398,7 @@ def run_drive_section(
     t0 = time.monotonic()
     on, off = runs[True], runs[False]
     config = on.pipeline.config
-    truth = read_drive_truth(bag_path, base_frame=config.topics.base_frame)
+    truth = read_drive_truth(bag_path, base_frame=config.topics.base_frame, odom_topic=config.topics.odom)
     arrival = arrival_settings(config, lead_time_s=lead_time_s, camera_in_base=truth.camera_in_base)
     stamps = [int(r["stamp_ns"]) for r in on.result.per_frame]
     previews_on = per_frame_previews(on.result.outputs or [])

@@ -73,6 +73,7 @@ __all__ = [
     "WheelPath",
     "arrival_points",
     "camera_in_odom",
+    "carried_through_car",
     "feature_mask",
     "map_accuracy",
     "map_summary",
@@ -594,7 +595,7 @@ def _summary(err: np.ndarray, err_cp: np.ndarray, feature: np.ndarray, known: np
 
 
 def map_accuracy(windows: Sequence[MapWindow], road_map: RoadMap, truth: Trajectory | None = None,
-                 vehicle: VehicleConfig | None = None) -> dict[str, Any]:
+                 vehicle: VehicleConfig | None = None, odometry: Trajectory | None = None) -> dict[str, Any]:
     """The fused map against the true road, time-averaged over frames (the ``"map"`` keys of
     docs/interface/evaluation.md).
 
@@ -610,12 +611,19 @@ def map_accuracy(windows: Sequence[MapWindow], road_map: RoadMap, truth: Traject
     absolute of those medians (how far the map's datum has drifted from the truth's). Without it
     the heights are compared in ``odom`` z as they are.
 
+    The map is kept in the frame of the vehicle's own ``odometry`` ([K] poses of ``base_link``),
+    which drifts from the truth's ``odom`` as the car drives (a wheel-speed scale error alone
+    puts a feature decimetres away after a minute). With ``truth`` and ``odometry`` each window's
+    cells are carried into the truth's frame through the car at the window's stamp (the
+    odometry's planar pose of ``base_link`` to the true one), so the map is scored as the car
+    uses it, around itself; without ``odometry`` the map is taken to be in the truth's frame.
+
     Raises:
         ArrivalError: no windows.
     """
     if not windows:
         raise ArrivalError("no map windows to score")
-    return map_summary(map_window_rows(windows, road_map, truth, vehicle), len(windows))
+    return map_summary(map_window_rows(windows, road_map, truth, vehicle, odometry), len(windows))
 
 
 def map_summary(rows: Mapping[str, Sequence[float]], windows: int) -> dict[str, Any]:
@@ -629,13 +637,21 @@ def map_summary(rows: Mapping[str, Sequence[float]], windows: int) -> dict[str, 
 
 
 def map_window_rows(windows: Sequence[MapWindow], road_map: RoadMap, truth: Trajectory | None = None,
-                    vehicle: VehicleConfig | None = None) -> dict[str, list[float]]:
+                    vehicle: VehicleConfig | None = None, odometry: Trajectory | None = None
+                    ) -> dict[str, list[float]]:
     """Per :data:`MAP_KEYS` key, its value on each window that has one (see :func:`map_accuracy`)."""
     rows: dict[str, list[float]] = {k: [] for k in MAP_KEYS}
     vehicle = vehicle or VehicleConfig()
-    for window in windows:
+    stamps = np.array([int(w.stamp_ns) for w in windows], np.int64)
+    carried = truth is not None and odometry is not None and stamps.size > 0
+    # [W, 3] (x, y, yaw) of base_link at each window's stamp: in the map's frame and in the truth's
+    held_at = odometry.planar(stamps) if carried and odometry is not None else None
+    true_at = truth.planar(stamps) if carried and truth is not None else None
+    for index, window in enumerate(windows):
         x, y = window.cell_centres()
         gx, gy = np.meshgrid(x, y, indexing="ij")
+        if held_at is not None and true_at is not None:
+            gx, gy = carried_through_car(gx, gy, held_at[index], true_at[index])
         true_z = road_map.height(gx, gy)  # [n_rows, n_cols]
         known = np.isfinite(true_z)
         held = known & np.isfinite(window.elevation) & np.isfinite(window.uncertainty)
@@ -659,6 +675,17 @@ def map_window_rows(windows: Sequence[MapWindow], road_map: RoadMap, truth: Traj
         rows["confident_wrong_pct"].append(100.0 * float(np.mean((err > 3 * sigma) & (err > 0.01))))
         rows["mean_sigma_cm"].append(100.0 * float(sigma.mean()))
     return rows
+
+
+def carried_through_car(x: np.ndarray, y: np.ndarray, held: np.ndarray, true: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """Points (x, y) [...] of a frame in which ``base_link`` is at ``held`` ((x, y, yaw) [3]),
+    carried rigidly to the frame in which it is at ``true`` [3]: the same places relative to the car."""
+    dx, dy = x - held[0], y - held[1]
+    c, s = math.cos(float(held[2])), math.sin(float(held[2]))
+    along, across = c * dx + s * dy, -s * dx + c * dy  # in base_link
+    c, s = math.cos(float(true[2])), math.sin(float(true[2]))
+    return true[0] + c * along - s * across, true[1] + s * along + c * across
 
 
 def _offset_under_the_car(error: np.ndarray, held: np.ndarray, gx: np.ndarray, gy: np.ndarray, truth: Trajectory,

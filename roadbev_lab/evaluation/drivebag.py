@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -156,12 +156,15 @@ class DriveTruth(NamedTuple):
         camera_in_base: ``base_link`` -> camera (position [3], R [3, 3] optical -> base_link)
             from ``/tf_static``, or None when the bag has none for ``camera_frame``.
         notes: how the bag was read.
+        odometry: the vehicle's own odometry (the node's ``odom_topic``: planar, drifting), the
+            frame the node's map is kept in; None when the bag has fewer than two of its poses.
     """
 
     trajectory: Trajectory
     road_map: RoadMap
     camera_in_base: tuple[np.ndarray, np.ndarray] | None
     notes: list[str]
+    odometry: Trajectory | None = None
 
 
 def is_drive_bag(path: str | os.PathLike[str]) -> bool:
@@ -171,35 +174,41 @@ def is_drive_bag(path: str | os.PathLike[str]) -> bool:
 
 
 def read_drive_truth(
-    path: str | os.PathLike[str], *, base_frame: str = BASE_FRAME, camera_frame: str = LEFT_FRAME
+    path: str | os.PathLike[str], *, base_frame: str = BASE_FRAME, camera_frame: str = LEFT_FRAME,
+    odom_topic: str | None = None,
 ) -> DriveTruth:
-    """Read the true poses, the road map and the camera's mounting from a drive bag.
+    """Read the true poses, the road map, the camera's mounting and the vehicle's own odometry
+    from a drive bag.
 
     Args:
         base_frame: the vehicle body frame (``TopicsConfig.base_frame``): the TF parent looked for.
         camera_frame: the left image's ``header.frame_id`` (the TF child looked for).
+        odom_topic: the vehicle's odometry (``TopicsConfig.odom``; default the node's).
 
     Raises:
         BagError: no ground-truth poses (or fewer than two), no road map, or malformed ones.
     """
     path = Path(path)
     notes: list[str] = []
+    odom_topic = odom_topic or TopicsConfig().odom
     poses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    odometry: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     road: RoadMap | None = None
     static: list[StaticTransform] = []
-    wanted = [GROUND_TRUTH_ODOM_TOPIC, ROAD_MAP_TOPIC, TF_STATIC_TOPIC]
+    wanted = [GROUND_TRUTH_ODOM_TOPIC, ROAD_MAP_TOPIC, TF_STATIC_TOPIC, odom_topic]
     bad = 0
     read = ReadStats()
     # a damaged or cut bag: the truth as far as it is readable scores the frames it covers
     for item in read_messages(path, wanted, on_damage="skip", stats=read):
         msg = item.msg
         try:
-            if item.topic == GROUND_TRUTH_ODOM_TOPIC:
+            if item.topic in (GROUND_TRUTH_ODOM_TOPIC, odom_topic):
                 p = field(field(field(msg, "pose"), "pose"), "position")
                 o = field(field(field(msg, "pose"), "pose"), "orientation")
                 q = np.array([float(field(o, k)) for k in "xyzw"])
                 quaternion_to_rotation(*q)  # checks it is a rotation
-                poses[stamp_from_header(msg)] = (np.array([float(field(p, k)) for k in "xyz"]), q / np.linalg.norm(q))
+                pose = (np.array([float(field(p, k)) for k in "xyz"]), q / np.linalg.norm(q))
+                (poses if item.topic == GROUND_TRUTH_ODOM_TOPIC else odometry)[stamp_from_header(msg)] = pose
             elif item.topic == ROAD_MAP_TOPIC:
                 raw = decode_grid_map(msg)
                 if "elevation" not in raw.layers:
@@ -226,15 +235,25 @@ def read_drive_truth(
     if camera is None:
         notes.append(f"no {base_frame} -> {camera_frame} on {TF_STATIC_TOPIC}: "
                      "the camera position comes from vehicle.camera_position_m")
+    trajectory = _trajectory(poses)
+    if not math.isfinite(float(np.abs(trajectory.position).sum())):
+        raise BagError(f"{path}: ground-truth poses are not finite")
+    vehicle = _trajectory(odometry) if len(odometry) >= 2 else None
+    if vehicle is not None and not math.isfinite(float(np.abs(vehicle.position).sum())):
+        notes.append(f"{odom_topic}: poses not finite, the map scored where its cells lie")
+        vehicle = None
+    return DriveTruth(trajectory, road, camera, notes, vehicle)
+
+
+def _trajectory(poses: Mapping[int, tuple[np.ndarray, np.ndarray]]) -> Trajectory:
+    """Poses by stamp (position [3], unit quaternion xyzw [4]) as a trajectory in stamp order."""
     stamps = np.array(sorted(poses), np.int64)
     position = np.array([poses[s][0] for s in stamps])
     quats = np.array([poses[s][1] for s in stamps])
     for k in range(1, quats.shape[0]):  # sign continuity for slerp
         if quats[k] @ quats[k - 1] < 0:
             quats[k] = -quats[k]
-    if not math.isfinite(float(np.abs(position).sum())):
-        raise BagError(f"{path}: ground-truth poses are not finite")
-    return DriveTruth(Trajectory(stamps, position, quats), road, camera, notes)
+    return Trajectory(stamps, position, quats)
 
 
 def arrival_settings(
@@ -304,5 +323,5 @@ def evaluate_drive_previews(
     Raises:
         BagError: the bag has no usable ground-truth poses or road map.
     """
-    truth = read_drive_truth(path, base_frame=config.topics.base_frame)
+    truth = read_drive_truth(path, base_frame=config.topics.base_frame, odom_topic=config.topics.odom)
     return score_previews(truth, previews, frame_stamps_ns, config, lead_time_s=lead_time_s)

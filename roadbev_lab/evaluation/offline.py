@@ -104,11 +104,12 @@ def _drive_scores(path: Path, config: RoadbevConfig, result: EvalResult,
     stamps = [int(r["stamp_ns"]) for r in result.per_frame]
     outputs = result.outputs or []
     try:
-        truth = read_drive_truth(path, base_frame=config.topics.base_frame)
+        truth = read_drive_truth(path, base_frame=config.topics.base_frame, odom_topic=config.topics.odom)
         arrival, wheels = score_preview_errors(truth, per_frame_previews(outputs), stamps, config,
                                                lead_time_s=lead_time_s)
         windows = [o.map for o in outputs if o.map is not None]
-        rows = map_window_rows(windows, truth.road_map, truth.trajectory, config.vehicle) if windows else None
+        rows = (map_window_rows(windows, truth.road_map, truth.trajectory, config.vehicle, truth.odometry)
+                if windows else None)
     except (ArrivalError, ValueError) as exc:
         raise OfflineEvalError(f"preview at arrival on {path}: {exc}") from exc
     keys: dict[str, Any] = {"preview_at_arrival": json_safe(arrival)}

@@ -423,12 +423,13 @@ def drive_scores(bag_path: Path, recorded: Path, frame_stamps: Sequence[int], co
     out: dict[str, Any] = {}
     if not (previews or windows):
         return out
-    truth = read_drive_truth(bag_path, base_frame=config.topics.base_frame)
+    truth = read_drive_truth(bag_path, base_frame=config.topics.base_frame, odom_topic=config.topics.odom)
     if previews:
         arrival = score_previews(truth, previews, list(frame_stamps), config, lead_time_s=lead_time_s)
         out["preview_at_arrival"] = json_safe(arrival)
     if windows:
-        out["map"] = json_safe(map_accuracy(windows, truth.road_map, truth.trajectory, config.vehicle))
+        out["map"] = json_safe(map_accuracy(windows, truth.road_map, truth.trajectory, config.vehicle,
+                                                truth.odometry))
     return out
 
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from roadbev_core.config import GridSpec, StereoCamera, VehicleConfig
+from roadbev_core.fusion import MapWindow
 from roadbev_core.labels import elevation_map
 from roadbev_core.preview import PreviewProfiles, TrackProfile, read_profile, wheel_track_profiles
 from roadbev_core.vehicle import contact_plane
@@ -21,7 +22,9 @@ from roadbev_lab.evaluation.arrival import (
     TimedPreview,
     Trajectory,
     arrival_points,
+    carried_through_car,
     feature_mask,
+    map_accuracy,
     preview_at_arrival,
     wheel_paths,
 )
@@ -239,3 +242,62 @@ def test_per_frame_truth_previews_on_a_riding_drive_in_both_conventions() -> Non
     planar = _true_previews(traj, road_map, drive.frame_stamps_ns, REFERENCE_CONTACT_PLANE, settings)
     contact = preview_at_arrival(planar, traj, road_map, settings, frame_stamps_ns=frames)
     assert contact["coverage_pct"] == 100.0 and contact["abs_err_cm"] < 0.05
+
+
+# --- the fused map against the truth ----------------------------------------------------------------
+def _drifted(traj: Trajectory, dx: float, dyaw: float) -> Trajectory:
+    """``traj`` as a drifting odometry sees it: rotated by ``dyaw`` about the origin, then moved ``dx`` along x."""
+    c, s = math.cos(dyaw), math.sin(dyaw)
+    pos = traj.position.copy()
+    pos[:, 0], pos[:, 1] = c * traj.position[:, 0] - s * traj.position[:, 1] + dx, \
+        s * traj.position[:, 0] + c * traj.position[:, 1]
+    turn = np.array([0.0, 0.0, math.sin(dyaw / 2), math.cos(dyaw / 2)])  # xyzw
+    quats = np.array([_quat_product(turn, q) for q in traj.orientation_xyzw])
+    return Trajectory(traj.stamp_ns, pos, quats)
+
+
+def _quat_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return np.array([aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz])
+
+
+def _window_in(frame: Trajectory, truth: Trajectory, road: RoadMap, stamp: int) -> MapWindow:
+    """A perfect map window around the car at ``stamp``, kept in the frame of ``frame`` (the
+    vehicle's odometry): each cell holds the true height of the place it lies at relative to the car."""
+    res, n = 0.05, 120
+    held = frame.planar(np.array([stamp]))[0]
+    centre = (float(held[0]), float(held[1]))
+    window = MapWindow(np.zeros((n, n), np.float32), np.full((n, n), 0.005, np.float32), np.ones((n, n), np.float32),
+                       np.zeros((n, n), np.float32), res, centre, stamp)
+    x, y = window.cell_centres()
+    gx, gy = np.meshgrid(x, y, indexing="ij")
+    tx, ty = carried_through_car(gx, gy, held, truth.planar(np.array([stamp]))[0])
+    return window._replace(elevation=road.height(tx, ty).astype(np.float32))
+
+
+def test_a_point_carried_through_the_car_keeps_its_place_relative_to_the_car() -> None:
+    held, true = np.array([10.0, 2.0, 0.5]), np.array([9.7, 2.1, 0.49])
+    ahead = np.array([10.0 + 3.0 * math.cos(0.5)]), np.array([2.0 + 3.0 * math.sin(0.5)])  # 3 m ahead of the car
+    x, y = carried_through_car(*ahead, held, true)
+    np.testing.assert_allclose([x[0], y[0]], [9.7 + 3.0 * math.cos(0.49), 2.1 + 3.0 * math.sin(0.49)], atol=1e-12)
+    x, y = carried_through_car(np.array([10.0]), np.array([2.0]), held, true)
+    np.testing.assert_allclose([x[0], y[0]], true[:2], atol=1e-12)
+
+
+def test_a_map_kept_in_a_drifting_odometry_is_scored_where_the_car_has_it() -> None:
+    road = _bump_map(0.08)
+    truth = _straight(10.0, 3.0)
+    odometry = _drifted(truth, 0.3, 0.01)  # 30 cm and 0.6 degrees off after a drive
+    stamps = [int(1.0 * S), int(1.2 * S)]  # the bump 10 m ahead... then 8 m: in the window
+    windows = [_window_in(odometry, truth, road, s) for s in stamps]
+    carried = map_accuracy(windows, road, truth, VehicleConfig(), odometry)
+    assert carried["abs_err_cm"] < 0.05 and carried["confident_wrong_pct"] == 0.0
+    # scored where its cells lie, the same map seems to misplace the bump by the drift
+    in_place = map_accuracy(windows, road, truth, VehicleConfig())
+    assert in_place["abs_err_cm"] > 5 * carried["abs_err_cm"] + 0.05
+    assert in_place["confident_wrong_pct"] > 1.0
+    # with the odometry the truth's own, carrying changes nothing
+    own = [_window_in(truth, truth, road, s) for s in stamps]
+    assert map_accuracy(own, road, truth, VehicleConfig(), truth) == map_accuracy(own, road, truth, VehicleConfig())

@@ -72,6 +72,12 @@ def test_truth_reads_back_exactly(drive: RidingDrive, bag: Path) -> None:
     np.testing.assert_allclose(truth.camera_in_base[1], drive.base_to_camera[1], atol=1e-9)
     assert truth.notes == []
     assert len(read_eval_bag(bag)) == 2  # still an evaluation bag
+    # the vehicle's own odometry, the frame the node keeps its map in
+    odometry = drive.odometry()
+    assert truth.odometry is not None
+    np.testing.assert_array_equal(truth.odometry.stamp_ns, odometry.stamp_ns)
+    np.testing.assert_allclose(truth.odometry.position, odometry.position, atol=1e-9)
+    assert read_drive_truth(bag, odom_topic="/no_such_odom").odometry is None
 
 
 def test_writing_is_deterministic(drive: RidingDrive, bag: Path, tmp_path: Path) -> None:
