@@ -388,24 +388,6 @@ def arrival_budget(data: Mapping[str, Any]) -> str:
     return arrival_rows(data, [row for _, row in _stage_rows(default_candidate(data), data["table"])])
 
 
-def arrival_backends(data: Mapping[str, Any]) -> str:
-    """bench_arrival with ``--backends``: per camera rate and backend, the per-frame and the fused
-    map's previews at arrival (all / features, coverage), the fused previews against the true
-    contact plane, and the fused map itself against the true road."""
-    lines = _head("speed, rate", "backend", "per frame: all / features (cov. %)", "map on: all / features (cov. %)",
-                  "map on, vs contact plane (cm)", "fused map: abs. err. (cm) / coverage (%)")
-    for run in sorted(data["results"], key=lambda r: (r["speed_mps"], r["rate_hz"])):
-        for name, b in run["backends"].items():
-            on = b["map_on"]
-            lines.append(_row([
-                f"{run['speed_mps']:g} m/s, {run['rate_hz']:g} Hz", f"`{name}`", _arrival(b["preview_at_arrival"]),
-                _arrival(on["preview_at_arrival"]), _fmt(on["preview_at_arrival"]["contact_plane_abs_err_cm"], 3),
-                f"{_fmt(on['map']['abs_err_cm'], 3)} / {_fmt(on['map']['coverage_pct'], 1)}",
-            ]))
-    frames = ", ".join(f"{r['frames']} frames at {r['rate_hz']:g} Hz (seed {r['seed']})" for r in data["results"])
-    return "\n".join(lines) + f"\n\nDrives: {frames}."
-
-
 # --- the node -----------------------------------------------------------------------------------
 
 def node_candidates(data: Mapping[str, Any]) -> str:
@@ -1285,7 +1267,6 @@ TABLES: dict[str, Table] = {
     "preview_stream": Table(("preview_stream.json",), preview_stream),
     "arrival": Table(("arrival.json",), arrival_rows),
     "arrival_budget": Table(("arrival.json",), arrival_budget, with_provenance=False),
-    "arrival_30mps": Table(("arrival_30mps.json",), arrival_backends),
     "ride_shares": Table(("ride.json",), ride_shares),
     "ride_truth": Table(("ride.json",), ride_truth, with_provenance=False),
     "ride_budget": Table(("ride.json",), ride_budget, with_provenance=False),
