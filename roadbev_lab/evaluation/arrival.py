@@ -642,16 +642,16 @@ def map_window_rows(windows: Sequence[MapWindow], road_map: RoadMap, truth: Traj
     """Per :data:`MAP_KEYS` key, its value on each window that has one (see :func:`map_accuracy`)."""
     rows: dict[str, list[float]] = {k: [] for k in MAP_KEYS}
     vehicle = vehicle or VehicleConfig()
-    stamps = np.array([int(w.stamp_ns) for w in windows], np.int64)
-    carried = truth is not None and odometry is not None and stamps.size > 0
-    # [W, 3] (x, y, yaw) of base_link at each window's stamp: in the map's frame and in the truth's
-    held_at = odometry.planar(stamps) if carried and odometry is not None else None
-    true_at = truth.planar(stamps) if carried and truth is not None else None
+    car_poses: tuple[np.ndarray, np.ndarray] | None = None
+    if truth is not None and odometry is not None and windows:
+        stamps = np.array([int(w.stamp_ns) for w in windows], np.int64)
+        # [W, 3] (x, y, yaw) of base_link at each window's stamp, in the map's frame and in the truth's
+        car_poses = odometry.planar(stamps), truth.planar(stamps)
     for index, window in enumerate(windows):
         x, y = window.cell_centres()
         gx, gy = np.meshgrid(x, y, indexing="ij")
-        if held_at is not None and true_at is not None:
-            gx, gy = carried_through_car(gx, gy, held_at[index], true_at[index])
+        if car_poses is not None:
+            gx, gy = carried_through_car(gx, gy, car_poses[0][index], car_poses[1][index])
         true_z = road_map.height(gx, gy)  # [n_rows, n_cols]
         known = np.isfinite(true_z)
         held = known & np.isfinite(window.elevation) & np.isfinite(window.uncertainty)
