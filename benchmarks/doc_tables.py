@@ -908,10 +908,15 @@ def baseline_training(data: Mapping[str, Any]) -> str:
     """baseline_training: each shipped image-view baseline's training phases and their budget."""
     lines = _head("baseline", "parameters (M)", "phase", "frames", "epochs", "batch", "peak lr", "steps",
                   "minutes", "last epoch's loss", "last epoch's abs. error")
+    kinds = [b["kind"] for b in data["baselines"]]
+
+    def label(b: Mapping[str, Any]) -> str:  # a kind with several checkpoints: each named by its file
+        return b["kind"] if kinds.count(b["kind"]) == 1 else f"{b['kind']} (`{b['checkpoint']}`)"
+
     for b in data["baselines"]:
         for number, p in enumerate(b["phases"], start=1):
             last = p["history"][-1] if p["history"] else {}
-            lines.append(_row([b["kind"], _fmt(b["parameters"] / 1e6, 2), str(number), str(p["frames"]),
+            lines.append(_row([label(b), _fmt(b["parameters"] / 1e6, 2), str(number), str(p["frames"]),
                                f"{len(p['history'])} of {p['epochs']}", str(p["batch_size"]), f"{p['lr']:g}",
                                str(p["steps"]), _fmt(p["seconds"] / 60.0, 1), _fmt(last.get("loss"), 3),
                                f"{_fmt(last.get('abs_err'), 3)} {b['error_unit']}"]))
@@ -926,7 +931,7 @@ def baseline_training(data: Mapping[str, Any]) -> str:
             h = b["held_out"]
             for key, what in (("abs_err", f"abs. error ({b['error_unit']})"), ("relative_err", "relative error (%)")):
                 scale, digits = (100.0, 2) if key == "relative_err" else (1.0, 3)
-                lines.append(_row([b["kind"], what, _fmt(scale * h["training"][key], digits),
+                lines.append(_row([label(b), what, _fmt(scale * h["training"][key], digits),
                                    _fmt(scale * h["tuning"][key], digits)]))
         frames = scored[0]["held_out"]["frames"]
         lines.append("")

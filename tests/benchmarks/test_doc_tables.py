@@ -122,3 +122,19 @@ def test_the_sigma_at_arrival_table_reads_each_configurations_pooled_arrival() -
     assert "| `cand` | 96.0 / 99.2 · 0.18 · 1.49 / 0.32 |" in text
     assert "| `older` | – / – · – · – / 0.30 |" in text  # a run from before the sigma was scored
     assert len(text.splitlines()) == 4  # the truth-only drives carry no candidate
+
+
+def test_the_baseline_table_names_each_checkpoint_of_a_kind_that_has_several() -> None:
+    phase = {"frames": 760, "epochs": 1, "batch_size": 2, "lr": 1e-4, "steps": 380, "seconds": 60.0,
+             "command": "roadbev train", "history": [{"epoch": 1, "loss": 0.3, "abs_err": 0.07}]}
+    held = {"frames": 2, "training": {"abs_err": 0.1, "relative_err": 0.02},
+            "tuning": {"abs_err": 0.2, "relative_err": 0.05}}
+
+    def record(kind: str, path: str) -> dict[str, object]:
+        return {"kind": kind, "checkpoint": path, "parameters": 5e5, "error_unit": "m of depth",
+                "phases": [phase], "held_out": held}
+
+    alone = doc_tables.baseline_training({"baselines": [record("adabins", "a.pt"), record("gwcnet", "g.pt")]})
+    assert "| adabins | 0.50 |" in alone and "a.pt" not in alone
+    both = doc_tables.baseline_training({"baselines": [record("adabins", "a.pt"), record("adabins", "b.pt")]})
+    assert "| adabins (`a.pt`) | 0.50 |" in both and "| adabins (`b.pt`) | abs. error (m of depth) |" in both
