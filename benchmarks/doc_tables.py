@@ -921,8 +921,8 @@ def baseline_training(data: Mapping[str, Any]) -> str:
                                str(p["steps"]), _fmt(p["seconds"] / 60.0, 1), _fmt(last.get("loss"), 3),
                                f"{_fmt(last.get('abs_err'), 3)} {b['error_unit']}"]))
     lines.append("")
-    lines.append("Each phase's command: " + "; ".join(f"`{p['command']}`" for b in data["baselines"]
-                                                       for p in b["phases"]) + ".")
+    commands = dict.fromkeys(p["command"] for b in data["baselines"] for p in b["phases"])  # a shared phase once
+    lines.append("Each phase's command: " + "; ".join(f"`{c}`" for c in commands) + ".")
     scored = [b for b in data["baselines"] if b.get("held_out")]
     if scored:
         lines.append("")
@@ -1231,6 +1231,7 @@ TABLES: dict[str, Table] = {
                     "(and with --appearance clean --out benchmarks/results/clean/models.json)"),
     "drive_frames": Table(("drive_frames.json",), drive_frames),
     "baseline_training": Table(("baseline_training.json",), baseline_training),
+    "adabins_beyond_budget": Table(("adabins_beyond_budget/baseline_training.json",), baseline_training),
     "tune_gwcnet": Table(("tune_gwcnet.json",), tune_gwcnet),
     "runtimes": Table(("runtimes.json",), runtimes),
     "node": Table(("node.json",), node_rows, f"{_NODE} --frames 40"),
