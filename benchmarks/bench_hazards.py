@@ -110,17 +110,14 @@ def _odometry_to_truth(x: float, y: float, stamp_ns: int, odometry: list[Any], g
     """A point of the odometry's frame in the true ``odom`` frame, through ``base_link`` at ``stamp_ns``."""
     from roadbev_core.geometry import quaternion_to_rotation
     from roadbev_core.vehicle import planar_yaw
+    from roadbev_lab.evaluation.arrival import carried_through_car
 
     t = np.array([p.stamp_ns for p in odometry], np.float64)
-    ox = float(np.interp(stamp_ns, t, [p.x for p in odometry]))
-    oy = float(np.interp(stamp_ns, t, [p.y for p in odometry]))
-    oyaw = float(np.interp(stamp_ns, t, [p.yaw for p in odometry]))
+    held = np.array([np.interp(stamp_ns, t, [getattr(p, k) for p in odometry]) for k in ("x", "y", "yaw")])
     k = int(np.clip(np.searchsorted(gt.stamp_ns, stamp_ns), 0, len(gt.stamp_ns) - 1))
-    gyaw = float(planar_yaw(quaternion_to_rotation(*gt.orientation_xyzw[k])))
-    c, s = np.cos(oyaw), np.sin(oyaw)
-    lx, ly = c * (x - ox) + s * (y - oy), -s * (x - ox) + c * (y - oy)
-    c, s = np.cos(gyaw), np.sin(gyaw)
-    return float(gt.position[k, 0] + c * lx - s * ly), float(gt.position[k, 1] + s * lx + c * ly)
+    true = np.array([gt.position[k, 0], gt.position[k, 1], planar_yaw(quaternion_to_rotation(*gt.orientation_xyzw[k]))])
+    tx, ty = carried_through_car(np.asarray(x, np.float64), np.asarray(y, np.float64), held, true)
+    return float(tx), float(ty)
 
 
 def run_map_drive(speed: float, rate: float, duration: float, seed: int, spacing: float, backend: str,
