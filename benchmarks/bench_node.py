@@ -43,7 +43,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.common import RESULTS, available_backends, backend_spec, machine_info, write_json
-from roadbev_core.config import DEFAULT_BACKEND, parse_assignments
+from roadbev_core.config import DEFAULT_BACKEND, RoadbevConfig, parse_assignments
 
 REPO = Path(__file__).resolve().parents[1]
 CACHE = REPO / ".cache"
@@ -244,6 +244,9 @@ def main(argv: list[str] | None = None) -> int:
         node_params = parse_assignments(args.node_param, "--node-param")
     except ValueError as exc:
         parser.error(str(exc))
+    # the record names the far field's setting even where the default chose it: what a run costs
+    # depends on it, and the default may change under a result file
+    node_params = {"far_field.enabled": RoadbevConfig().far_field.enabled, **node_params}
 
     import torch
 

@@ -313,6 +313,9 @@ def _row_costs(spec: str, backend: str, params: Mapping[str, Any], rows: Sequenc
     return float(latency["p50"]) * 1e-3, period
 
 
+FAR_FIELD_KEY = "far_field.enabled"
+
+
 def node_rows(results: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     """The rows of ``bench_node --drive`` results (their JSONs), each with the node parameters its
     run set for every row (``node_params``, e.g. ``far_field.enabled``)."""
@@ -330,12 +333,16 @@ def _node_row(backend: str, params: Mapping[str, Any], rows: Sequence[Mapping[st
     """The ``5hz`` row (the bag's own timing, as a camera delivers it) of ``backend`` run with
     exactly the cost-bearing parameters (:func:`_costs`) of ``params``: its backend options and
     the node parameters of its run (:func:`node_rows`). A row where a pace backend answered frames
-    (``paced_frames``) measured two backends at once and is never one backend's cost."""
-    want = _costs(backend, params)
+    (``paced_frames``) measured two backends at once and is never one backend's cost.
+
+    ``far_field.enabled`` takes its default where the candidate leaves it out. ``bench_node`` names
+    it in every result it writes; a result that does not recorded only the parameters it was given,
+    with the far field off unless given, and its rows count as measured with it off."""
+    want = _costs(backend, {FAR_FIELD_KEY: RoadbevConfig().far_field.enabled, **params})
     for row in rows:
         name, _, options = str(row["backend"]).partition(":")
         have = {f"{name}.{item.partition('=')[0]}": item.partition("=")[2] for item in filter(None, options.split(","))}
-        have.update(_costs(name, row.get("node_params") or {}))
+        have.update(_costs(name, {FAR_FIELD_KEY: False, **(row.get("node_params") or {})}))
         if row.get("mode") == "5hz" and name == backend and have == want and not row.get("paced_frames"):
             return row
     return None

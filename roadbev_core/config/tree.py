@@ -451,11 +451,12 @@ class FarFieldConfig:
     own (the road 15 m ahead on a grade lies further from the reference plane than the road 5 m
     ahead). It follows whatever grid it is given: a window that is not a whole number of cells is
     widened to the next whole cell (:meth:`grid`), and a grid that already reaches
-    ``far_field.x_max`` leaves it nothing to estimate (:meth:`off_reason`). Off by default:
-    nothing the node publishes or estimates changes until it is on.
+    ``far_field.x_max`` leaves it nothing to estimate (:meth:`off_reason`). On by default (a
+    preview cut to the grid's window delivers a fraction of what the road offers above city
+    speed: docs/results/preview.md); off, nothing beyond the grid is estimated or published.
     """
 
-    enabled: bool = param("far_field.enabled", False, "also estimate the far-field grid beyond the grid's far "
+    enabled: bool = param("far_field.enabled", True, "also estimate the far-field grid beyond the grid's far "
                           "edge and publish it on elevation_far_topic; with the map on, fuse it into the map, "
                           "whose window and previews then reach its far edge (the image-view backends bm, sgbm "
                           "and their ensemble; with the others the node runs the grid alone and says why)",

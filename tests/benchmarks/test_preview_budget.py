@@ -30,7 +30,7 @@ from benchmarks.preview_budget import (
     stages_of,
     with_true_plane,
 )
-from roadbev_core.config import FarFieldConfig, GridSpec
+from roadbev_core.config import FarFieldConfig, GridSpec, RoadbevConfig
 from roadbev_core.frame import Estimate
 from roadbev_lab.evaluation.arrival import REFERENCE_CONTACT_PLANE, ArrivalSettings, Trajectory
 from roadbev_lab.ride import RideSettings, perfect_map_previews
@@ -99,6 +99,7 @@ def test_candidates_take_their_latency_and_period_from_the_node_row() -> None:
              "inference_p50_ms": 90.0, "overhead_mean_ms": 5.0},
             {"backend": "stereo", "mode": "5hz", "latency_ms": {"p50": 300.0}, "inference_p50_ms": 280.0,
              "overhead_mean_ms": 5.0}]
+    rows = node_rows([{"rows": rows, "node_params": {"far_field.enabled": True}}])
     (c,) = candidates_from_node(["int8=stereo:stereo.runtime=openvino"], rows)
     assert (c.name, c.backend) == ("int8", "stereo")
     assert c.latency_s == pytest.approx(0.11) and c.period_s == pytest.approx(0.095)
@@ -107,12 +108,29 @@ def test_candidates_take_their_latency_and_period_from_the_node_row() -> None:
         candidates_from_node(["bm"], rows)
 
 
+def test_a_candidate_without_far_field_enabled_takes_the_row_of_its_default() -> None:
+    """A candidate that leaves far_field.enabled out costs what the default costs; a result that
+    does not name it (written before bench_node named it in every result) ran it off."""
+    assert RoadbevConfig().far_field.enabled
+    grid_only = {"backend": "bm", "mode": "5hz", "latency_ms": {"p50": 70.0}, "inference_p50_ms": 55.0,
+                 "overhead_mean_ms": 10.0}
+    far = {**grid_only, "latency_ms": {"p50": 90.0}}
+    unnamed = node_rows([{"rows": [grid_only]}])
+    named = node_rows([{"rows": [far], "node_params": {"far_field.enabled": True}}])
+    (default,) = candidates_from_node(["bm"], named + unnamed)
+    assert default.latency_s == pytest.approx(0.090)
+    (off,) = candidates_from_node(["bm_near=bm:far_field.enabled=false"], named + unnamed)
+    assert off.latency_s == pytest.approx(0.070)
+    with pytest.raises(ValueError, match="no bench_node row"):
+        candidates_from_node(["bm"], unnamed)
+
+
 def test_a_candidate_is_charged_its_latency_on_arrival_the_schedule_adding_the_waits() -> None:
     """A node slower than the camera: its end-to-end p50 holds the frames' waits for the node,
     which node_schedule adds itself; the row's latency on arrival is charged instead."""
     slow = {"backend": "ensemble", "mode": "5hz", "latency_ms": {"p50": 180.0}, "latency_on_arrival_ms": {"p50": 130.0},
             "inference_p50_ms": 100.0, "overhead_mean_ms": 25.0}
-    (c,) = candidates_from_node(["ensemble"], node_rows([{"rows": [slow]}]))
+    (c,) = candidates_from_node(["ensemble"], node_rows([{"rows": [slow], "node_params": {"far_field.enabled": True}}]))
     assert c.latency_s == pytest.approx(0.130) and c.period_s == pytest.approx(0.125)
     stamps = [k * 100 * MS for k in range(4)]
     # frame 1 arrives at 100 ms while the node is busy until 125 ms: received 25 ms later than on arrival
@@ -142,12 +160,13 @@ def test_far_field_candidates_take_the_row_of_a_run_with_the_far_field() -> None
             "overhead_mean_ms": 5.0}
     far = {**near, "latency_ms": {"p50": 89.0}, "overhead_mean_ms": 19.0}
     rows = node_rows([{"rows": [near]}, {"rows": [far], "node_params": {"far_field.enabled": True}}])
-    plain, with_far = candidates_from_node(["ensemble", "far=ensemble:far_field.enabled=true"], rows)
+    plain, with_far = candidates_from_node(["near=ensemble:far_field.enabled=false",
+                                           "far=ensemble:far_field.enabled=true"], rows)
     assert plain.latency_s == pytest.approx(0.075) and plain.period_s == pytest.approx(0.060)
     assert with_far.latency_s == pytest.approx(0.089) and with_far.period_s == pytest.approx(0.074)
-    # the preview's parameters cost nothing in the node: the plain row serves
+    # the preview's parameters cost nothing in the node: the row of the same far field serves
     (gapless,) = candidates_from_node(["g=ensemble:preview.max_gap_m=0"], rows)
-    assert gapless.latency_s == pytest.approx(0.075)
+    assert gapless.latency_s == pytest.approx(0.089)
     with pytest.raises(ValueError, match="no bench_node row"):
         candidates_from_node(["far=ensemble:far_field.enabled=true"], node_rows([{"rows": [near]}]))
 
