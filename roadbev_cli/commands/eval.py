@@ -13,7 +13,8 @@ Backend options may be given in the params file as ``<backend>.<option>`` (for e
 A truncated, unfinished or partly damaged bag is evaluated on every readable frame; the lost
 frames and the reasons are printed (and are in the JSON: ``lost_frames``, ``losses``). The exit is
 non-zero only when no frame at all could be evaluated. ``--out OUT.mcap`` writes the outputs
-(``/roadbev/elevation``, ``/roadbev/preview``, as the node publishes them); on a bag without
+(``/roadbev/elevation``, ``/roadbev/elevation_far`` with the far field, ``/roadbev/map`` with the
+map, ``/roadbev/preview``, as the node publishes them); on a bag without
 ground truth that is the result, and the command says there is nothing to score.
 
 Many bags at once (several BAGs, a folder of bags, a glob pattern, or ``--workers`` / ``--ray``:
@@ -63,8 +64,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="checkpoint for the learned backends (stereo, mono, gwcnet, adabins)")
     add_output_flags(parser, summary=False)
     parser.add_argument("--out", default=None, metavar="OUT.mcap",
-                        help="also write every output message (/roadbev/elevation, /roadbev/preview) to this bag (its "
-                             "folder is created)")
+                        help="also write every output message (/roadbev/elevation, /roadbev/elevation_far with the far "
+                             "field, /roadbev/map with the map, /roadbev/preview) to this bag (its folder is created)")
     parser.add_argument("--lead-time", type=seconds, default=0.1, metavar="S",
                         help="drive bags: preview at arrival counts messages stamped this long before (default 0.1 s)")
     fused = parser.add_mutually_exclusive_group()

@@ -103,7 +103,7 @@ def test_a_drive_is_at_most_what_one_road_strip_holds() -> None:
 
 def test_a_budgeted_far_field_candidate_gets_every_stage_of_the_budget() -> None:
     far = Candidate("far", "ensemble", {"far_field.enabled": True}, latency_s=0.1)
-    near = Candidate("near", "bm", latency_s=0.1)
+    near = Candidate("near", "bm", {"far_field.enabled": False}, latency_s=0.1)
     makers = candidate_makers([far, near], ["far"], GridSpec())
     assert {f"far:{stage}" for stage in STAGES[1:]} <= set(makers)
     assert {f"far:{stage}" for stage in LABEL_STAGES} <= set(makers)  # the truth on the far grid as well

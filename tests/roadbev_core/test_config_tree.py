@@ -173,10 +173,10 @@ def test_costly_settings_are_refused_before_anything_is_allocated() -> None:
     check_image_size(1920, 1080)
 
 
-def test_the_far_field_is_off_by_default_and_a_coarser_grid_beyond_the_grid_when_on() -> None:
-    config = RoadbevConfig()
-    assert not config.far_field.enabled and config.far_grid is None
-    on = RoadbevConfig.from_params({"far_field.enabled": True})
+def test_the_far_field_is_on_by_default_a_coarser_grid_beyond_the_grid() -> None:
+    on = RoadbevConfig()
+    assert on.far_field.enabled and on.far_grid == RoadbevConfig.from_params({"far_field.enabled": True}).far_grid
+    assert RoadbevConfig.from_params({"far_field.enabled": False}).far_grid is None
     far = on.far_grid
     assert far is not None and far.shape == (66, 16) and far.resolution == 0.12
     assert (far.x_min, far.x_max) == (on.grid.x_max, 15.0) and (far.y_min, far.y_max) == (on.grid.y_min, on.grid.y_max)
@@ -187,7 +187,7 @@ def test_the_far_field_is_off_by_default_and_a_coarser_grid_beyond_the_grid_when
     moved = on.with_params({"x_max": 7.2, "base_height": 1.3})
     assert moved.far_grid == GridSpec(x_min=7.2, x_max=15.0, resolution=0.12, z_min=-0.5, z_max=0.5, base_height=1.3)
     # off, far-field settings that would not make a grid are not judged (nothing changes for the grid alone)
-    assert RoadbevConfig.from_params({"x_max": 7.11}).far_grid is None
+    assert RoadbevConfig.from_params({"x_max": 7.11, "far_field.enabled": False}).far_grid is None
 
 
 @pytest.mark.parametrize(

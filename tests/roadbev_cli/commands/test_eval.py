@@ -231,7 +231,8 @@ def test_a_bag_without_ground_truth_writes_every_output_and_says_there_is_nothin
         decoded = [(c.topic, d) for _s, c, _m, d in make_reader(stream, decoder_factories=[DecoderFactory()])
                    .iter_decoded_messages()]
     # docs/interface/bags.md: the outputs stamped and framed as the node publishes them, /tf to roadbev_road included
-    assert Counter(t for t, _ in decoded) == {"/roadbev/elevation": 5, "/roadbev/preview": 5, "/tf": 5}
+    assert Counter(t for t, _ in decoded) == {"/roadbev/elevation": 5, "/roadbev/elevation_far": 5,
+                                              "/roadbev/preview": 5, "/tf": 5}
     eval_bag = read_eval_bag(drive)
     first = bag_frames(drive)[1][0]  # with the attitude from the bag's IMU, as the pipeline computes it
     expected = create("bm", eval_bag.grid).estimate(first.frame)
