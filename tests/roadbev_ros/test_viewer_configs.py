@@ -117,6 +117,9 @@ def test_every_rviz_display_shows_a_topic_and_type_of_the_node(node_graph: dict[
     assert shown >= 4
     shown_topics = {d["Topic"]["Value"] for d in rviz_displays() if "Topic" in d}
     assert {config.topics.left_image, config.topics.elevation} <= shown_topics
+    # the far-field grid, which the node publishes at its defaults (far_field.enabled)
+    assert config.far_field.topic in shown_topics
+    assert node_graph["published"][config.far_field.topic] == RVIZ_TYPES["grid_map_rviz_plugin/GridMap"]
     # the preview and the hazards as markers, each from its own node
     hazard_markers = node_graph["hazard_markers"]
     assert {config.topics.preview_markers, hazard_markers} <= shown_topics
@@ -175,6 +178,8 @@ def test_every_foxglove_panel_shows_a_topic_field_and_layer_of_the_node(node_gra
     assert checked >= 6
     shown = {topic for _, topic, _ in foxglove_topics(layout)}
     assert {node_graph["config"].topics.preview_markers, node_graph["hazard_markers"]} <= shown
+    far = node_graph["config"].far_field.topic
+    assert far in shown and far in node_graph["published"]
     status = layout["configById"]["DiagnosticStatusPanel!roadbev"]
     assert status["selectedName"] in node_graph["statuses"]
     assert status["selectedHardwareId"] in node_graph["hardware_ids"]
