@@ -227,6 +227,13 @@ def check_targets(rows: list[dict[str, Any]], overhead: dict[str, float], defaul
     return out
 
 
+def recorded_node_params(given: dict[str, Any]) -> dict[str, Any]:
+    """The node parameters a result records for every row: those ``given`` (``--node-param``) and
+    ``far_field.enabled`` even where the default chose it, since what a frame costs depends on it
+    and a default may change under a committed result (``preview_budget`` matches rows by it)."""
+    return {"far_field.enabled": RoadbevConfig().far_field.enabled, **given}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--backends", nargs="+", default=["bev_sweep", "sgbm", "bm"])
@@ -244,9 +251,7 @@ def main(argv: list[str] | None = None) -> int:
         node_params = parse_assignments(args.node_param, "--node-param")
     except ValueError as exc:
         parser.error(str(exc))
-    # the record names the far field's setting even where the default chose it: what a run costs
-    # depends on it, and the default may change under a result file
-    node_params = {"far_field.enabled": RoadbevConfig().far_field.enabled, **node_params}
+    node_params = recorded_node_params(node_params)
 
     import torch
 
