@@ -1148,6 +1148,13 @@ def demo_drive(data: Mapping[str, Any]) -> str:
     lines.append(f"The fused map: {_fmt(fused['abs_err_cm'], 3)} cm over {_fmt(fused['coverage_pct'], 1)} % of its "
                  f"window. Hazards: {found} of {len(hz['features'])} features (reference: {hz['reference']}) found, "
                  f"{len(hz['false_alarms'])} false alarm(s).")
+    if fused.get("bands"):
+        lines.append("")
+        lines.extend(_head("fused map, metres ahead of `base_link`", "abs. error (cm)", "mean σ (cm)",
+                           "within 1σ (%)", "confidently wrong (%)"))
+        lines.extend(_row([f"{band['x_from_m']:g} to {band['x_to_m']:g}", _fmt(band["abs_err_cm"]),
+                           _fmt(band["mean_sigma_cm"]), _fmt(band["within_1sigma_pct"], 1),
+                           _fmt(band["confident_wrong_pct"])]) for band in fused["bands"])
     lines.append("")
     ride = drive["ride"]
     lines.extend(_head("ride, both front wheels", "Wk RMS (m/s²)", "peak travel (cm)", "tyre load RMS ratio",

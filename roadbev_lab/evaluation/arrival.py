@@ -60,6 +60,8 @@ if TYPE_CHECKING:  # the pipeline imports nothing from here; typing only
 
 __all__ = [
     "ARRIVAL_KEYS",
+    "MAP_BAND_KEYS",
+    "MAP_BAND_M",
     "MAP_KEYS",
     "REFERENCE_CONTACT_PLANE",
     "REFERENCE_ROAD",
@@ -106,6 +108,12 @@ ARRIVAL_KEYS: tuple[str, ...] = (
 # The fused map's keys (docs/interface/evaluation.md, "map"), each a mean over the published windows.
 MAP_KEYS: tuple[str, ...] = ("abs_err_cm", "coverage_pct", "within_1sigma_pct", "within_2sigma_pct",
                              "within_3sigma_pct", "confident_wrong_pct", "mean_sigma_cm", "datum_offset_cm")
+# The fused map's distance bands (docs/interface/evaluation.md, "map" "bands"): metres ahead of base_link.
+MAP_BAND_M = 1.0
+# The keys of each band, each a mean over the windows that hold cells in it.
+MAP_BAND_KEYS: tuple[str, ...] = ("abs_err_cm", "within_1sigma_pct", "within_2sigma_pct", "confident_wrong_pct",
+                                  "mean_sigma_cm", "cells")
+_BAND_ROW = "band:"  # map_window_rows' key of a band's value: band:<index>:<key>, index = floor(ahead / MAP_BAND_M)
 # Which preview track a front wheel reads, by the track's name.
 _TRACK_OF_WHEEL = {"front_left": ("front_left", "left"), "front_right": ("front_right", "right")}
 
@@ -618,6 +626,10 @@ def map_accuracy(windows: Sequence[MapWindow], road_map: RoadMap, truth: Traject
     odometry's planar pose of ``base_link`` to the true one), so the map is scored as the car
     uses it, around itself; without ``odometry`` the map is taken to be in the truth's frame.
 
+    With ``truth`` the keys are also given per :data:`MAP_BAND_M` of distance ahead of the true
+    ``base_link`` at each window's stamp (``bands``, near to far: :data:`MAP_BAND_KEYS`, each the
+    mean over the windows holding cells in the band, and ``windows``); without it ``bands`` is empty.
+
     Raises:
         ArrivalError: no windows.
     """
@@ -633,25 +645,37 @@ def map_summary(rows: Mapping[str, Sequence[float]], windows: int) -> dict[str, 
     out: dict[str, Any] = {k: float(np.mean(rows.get(k, ()))) if len(rows.get(k, ())) else math.nan
                            for k in MAP_KEYS}
     out["windows"] = int(windows)
+    bands: dict[int, dict[str, Any]] = {}
+    for key, values in rows.items():
+        if key.startswith(_BAND_ROW) and len(values):
+            index, _, name = key[len(_BAND_ROW):].partition(":")
+            band = bands.setdefault(int(index), {"x_from_m": int(index) * MAP_BAND_M,
+                                                 "x_to_m": (int(index) + 1) * MAP_BAND_M})
+            band[name] = float(np.mean(values))
+            if name == "cells":
+                band["windows"] = len(values)
+    out["bands"] = [bands[i] for i in sorted(bands)]
     return out
 
 
 def map_window_rows(windows: Sequence[MapWindow], road_map: RoadMap, truth: Trajectory | None = None,
                     vehicle: VehicleConfig | None = None, odometry: Trajectory | None = None
                     ) -> dict[str, list[float]]:
-    """Per :data:`MAP_KEYS` key, its value on each window that has one (see :func:`map_accuracy`)."""
+    """Per :data:`MAP_KEYS` key, its value on each window that has one (see :func:`map_accuracy`);
+    with ``truth``, per distance band of :data:`MAP_BAND_M` ahead of the true ``base_link`` that a
+    window holds cells in, each of :data:`MAP_BAND_KEYS` under ``band:<index>:<key>``
+    (:func:`map_summary` gathers them)."""
     rows: dict[str, list[float]] = {k: [] for k in MAP_KEYS}
     vehicle = vehicle or VehicleConfig()
-    car_poses: tuple[np.ndarray, np.ndarray] | None = None
-    if truth is not None and odometry is not None and windows:
-        stamps = np.array([int(w.stamp_ns) for w in windows], np.int64)
-        # [W, 3] (x, y, yaw) of base_link at each window's stamp, in the map's frame and in the truth's
-        car_poses = odometry.planar(stamps), truth.planar(stamps)
+    # [W, 3] (x, y, yaw) of base_link at each window's stamp, in the truth's frame and in the map's
+    stamps = np.array([int(w.stamp_ns) for w in windows], np.int64)
+    true_poses = truth.planar(stamps) if truth is not None and windows else None
+    held_poses = odometry.planar(stamps) if true_poses is not None and odometry is not None else None
     for index, window in enumerate(windows):
         x, y = window.cell_centres()
         gx, gy = np.meshgrid(x, y, indexing="ij")
-        if car_poses is not None:
-            gx, gy = carried_through_car(gx, gy, car_poses[0][index], car_poses[1][index])
+        if true_poses is not None and held_poses is not None:
+            gx, gy = carried_through_car(gx, gy, held_poses[index], true_poses[index])
         true_z = road_map.height(gx, gy)  # [n_rows, n_cols]
         known = np.isfinite(true_z)
         held = known & np.isfinite(window.elevation) & np.isfinite(window.uncertainty)
@@ -674,7 +698,25 @@ def map_window_rows(windows: Sequence[MapWindow], road_map: RoadMap, truth: Traj
             rows[f"within_{k}sigma_pct"].append(100.0 * float(np.mean(err <= k * sigma)))
         rows["confident_wrong_pct"].append(100.0 * float(np.mean((err > 3 * sigma) & (err > 0.01))))
         rows["mean_sigma_cm"].append(100.0 * float(sigma.mean()))
+        if true_poses is not None:
+            car = true_poses[index]
+            ahead = math.cos(float(car[2])) * (gx[held] - car[0]) + math.sin(float(car[2])) * (gy[held] - car[1])
+            _append_bands(rows, np.floor(ahead / MAP_BAND_M).astype(np.int64), err, sigma)
     return rows
+
+
+def _append_bands(rows: dict[str, list[float]], band: np.ndarray, err: np.ndarray, sigma: np.ndarray) -> None:
+    """One window's :data:`MAP_BAND_KEYS` per band it holds cells in: ``band`` [N] each held
+    cell's band index, ``err`` / ``sigma`` [N] its absolute error and sigma (m)."""
+    for index in np.unique(band):
+        inside = band == index
+        e, s = err[inside], sigma[inside]
+        values = {"abs_err_cm": 100.0 * float(e.mean()), "within_1sigma_pct": 100.0 * float(np.mean(e <= s)),
+                  "within_2sigma_pct": 100.0 * float(np.mean(e <= 2 * s)),
+                  "confident_wrong_pct": 100.0 * float(np.mean((e > 3 * s) & (e > 0.01))),
+                  "mean_sigma_cm": 100.0 * float(s.mean()), "cells": float(inside.sum())}
+        for name in MAP_BAND_KEYS:
+            rows.setdefault(f"{_BAND_ROW}{int(index)}:{name}", []).append(values[name])
 
 
 def carried_through_car(x: np.ndarray, y: np.ndarray, held: np.ndarray, true: np.ndarray

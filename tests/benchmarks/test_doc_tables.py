@@ -4,6 +4,7 @@ the renderers read the results' structure."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -138,3 +139,13 @@ def test_the_baseline_table_names_each_checkpoint_of_a_kind_that_has_several() -
     assert "| adabins | 0.50 |" in alone and "a.pt" not in alone
     both = doc_tables.baseline_training({"baselines": [record("adabins", "a.pt"), record("adabins", "b.pt")]})
     assert "| adabins (`a.pt`) | 0.50 |" in both and "| adabins (`b.pt`) | abs. error (m of depth) |" in both
+
+
+def test_the_demos_drive_table_lists_the_fused_maps_bands_when_its_report_has_them() -> None:
+    data = json.loads((RESULTS / "demo.json").read_text())
+    fused = data["report"]["drive"]["map_on"]["map"]
+    fused["bands"] = [{"x_from_m": 14.0, "x_to_m": 15.0, "abs_err_cm": 1.81, "mean_sigma_cm": 5.35,
+                       "within_1sigma_pct": 95.7, "confident_wrong_pct": 0.0, "cells": 1649.0, "windows": 59}]
+    assert "| 14 to 15 | 1.81 | 5.35 | 95.7 | 0.00 |" in doc_tables.demo_drive(data)
+    fused["bands"] = []
+    assert "metres ahead of `base_link`" not in doc_tables.demo_drive(data)

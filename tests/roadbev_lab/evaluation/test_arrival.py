@@ -25,6 +25,8 @@ from roadbev_lab.evaluation.arrival import (
     carried_through_car,
     feature_mask,
     map_accuracy,
+    map_summary,
+    map_window_rows,
     preview_at_arrival,
     wheel_paths,
 )
@@ -301,3 +303,28 @@ def test_a_map_kept_in_a_drifting_odometry_is_scored_where_the_car_has_it() -> N
     # with the odometry the truth's own, carrying changes nothing
     own = [_window_in(truth, truth, road, s) for s in stamps]
     assert map_accuracy(own, road, truth, VehicleConfig(), truth) == map_accuracy(own, road, truth, VehicleConfig())
+
+
+def test_the_map_is_also_scored_per_metre_ahead_of_the_car() -> None:
+    road = _bump_map(0.08)
+    truth = _straight(10.0, 3.0)
+    stamps = [int(1.0 * S), int(1.2 * S)]
+    windows = []
+    for stamp in stamps:
+        window = _window_in(truth, truth, road, stamp)  # 6 m square around base_link, 5 cm cells
+        x, _ = window.cell_centres()
+        ahead = x - truth.planar(np.array([stamp]))[0, 0]  # [n_rows]: the car drives along x
+        wrong = (ahead >= 2.0) & (ahead < 3.0)  # 1 cm too high 2-3 m ahead, sigma 0.5 cm: outside 1 sigma
+        windows.append(window._replace(elevation=window.elevation + np.where(wrong, 0.01, 0.0)[:, None]))
+    bands = {b["x_from_m"]: b for b in map_accuracy(windows, road, truth, VehicleConfig())["bands"]}
+    assert sorted(bands) == [-3.0, -2.0, -1.0, 0.0, 1.0, 2.0]
+    assert all(b["x_to_m"] == b["x_from_m"] + 1.0 and b["windows"] == 2 and b["cells"] > 0 for b in bands.values())
+    assert bands[2.0]["abs_err_cm"] == pytest.approx(1.0, abs=1e-3) and bands[2.0]["within_1sigma_pct"] == 0.0
+    assert all(b["abs_err_cm"] < 1e-3 and b["within_1sigma_pct"] == 100.0 for x, b in bands.items() if x != 2.0)
+    # a drive's window rows pool with another's: the bands of both are the means over all their windows
+    rows = map_window_rows(windows[:1], road, truth, VehicleConfig())
+    more = map_window_rows(windows[1:], road, truth, VehicleConfig())
+    pooled = map_summary({k: [*rows.get(k, []), *more.get(k, [])] for k in {**rows, **more}}, 2)
+    assert pooled == map_accuracy(windows, road, truth, VehicleConfig())
+    # without the car's true poses there is nothing to measure "ahead" from
+    assert map_accuracy(windows, road)["bands"] == []
