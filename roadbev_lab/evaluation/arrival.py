@@ -707,14 +707,13 @@ def map_window_rows(windows: Sequence[MapWindow], road_map: RoadMap, truth: Traj
 
 def _append_bands(rows: dict[str, list[float]], band: np.ndarray, err: np.ndarray, sigma: np.ndarray) -> None:
     """One window's :data:`MAP_BAND_KEYS` per band it holds cells in: ``band`` [N] each held
-    cell's band index, ``err`` / ``sigma`` [N] its absolute error and sigma (m)."""
+    cell's band index, ``err`` / ``sigma`` [N] its absolute error and sigma (m); the sigma keys by
+    the evaluation's one rule (:func:`roadbev_lab.evaluation.metrics.sigma_counts`)."""
     for index in np.unique(band):
         inside = band == index
         e, s = err[inside], sigma[inside]
-        values = {"abs_err_cm": 100.0 * float(e.mean()), "within_1sigma_pct": 100.0 * float(np.mean(e <= s)),
-                  "within_2sigma_pct": 100.0 * float(np.mean(e <= 2 * s)),
-                  "confident_wrong_pct": 100.0 * float(np.mean((e > 3 * s) & (e > 0.01))),
-                  "mean_sigma_cm": 100.0 * float(s.mean()), "cells": float(inside.sum())}
+        values = {**sigma_metrics(sigma_counts(e, s, np.zeros_like(e))), "abs_err_cm": 100.0 * float(e.mean()),
+                  "cells": float(inside.sum())}
         for name in MAP_BAND_KEYS:
             rows.setdefault(f"{_BAND_ROW}{int(index)}:{name}", []).append(values[name])
 
