@@ -49,6 +49,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -341,6 +342,7 @@ class Pipeline:
         self.fused: FusedMap | None = None
         self.last_map: MapWindow | None = None  # the newest window (``~/save_map``)
         self.map_skipped: dict[str, int] = {}
+        self._far_thread: ThreadPoolExecutor | None = None
         if configure_process:
             configure_threads(config.backend.inference_threads)
 
@@ -609,9 +611,11 @@ class Pipeline:
         flush_denormals()
         t0 = time.perf_counter()
         # The far field's estimate starts with the grid's: on a backend that shares its workers
-        # (an ensemble) its matchers take whichever worker the grid's members free first.
+        # (an ensemble) its matchers take whichever worker the grid's members free first; another
+        # backend's runs on the pipeline's far-field worker while this thread makes the grid's.
+        finish_far = (start_estimate(far_backend, frame, self._far_worker(far_backend))
+                      if far_backend is not None else None)
         finish = start_estimate(backend, frame)
-        finish_far = start_estimate(far_backend, frame) if far_backend is not None else None
         estimate = finish()
         t1 = time.perf_counter()
         estimate.check_grid(config.grid)
@@ -633,6 +637,15 @@ class Pipeline:
         preview = self._frame_preview(estimate, frame, config)
         timings["preview"] = 1e3 * (time.perf_counter() - t1)
         return PipelineOutput(frame, estimate, preview, timings, far=far)
+
+    def _far_worker(self, far_backend: Backend) -> ThreadPoolExecutor | None:
+        """The thread that makes the far field's estimates of a backend without workers of its
+        own (started with the first; None for one that has them)."""
+        if isinstance(far_backend, SubmitsEstimates):
+            return None
+        if self._far_thread is None:
+            self._far_thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix="roadbev-far-field")
+        return self._far_thread
 
     @staticmethod
     def _far_estimate(finish: Callable[[], Estimate], config: RoadbevConfig) -> Estimate:

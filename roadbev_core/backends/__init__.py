@@ -27,11 +27,13 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from concurrent.futures import Executor
 from typing import Any, Protocol, runtime_checkable
 
 from roadbev_core.backend_plugins import BackendError, available, find, takes_checkpoint
 from roadbev_core.config import GridSpec
 from roadbev_core.frame import Estimate, Frame
+from roadbev_core.runtime import flush_denormals
 from roadbev_core.uncertainty import calibration_for, refine
 
 __all__ = ["Backend", "BackendError", "RefinedBackend", "SubmitsEstimates", "available", "create", "start_estimate",
@@ -65,12 +67,21 @@ class SubmitsEstimates(Protocol):
         ...
 
 
-def start_estimate(backend: Backend, frame: Frame) -> Callable[[], Estimate]:
-    """``backend``'s estimate of ``frame`` started now where it can be (:class:`SubmitsEstimates`),
-    else made when the returned call asks for it."""
+def start_estimate(backend: Backend, frame: Frame, worker: Executor | None = None) -> Callable[[], Estimate]:
+    """``backend``'s estimate of ``frame`` started now where it can be: on its own workers
+    (:class:`SubmitsEstimates`), else on ``worker`` when given (the calling thread goes on with
+    other work meanwhile), else made when the returned call asks for it. The returned call waits
+    for the estimate and raises what the backend raised."""
     if isinstance(backend, SubmitsEstimates):
         return backend.submit(frame)
+    if worker is not None:
+        return worker.submit(_flushed_estimate, backend, frame).result
     return lambda: backend.estimate(frame)
+
+
+def _flushed_estimate(backend: Backend, frame: Frame) -> Estimate:
+    flush_denormals()  # a per-thread setting: each worker thread sets it itself
+    return backend.estimate(frame)
 
 
 class RefinedBackend:

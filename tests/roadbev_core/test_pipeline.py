@@ -3,6 +3,7 @@ field beside the grid."""
 
 from __future__ import annotations
 
+import threading
 from dataclasses import replace
 from typing import Any
 
@@ -301,6 +302,39 @@ def test_an_ensemble_estimates_the_far_field_on_the_grids_workers_with_the_same_
     np.testing.assert_array_equal(out.far.elevation, alone.elevation)
     np.testing.assert_array_equal(out.far.uncertainty, alone.uncertainty)
     np.testing.assert_array_equal(out.estimate.elevation, near.estimate(frame).elevation)
+
+
+class MeetingRoad(FarRoad):
+    """A far-flat road whose grid estimate waits (up to 5 s) for the far field's to have started:
+    it can only see it started when the two run at once."""
+
+    def __init__(self, grid: GridSpec, far_started: threading.Event, threads: dict[str, str]) -> None:
+        super().__init__(grid)
+        self.far_started, self.threads = far_started, threads
+
+    def estimate(self, frame: Frame) -> Estimate:
+        far = self.grid.x_min >= GridSpec().x_max
+        self.threads["far" if far else "near"] = threading.current_thread().name
+        if far:
+            self.far_started.set()
+        else:
+            self.threads["met"] = str(self.far_started.wait(5.0))
+        return super().estimate(frame)
+
+
+def test_a_backend_without_workers_of_its_own_estimates_the_far_field_beside_the_grid_at_once() -> None:
+    started = threading.Event()
+    threads: dict[str, str] = {}
+    config = RoadbevConfig.from_params({"require_imu": False, "far_field.enabled": True})
+    pipeline = Pipeline(config, backend_factory=lambda name, grid, **o: MeetingRoad(grid, started, threads),
+                        configure_process=False)
+    out = pipeline.process_frame(_frame(0))
+    assert threads["met"] == "True"  # the far field's estimate began while the grid's was being made
+    assert threads["near"] == threading.current_thread().name and threads["far"].startswith("roadbev-far-field")
+    plain = _far_pipeline(**{"far_field.enabled": True}).process_frame(_frame(0))
+    assert out.far is not None and plain.far is not None
+    np.testing.assert_array_equal(out.far.elevation, plain.far.elevation)
+    np.testing.assert_array_equal(out.estimate.elevation, plain.estimate.elevation)
 
 
 def test_a_far_field_out_of_view_is_empty_not_an_error() -> None:
