@@ -1262,7 +1262,7 @@ TABLES: dict[str, Table] = {
                                               "far_field.enabled=true"),
     "node_paced": _node_drive("node_paced", "ensemble"),
     "node_paced_far": _node_drive("node_paced_far", "ensemble", "far_field.enabled=true"),
-    "node_default": _node_drive("node_default", "ensemble"),
+    "node_default": _node_drive("node_default", "ensemble bm"),
     "node_paced_far_5hz": _node_drive("node_paced_far_5hz", "ensemble", "far_field.enabled=true", rate=5),
     "node_stereo": Table(("node_stereo.json",), node_rows, f"{_NODE} --backends stereo stereo:runtime=openvino "
                                                            "--frames 40 --out benchmarks/results/node_stereo.json"),
@@ -1301,6 +1301,9 @@ TABLES: dict[str, Table] = {
     **_ride("ride_paced"),
     **_ride("ride_paced_low_speed"),
     **_ride("ride_paced_parallax"),
+    **_ride("ride_latency"),
+    **_ride("ride_paced_far_thread"),
+    "ride_latency_roads": Table(("ride_latency.json",), ride_roads, with_provenance=False),
     "ride_paced_parallax_roads": Table(("ride_paced_parallax.json",), ride_roads, with_provenance=False),
     "ride_paced_roads": Table(("ride_paced.json",), ride_roads, with_provenance=False),
     "ride_far_roads": Table(("ride_far_field.json",), ride_roads, with_provenance=False),
