@@ -1263,6 +1263,8 @@ TABLES: dict[str, Table] = {
     "node_paced": _node_drive("node_paced", "ensemble"),
     "node_paced_far": _node_drive("node_paced_far", "ensemble", "far_field.enabled=true"),
     "node_default": _node_drive("node_default", "ensemble bm"),
+    **{name: _node_drive(name, "ensemble bm") for name in (
+        "node_far_thread_before_run1", "node_far_thread_before_run2", "node_far_thread_after_run2")},
     "node_paced_far_5hz": _node_drive("node_paced_far_5hz", "ensemble", "far_field.enabled=true", rate=5),
     "node_stereo": Table(("node_stereo.json",), node_rows, f"{_NODE} --backends stereo stereo:runtime=openvino "
                                                            "--frames 40 --out benchmarks/results/node_stereo.json"),
