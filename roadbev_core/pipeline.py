@@ -611,11 +611,12 @@ class Pipeline:
         flush_denormals()
         t0 = time.perf_counter()
         # The far field's estimate starts with the grid's: on a backend that shares its workers
-        # (an ensemble) its matchers take whichever worker the grid's members free first; another
-        # backend's runs on the pipeline's far-field worker while this thread makes the grid's.
+        # (an ensemble) its matchers queue behind the grid's members and take whichever worker
+        # they free first; another backend's runs on the pipeline's far-field worker while this
+        # thread makes the grid's (its start is a call made below, after the far field's began).
+        finish = start_estimate(backend, frame)
         finish_far = (start_estimate(far_backend, frame, self._far_worker(far_backend))
                       if far_backend is not None else None)
-        finish = start_estimate(backend, frame)
         estimate = finish()
         t1 = time.perf_counter()
         estimate.check_grid(config.grid)
