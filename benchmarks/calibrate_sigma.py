@@ -50,12 +50,13 @@ from benchmarks.bench_arrival import make_drive
 from benchmarks.common import available_backends, machine_info, scene_samples
 from benchmarks.tune_bev_sweep import TUNING_SEED_BASE
 from roadbev_core.backends import create
-from roadbev_core.config import FarFieldConfig, GridSpec
+from roadbev_core.config import FarFieldConfig, GridSpec, split_backend_spec
 from roadbev_core.uncertainty import (
     CALIBRATION_FILE,
     FAR_CALIBRATION_FILE,
     SigmaFeatures,
     SigmaModel,
+    calibration_key,
     camera_positions,
     fit_sigma_model,
     visible_estimate,
@@ -72,6 +73,18 @@ FAR_FIELD_BACKENDS = ("bm", "sgbm")
 NEAR_TERMS = ("raw", "floor", "slope", "relief", "plane", "shadow")
 # SPEED:RATE:SEED of the tuning drives: two speeds, 5 Hz (consecutive frames 2 and 4 m apart)
 TUNING_DRIVES = ("10:5:300001", "20:5:300002")
+
+
+def backend_specs(text: str) -> list[tuple[str, dict[str, Any]]]:
+    """``--backends``' comma-separated ``NAME[:OPTION=VALUE,...]`` -> (name, options) each (an
+    item ``OPTION=VALUE`` after a ``NAME:...`` one is another option of that backend)."""
+    items: list[str] = []
+    for item in (part.strip() for part in text.split(",")):
+        if items and "=" in item and ":" not in item:
+            items[-1] += f",{item}"
+        elif item:
+            items.append(item)
+    return [split_backend_spec(item, "--backends") for item in items]
 
 
 def drive_samples(specs: list[str], duration: float, grid: GridSpec) -> list[tuple[Any, np.ndarray]]:
@@ -129,16 +142,17 @@ def score(model: SigmaModel, cells: list[tuple[np.ndarray, SigmaFeatures, np.nda
     return out
 
 
-def calibrate(name: str, sets: dict[str, list[Any]], grid: GridSpec, args: argparse.Namespace) -> dict[str, Any]:
-    """Fit ``name`` on the tuning ``sets`` (name -> samples: the scenes, the drives' frames);
-    the table entry with its tuning scores, pooled and per set.
+def calibrate(name: str, sets: dict[str, list[Any]], grid: GridSpec, args: argparse.Namespace,
+              options: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Fit ``name`` built with ``options`` on the tuning ``sets`` (name -> samples: the scenes,
+    the drives' frames); the table entry with its tuning scores, pooled and per set.
 
     The likelihood is fitted on every cell of every set, and the factor k is chosen on them
     pooled; the scores per set are kept beside. (Bounds per set were tried: one factor cannot keep
     both sets within 98 % inside 2 sigma, and the drives were then confidently wrong on 1.4 % of
     bev_sweep's cells against 0.4 % pooled.)
     """
-    backend = create(name, grid, raw=True)
+    backend = create(name, grid, raw=True, **(options or {}))
     far = bool(args.far_field)
     cells: dict[str, list[tuple[np.ndarray, SigmaFeatures, np.ndarray]]] = {}
     for set_name, samples in sets.items():
@@ -169,7 +183,7 @@ def calibrate(name: str, sets: dict[str, list[Any]], grid: GridSpec, args: argpa
         if trial["pooled"][wrong_key] <= args.max_confident_wrong:
             break
     model = scaled(fitted, factor)
-    print(f"{name:<10} k {factor:.2f}  {model}", flush=True)
+    print(f"{calibration_key(name, options):<10} k {factor:.2f}  {model}", flush=True)
     for set_name, t in chosen.items():
         print(f"    {set_name:<7} " + ", ".join(f"{k} {v:.3f}" for k, v in t.items() if k != "bands"), flush=True)
     return {"model": model.to_dict(), "likelihood_fit": fitted.to_dict(), "factor": factor,
@@ -184,7 +198,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--drives", nargs="*", default=list(TUNING_DRIVES), metavar="SPEED:RATE:SEED",
                         help=f"tuning drives (default {' '.join(TUNING_DRIVES)}; none: the scenes alone)")
     parser.add_argument("--drive-duration", type=float, default=2.0, help="seconds of each drive (default 2)")
-    parser.add_argument("--backends", default=",".join(BACKENDS), help="comma-separated (default: all available)")
+    parser.add_argument("--backends", default=",".join(BACKENDS),
+                        help="comma-separated (default: all available); NAME:OPTION=VALUE fits the backend built "
+                             "with that option, under that key (roadbev_core.uncertainty.calibration_key)")
     parser.add_argument("--far-field", action="store_true",
                         help="fit the far-field tables (roadbev_core/data/far_sigma_calibration.json; no drives)")
     parser.add_argument("--max-confident-wrong", type=float, default=None,
@@ -206,8 +222,9 @@ def main(argv: list[str] | None = None) -> int:
         args.backends = ",".join(FAR_FIELD_BACKENDS)
     if far:
         args.drives = []  # the tuning drives carry no far-field truth
-    wanted = args.backends.split(",")
-    status = available_backends(wanted)
+    specs = backend_specs(args.backends)
+    wanted = [calibration_key(name, options) for name, options in specs]
+    status = available_backends([name for name, _ in specs])
     grid = FarFieldConfig().grid(GridSpec()) if far else GridSpec()
     start = time.perf_counter()
     seeds = range(TUNING_SEED_BASE, TUNING_SEED_BASE + args.frames)
@@ -222,13 +239,13 @@ def main(argv: list[str] | None = None) -> int:
     models = dict(table.get("models", {}))
     details = dict(table.get("details", {}))
     command = " ".join(["python -m benchmarks.calibrate_sigma", *(argv if argv is not None else sys.argv[1:])])
-    for name in wanted:
+    for key, (name, options) in zip(wanted, specs, strict=True):
         if status.get(name):
             print(f"skipping {name}: {status[name]}", file=sys.stderr)
             continue
-        entry = calibrate(name, sets, grid, args)
-        models[name] = entry.pop("model")
-        details[name] = {**entry, "command": command}
+        entry = calibrate(name, sets, grid, args, options)
+        models[key] = entry.pop("model")
+        details[key] = {**entry, "command": command}
     # a run that fits some of the backends keeps the record of the run that fitted the rest (each
     # backend's own command is in its details)
     earlier = table if set(models) - set(wanted) else {}

@@ -18,7 +18,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
-from roadbev_core.config import GridSpec, StereoCamera, parse_assignments
+from roadbev_core.config import GridSpec, StereoCamera, split_backend_spec
 from roadbev_core.frame import Estimate, Frame
 from roadbev_lab.evaluation.frames import to_json
 from roadbev_lab.fleet.executors import Executor, FleetError, make_executor
@@ -141,9 +141,8 @@ def scene_samples(
 
 def backend_spec(spec: str) -> tuple[str, dict[str, Any]]:
     """``NAME[:OPTION=VALUE,...]`` -> the backend name and its options as node parameters."""
-    name, _, options = spec.partition(":")
-    items = [item for item in options.split(",") if item]
-    return name, {f"{name}.{key}": value for key, value in parse_assignments(items, "--backends").items()}
+    name, options = split_backend_spec(spec, "--backends")
+    return name, {f"{name}.{key}": value for key, value in options.items()}
 
 
 def available_backends(names: Iterable[str] = ("bev_sweep", "sgbm", "bm", "stereo", "mono", "gwcnet", "adabins")

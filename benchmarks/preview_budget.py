@@ -56,7 +56,7 @@ import torch
 from benchmarks.common import RESULTS
 from roadbev_core.backends import Backend, create
 from roadbev_core.box_filter import box_mean
-from roadbev_core.config import GridSpec, RoadbevConfig
+from roadbev_core.config import GridSpec, RoadbevConfig, split_backend_spec
 from roadbev_core.frame import Estimate, Frame
 from roadbev_core.fusion import FrameFusion, FramePlacement, FusedMap, MapSettings, MapWindow
 from roadbev_core.labels import ElevationLabel
@@ -177,8 +177,16 @@ class Candidate:
         """
         if not self.pace_backend or self.pace is None:
             raise ValueError(f"candidate {self.name!r} is not paced")
+        name, params = self.pace_params()
+        return Candidate(f"{self.name}:{name}", name, params, *self.pace)
+
+    def pace_params(self) -> tuple[str, dict[str, Any]]:
+        """Its pace backend's name and node parameters: its own but those of the pacing and of
+        its chosen backend, with the options the ``pace_backend`` spec gives over them (as
+        :func:`roadbev_core.pipeline.build_pace_backends` builds it)."""
+        name, options = split_backend_spec(self.pace_backend, "pace_backend")
         params = {k: v for k, v in self.params.items() if not k.startswith(("pace_", f"{self.backend}."))}
-        return Candidate(f"{self.name}:{self.pace_backend}", self.pace_backend, params, *self.pace)
+        return name, {**params, **{f"{name}.{key}": value for key, value in options.items()}}
 
     def backend_options(self) -> dict[str, Any]:
         """The options the registry builds the backend with (as the node's config gives them)."""
@@ -290,7 +298,7 @@ def candidates_from_node(specs: Sequence[str], node_results: Sequence[Mapping[st
         latency_s, period_s = _row_costs(spec, backend, params, node_results)
         candidate = Candidate(name, backend, params, latency_s, period_s)
         if candidate.pace_backend:
-            pace = _row_costs(f"{spec} (its pace_backend)", candidate.pace_backend, params, node_results)
+            pace = _row_costs(f"{spec} (its pace_backend)", *candidate.pace_params(), node_results)
             candidate = replace(candidate, pace=pace)
         out.append(candidate)
     if charges:

@@ -25,6 +25,8 @@ import threading
 from collections import deque
 from dataclasses import dataclass
 
+from roadbev_core.config import split_backend_spec
+
 __all__ = ["MAX_INTERVAL_S", "PROBE_EVERY", "PaceState", "Pacer", "stand_in"]
 
 # Every this many frames answered by the pace backend, the chosen one answers one (at a 10 Hz
@@ -39,9 +41,12 @@ _SMOOTHING = 0.3  # weight of a frame's cost in its backend's running cost
 
 
 def stand_in(pace_backend: str, backend: str) -> str:
-    """The backend that answers for ``backend`` when it cannot keep pace: ``pace_backend``, or ""
-    where that is empty or ``backend`` itself (nothing cheaper to hand over to)."""
-    return "" if pace_backend == backend else pace_backend
+    """The backend that answers for ``backend`` when it cannot keep pace: ``pace_backend`` (a name,
+    or ``NAME:OPTION=VALUE,...``: :func:`roadbev_core.config.split_backend_spec`), or "" where that
+    is empty or names ``backend`` itself (nothing cheaper to hand over to)."""
+    if not pace_backend or split_backend_spec(pace_backend, "pace_backend")[0] == backend:
+        return ""
+    return pace_backend
 
 
 @dataclass(frozen=True)

@@ -57,7 +57,14 @@ import numpy as np
 
 from roadbev_core.attitude import ImuSample, ImuStale, imu_buffer
 from roadbev_core.backends import Backend, BackendError, SubmitsEstimates, create, start_estimate
-from roadbev_core.config import GridSpec, ParamError, RoadbevConfig, StereoCamera, check_image_size
+from roadbev_core.config import (
+    GridSpec,
+    ParamError,
+    RoadbevConfig,
+    StereoCamera,
+    check_image_size,
+    split_backend_spec,
+)
 from roadbev_core.ego_motion import EgoMotion, EgoMotionStale, PlanarPose
 from roadbev_core.errors import RoadbevError
 from roadbev_core.frame import Estimate, Frame, FrameError, ImplausibleFrame, implausible
@@ -261,28 +268,36 @@ def build_pace_backends(config: RoadbevConfig, backend: Backend, factory: Backen
     Raises:
         BackendError: it cannot be built (a missing checkpoint, an option it refuses).
     """
-    name = stand_in(config.backend.pace_backend, backend.name)
-    if not name:
+    spec = stand_in(config.backend.pace_backend, backend.name)
+    if not spec:
         return PaceBackends()
     try:
-        pace = config.with_params({"backend": name})
+        pace = config.with_params(_pace_params(spec))
         near = build_backend(pace, factory)
         far = (build_backend(pace, factory, grid=config.far_grid)
                if config.far_grid is not None and not far_field_off_reason(pace, near) else None)
     except (BackendError, ParamError) as exc:
         raise BackendError(f"pace_backend: {exc}") from exc
     if near.needs_stereo and not backend.needs_stereo:
-        return PaceBackends(off_reason=f"pace_backend {name!r} needs both images and backend {backend.name!r} is "
+        return PaceBackends(off_reason=f"pace_backend {spec!r} needs both images and backend {backend.name!r} is "
                                        "given the left one only")
     return PaceBackends(near, far)
 
 
 def _pace_key(config: RoadbevConfig, backend: Backend) -> tuple[Any, ...]:
     """What :func:`build_pace_backends` builds from: equal keys, the same pace backends."""
-    name = stand_in(config.backend.pace_backend, backend.name)
-    if not name:
+    spec = stand_in(config.backend.pace_backend, backend.name)
+    if not spec:
         return ()
-    return name, config.backend.options_of(name), config.grid, config.far_grid, backend.needs_stereo
+    name = split_backend_spec(spec, "pace_backend")[0]
+    return spec, config.backend.options_of(name), config.grid, config.far_grid, backend.needs_stereo
+
+
+def _pace_params(spec: str) -> dict[str, Any]:
+    """The node parameters that make ``pace_backend``'s backend the chosen one: its name, and the
+    options its spec gives (``bm:plane_parallax_px=16``) over the node's own for it."""
+    name, options = split_backend_spec(spec, "pace_backend")
+    return {"backend": name, **{f"{name}.{key}": value for key, value in options.items()}}
 
 
 def _no_estimate(grid: GridSpec) -> Estimate:

@@ -29,7 +29,7 @@ near edge of the grid those were fitted on takes them.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -49,6 +49,7 @@ __all__ = [
     "SigmaFeatures",
     "SigmaModel",
     "calibration_for",
+    "calibration_key",
     "camera_positions",
     "fit_sigma_model",
     "refine",
@@ -259,20 +260,36 @@ def fit_sigma_model(features: Sequence[SigmaFeatures], errors: Sequence[np.ndarr
     return SigmaModel(**{n: float(c) for n, c in zip(names, fitted, strict=True)})
 
 
+def calibration_key(backend: str, options: Mapping[str, Any] | None = None) -> str:
+    """The calibration tables' key of ``backend`` built with ``options``: its name, and with
+    options ``NAME:OPTION=VALUE,...`` (sorted): ``bm:plane_parallax_px=16``."""
+    if not options:
+        return backend
+    return f"{backend}:" + ",".join(f"{key}={options[key]}" for key in sorted(options))
+
+
 def calibration_for(backend: str, path: Path = CALIBRATION_FILE, *, grid: GridSpec | None = None,
-                    far_path: Path = FAR_CALIBRATION_FILE) -> SigmaModel | None:
+                    far_path: Path = FAR_CALIBRATION_FILE, options: Mapping[str, Any] | None = None
+                    ) -> SigmaModel | None:
     """The fitted :class:`SigmaModel` of ``backend`` (None when the table has none).
 
     Args:
         grid: the grid it answers: one that starts at or beyond the near edge of the grid the far-field
             tables were fitted on (``far_path``'s ``grid``) takes ``backend``'s far-field table when
             there is one; every other grid (and None) the table at ``path``.
+        options: the options it was built with: a table fitted with those options
+            (:func:`calibration_key`) wins over the backend's own; where the table has none, the
+            backend's own (an option that changes how the estimate errs, such as ``bm``'s
+            ``plane_parallax_px``, has its own fit).
     """
+    keys = [calibration_key(backend, options), backend] if options else [backend]
     far = json_table(far_path)
     fitted_on = far.get("grid", {}).get("x_min")
     if grid is not None and fitted_on is not None and grid.x_min >= float(fitted_on) - 1e-9:
-        entry = far.get("models", {}).get(backend)
+        far_models = far.get("models", {})
+        entry = next((far_models[key] for key in keys if key in far_models), None)
         if entry is not None:
             return SigmaModel.from_dict(entry)
-    entry = json_table(path).get("models", {}).get(backend)
+    models = json_table(path).get("models", {})
+    entry = next((models[key] for key in keys if key in models), None)
     return None if entry is None else SigmaModel.from_dict(entry)

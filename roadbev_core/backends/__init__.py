@@ -9,7 +9,8 @@ built-in backends, the ``roadbev.backends`` entry points of installed packages, 
 Every backend :func:`create` makes answers through :class:`RefinedBackend`: its estimates pass
 through :func:`roadbev_core.uncertainty.refine` (cells hidden behind a crest become NaN; sigma
 is the backend's calibrated model from ``roadbev_core/data/sigma_calibration.json``, or on a
-far-field grid from ``far_sigma_calibration.json``: :func:`roadbev_core.uncertainty.calibration_for`), one step for
+far-field grid from ``far_sigma_calibration.json``, the one fitted with its options where there
+is one: :func:`roadbev_core.uncertainty.calibration_for`), one step for
 all backends (an ``ensemble``'s members each, not the ensemble again). ``create(..., raw=True)``
 gives the backend's own answer (used to calibrate).
 
@@ -91,13 +92,14 @@ class RefinedBackend:
     wrapped backend's (``inner``).
     """
 
-    def __init__(self, inner: Backend) -> None:
-
+    def __init__(self, inner: Backend, options: dict[str, Any] | None = None) -> None:
+        """``options``: what ``inner`` was built with (the sigma fitted with them where the
+        tables have one: :func:`roadbev_core.uncertainty.calibration_for`)."""
         self.inner = inner
         self.name = inner.name
         self.grid = inner.grid
         self.needs_stereo = inner.needs_stereo
-        self.sigma_model = calibration_for(inner.name, grid=inner.grid)
+        self.sigma_model = calibration_for(inner.name, grid=inner.grid, options=options)
 
     def estimate(self, frame: Frame) -> Estimate:
         """The wrapped backend's estimate, hidden cells NaN and sigma calibrated."""
@@ -142,4 +144,4 @@ def create(name: str, grid: GridSpec | None = None, *, raw: bool = False, **opti
         raise BackendError(f"backend plugin {name!r} ({plugin.target}, {plugin.source}) returned "
                            f"{type(backend).__name__!r}, not a Backend: {lacks}")
     # an ensemble's members are refined themselves (their own calibrated sigma weighs them)
-    return backend if raw or getattr(backend, "refines_itself", False) else RefinedBackend(backend)
+    return backend if raw or getattr(backend, "refines_itself", False) else RefinedBackend(backend, options)

@@ -8,7 +8,14 @@ of the pipeline and the node, and the params-file reader.
 """
 
 from roadbev_core.config.grid import GRID_PRESETS, ConfigError, GridSpec, grid_preset
-from roadbev_core.config.params_file import NODE_NAME, ParamError, ParamsFile, load_params_file, parse_assignments
+from roadbev_core.config.params_file import (
+    NODE_NAME,
+    ParamError,
+    ParamsFile,
+    load_params_file,
+    parse_assignments,
+    split_backend_spec,
+)
 from roadbev_core.config.rig import RSRD_CROP_TOP, StereoCamera
 from roadbev_core.config.tree import (
     BASE_FRAME,
@@ -63,4 +70,5 @@ __all__ = [
     "load_params_file",
     "parameter_specs",
     "parse_assignments",
+    "split_backend_spec",
 ]

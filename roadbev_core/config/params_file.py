@@ -128,6 +128,20 @@ def parse_assignments(items: Iterable[str], option: str) -> dict[str, Any]:
     return parsed
 
 
+def split_backend_spec(spec: str, option: str = "backend") -> tuple[str, dict[str, Any]]:
+    """A backend with options, ``NAME[:OPTION=VALUE,...]`` (``bm:plane_parallax_px=16``) -> its
+    name and options (values as :func:`parse_assignments` reads them). What follows the last
+    ``:`` is options only when it has a ``=``: a plugin's ``module:attr`` path is a name.
+
+    Raises:
+        ParamError: an option without ``=``, naming ``option`` (what the spec was given as).
+    """
+    name, sep, options = spec.rpartition(":")
+    if not sep or "=" not in options:
+        return spec.strip(), {}
+    return name.strip(), parse_assignments([item for item in options.split(",") if item.strip()], option)
+
+
 def _flatten(params: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     out: dict[str, Any] = {}
     for name, value in params.items():

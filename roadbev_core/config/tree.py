@@ -36,7 +36,7 @@ import numpy as np
 
 from roadbev_core.backend_plugins import available, is_backend_name, option_backend, takes_checkpoint
 from roadbev_core.config.grid import ConfigError, GridSpec, whole_cells_end
-from roadbev_core.config.params_file import ParamError
+from roadbev_core.config.params_file import ParamError, split_backend_spec
 
 __all__ = [
     "DEFAULT_BACKEND",
@@ -601,9 +601,10 @@ class RoadbevConfig:
         :func:`roadbev_core.pipeline.check_config`)."""
         if not is_backend_name(self.backend.name):
             raise ParamError(f"backend must be one of {', '.join(available())}; got {self.backend.name!r}")
-        if self.backend.pace_backend and not is_backend_name(self.backend.pace_backend):
-            raise ParamError(f"pace_backend must be empty or one of {', '.join(available())}; got "
-                             f"{self.backend.pace_backend!r}")
+        if self.backend.pace_backend and not is_backend_name(
+                split_backend_spec(self.backend.pace_backend, "pace_backend")[0]):
+            raise ParamError(f"pace_backend must be empty or one of {', '.join(available())} (with options: "
+                             f"NAME:OPTION=VALUE,...); got {self.backend.pace_backend!r}")
         for what, grid in (("the grid", self.grid), ("the far-field grid", self.far_grid)):
             if grid is None:
                 continue

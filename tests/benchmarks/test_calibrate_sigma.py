@@ -11,6 +11,7 @@ from benchmarks.bench_arrival import SEED_BASE as BENCH_DRIVE_SEEDS
 from benchmarks.bench_hazards import MAP_SEED_BASE, SEED_BASE
 from benchmarks.calibrate_sigma import TUNING_DRIVES, drive_samples
 from roadbev_core.config import FarFieldConfig, GridSpec
+from roadbev_core.uncertainty import SigmaModel, calibration_for
 from roadbev_lab.demo.drive import DRIVE_SEED
 
 
@@ -59,3 +60,17 @@ def test_a_run_that_fits_some_backends_keeps_the_record_of_the_others(tmp_path: 
     assert set(table["models"]) == {"stereo", "bm"} and table["models"]["stereo"] == {"base": 0.001}
     assert table["command"] == earlier["command"] and table["machine"] == earlier["machine"]
     assert table["details"]["bm"]["command"].endswith(f"--backends bm --out {out}")
+
+
+def test_a_backend_given_with_options_is_fitted_with_them_under_their_key(tmp_path: Path) -> None:
+    from benchmarks.calibrate_sigma import backend_specs, main
+
+    assert backend_specs("bm:plane_parallax_px=16,block_size=9,sgbm") == [
+        ("bm", {"plane_parallax_px": 16, "block_size": 9}), ("sgbm", {})]
+    out = tmp_path / "table.json"
+    assert main(["--far-field", "--frames", "1", "--backends", "bm:plane_parallax_px=16", "--out", str(out)]) == 0
+    table = json.loads(out.read_text())
+    assert set(table["models"]) == set(table["details"]) == {"bm:plane_parallax_px=16"}
+    fitted = SigmaModel.from_dict(table["models"]["bm:plane_parallax_px=16"])
+    far = FarFieldConfig().grid(GridSpec())
+    assert calibration_for("bm", grid=far, far_path=out, options={"plane_parallax_px": 16}) == fitted

@@ -85,6 +85,13 @@ def test_a_paced_candidate_takes_its_pace_backends_row_and_never_a_paced_row() -
     with pytest.raises(ValueError, match=r"its pace_backend.*no bench_node row with backend bm"):
         candidates_from_node(["far_paced=ensemble:far_field.enabled=true,pace_backend=bm"],
                              node_rows([{"rows": [chosen], "node_params": {"far_field.enabled": True}}]))
+    # a pace backend given with options takes the row measured with them, and runs with them
+    warped = {**bm, "backend": "bm:plane_parallax_px=16", "latency_ms": {"p50": 92.0}}
+    rows = node_rows([{"rows": [chosen, bm, warped], "node_params": {"far_field.enabled": True}}])
+    (w,) = candidates_from_node(["w=ensemble:far_field.enabled=true,pace_backend=bm:plane_parallax_px=16"], rows)
+    assert w.pace_backend == "bm:plane_parallax_px=16" and w.pace == pytest.approx((0.092, 0.080))
+    pace = w.pace_candidate()
+    assert (pace.backend, dict(pace.params)) == ("bm", {"far_field.enabled": True, "bm.plane_parallax_px": 16})
 
 
 def test_candidates_take_their_latency_and_period_from_the_node_row() -> None:

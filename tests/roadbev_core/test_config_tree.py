@@ -16,6 +16,7 @@ from roadbev_core.config import (
     load_params_file,
     parameter_specs,
     parse_assignments,
+    split_backend_spec,
 )
 from roadbev_core.config.grid import ConfigError
 
@@ -257,6 +258,15 @@ def test_command_line_assignments_parse_json_values_and_fall_back_to_text() -> N
         "zncc_subsamples": 2, "zncc_full_resolution": True, "sampling": "integer"}
     with pytest.raises(ParamError, match="--model-option takes NAME=VALUE"):
         parse_assignments(["zncc_subsamples"], "--model-option")
+
+
+def test_a_backend_spec_is_a_name_with_options_and_a_plugin_path_is_a_name() -> None:
+    assert split_backend_spec("bm") == ("bm", {})
+    assert split_backend_spec("bm:plane_parallax_px=16,mode=3way") == ("bm", {"plane_parallax_px": 16, "mode": "3way"})
+    assert split_backend_spec("my_pkg.roads:make_backend") == ("my_pkg.roads:make_backend", {})
+    assert split_backend_spec("my_pkg.roads:make_backend:depth=2") == ("my_pkg.roads:make_backend", {"depth": 2})
+    with pytest.raises(ParamError, match="pace_backend takes NAME=VALUE, got 'mode'"):
+        split_backend_spec("bm:plane_parallax_px=16,mode", "pace_backend")
 
 
 def test_a_params_file_that_is_not_utf8_is_one_line(tmp_path: Path) -> None:

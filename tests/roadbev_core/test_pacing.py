@@ -98,3 +98,6 @@ def test_a_load_that_is_not_positive_is_refused() -> None:
 def test_a_backend_stands_in_for_another_only_where_it_is_named_and_not_the_same() -> None:
     assert stand_in("bm", "ensemble") == "bm"
     assert stand_in("bm", "bm") == "" and stand_in("", "ensemble") == ""
+    # a spec with options stands in as given, and not for its own backend
+    assert stand_in("bm:plane_parallax_px=16", "ensemble") == "bm:plane_parallax_px=16"
+    assert stand_in("bm:plane_parallax_px=16", "bm") == ""

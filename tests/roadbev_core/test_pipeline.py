@@ -457,6 +457,30 @@ def test_a_paced_frame_is_answered_by_the_pace_backend_on_both_grids() -> None:
     assert np.all(chosen.far.elevation == np.float32(0.03)) and np.all(paced.far.elevation == np.float32(0.02))
 
 
+def test_a_pace_backend_given_with_options_is_built_with_them_over_the_nodes_own() -> None:
+    built: list[tuple[str, GridSpec, dict[str, Any]]] = []
+
+    def recording(name: str, grid: GridSpec, **options: Any) -> NamedRoad:
+        built.append((name, grid, options))
+        return _named(name, grid)
+
+    config = RoadbevConfig.from_params({"require_imu": False, "backend": "sgbm", "far_field.enabled": True,
+                                        "pace_backend": "bm:plane_parallax_px=16,block_size=9",
+                                        "bm.block_size": 7, "bm.uniqueness_ratio": 20})
+    pipeline = Pipeline(config, backend_factory=recording, configure_process=False)
+    assert pipeline.pace.near is not None and pipeline.pace.near.name == "bm"
+    pace = {"plane_parallax_px": 16, "block_size": 9, "uniqueness_ratio": 20}
+    assert [(n, g, o) for n, g, o in built if n == "bm"] == [("bm", config.grid, pace), ("bm", config.far_grid, pace)]
+    # naming the chosen backend, with options or not, is no pace backend
+    same = Pipeline(config.with_params({"pace_backend": "sgbm:block_size=5"}), backend_factory=_named,
+                    configure_process=False)
+    assert same.pace.near is None and same.pace.off_reason == ""
+    with pytest.raises(ParamError, match=r"pace_backend takes NAME=VALUE, got 'block_size'"):
+        RoadbevConfig.from_params({"pace_backend": "bm:plane_parallax_px=16,block_size"})
+    with pytest.raises(ParamError, match=r"pace_backend must be empty or one of .*; got 'bmm:block_size=9'"):
+        RoadbevConfig.from_params({"pace_backend": "bmm:block_size=9"})
+
+
 def test_without_a_pace_backend_a_paced_frame_is_answered_by_the_chosen_one() -> None:
     for params in ({"backend": "sgbm", "pace_backend": ""}, {"backend": "bm"}):
         pipeline = Pipeline(RoadbevConfig.from_params({"require_imu": False, **params}), backend_factory=_named,

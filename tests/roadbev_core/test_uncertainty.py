@@ -16,6 +16,7 @@ from roadbev_core.uncertainty import (
     SigmaFeatures,
     SigmaModel,
     calibration_for,
+    calibration_key,
     fit_sigma_model,
     refine,
     visible_estimate,
@@ -166,6 +167,30 @@ def test_the_footprint_term_grows_with_the_road_one_image_row_covers() -> None:
     raw = Estimate(np.zeros(GRID.shape, np.float32), 0.002 * ones)
     far_sigma = refine(raw, _frame(), GRID, stereo=True, model=SigmaModel(raw=1.0, footprint=1.0)).uncertainty
     assert np.all(far_sigma[0] > far_sigma[-1]) and np.all(far_sigma > 0.002)
+
+
+def test_a_backend_built_with_options_takes_the_tables_fitted_with_them_else_its_own(tmp_path: Path) -> None:
+    assert calibration_key("bm") == "bm" and calibration_key("bm", {}) == "bm"
+    assert calibration_key("bm", {"plane_parallax_px": 16, "block_size": 9}) == "bm:block_size=9,plane_parallax_px=16"
+    far = FarFieldConfig(enabled=True).grid(GRID)
+    near_file, far_file = tmp_path / "near.json", tmp_path / "far.json"
+    near_file.write_text(json.dumps({"models": {"bm": {"raw": 1.0}, "bm:plane_parallax_px=16": {"raw": 2.0}}}))
+    far_file.write_text(json.dumps({"grid": far.to_dict(), "models": {"bm": {"raw": 3.0}}}))
+    warped = {"plane_parallax_px": 16}
+    assert calibration_for("bm", near_file, far_path=far_file, options=warped) == SigmaModel(raw=2.0)
+    assert calibration_for("bm", near_file, far_path=far_file, options={"block_size": 9}) == SigmaModel(raw=1.0)
+    # the far-field table has no fit with the option: the backend's own far-field one
+    assert calibration_for("bm", near_file, grid=far, far_path=far_file, options=warped) == SigmaModel(raw=3.0)
+    fitted_far = tmp_path / "far_fitted.json"
+    fitted_far.write_text(json.dumps({"grid": far.to_dict(), "models": {"bm": {"raw": 3.0},
+                                                                        "bm:plane_parallax_px=16": {"raw": 4.0}}}))
+    assert calibration_for("bm", near_file, grid=far, far_path=fitted_far, options=warped) == SigmaModel(raw=4.0)
+    # what create builds: the option's own fit, in the shipped tables, on both grids
+    for grid in (GRID, far):
+        backend = create("bm", grid, plane_parallax_px=16)
+        assert isinstance(backend, RefinedBackend)
+        own = calibration_for("bm", grid=grid, options=warped)
+        assert backend.sigma_model == own and own != calibration_for("bm", grid=grid)
 
 
 def test_a_far_field_grid_takes_the_far_field_tables(tmp_path: Path) -> None:
