@@ -130,16 +130,21 @@ def parse_assignments(items: Iterable[str], option: str) -> dict[str, Any]:
 
 def split_backend_spec(spec: str, option: str = "backend") -> tuple[str, dict[str, Any]]:
     """A backend with options, ``NAME[:OPTION=VALUE,...]`` (``bm:plane_parallax_px=16``) -> its
-    name and options (values as :func:`parse_assignments` reads them). What follows the last
-    ``:`` is options only when it has a ``=``: a plugin's ``module:attr`` path is a name.
+    name and options (values as :func:`parse_assignments` reads them). The options start after
+    the first ``:`` that is followed by ``OPTION=`` (a ``=`` before any further ``:``): a plugin's
+    ``module:attr`` path is a name, and an option's value may itself be a spec
+    (``ensemble:pace_backend=bm:plane_parallax_px=16``).
 
     Raises:
         ParamError: an option without ``=``, naming ``option`` (what the spec was given as).
     """
-    name, sep, options = spec.rpartition(":")
-    if not sep or "=" not in options:
-        return spec.strip(), {}
-    return name.strip(), parse_assignments([item for item in options.split(",") if item.strip()], option)
+    start = spec.find(":")
+    while start >= 0:
+        rest = spec[start + 1:]
+        if "=" in rest.split(":", 1)[0]:
+            return spec[:start].strip(), parse_assignments([i for i in rest.split(",") if i.strip()], option)
+        start = spec.find(":", start + 1)
+    return spec.strip(), {}
 
 
 def _flatten(params: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:

@@ -265,6 +265,8 @@ def test_a_backend_spec_is_a_name_with_options_and_a_plugin_path_is_a_name() -> 
     assert split_backend_spec("bm:plane_parallax_px=16,mode=3way") == ("bm", {"plane_parallax_px": 16, "mode": "3way"})
     assert split_backend_spec("my_pkg.roads:make_backend") == ("my_pkg.roads:make_backend", {})
     assert split_backend_spec("my_pkg.roads:make_backend:depth=2") == ("my_pkg.roads:make_backend", {"depth": 2})
+    assert split_backend_spec("ensemble:pace_backend=bm:plane_parallax_px=16,far_field.enabled=true") == (
+        "ensemble", {"pace_backend": "bm:plane_parallax_px=16", "far_field.enabled": True})
     with pytest.raises(ParamError, match="pace_backend takes NAME=VALUE, got 'mode'"):
         split_backend_spec("bm:plane_parallax_px=16,mode", "pace_backend")
 
