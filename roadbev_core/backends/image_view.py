@@ -32,7 +32,8 @@ from roadbev_core.labels import cell_index, cell_means
 
 __all__ = ["ImageViewParams", "ImageViewStereo", "MatchWindow", "PlaneParallaxPair", "cell_elevations", "create_bm",
            "create_sgbm", "disparity_height_sigma", "disparity_road_points", "grid_bands", "match_window",
-           "parallax_disparity", "plane_disparity", "plane_parallax_pair", "refine_disparity", "road_points"]
+           "parallax_disparity", "plane_disparity", "plane_parallax_pair", "refine_disparity", "road_points",
+           "warped_bands"]
 
 # grid_bands: row bands of the matched window, and the rounding margin (px) of the grid's image
 _GRID_BANDS = 8
@@ -331,6 +332,19 @@ def plane_parallax_pair(left: np.ndarray, right: np.ndarray, window: MatchWindow
     return PlaneParallaxPair(warped_left, warped_right, plane, slope)
 
 
+def warped_bands(bands: list[tuple[slice, slice]], pair: PlaneParallaxPair) -> list[tuple[slice, slice]]:
+    """:func:`grid_bands`' rectangles of a window's crop as rectangles of its warped pair: a warped
+    pixel at column ``u`` is the left image's at ``u + p / 2`` (``p``, the plane's disparity, is
+    never negative), so each band's first column moves left by the most half of ``p`` over its rows
+    (its last stays). Points of these rectangles in order are the warped crop's in row-major order,
+    less ones that cannot be in the grid, as :func:`grid_bands`' are the crop's."""
+    out = []
+    for rows, cols in bands:
+        reach = math.ceil(0.5 * float(pair.plane[rows].max(initial=0.0)))
+        out.append((rows, slice(max(cols.start - reach, 0), cols.stop)))
+    return out
+
+
 def parallax_disparity(residual: np.ndarray, pair: PlaneParallaxPair, cols: np.ndarray
                        ) -> tuple[np.ndarray, np.ndarray]:
     """The disparities [h, w] and left-image columns [h, w] of a warped pair's matches.
@@ -512,13 +526,14 @@ class ImageViewStereo:
         if pair is not None:
             disparity, cols = parallax_disparity(disparity, pair, np.arange(window.left, window.right))
             valid &= disparity > 0.5  # ahead of the camera
-        if cols is None:  # only the pixels that can see the grid
-            parts = [self._points(disparity[rows, band], valid[rows, band], window.crop(rows, band), frame)
-                     for rows, band in grid_bands(window, grid, camera, frame.attitude)]
-            points = np.concatenate([part[0] for part in parts]) if parts else np.empty((0, 3), np.float32)
-            sigma = np.concatenate([part[1] for part in parts]) if parts else np.empty(0, np.float32)
-        else:  # a warped pair's pixels are not at their own columns
-            points, sigma = self._points(disparity, valid, window, frame, cols)
+        bands = grid_bands(window, grid, camera, frame.attitude)  # only the pixels that can see the grid
+        if pair is not None:
+            bands = warped_bands(bands, pair)
+        parts = [self._points(disparity[rows, band], valid[rows, band], window.crop(rows, band), frame,
+                              None if cols is None else cols[rows, band])
+                 for rows, band in bands]
+        points = np.concatenate([part[0] for part in parts]) if parts else np.empty((0, 3), np.float32)
+        sigma = np.concatenate([part[1] for part in parts]) if parts else np.empty(0, np.float32)
         elevation, uncertainty = cell_elevations(points, sigma, grid, p.min_points, clock)
         return Estimate(elevation=elevation, uncertainty=uncertainty, timings_ms=clock.timings)
 

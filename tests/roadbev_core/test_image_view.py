@@ -19,6 +19,7 @@ from roadbev_core.backends.image_view import (
     plane_disparity,
     plane_parallax_pair,
     refine_disparity,
+    warped_bands,
 )
 from roadbev_core.config import FarFieldConfig, GridSpec, StereoCamera
 from roadbev_core.frame import Frame, FrameError
@@ -68,6 +69,33 @@ def test_the_grid_bands_hold_every_pixel_whose_point_can_land_in_the_grid(roll_d
     assert lands.sum() > 1000
     assert not (lands & ~kept).any()
     assert kept.mean() < 0.85
+
+
+@pytest.mark.parametrize(("roll_deg", "pitch_deg", "far"), [(0.0, 19.0, False), (2.5, 15.0, False),
+                                                            (-3.0, 23.0, True)])
+def test_a_warped_pairs_bands_hold_every_warped_pixel_whose_point_can_land_in_the_grid(
+        roll_deg: float, pitch_deg: float, far: bool) -> None:
+    """As the grid's bands for the crop, for a plane-warped pair (whose pixels are the left image's
+    half the plane's disparity to the right), at any parallax the search can give."""
+    camera, attitude, height = StereoCamera.rsrd_half(), Attitude.from_degrees(roll_deg, pitch_deg), 1.1
+    grid = FarFieldConfig().grid(GridSpec()) if far else GridSpec()
+    window = match_window(grid, camera, attitude, margin_px=4, block_size=11)
+    h, w = window.bottom - window.top, window.right - window.left
+    image = np.zeros((camera.height, camera.width), np.uint8)
+    pair = plane_parallax_pair(image, image, window, camera, attitude, height)
+    kept = np.zeros((h, w), bool)
+    for rows, cols in warped_bands(grid_bands(window, grid, camera, attitude), pair):
+        assert not kept[rows, cols].any()
+        kept[rows, cols] = True
+    lands = np.zeros((h, w), bool)
+    for r in np.linspace(-16.0, 16.0, 129):
+        disparity, left_cols = parallax_disparity(np.full((h, w), r, np.float32), pair,
+                                                  np.arange(window.left, window.right))
+        points, _ = disparity_road_points(disparity, disparity > 0.5, window, camera, attitude, height, left_cols)
+        lands |= (cell_index(points, grid, clip_z=True) < grid.n_rows * grid.n_cols).reshape(h, w)
+    assert lands.sum() > 1000
+    assert not (lands & ~kept).any()
+    assert kept.mean() < 0.9
 
 
 @pytest.mark.parametrize("pitch_deg", [15.0, 19.0, 23.0])
