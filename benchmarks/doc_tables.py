@@ -604,13 +604,18 @@ def sigma_calibration(data: Mapping[str, Any]) -> str:
     lines.append(f"Tuning set: {data['frames']['scenes']} scenes (seeds {data['seeds'][0]}–{data['seeds'][1]}) and "
                  f"{data['frames']['drives']} frames of the drives {drives} (speed:rate:seed), "
                  "`roadbev_core/data/sigma_calibration.json`.")
+    lines += _later_fits(data)
+    return "\n".join(lines)
+
+
+def _later_fits(data: Mapping[str, Any]) -> list[str]:
+    """A line per later calibrate_sigma run that fitted some of a table's entries on its tuning set."""
     separate: dict[str, list[str]] = {}
     for name, d in data["details"].items():
         if d.get("command", data["command"]) != data["command"]:
             separate.setdefault(d["command"], []).append(name)
-    for command, names in separate.items():
-        lines.append(f"{', '.join(names)} fitted on the same tuning set by a later run: `{command}`.")
-    return "\n".join(lines)
+    return [f"{', '.join(names)} fitted on the same tuning set by a later run: `{command}`."
+            for command, names in separate.items()]
 
 
 def far_sigma_calibration(data: Mapping[str, Any]) -> str:
@@ -630,6 +635,7 @@ def far_sigma_calibration(data: Mapping[str, Any]) -> str:
     lines.append(f"Tuning set: {data['frames']['scenes']} scenes (seeds {data['seeds'][0]}–{data['seeds'][1]}) with "
                  f"features in the far-field window, the far-field grid {grid['x_min']:g}–{grid['x_max']:g} m in "
                  f"{100 * grid['resolution']:g} cm cells, `roadbev_core/data/far_sigma_calibration.json`.")
+    lines += _later_fits(data)
     return "\n".join(lines)
 
 

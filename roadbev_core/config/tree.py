@@ -192,7 +192,8 @@ class BackendConfig:
                                    "0 = one less than the CPU cores (a core stays free for the callbacks)", 0, 256)
     pace_backend: str = param("pace_backend", DEFAULT_PACE_BACKEND, "a cheaper backend that answers the node's "
                               "frames while the chosen one takes more than pace_load of the camera's period per "
-                              "frame (roadbev_core/pacing.py); empty, or the chosen backend itself = none (the "
+                              "frame (roadbev_core/pacing.py), with the node's options of it, or its own after a "
+                              "colon (NAME:OPTION=VALUE,...); empty, or the chosen backend itself = none (the "
                               "node then falls behind a faster camera and skips frames)", open_choices=True)
     pace_load: float = param("pace_load", 0.9, "the largest share of the camera's period the chosen backend may "
                              "take per frame before pace_backend answers", 0.1, 10.0)
