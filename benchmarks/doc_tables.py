@@ -1229,6 +1229,7 @@ TABLES: dict[str, Table] = {
     "far_field": Table(("far_field.json",), far_field),
     "far_field_physics": Table(("far_field.json",), far_field_physics, with_provenance=False),
     "far_field_parallax": Table(("far_field_parallax.json",), far_field_against),
+    "far_field_parallax_sigma": Table(("far_field_parallax_sigma.json",), far_field),
     "datum_calibration": Table(("datum_calibration.json",), datum_calibration),
     "preview_sigma": Table(("preview_sigma.json",), preview_sigma),
     "robustness": Table(("robustness.json",), robustness),
@@ -1271,6 +1272,9 @@ TABLES: dict[str, Table] = {
     "node_default": _node_drive("node_default", "ensemble bm"),
     **{name: _node_drive(name, "ensemble bm") for name in (
         "node_far_thread_before_run1", "node_far_thread_before_run2", "node_far_thread_after_run2")},
+    "node_pace_parallax": _node_drive("node_pace_parallax", "ensemble bm:plane_parallax_px=16",
+                                      "pace_backend=bm:plane_parallax_px=16"),
+    "node_pace_parallax_bands": _node_drive("node_pace_parallax_bands", "bm bm:plane_parallax_px=16"),
     "node_paced_far_5hz": _node_drive("node_paced_far_5hz", "ensemble", "far_field.enabled=true", rate=5),
     "node_stereo": Table(("node_stereo.json",), node_rows, f"{_NODE} --backends stereo stereo:runtime=openvino "
                                                            "--frames 40 --out benchmarks/results/node_stereo.json"),
@@ -1311,6 +1315,8 @@ TABLES: dict[str, Table] = {
     **_ride("ride_paced_parallax"),
     **_ride("ride_latency"),
     **_ride("ride_paced_far_thread"),
+    **_ride("ride_pace_parallax"),
+    "ride_pace_parallax_roads": Table(("ride_pace_parallax.json",), ride_roads, with_provenance=False),
     "ride_latency_roads": Table(("ride_latency.json",), ride_roads, with_provenance=False),
     "ride_paced_parallax_roads": Table(("ride_paced_parallax.json",), ride_roads, with_provenance=False),
     "ride_paced_roads": Table(("ride_paced.json",), ride_roads, with_provenance=False),
