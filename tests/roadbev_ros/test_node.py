@@ -254,11 +254,13 @@ def test_nonsense_parameters_are_rejected_with_a_reason(harness: Harness) -> Non
         ("resolution", 0.07, "whole number"),
         ("preview.track_offsets_m", [0.8, -3.0], "leaves the grid"),
         ("imu_to_camera_rpy_deg", [1.0, 2.0], "needs 3"),
+        ("pace_backend", "bm:plane_parallax_px=16,mode", "pace_backend takes NAME=VALUE"),
+        ("pace_backend", "magic:block_size=9", "pace_backend must be empty or one of"),
     ]:
         result = set_param(name, value)
         assert not result.successful, (name, value)
         assert reason in result.reason, result.reason
-    assert node.health.problems["parameter"] == 6  # each rejection is in the diagnostics
+    assert node.health.problems["parameter"] == 8  # each rejection is in the diagnostics
 
     # a read-only parameter cannot change
     assert not set_param("image_transport", "compressed").successful
