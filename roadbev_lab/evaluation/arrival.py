@@ -693,11 +693,9 @@ def map_window_rows(windows: Sequence[MapWindow], road_map: RoadMap, truth: Traj
             error = error - offset
         err = np.abs(error[held])
         sigma = window.uncertainty[held].astype(np.float64)
-        rows["abs_err_cm"].append(100.0 * float(err.mean()))
-        for k in (1, 2, 3):
-            rows[f"within_{k}sigma_pct"].append(100.0 * float(np.mean(err <= k * sigma)))
-        rows["confident_wrong_pct"].append(100.0 * float(np.mean((err > 3 * sigma) & (err > 0.01))))
-        rows["mean_sigma_cm"].append(100.0 * float(sigma.mean()))
+        for name, value in _scores(err, sigma).items():
+            if name in rows:
+                rows[name].append(value)
         if true_poses is not None:
             car = true_poses[index]
             ahead = math.cos(float(car[2])) * (gx[held] - car[0]) + math.sin(float(car[2])) * (gy[held] - car[1])
@@ -705,15 +703,20 @@ def map_window_rows(windows: Sequence[MapWindow], road_map: RoadMap, truth: Traj
     return rows
 
 
+def _scores(err: np.ndarray, sigma: np.ndarray) -> dict[str, float]:
+    """The map's scores of cells with absolute errors ``err`` [N] and sigma [N] (m): the mean error
+    and the cell count, and the sigma keys by the evaluation's one rule
+    (:func:`roadbev_lab.evaluation.metrics.sigma_counts`)."""
+    return {**{k: float(v) for k, v in sigma_metrics(sigma_counts(err, sigma, np.zeros_like(err))).items()},
+            "abs_err_cm": 100.0 * float(err.mean()), "cells": float(err.size)}
+
+
 def _append_bands(rows: dict[str, list[float]], band: np.ndarray, err: np.ndarray, sigma: np.ndarray) -> None:
     """One window's :data:`MAP_BAND_KEYS` per band it holds cells in: ``band`` [N] each held
-    cell's band index, ``err`` / ``sigma`` [N] its absolute error and sigma (m); the sigma keys by
-    the evaluation's one rule (:func:`roadbev_lab.evaluation.metrics.sigma_counts`)."""
+    cell's band index, ``err`` / ``sigma`` [N] its absolute error and sigma (m) (:func:`_scores`)."""
     for index in np.unique(band):
         inside = band == index
-        e, s = err[inside], sigma[inside]
-        values = {**sigma_metrics(sigma_counts(e, s, np.zeros_like(e))), "abs_err_cm": 100.0 * float(e.mean()),
-                  "cells": float(inside.sum())}
+        values = _scores(err[inside], sigma[inside])
         for name in MAP_BAND_KEYS:
             rows.setdefault(f"{_BAND_ROW}{int(index)}:{name}", []).append(values[name])
 
