@@ -283,13 +283,16 @@ def calibration_for(backend: str, path: Path = CALIBRATION_FILE, *, grid: GridSp
             ``plane_parallax_px``, has its own fit).
     """
     keys = [calibration_key(backend, options), backend] if options else [backend]
+
+    def fitted(table: Mapping[str, Any]) -> Any:
+        models = table.get("models", {})
+        return next((models[key] for key in keys if key in models), None)
+
     far = json_table(far_path)
     fitted_on = far.get("grid", {}).get("x_min")
     if grid is not None and fitted_on is not None and grid.x_min >= float(fitted_on) - 1e-9:
-        far_models = far.get("models", {})
-        entry = next((far_models[key] for key in keys if key in far_models), None)
+        entry = fitted(far)
         if entry is not None:
             return SigmaModel.from_dict(entry)
-    models = json_table(path).get("models", {})
-    entry = next((models[key] for key in keys if key in models), None)
+    entry = fitted(json_table(path))
     return None if entry is None else SigmaModel.from_dict(entry)
