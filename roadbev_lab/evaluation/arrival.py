@@ -693,9 +693,10 @@ def map_window_rows(windows: Sequence[MapWindow], road_map: RoadMap, truth: Traj
             error = error - offset
         err = np.abs(error[held])
         sigma = window.uncertainty[held].astype(np.float64)
-        for name, value in _scores(err, sigma).items():
-            if name in rows:
-                rows[name].append(value)
+        scores = _scores(err, sigma)
+        for name in MAP_KEYS:
+            if name in scores:  # the coverage and the datum's offset are the window's, above
+                rows[name].append(scores[name])
         if true_poses is not None:
             car = true_poses[index]
             ahead = math.cos(float(car[2])) * (gx[held] - car[0]) + math.sin(float(car[2])) * (gy[held] - car[1])
