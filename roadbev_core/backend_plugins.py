@@ -127,6 +127,13 @@ def is_path(name: str) -> bool:
     return bool(_PATH.match(name))
 
 
+def _option_without_value(name: str) -> str | None:
+    """The backend of ``name`` when it reads as a path but is a known backend and an option with
+    no value (``bm:plane_parallax_px``: ``NAME:OPTION=VALUE`` without its ``=VALUE``), else None."""
+    head = name.partition(":")[0]
+    return head if is_path(name) and head in _plugins() else None
+
+
 @lru_cache(maxsize=4)
 def _entry_points(path: tuple[str, ...]) -> dict[str, BackendPlugin]:
     """name -> plugin of the group's entry points on ``path`` (``sys.path``: the cache key)."""
@@ -167,8 +174,9 @@ def available() -> list[str]:
 
 
 def is_backend_name(name: str) -> bool:
-    """Whether ``name`` names a backend: a known name or a ``module:attr`` path (not imported)."""
-    return name in _plugins() or is_path(name)
+    """Whether ``name`` names a backend: a known name or a ``module:attr`` path (not imported) whose
+    module is not a known backend's name (that is an option without its value)."""
+    return name in _plugins() or (is_path(name) and _option_without_value(name) is None)
 
 
 def find(name: str) -> BackendPlugin:
@@ -180,6 +188,10 @@ def find(name: str) -> BackendPlugin:
     plugin = _plugins().get(name)
     if plugin is not None:
         return plugin
+    backend = _option_without_value(name)
+    if backend is not None:
+        raise BackendError(f"{name!r} is backend {backend!r} with an option but no value: give it as "
+                           f"{backend}:OPTION=VALUE")
     if is_path(name):
         return BackendPlugin(name, name, "module:attr path")
     raise BackendError(f"unknown backend {name!r}; choose from {', '.join(available())}")

@@ -180,6 +180,18 @@ def test_a_plugin_that_does_not_work_is_refused_by_name(toy: Path, name: str, re
         create(name, colour="red")
 
 
+def test_a_known_backend_with_an_option_but_no_value_is_refused_not_imported_as_a_path() -> None:
+    # "bm:plane_parallax_px" has the shape of a module:attr path; its module is the backend bm
+    assert not is_backend_name("bm:plane_parallax_px") and is_backend_name("bm")
+    with pytest.raises(BackendError, match=re.escape("'bm:plane_parallax_px' is backend 'bm' with an option but no "
+                                                     "value: give it as bm:OPTION=VALUE")):
+        find("bm:plane_parallax_px")
+    with pytest.raises(ParamError, match=r"pace_backend must be empty or one of .*; got 'bm:plane_parallax_px'"):
+        RoadbevConfig.from_params({"pace_backend": "bm:plane_parallax_px"})
+    assert RoadbevConfig.from_params({"pace_backend": "bm:plane_parallax_px=16"}).backend.pace_backend == (
+        "bm:plane_parallax_px=16")
+
+
 def test_an_unknown_name_in_the_config_lists_the_plugins_too(toy: Path) -> None:
     with pytest.raises(ParamError, match=r"backend must be one of adabins, bev_sweep, .*, stereo, toy; got 'magic'"):
         RoadbevConfig.from_params({"backend": "magic"})
