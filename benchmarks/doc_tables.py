@@ -1316,6 +1316,8 @@ TABLES: dict[str, Table] = {
     **_ride("ride_latency"),
     **_ride("ride_paced_far_thread"),
     **_ride("ride_pace_parallax"),
+    **_ride("ride_latency_pace"),
+    "ride_latency_pace_roads": Table(("ride_latency_pace.json",), ride_roads, with_provenance=False),
     "ride_pace_parallax_roads": Table(("ride_pace_parallax.json",), ride_roads, with_provenance=False),
     "ride_latency_roads": Table(("ride_latency.json",), ride_roads, with_provenance=False),
     "ride_paced_parallax_roads": Table(("ride_paced_parallax.json",), ride_roads, with_provenance=False),
