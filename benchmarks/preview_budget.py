@@ -169,6 +169,11 @@ class Candidate:
         """Its ``pace_load`` (the node's default where its spec names none)."""
         return float(self.params.get("pace_load", RoadbevConfig().backend.pace_load))
 
+    @property
+    def pace_lead_m(self) -> float:
+        """Its ``pace_lead_m`` (the node's default where its spec names none)."""
+        return float(self.params.get("pace_lead_m", RoadbevConfig().backend.pace_lead_m))
+
     def pace_candidate(self) -> Candidate:
         """Its pace backend as a candidate of its own (the options and far field it runs with).
 
@@ -357,16 +362,17 @@ def _node_row(backend: str, params: Mapping[str, Any], rows: Sequence[Mapping[st
 
 
 def node_schedule(stamps_ns: Sequence[int], period_s: float, latency_s: float, *,
-                  pace: tuple[float, float] | None = None, pace_load: float = 1.0) -> list[tuple[int, int, bool]]:
+                  pace: tuple[float, float] | None = None, pace_load: float = 1.0, pace_lead_m: float = 0.0,
+                  speed_mps: float | None = None) -> list[tuple[int, int, bool]]:
     """The frames a node with a one-set mailbox processes, when each preview is received, and
     which ones its pace backend answers.
 
     A frame that arrives while the node is busy waits in the mailbox; a newer one replaces it. A
     frame processed on arrival is received ``latency_s`` after its stamp; one that waited, that
     much plus its wait. With ``pace`` (the pace backend's latency and period) a
-    :class:`roadbev_core.pacing.Pacer` with ``pace_load`` chooses for each frame the node takes, as
-    the node's does: told every set by the time the frame is taken, and each frame's time (the
-    period of the backend that answered it).
+    :class:`roadbev_core.pacing.Pacer` with ``pace_load`` and ``pace_lead_m`` chooses for each
+    frame the node takes, as the node's does: told every set by the time the frame is taken, the
+    car's speed (``speed_mps``) and each frame's time (the period of the backend that answered it).
 
     Returns:
         [(index into ``stamps_ns``, received ns, answered by the pace backend)] in stamp order.
@@ -375,7 +381,7 @@ def node_schedule(stamps_ns: Sequence[int], period_s: float, latency_s: float, *
     pacer = None
     if pace is not None:
         costs[True] = (int(round(pace[1] * 1e9)), int(round(pace[0] * 1e9)))
-        pacer = Pacer(pace_load)
+        pacer = Pacer(pace_load, lead_m=pace_lead_m)
     out: list[tuple[int, int, bool]] = []
     free_at = -(2**62)
     told = 0  # sets the pacer has been told of
@@ -393,7 +399,7 @@ def node_schedule(stamps_ns: Sequence[int], period_s: float, latency_s: float, *
             while told < n and stamps_ns[told] <= start:
                 pacer.note_set(stamps_ns[told] * 1e-9)  # each set arrives at its stamp
                 told += 1
-            paced = pacer.choose()
+            paced = pacer.choose(speed_mps)
         period, latency = costs[paced]
         out.append((i, start + latency, paced))
         if pacer is not None:
@@ -632,7 +638,8 @@ def candidate_previews(drive: RidingDrive, samples: Sequence[DriveSample], candi
         schedule = [(i, stamp, False) for i, stamp in enumerate(stamps)]
     else:
         schedule = node_schedule(stamps, candidate.period_s, candidate.latency_s, pace=candidate.pace,
-                                 pace_load=candidate.pace_load)
+                                 pace_load=candidate.pace_load, pace_lead_m=candidate.pace_lead_m,
+                                 speed_mps=drive.config.speed_mps)
     if isinstance(cached, PacedEstimates):
         cached.paced.clear()
         cached.paced.update(stamps[i] for i, _, paced in schedule if paced)

@@ -10,6 +10,14 @@ and every few seconds (:data:`PROBE_EVERY` frames) the chosen backend answers on
 so that its cost is measured afresh and it takes over again once it fits (the load on the machine
 went away, the camera slowed down).
 
+At speed the pace backend may answer even where the chosen one keeps up: a preview received later
+reads the road ahead from a map that last saw it from farther away, and at 20-30 m/s the tens of
+milliseconds between two backends carry the car further than a better estimate is worth
+(docs/results/preview.md, "What the pace backend's estimate needs"). With ``lead_m`` set, the
+pace backend answers while the car's speed times the chosen backend's extra busy time per frame
+exceeds it; until the pace backend has answered a frame its time counts as none, so it answers
+one to be measured once that rule could hold at all.
+
 The camera's period is the median of the intervals between the arrivals of the last synchronised
 sets (every set, those that a newer one replaced too), on the clock the node's busy time is
 measured on (a bag replayed at twice its speed brings frames twice as fast as its stamps say). A
@@ -20,6 +28,7 @@ left out), smoothed per backend (a probe's measurement replaces the chosen backe
 
 from __future__ import annotations
 
+import math
 import statistics
 import threading
 from collections import deque
@@ -59,6 +68,9 @@ class PaceState:
         pace_cost_s: the pace backend's (None: it has not answered yet).
         paced: whether the pace backend answers the next frame (a probe aside).
         probe_every: frames the pace backend answers between two the chosen one answers.
+        speed_mps: the car's speed at the last choice (None: unknown).
+        lead_m: the travel the chosen backend's extra time may cost (0: no such rule).
+        by_speed: the pace backend answers for the speed rule, the chosen backend keeping up.
     """
 
     period_s: float | None
@@ -66,6 +78,9 @@ class PaceState:
     pace_cost_s: float | None
     paced: bool
     probe_every: int = PROBE_EVERY
+    speed_mps: float | None = None
+    lead_m: float = 0.0
+    by_speed: bool = False
 
     def describe(self, backend: str, pace_backend: str, load: float) -> str:
         """One line: who answers and why."""
@@ -76,6 +91,10 @@ class PaceState:
         if not self.paced:
             return f"{backend} answers: {fit}"
         pace = "" if self.pace_cost_s is None else f", {1e3 * self.pace_cost_s:.0f} ms a frame"
+        if self.by_speed and self.speed_mps is not None:
+            extra = self.cost_s - (self.pace_cost_s or 0.0)
+            fit = (f"at {abs(self.speed_mps):.1f} m/s the {1e3 * extra:.0f} ms more a frame that {backend} takes "
+                   f"are {abs(self.speed_mps) * extra:.2f} m of travel (pace_lead_m {self.lead_m:g})")
         return f"{pace_backend} answers{pace}: {fit}; {backend} answers one frame in {self.probe_every + 1}"
 
 
@@ -85,13 +104,19 @@ class Pacer:
     Args:
         load: the largest share of the camera's period the chosen backend may take per frame.
         probe_every: frames answered by the pace backend between two answered by the chosen one.
+        lead_m: the pace backend answers while the car's speed times the chosen backend's extra
+            busy time per frame exceeds this (m); 0 = by ``load`` alone.
     """
 
-    def __init__(self, load: float, probe_every: int = PROBE_EVERY) -> None:
+    def __init__(self, load: float, probe_every: int = PROBE_EVERY, lead_m: float = 0.0) -> None:
         if not load > 0.0:
             raise ValueError(f"pace load must be positive, got {load}")
+        if not lead_m >= 0.0:
+            raise ValueError(f"pace lead must be a non-negative distance, got {lead_m}")
         self.load = load
         self.probe_every = probe_every
+        self.lead_m = lead_m
+        self._speed: float | None = None
         # the camera's sets come on the node's executor thread, the costs on its worker
         self._lock = threading.Lock()
         self._last_arrival_s: float | None = None
@@ -130,10 +155,19 @@ class Pacer:
         period = self._period()
         return period is None or self._cost is None or self._cost <= self.load * period
 
-    def choose(self) -> bool:
-        """Whether the pace backend answers the next frame."""
+    def _lags(self) -> bool:
+        """Whether at the last speed the chosen backend's extra busy time per frame over the pace
+        backend's (taken as none until it is measured) carries the car more than ``lead_m``."""
+        if not self.lead_m or self._speed is None or self._cost is None:
+            return False
+        return abs(self._speed) * (self._cost - (self._pace_cost or 0.0)) > self.lead_m
+
+    def choose(self, speed_mps: float | None = None) -> bool:
+        """Whether the pace backend answers the next frame, the car going at ``speed_mps`` (None:
+        unknown, and the speed rule is off)."""
         with self._lock:
-            return not self._fits() and self._paced_in_a_row < self.probe_every
+            self._speed = speed_mps if speed_mps is not None and math.isfinite(speed_mps) else None
+            return (not self._fits() or self._lags()) and self._paced_in_a_row < self.probe_every
 
     def note_cost(self, paced: bool, busy_s: float) -> None:
         """The busy time of a frame just answered, by the pace backend (``paced``) or the chosen one."""
@@ -150,7 +184,9 @@ class Pacer:
     def state(self) -> PaceState:
         """What it knows now."""
         with self._lock:
-            return PaceState(self._period(), self._cost, self._pace_cost, not self._fits(), self.probe_every)
+            fits, lags = self._fits(), self._lags()
+            return PaceState(self._period(), self._cost, self._pace_cost, not fits or lags, self.probe_every,
+                             self._speed, self.lead_m, fits and lags)
 
 
 def _smoothed(running: float | None, value: float) -> float:

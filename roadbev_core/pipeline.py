@@ -580,6 +580,13 @@ class Pipeline:
             return None
         return speed[1]
 
+    def latest_speed(self, stamp_ns: int) -> float | None:
+        """The car's latest speed near ``stamp_ns`` (m/s): the newest odometry pose's where
+        odometry comes, else the speed's (:meth:`speed_at`); None where neither is known."""
+        with self._lock:
+            newest = self.ego.newest if self._odometry_seen else None
+        return newest.speed if newest is not None else self.speed_at(stamp_ns)
+
     # --- processing ----------------------------------------------------------------------------
     def process(self, inputs: CameraInput, attitude: Attitude | None = None, *,
                 before_map: Callable[[], object] | None = None, paced: bool = False) -> PipelineOutput:
@@ -759,9 +766,7 @@ class Pipeline:
         """The contact-plane preview of one frame on its own (the map cannot place it): the frame
         fused into an empty map at the origin, so its plane is the road's it sees ahead (or the
         body's), with the last known speed."""
-        with self._lock:
-            newest = self.ego.newest if self._odometry_seen else None
-        speed = newest.speed if newest is not None else self.speed_at(frame.stamp_ns)
+        speed = self.latest_speed(frame.stamp_ns)
         position, R_mount = self.camera_mount
         alone = self._map_factory(map_settings(config, position))
         placement = place_frame(PlanarPose(frame.stamp_ns, 0.0, 0.0, 0.0, speed or 0.0), frame.attitude, position,

@@ -113,7 +113,7 @@ class RoadBevNode(Node):
                                        far_field=self._far_field_state())
         self.health, self._problem = self._status.health, self._status.report
         self._mailbox: Mailbox[tuple[Any, ...]] = Mailbox()
-        self._pacer = Pacer(self.config.backend.pace_load)
+        self._pacer = Pacer(self.config.backend.pace_load, lead_m=self.config.backend.pace_lead_m)
         topics = self.config.topics
         image_type = CompressedImage if topics.image_transport == "compressed" else Image
         inputs = ((LEFT_IMAGE, self._image_topic(topics.left_image), image_type),
@@ -216,7 +216,7 @@ class RoadBevNode(Node):
             self._problem("parameter", f"rejected: {exc}")
             return SetParametersResult(successful=False, reason=str(exc))
         old, self.config = self.config, config
-        self._pacer.load = config.backend.pace_load
+        self._pacer.load, self._pacer.lead_m = config.backend.pace_load, config.backend.pace_lead_m
         self._camera.configure(config.sync, self.pipeline.backend.needs_stereo)
         if old.diagnostics.period_s != config.diagnostics.period_s:
             self.destroy_timer(self._diag_timer)
@@ -257,7 +257,8 @@ class RoadBevNode(Node):
         def wait_for_pose() -> None:
             waited.append(self.pipeline.wait_for_pose(inputs.stamp_ns, max(0.0, deadline - time.monotonic()), stop))
 
-        output = self.pipeline.process(inputs, before_map=wait_for_pose, paced=self._pacer.choose())
+        paced = self._pacer.choose(self.pipeline.latest_speed(inputs.stamp_ns))
+        output = self.pipeline.process(inputs, before_map=wait_for_pose, paced=paced)
         wait = sum(waited)
         messages = output_messages(output, config, _FACTORY, with_points=self._out.points_wanted(),
                                    with_preview_markers=self._out.preview_markers_wanted(),

@@ -65,6 +65,21 @@ def test_a_paced_node_hands_the_frames_to_the_pace_backend_once_the_chosen_one_i
     assert not any(paced for _, _, paced in node_schedule(stamps, 0.05, 0.06, pace=(0.07, 0.06), pace_load=0.9))
 
 
+def test_at_speed_the_pace_backend_answers_frames_the_chosen_one_keeps_up_with() -> None:
+    stamps = [k * 200 * MS for k in range(6)]  # a 5 Hz camera; the chosen backend's 125 ms a frame fit it
+    kept_up = node_schedule(stamps, 0.125, 0.13, pace=(0.08, 0.07), pace_load=0.9, pace_lead_m=0.5,
+                            speed_mps=10.0)  # 10 m/s x 125 ms: 1.25 m against a free pace backend
+    # frame 1 measures the pace backend (55 ms less a frame: 0.55 m), which then keeps answering
+    assert [paced for _, _, paced in kept_up] == [False] + [True] * 5
+    assert kept_up[1] == (1, stamps[1] + 80 * MS, True)
+    slow_pace = node_schedule(stamps, 0.125, 0.13, pace=(0.11, 0.10), pace_load=0.9, pace_lead_m=0.5,
+                              speed_mps=10.0)  # 25 ms less a frame: 0.25 m, the chosen backend takes over again
+    assert [paced for _, _, paced in slow_pace] == [False, True, False, False, False, False]
+    for off in ({"pace_lead_m": 0.0, "speed_mps": 30.0}, {"pace_lead_m": 0.5, "speed_mps": None}):
+        assert not any(paced for _, _, paced in node_schedule(stamps, 0.125, 0.13, pace=(0.08, 0.07),
+                                                               pace_load=0.9, **off))
+
+
 def test_a_paced_candidate_takes_its_pace_backends_row_and_never_a_paced_row() -> None:
     chosen = {"backend": "ensemble", "mode": "5hz", "latency_ms": {"p50": 180.0},
               "latency_on_arrival_ms": {"p50": 125.0}, "inference_p50_ms": 100.0, "overhead_mean_ms": 25.0}

@@ -90,6 +90,32 @@ def test_the_state_says_who_answers_and_why() -> None:
         f"ensemble answers one frame in {PROBE_EVERY + 1}")
 
 
+def test_at_speed_the_pace_backend_answers_while_the_chosen_ones_extra_time_is_more_travel_than_the_lead() -> None:
+    pacer = Pacer(0.9, probe_every=4, lead_m=0.5)
+    _camera(pacer, 200)  # a 5 Hz camera: the chosen backend's 125 ms fit its period
+    pacer.note_cost(False, 0.125)
+    assert not pacer.choose(None) and not pacer.choose(3.0)  # no speed; 3 m/s x 125 ms < 0.5 m even against a free one
+    # 20 m/s x 125 ms > 0.5 m: the pace backend answers a frame to be measured
+    assert pacer.choose(20.0) and pacer.state().by_speed
+    pacer.note_cost(True, 0.080)
+    assert pacer.choose(20.0)  # 45 ms more a frame: 0.9 m of travel
+    assert not pacer.choose(10.0)  # 0.45 m: the chosen backend answers
+    assert not pacer.choose(float("nan"))  # an unknown speed leaves the rule out
+    choices = []
+    for _ in range(10):  # the chosen backend is still probed, its cost measured afresh
+        paced = pacer.choose(-20.0)  # reversing as fast
+        choices.append(paced)
+        pacer.note_cost(paced, 0.08 if paced else 0.125)
+    assert choices == [True] * 3 + [False] + [True] * 4 + [False] + [True]
+    assert pacer.state().describe("ensemble", "bm", 0.9) == (
+        "bm answers, 80 ms a frame: at 20.0 m/s the 45 ms more a frame that ensemble takes are 0.90 m of travel "
+        "(pace_lead_m 0.5); ensemble answers one frame in 5")
+    pacer.lead_m = 0.0  # off: by the load alone, which the chosen backend fits
+    assert not pacer.choose(20.0) and not pacer.state().paced
+    with pytest.raises(ValueError, match="pace lead must be a non-negative distance"):
+        Pacer(0.9, lead_m=-1.0)
+
+
 def test_a_load_that_is_not_positive_is_refused() -> None:
     with pytest.raises(ValueError, match="pace load must be positive"):
         Pacer(0.0)
