@@ -133,6 +133,50 @@ def test_a_backend_slower_than_the_camera_hands_the_frames_to_the_pace_backend(r
         fits.close()
 
 
+def _keeping_chosen_fast_pace(name: str, grid: Any, **_options: Any) -> PitchBackend:
+    return PitchBackend(grid, 0.0 if name == "bm" else 0.06, name=f"stub-{name}")
+
+
+def test_at_speed_the_pace_backend_answers_the_frames_a_chosen_backend_keeping_up_would_answer_late(ros: Any) -> None:
+    from geometry_msgs.msg import TwistStamped
+    from rclpy.parameter import Parameter
+
+    h = Harness(ros, params={"max_latency_s": 0.0, "diagnostics_period_s": 0.1, "speed_topic": "/twist",
+                             "speed_topic_type": "twist_stamped", "pace_lead_m": 0.5},
+                backend_factory=_keeping_chosen_fast_pace)
+    try:
+        pub = h.feeder.create_publisher(TwistStamped, "/twist", 10)
+        assert wait_for(lambda: pub.get_subscription_count() > 0)
+
+        def frame_at_speed(k: int, mps: float) -> int:
+            stamp = START_NS + k * 2 * FRAME_NS  # a 5 Hz camera: the chosen backend's 60 ms a frame fit it
+            speed = TwistStamped()
+            speed.twist.linear.x = mps
+            speed.header.stamp.sec, speed.header.stamp.nanosec = divmod(stamp - 10 * MS, 1_000_000_000)
+            pub.publish(speed)
+            assert wait_for(lambda: h.node.pipeline.speed_at(stamp) == mps)
+            feed(h, 2 * k)
+            time.sleep(0.2)
+            return stamp
+
+        # 30 m/s: the chosen backend's 60 ms more a frame are 1.8 m of travel, more than pace_lead_m
+        stamps = [frame_at_speed(k, 30.0) for k in range(10)]
+        h.wait_output(stamps[-1], timeout=15.0)
+        assert wait_for(lambda: int(h.latest_diagnostics().get("paced_frames", "0")) >= 7, 3.0), \
+            h.latest_diagnostics()
+        pace = h.latest_diagnostics()["pace"]
+        assert pace.startswith("stub-bm answers") and "at 30.0 m/s" in pace and "(pace_lead_m 0.5)" in pace, pace
+        # the rule off: the chosen backend, which keeps up, answers every frame again
+        assert h.node.set_parameters([Parameter("pace_lead_m", value=0.0)])[0].successful
+        paced = int(h.latest_diagnostics()["paced_frames"])
+        stamps = [frame_at_speed(k, 30.0) for k in range(10, 14)]
+        h.wait_output(stamps[-1], timeout=15.0)
+        assert wait_for(lambda: h.latest_diagnostics().get("pace", "").startswith("stub-ensemble answers"), 3.0)
+        assert int(h.latest_diagnostics()["paced_frames"]) == paced
+    finally:
+        h.close()
+
+
 @pytest.mark.parametrize("harness", [{"delay_s": 0.15, "params": {"max_latency_s": 0.1, "diagnostics_period_s": 0.1}}],
                          indirect=True)
 def test_an_output_later_than_the_latency_bound_is_not_published(harness: Harness) -> None:
