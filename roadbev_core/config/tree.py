@@ -197,7 +197,7 @@ class BackendConfig:
                               "node then falls behind a faster camera and skips frames)", open_choices=True)
     pace_load: float = param("pace_load", 0.9, "the largest share of the camera's period the chosen backend may "
                              "take per frame before pace_backend answers", 0.1, 10.0)
-    pace_lead_m: float = param("pace_lead_m", 0.0, "pace_backend also answers while the car's speed times the "
+    pace_lead_m: float = param("pace_lead_m", 0.5, "pace_backend also answers while the car's speed times the "
                                "chosen backend's extra time per frame over it exceeds this travel (m): at highway "
                                "speed an earlier preview gains more than a better estimate; 0 = by pace_load alone",
                                0.0, 100.0)
