@@ -1317,6 +1317,8 @@ TABLES: dict[str, Table] = {
     **_ride("ride_paced_far_thread"),
     **_ride("ride_pace_parallax"),
     **_ride("ride_latency_pace"),
+    **_ride("ride_pace_lead"),
+    "ride_pace_lead_roads": Table(("ride_pace_lead.json",), ride_roads, with_provenance=False),
     "ride_latency_pace_roads": Table(("ride_latency_pace.json",), ride_roads, with_provenance=False),
     "ride_pace_parallax_roads": Table(("ride_pace_parallax.json",), ride_roads, with_provenance=False),
     "ride_latency_roads": Table(("ride_latency.json",), ride_roads, with_provenance=False),
