@@ -1318,6 +1318,7 @@ TABLES: dict[str, Table] = {
     **_ride("ride_pace_parallax"),
     **_ride("ride_latency_pace"),
     **_ride("ride_pace_lead"),
+    **_ride("ride_pace_lead_10mps"),
     "ride_pace_lead_roads": Table(("ride_pace_lead.json",), ride_roads, with_provenance=False),
     "ride_latency_pace_roads": Table(("ride_latency_pace.json",), ride_roads, with_provenance=False),
     "ride_pace_parallax_roads": Table(("ride_pace_parallax.json",), ride_roads, with_provenance=False),
