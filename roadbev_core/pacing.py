@@ -92,7 +92,7 @@ class PaceState:
             return f"{backend} answers: {fit}"
         pace = "" if self.pace_cost_s is None else f", {1e3 * self.pace_cost_s:.0f} ms a frame"
         if self.by_speed and self.speed_mps is not None:
-            extra = self.cost_s - (self.pace_cost_s or 0.0)
+            extra = _extra_s(self.cost_s, self.pace_cost_s)
             fit = (f"at {abs(self.speed_mps):.1f} m/s the {1e3 * extra:.0f} ms more a frame that {backend} takes "
                    f"are {abs(self.speed_mps) * extra:.2f} m of travel (pace_lead_m {self.lead_m:g})")
         return f"{pace_backend} answers{pace}: {fit}; {backend} answers one frame in {self.probe_every + 1}"
@@ -160,7 +160,7 @@ class Pacer:
         backend's (taken as none until it is measured) carries the car more than ``lead_m``."""
         if not self.lead_m or self._speed is None or self._cost is None:
             return False
-        return abs(self._speed) * (self._cost - (self._pace_cost or 0.0)) > self.lead_m
+        return abs(self._speed) * _extra_s(self._cost, self._pace_cost) > self.lead_m
 
     def choose(self, speed_mps: float | None = None) -> bool:
         """Whether the pace backend answers the next frame, the car going at ``speed_mps`` (None:
@@ -187,6 +187,11 @@ class Pacer:
             fits, lags = self._fits(), self._lags()
             return PaceState(self._period(), self._cost, self._pace_cost, not fits or lags, self.probe_every,
                              self._speed, self.lead_m, fits and lags)
+
+
+def _extra_s(cost_s: float, pace_cost_s: float | None) -> float:
+    """The chosen backend's busy time per frame beyond the pace backend's (none until measured)."""
+    return cost_s - (pace_cost_s or 0.0)
 
 
 def _smoothed(running: float | None, value: float) -> float:
